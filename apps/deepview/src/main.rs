@@ -1,0 +1,59 @@
+//! `deepview`: view synthesis with multiplane images estimated by learned gradient descent.
+//!
+//! A thin binary: argument parsing and wiring. The work lives in the library crates.
+
+mod cmd;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+#[derive(Parser)]
+#[command(name = "deepview", version, about = "DeepView view synthesis: multiplane images by learned gradient descent", long_about = None)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Build a synthetic scene with ground truth and render it through a camera rig.
+    Synth(cmd::synth::Args),
+    /// Write the plane sweep volume of one view of a scene as images.
+    Psv(cmd::psv::Args),
+    /// Render an MPI into a camera (JSON file or a scene's view) or along a camera path.
+    Render(cmd::render::Args),
+    /// Depth from an MPI: false-colour image and 16-bit disparity PNG.
+    Depth(cmd::depth::Args),
+    /// Benchmarks (rendering speed, ...), printing one JSON line.
+    #[command(subcommand)]
+    Bench(cmd::bench::BenchCommand),
+    /// Print what a dataset folder contains (format, views, cameras, depth bounds).
+    Info(cmd::info::Args),
+    // -- commands added by the other parts of the project go below this line --
+}
+
+fn run(cli: Cli) -> anyhow::Result<()> {
+    match cli.command {
+        Command::Synth(a) => cmd::synth::run(a),
+        Command::Psv(a) => cmd::psv::run(a),
+        Command::Render(a) => cmd::render::run(a),
+        Command::Depth(a) => cmd::depth::run(a),
+        Command::Bench(a) => cmd::bench::run(a),
+        Command::Info(a) => cmd::info::run(a),
+        // -- dispatch lines of the other commands go below this line --
+    }
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            for cause in e.chain().skip(1) {
+                eprintln!("  caused by: {cause}");
+            }
+            ExitCode::from(2)
+        }
+    }
+}

@@ -1,0 +1,155 @@
+//! The reference camera of an MPI: at the centroid of the input cameras, oriented as their average,
+//! with its field of view enlarged so the planes cover what the input cameras see.
+
+use crate::camera::{Camera, GeometryError, Intrinsics, Pose, orthonormalize};
+use crate::homography::plane_homography;
+use glam::{DMat3, DVec2, DVec3};
+
+/// How to choose the reference camera.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReferenceOptions {
+    /// Take this input view's camera (orientation, intrinsics, size) instead of the average one
+    /// (still placed at the centroid unless `at_view_center`).
+    pub view: Option<usize>,
+    /// With `view`: keep that camera's own position too.
+    pub at_view_center: bool,
+    /// Enlarge the field of view (and image size, keeping the pixel pitch) to cover the union of the
+    /// input frusta between the given depths.
+    pub cover: Option<(f64, f64)>,
+    /// Upper bound of the enlargement per side, as a fraction of the base size (0.25 = 25% more per side).
+    pub max_margin: f64,
+    /// Round the final size up to a multiple of this (1 = no rounding).
+    pub size_multiple: u32,
+}
+
+impl Default for ReferenceOptions {
+    fn default() -> Self {
+        Self { view: None, at_view_center: false, cover: None, max_margin: 0.25, size_multiple: 1 }
+    }
+}
+
+/// Choose the reference camera for a set of input cameras (see [`ReferenceOptions`]).
+pub fn reference_camera(inputs: &[Camera], options: &ReferenceOptions) -> Result<Camera, GeometryError> {
+    if inputs.is_empty() {
+        return Err(GeometryError::Invalid("no input cameras to place a reference camera".into()));
+    }
+    let n = inputs.len() as f64;
+    let centroid = inputs.iter().map(|c| c.center()).fold(DVec3::ZERO, |a, b| a + b) / n;
+    let mut base = match options.view {
+        Some(i) => *inputs.get(i).ok_or_else(|| {
+            GeometryError::Invalid(format!("reference view {i} out of range ({} inputs)", inputs.len()))
+        })?,
+        None => {
+            // Average rotation: mean of the rotation matrices projected back to SO(3).
+            let sum = inputs.iter().fold(DMat3::ZERO, |a, c| a + c.pose.rotation);
+            let rotation = orthonormalize(sum * (1.0 / n));
+            let k = inputs.iter().fold([0.0; 4], |a, c| {
+                let i = c.intrinsics;
+                [a[0] + i.fx, a[1] + i.fy, a[2] + i.cx - c.width as f64 / 2.0, a[3] + i.cy - c.height as f64 / 2.0]
+            });
+            let w = (inputs.iter().map(|c| c.width as f64).sum::<f64>() / n).round() as u32;
+            let h = (inputs.iter().map(|c| c.height as f64).sum::<f64>() / n).round() as u32;
+            let intr = Intrinsics::new(k[0] / n, k[1] / n, w as f64 / 2.0 + k[2] / n, h as f64 / 2.0 + k[3] / n);
+            Camera::new(w, h, intr, Pose::from_center(rotation, centroid))
+        }
+    };
+    if !(options.view.is_some() && options.at_view_center) {
+        base.pose = Pose::from_center(base.pose.rotation, centroid);
+    }
+    if let Some((near, far)) = options.cover {
+        base = enlarge_to_cover(&base, inputs, near, far, options.max_margin);
+    }
+    let m = options.size_multiple.max(1);
+    if m > 1 {
+        let w = base.width.div_ceil(m) * m;
+        let h = base.height.div_ceil(m) * m;
+        let (dx, dy) = ((w - base.width) as f64 / 2.0, (h - base.height) as f64 / 2.0);
+        base.intrinsics.cx += dx;
+        base.intrinsics.cy += dy;
+        base.width = w;
+        base.height = h;
+    }
+    base.validate()?;
+    Ok(base)
+}
+
+/// Grow the image of `base` (same focal length, shifted principal point) so every input image's
+/// footprint on the planes at `near` and `far` lies inside it, by at most `max_margin` per side.
+fn enlarge_to_cover(base: &Camera, inputs: &[Camera], near: f64, far: f64, max_margin: f64) -> Camera {
+    let (w, h) = (base.width as f64, base.height as f64);
+    let (mut x0, mut y0, mut x1, mut y1) = (0.0f64, 0.0f64, w, h);
+    for cam in inputs {
+        for depth in [near, far] {
+            // Input pixels -> reference pixels through the plane: inverse of ref -> input.
+            let hinv = plane_homography(base, cam, depth).inverse();
+            let (cw, ch) = (cam.width as f64, cam.height as f64);
+            for p in [DVec2::new(0.0, 0.0), DVec2::new(cw, 0.0), DVec2::new(0.0, ch), DVec2::new(cw, ch)] {
+                let q = hinv.apply(p);
+                if q.is_finite() {
+                    x0 = x0.min(q.x);
+                    y0 = y0.min(q.y);
+                    x1 = x1.max(q.x);
+                    y1 = y1.max(q.y);
+                }
+            }
+        }
+    }
+    let clamp = |v: f64, size: f64| (v - 1e-6).clamp(0.0, max_margin * size).ceil();
+    let (left, top, right, bottom) = (clamp(-x0, w), clamp(-y0, h), clamp(x1 - w, w), clamp(y1 - h, h));
+    let mut out = *base;
+    out.width = (w + left + right) as u32;
+    out.height = (h + top + bottom) as u32;
+    out.intrinsics.cx += left;
+    out.intrinsics.cy += top;
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rig() -> Vec<Camera> {
+        (0..4)
+            .map(|i| {
+                let x = if i % 2 == 0 { -0.1 } else { 0.1 };
+                let y = if i / 2 == 0 { -0.1 } else { 0.1 };
+                let r = DMat3::IDENTITY;
+                Camera::new(64, 48, Intrinsics::centred(60.0, 64, 48), Pose::from_center(r, DVec3::new(x, y, 0.0)))
+            })
+            .collect()
+    }
+
+    #[test]
+    fn centroid_and_average_orientation() {
+        let r = reference_camera(&rig(), &ReferenceOptions::default()).unwrap();
+        assert!(r.center().length() < 1e-12);
+        assert!(r.pose.rotation.abs_diff_eq(DMat3::IDENTITY, 1e-9));
+        assert_eq!((r.width, r.height), (64, 48));
+    }
+
+    #[test]
+    fn cover_enlarges_to_see_all_inputs() {
+        let opts = ReferenceOptions { cover: Some((1.0, 10.0)), ..Default::default() };
+        let r = reference_camera(&rig(), &opts).unwrap();
+        // At depth 1 the inputs are shifted by 0.1 * 60 = 6 px on each side.
+        assert_eq!((r.width, r.height), (76, 60));
+        assert!((r.intrinsics.cx - 38.0).abs() < 1e-9);
+        // Every input corner seen at the near plane lies inside the reference image.
+        for cam in rig() {
+            let h = plane_homography(&r, &cam, 1.0).inverse();
+            for p in [DVec2::new(0.0, 0.0), DVec2::new(64.0, 48.0)] {
+                let q = h.apply(p);
+                assert!(q.x >= -1e-9 && q.y >= -1e-9 && q.x <= 76.0 + 1e-9 && q.y <= 60.0 + 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn chosen_view() {
+        let cams = rig();
+        let opts = ReferenceOptions { view: Some(3), at_view_center: true, ..Default::default() };
+        assert_eq!(reference_camera(&cams, &opts).unwrap(), cams[3]);
+        let bad = ReferenceOptions { view: Some(9), ..Default::default() };
+        assert!(reference_camera(&cams, &bad).is_err());
+    }
+}

@@ -1,0 +1,243 @@
+//! Float images (interleaved channels, values in 0..1), reading PNG/JPEG, and atomic writes.
+//!
+//! Every file this project writes goes through [`write_atomic`]: a temporary file beside the target, then
+//! a rename, so an interrupted run never leaves a half-written result in place of an earlier one.
+
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum ImageError {
+    #[error("cannot read image {path}: {source}")]
+    Read { path: PathBuf, source: image::ImageError },
+    #[error("cannot write {path}: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+    #[error("cannot encode {path}: {source}")]
+    Encode { path: PathBuf, source: image::ImageError },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// An image with `channels` interleaved f32 channels per pixel, row-major, values nominally in 0..1.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImageF32 {
+    pub width: u32,
+    pub height: u32,
+    pub channels: usize,
+    pub data: Vec<f32>,
+}
+
+impl ImageF32 {
+    pub fn new(width: u32, height: u32, channels: usize) -> Self {
+        Self { width, height, channels, data: vec![0.0; width as usize * height as usize * channels] }
+    }
+
+    pub fn from_data(width: u32, height: u32, channels: usize, data: Vec<f32>) -> Result<Self, ImageError> {
+        if data.len() != width as usize * height as usize * channels {
+            return Err(ImageError::Invalid(format!(
+                "image data has {} values, expected {}x{}x{}",
+                data.len(),
+                width,
+                height,
+                channels
+            )));
+        }
+        Ok(Self { width, height, channels, data })
+    }
+
+    pub fn pixel(&self, x: u32, y: u32) -> &[f32] {
+        let i = (y as usize * self.width as usize + x as usize) * self.channels;
+        &self.data[i..i + self.channels]
+    }
+
+    pub fn pixel_mut(&mut self, x: u32, y: u32) -> &mut [f32] {
+        let i = (y as usize * self.width as usize + x as usize) * self.channels;
+        &mut self.data[i..i + self.channels]
+    }
+
+    /// The first three channels (drops alpha or validity channels).
+    pub fn to_rgb(&self) -> ImageF32 {
+        if self.channels == 3 {
+            return self.clone();
+        }
+        let mut out = ImageF32::new(self.width, self.height, 3);
+        for (o, i) in out.data.chunks_exact_mut(3).zip(self.data.chunks_exact(self.channels)) {
+            for c in 0..3 {
+                o[c] = i[c.min(self.channels - 1)];
+            }
+        }
+        out
+    }
+
+    /// Crop `[x0, x0+w) x [y0, y0+h)` (must lie inside the image).
+    pub fn crop(&self, x0: u32, y0: u32, w: u32, h: u32) -> ImageF32 {
+        assert!(x0 + w <= self.width && y0 + h <= self.height, "crop outside the image");
+        let mut out = ImageF32::new(w, h, self.channels);
+        let c = self.channels;
+        for y in 0..h as usize {
+            let src = ((y0 as usize + y) * self.width as usize + x0 as usize) * c;
+            out.data[y * w as usize * c..(y + 1) * w as usize * c].copy_from_slice(&self.data[src..src + w as usize * c]);
+        }
+        out
+    }
+
+    /// Box-filter downscale by an integer factor (sizes rounded down).
+    pub fn downscale(&self, factor: u32) -> ImageF32 {
+        if factor <= 1 {
+            return self.clone();
+        }
+        let (w, h, c) = (self.width / factor, self.height / factor, self.channels);
+        let mut out = ImageF32::new(w, h, c);
+        let norm = 1.0 / (factor * factor) as f32;
+        for y in 0..h {
+            for x in 0..w {
+                let o = (y as usize * w as usize + x as usize) * c;
+                for dy in 0..factor {
+                    for dx in 0..factor {
+                        let p = self.pixel(x * factor + dx, y * factor + dy);
+                        for k in 0..c {
+                            out.data[o + k] += p[k] * norm;
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    pub fn is_finite(&self) -> bool {
+        self.data.iter().all(|v| v.is_finite())
+    }
+
+    /// 8-bit interleaved bytes (clamped, rounded).
+    pub fn to_u8(&self) -> Vec<u8> {
+        self.data.iter().map(|&v| to_u8(v)).collect()
+    }
+}
+
+pub fn to_u8(v: f32) -> u8 {
+    (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
+}
+
+/// Read a PNG or JPEG (8 or 16 bit) as RGB (`channels = 3`) or RGBA (`channels = 4`, straight alpha).
+pub fn read_image(path: &Path, channels: usize) -> Result<ImageF32, ImageError> {
+    let img = image::ImageReader::open(path)
+        .map_err(|e| ImageError::Read { path: path.into(), source: image::ImageError::IoError(e) })?
+        .with_guessed_format()
+        .map_err(|e| ImageError::Read { path: path.into(), source: image::ImageError::IoError(e) })?
+        .decode()
+        .map_err(|e| ImageError::Read { path: path.into(), source: e })?;
+    let (w, h) = (img.width(), img.height());
+    let data: Vec<f32> = match channels {
+        3 => img.into_rgb32f().into_raw(),
+        4 => img.into_rgba32f().into_raw(),
+        1 => img.into_luma16().into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
+        _ => return Err(ImageError::Invalid(format!("cannot read {channels} channels"))),
+    };
+    ImageF32::from_data(w, h, channels, data)
+}
+
+/// Image size without decoding the pixels.
+pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
+    image::image_dimensions(path).map_err(|e| ImageError::Read { path: path.into(), source: e })
+}
+
+/// Write `bytes` to `path` atomically: a temporary file in the same folder, then a rename.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
+    let err = |source| ImageError::Write { path: path.into(), source };
+    let tmp = temp_path(path);
+    std::fs::write(&tmp, bytes).map_err(err)?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        err(e)
+    })
+}
+
+/// The temporary name used for an atomic write of `path`.
+pub fn temp_path(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+fn encode_png(path: &Path, width: u32, height: u32, color: image::ExtendedColorType, bytes: &[u8]) -> Result<Vec<u8>, ImageError> {
+    use image::ImageEncoder;
+    let mut buf = Vec::new();
+    image::codecs::png::PngEncoder::new_with_quality(
+        &mut buf,
+        image::codecs::png::CompressionType::Fast,
+        image::codecs::png::FilterType::Adaptive,
+    )
+    .write_image(bytes, width, height, color)
+    .map_err(|e| ImageError::Encode { path: path.into(), source: e })?;
+    Ok(buf)
+}
+
+/// Write 8-bit interleaved bytes (1, 3 or 4 channels) as PNG, atomically.
+pub fn write_png_u8(path: &Path, width: u32, height: u32, channels: usize, bytes: &[u8]) -> Result<(), ImageError> {
+    let color = match channels {
+        1 => image::ExtendedColorType::L8,
+        3 => image::ExtendedColorType::Rgb8,
+        4 => image::ExtendedColorType::Rgba8,
+        _ => return Err(ImageError::Invalid(format!("cannot write {channels} channels as PNG"))),
+    };
+    let buf = encode_png(path, width, height, color, bytes)?;
+    write_atomic(path, &buf)
+}
+
+/// Write a float image (1, 3 or 4 channels, values clamped to 0..1) as an 8-bit PNG, atomically.
+pub fn write_png(path: &Path, img: &ImageF32) -> Result<(), ImageError> {
+    write_png_u8(path, img.width, img.height, img.channels, &img.to_u8())
+}
+
+/// Write one channel of 16-bit values as a grayscale PNG, atomically.
+pub fn write_png_u16(path: &Path, width: u32, height: u32, values: &[u16]) -> Result<(), ImageError> {
+    // The encoder takes native-endian u16 samples and writes PNG's big-endian itself.
+    let native: Vec<u8> = values.iter().flat_map(|v| v.to_ne_bytes()).collect();
+    let buf = encode_png(path, width, height, image::ExtendedColorType::L16, &native)?;
+    write_atomic(path, &buf)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png_round_trip_8_and_16_bit() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = ImageF32::new(5, 3, 4);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = (i % 256) as f32 / 255.0;
+        }
+        let p = dir.path().join("a.png");
+        write_png(&p, &img).unwrap();
+        let back = read_image(&p, 4).unwrap();
+        assert_eq!(back, img);
+        let vals: Vec<u16> = (0..15).map(|i| i * 4000).collect();
+        let p16 = dir.path().join("d.png");
+        write_png_u16(&p16, 5, 3, &vals).unwrap();
+        let back = read_image(&p16, 1).unwrap();
+        let got: Vec<u16> = back.data.iter().map(|v| (v * 65535.0).round() as u16).collect();
+        assert_eq!(got, vals);
+        // No temporary files left behind.
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);
+    }
+
+    #[test]
+    fn missing_and_corrupt_files_name_the_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("nope.png");
+        let e = read_image(&p, 3).unwrap_err().to_string();
+        assert!(e.contains("nope.png"), "{e}");
+        let bad = dir.path().join("bad.png");
+        std::fs::write(&bad, b"\x89PNG\r\n\x1a\nthis is not a png").unwrap();
+        let e = read_image(&bad, 3).unwrap_err().to_string();
+        assert!(e.contains("bad.png"), "{e}");
+    }
+
+    #[test]
+    fn downscale_and_crop() {
+        let mut img = ImageF32::new(4, 2, 1);
+        img.data = vec![0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0];
+        assert_eq!(img.downscale(2).data, vec![2.5, 4.5]);
+        assert_eq!(img.crop(1, 1, 2, 1).data, vec![5.0, 6.0]);
+    }
+}

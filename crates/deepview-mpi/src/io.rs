@@ -1,0 +1,295 @@
+//! The MPI folder format: `mpi.json` plus `layer_000.png ...` (RGBA8, straight alpha, far plane first).
+//!
+//! ```json
+//! {"format":"deepview-mpi","version":1,"width":W,"height":H,
+//!  "intrinsics":{"fx":..,"fy":..,"cx":..,"cy":..},
+//!  "camera_from_world":[16 numbers, row-major],"depths":[far ... near],
+//!  "layers":["layer_000.png", ...]}
+//! ```
+
+use crate::mpi::{Mpi, MpiU8};
+use deepview_geometry::{Camera, Intrinsics, Pose};
+use deepview_image::{ImageError, write_atomic, write_png_u8};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+pub const FORMAT: &str = "deepview-mpi";
+pub const VERSION: u32 = 1;
+
+#[derive(Debug, thiserror::Error)]
+pub enum MpiError {
+    #[error("{path}: {msg}")]
+    Invalid { path: PathBuf, msg: String },
+    #[error("cannot read {path}: {source}")]
+    Io { path: PathBuf, source: std::io::Error },
+    #[error("{path} is not valid mpi.json: {source}")]
+    Json { path: PathBuf, source: serde_json::Error },
+    #[error(transparent)]
+    Image(#[from] ImageError),
+}
+
+fn invalid(path: &Path, msg: impl Into<String>) -> MpiError {
+    MpiError::Invalid { path: path.to_path_buf(), msg: msg.into() }
+}
+
+/// Serde mirror of `mpi.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct MpiMeta {
+    pub format: String,
+    pub version: u32,
+    pub width: u32,
+    pub height: u32,
+    pub intrinsics: Intrinsics,
+    pub camera_from_world: Vec<f64>,
+    pub depths: Vec<f64>,
+    pub layers: Vec<String>,
+}
+
+impl MpiMeta {
+    pub fn new(camera: &Camera, depths: &[f64]) -> Self {
+        Self {
+            format: FORMAT.into(),
+            version: VERSION,
+            width: camera.width,
+            height: camera.height,
+            intrinsics: camera.intrinsics,
+            camera_from_world: camera.pose.to_row_major().to_vec(),
+            depths: depths.to_vec(),
+            layers: (0..depths.len()).map(layer_name).collect(),
+        }
+    }
+
+    /// Read and validate `dir/mpi.json` (not the layers).
+    pub fn read(dir: &Path) -> Result<(MpiMeta, Camera), MpiError> {
+        let path = dir.join("mpi.json");
+        let text = std::fs::read_to_string(&path).map_err(|source| MpiError::Io { path: path.clone(), source })?;
+        let meta: MpiMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json { path: path.clone(), source })?;
+        let camera = meta.validate(&path)?;
+        Ok((meta, camera))
+    }
+
+    fn validate(&self, path: &Path) -> Result<Camera, MpiError> {
+        if self.format != FORMAT {
+            return Err(invalid(path, format!("\"format\" is {:?}, expected {FORMAT:?}", self.format)));
+        }
+        if self.version != VERSION {
+            return Err(invalid(path, format!("unsupported version {} (this build reads {VERSION})", self.version)));
+        }
+        if self.depths.is_empty() {
+            return Err(invalid(path, "the MPI has zero planes"));
+        }
+        if self.layers.len() != self.depths.len() {
+            return Err(invalid(
+                path,
+                format!("{} layers but {} depths", self.layers.len(), self.depths.len()),
+            ));
+        }
+        if !self.depths.iter().all(|d| d.is_finite() && *d > 0.0) {
+            return Err(invalid(path, "depths must be finite and positive"));
+        }
+        if self.depths.windows(2).any(|w| w[1] >= w[0]) {
+            return Err(invalid(path, "depths must decrease (far plane first)"));
+        }
+        let pose = Pose::from_row_major(&self.camera_from_world).map_err(|e| invalid(path, e.to_string()))?;
+        let cam = Camera::new(self.width, self.height, self.intrinsics, pose);
+        cam.validate().map_err(|e| invalid(path, e.to_string()))?;
+        for l in &self.layers {
+            if l.contains('/') || l.contains('\\') || l.starts_with('.') {
+                return Err(invalid(path, format!("layer name {l:?} must be a plain file name in the folder")));
+            }
+        }
+        Ok(cam)
+    }
+}
+
+pub fn layer_name(i: usize) -> String {
+    format!("layer_{i:03}.png")
+}
+
+/// Read the straight-alpha RGBA8 layers of an MPI folder as premultiplied 8-bit texels.
+pub fn read_mpi_u8(dir: &Path) -> Result<MpiU8, MpiError> {
+    let (meta, camera) = MpiMeta::read(dir)?;
+    let (w, h) = (camera.width, camera.height);
+    let planes: Vec<Vec<u8>> = meta
+        .layers
+        .par_iter()
+        .map(|name| {
+            let path = dir.join(name);
+            let img = image::ImageReader::open(&path)
+                .map_err(|source| MpiError::Io { path: path.clone(), source })?
+                .with_guessed_format()
+                .map_err(|source| MpiError::Io { path: path.clone(), source })?
+                .decode()
+                .map_err(|source| ImageError::Read { path: path.clone(), source })?;
+            if (img.width(), img.height()) != (w, h) {
+                return Err(invalid(
+                    &path,
+                    format!("layer is {}x{} but mpi.json says {w}x{h}", img.width(), img.height()),
+                ));
+            }
+            let mut px = img.into_rgba8().into_raw();
+            for p in px.chunks_exact_mut(4) {
+                let a = p[3] as u32;
+                for c in &mut p[..3] {
+                    *c = ((*c as u32 * a + 127) / 255) as u8;
+                }
+            }
+            Ok(px)
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(MpiU8 { camera, depths: meta.depths, layers: planes.concat() })
+}
+
+/// Read an MPI folder as f32 premultiplied texels (straight alpha on disk converted exactly).
+pub fn read_mpi(dir: &Path) -> Result<Mpi, MpiError> {
+    let (meta, camera) = MpiMeta::read(dir)?;
+    let (w, h) = (camera.width, camera.height);
+    let planes: Vec<Vec<f32>> = meta
+        .layers
+        .par_iter()
+        .map(|name| {
+            let path = dir.join(name);
+            let img = deepview_image::read_image(&path, 4)?;
+            if (img.width, img.height) != (w, h) {
+                return Err(invalid(&path, format!("layer is {}x{} but mpi.json says {w}x{h}", img.width, img.height)));
+            }
+            let mut data = img.data;
+            for p in data.chunks_exact_mut(4) {
+                for k in 0..3 {
+                    p[k] *= p[3];
+                }
+            }
+            Ok(data)
+        })
+        .collect::<Result<_, _>>()?;
+    Ok(Mpi { camera, depths: meta.depths, layers: planes.concat() })
+}
+
+/// Straight-alpha RGBA8 bytes of one premultiplied f32 plane.
+pub fn plane_to_straight_rgba8(plane: &[f32]) -> Vec<u8> {
+    plane
+        .chunks_exact(4)
+        .flat_map(|p| {
+            let a = p[3].clamp(0.0, 1.0);
+            let a8 = (a * 255.0 + 0.5) as u8;
+            if a8 == 0 {
+                return [0, 0, 0, 0];
+            }
+            let s = |v: f32| deepview_image::to_u8(v / a);
+            [s(p[0]), s(p[1]), s(p[2]), a8]
+        })
+        .collect()
+}
+
+/// Write an MPI folder (creating it). Every file is written atomically; `mpi.json` last, so a folder with
+/// a readable `mpi.json` always has all its layers.
+pub fn write_mpi(dir: &Path, mpi: &Mpi) -> Result<(), MpiError> {
+    if mpi.depths.is_empty() {
+        return Err(invalid(dir, "refusing to write an MPI with zero planes"));
+    }
+    std::fs::create_dir_all(dir).map_err(|source| MpiError::Io { path: dir.to_path_buf(), source })?;
+    let meta = MpiMeta::new(&mpi.camera, &mpi.depths);
+    let (w, h) = (mpi.camera.width, mpi.camera.height);
+    (0..mpi.planes()).into_par_iter().try_for_each(|d| {
+        let bytes = plane_to_straight_rgba8(mpi.plane(d));
+        write_png_u8(&dir.join(&meta.layers[d]), w, h, 4, &bytes)
+    })?;
+    let json = serde_json::to_string_pretty(&meta).expect("mpi.json serialises");
+    write_atomic(&dir.join("mpi.json"), json.as_bytes())?;
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small_mpi() -> Mpi {
+        let cam = Camera::new(5, 4, Intrinsics::new(5.0, 5.0, 2.5, 2.0), Pose::IDENTITY);
+        let mut mpi = Mpi::transparent(cam, vec![4.0, 2.0, 1.0]);
+        for (i, p) in mpi.layers.chunks_exact_mut(4).enumerate() {
+            let a = ((i * 53) % 256) as f32 / 255.0;
+            p[3] = a;
+            for k in 0..3 {
+                p[k] = (((i * 31 + k * 17) % 256) as f32 / 255.0) * a;
+            }
+        }
+        mpi
+    }
+
+    #[test]
+    fn write_read_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let mpi = small_mpi();
+        write_mpi(dir.path(), &mpi).unwrap();
+        let back = read_mpi(dir.path()).unwrap();
+        assert_eq!(back.camera, mpi.camera);
+        assert_eq!(back.depths, mpi.depths);
+        for (a, b) in back.layers.iter().zip(&mpi.layers) {
+            assert!((a - b).abs() <= 1.0 / 255.0 + 1e-6, "{a} vs {b}");
+        }
+        // Writing what we read reproduces the files byte for byte (8-bit straight alpha is a fixed point).
+        let dir2 = tempfile::tempdir().unwrap();
+        write_mpi(dir2.path(), &back).unwrap();
+        for name in ["layer_000.png", "layer_001.png", "layer_002.png", "mpi.json"] {
+            let a = std::fs::read(dir.path().join(name)).unwrap();
+            let b = std::fs::read(dir2.path().join(name)).unwrap();
+            if name.ends_with(".png") {
+                let ia = image::load_from_memory(&a).unwrap().into_rgba8();
+                let ib = image::load_from_memory(&b).unwrap().into_rgba8();
+                assert_eq!(ia, ib, "{name}");
+            } else {
+                assert_eq!(a, b);
+            }
+        }
+        let json: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(dir.path().join("mpi.json")).unwrap()).unwrap();
+        assert_eq!(json["format"], "deepview-mpi");
+        assert_eq!(json["layers"][0], "layer_000.png");
+        assert_eq!(json["camera_from_world"].as_array().unwrap().len(), 16);
+    }
+
+    #[test]
+    fn bad_folders_give_clear_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let e = read_mpi(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("mpi.json"), "{e}");
+        write_mpi(dir.path(), &small_mpi()).unwrap();
+        std::fs::remove_file(dir.path().join("layer_001.png")).unwrap();
+        let e = read_mpi(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("layer_001.png"), "{e}");
+        let e = read_mpi_u8(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("layer_001.png"), "{e}");
+
+        let json_path = dir.path().join("mpi.json");
+        let good = std::fs::read_to_string(&json_path).unwrap();
+        let cases = [
+            (good.replace("\"depths\": [", "\"depths\": [\n    \"x\","), "mpi.json"),
+            ("{not json".to_string(), "mpi.json"),
+            (good.replace("deepview-mpi", "other"), "format"),
+        ];
+        for (text, needle) in cases {
+            std::fs::write(&json_path, text).unwrap();
+            let e = read_mpi(dir.path()).unwrap_err().to_string();
+            assert!(e.contains(needle), "{e}");
+        }
+        // Zero planes and mismatched counts.
+        let mut meta: MpiMeta = serde_json::from_str(&good).unwrap();
+        meta.depths.clear();
+        meta.layers.clear();
+        std::fs::write(&json_path, serde_json::to_string(&meta).unwrap()).unwrap();
+        assert!(read_mpi(dir.path()).unwrap_err().to_string().contains("zero planes"));
+        // Non-finite pose (JSON has no NaN literal; a huge number overflows to inf in f64 parsing).
+        let mut meta: MpiMeta = serde_json::from_str(&good).unwrap();
+        meta.layers.pop();
+        std::fs::write(&json_path, serde_json::to_string(&meta).unwrap()).unwrap();
+        assert!(read_mpi(dir.path()).unwrap_err().to_string().contains("2 layers but 3 depths"));
+        std::fs::write(&json_path, good.replacen("1.0", "1e999", 1)).unwrap();
+        assert!(read_mpi(dir.path()).is_err());
+        // Layer of the wrong size.
+        std::fs::write(&json_path, &good).unwrap();
+        write_png_u8(&dir.path().join("layer_001.png"), 3, 3, 4, &[0; 36]).unwrap();
+        let e = read_mpi(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("layer_001.png") && e.contains("3x3"), "{e}");
+    }
+}

@@ -1,0 +1,24 @@
+//! Multiplane images (MPIs) and the paper's forward model on the CPU.
+//!
+//! Data flow: an [`Mpi`] (D RGBA planes, back to front, premultiplied colour in memory, in front of a
+//! reference camera) is warped into any target camera by plane-induced homographies ([`warp`]), composited
+//! with the over operator ([`composite`]), which also yields the per-plane net transmittance `T` and
+//! accumulated over `A` (the paper's gradient components). [`psv`] is the inverse warp of an image onto the
+//! planes (the plane sweep volume). [`io`] reads and writes the interoperable folder format, [`depth`] turns
+//! an MPI into depth and disparity maps.
+
+pub mod composite;
+pub mod depth;
+pub mod io;
+pub mod mpi;
+pub mod psv;
+pub mod render;
+pub mod warp;
+
+pub use composite::{RenderComponents, render_components};
+pub use depth::{DepthMaps, depth_maps, turbo};
+pub use io::{MpiError, MpiMeta, read_mpi, read_mpi_u8, write_mpi};
+pub use mpi::{Mpi, MpiU8};
+pub use psv::{PlaneSweepVolume, plane_sweep};
+pub use render::{Texel, render, render_rgba8_into, render_u8};
+pub use warp::{Sampler, target_to_plane_homographies};

@@ -1,0 +1,163 @@
+//! Network configuration and the paper's presets (Table 1 of the paper, DESIGN.md section 4).
+
+use serde::{Deserialize, Serialize};
+
+/// Errors of a configuration.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ConfigError {
+    #[error("unknown preset {0:?} (known: paper-kalantari, paper-spaces-4view, paper-spaces-12view, cpu)")]
+    UnknownPreset(String),
+    #[error("invalid network config: {0}")]
+    Invalid(String),
+}
+
+/// The architecture and the plane counts of a DeepView model.
+///
+/// The model is `1 + updates` nets: net 0 (initialisation, on plane sweep volumes) and `updates` update
+/// nets (on gradient components). Every net is the same core CNN (see `network.rs`): 2 per-view convs,
+/// `max_pool_stages` x (max over views, concat, 2 convs), a final max over views, a conv and a linear
+/// conv to `4 + extra_channels` outputs. Nets `0..large_nets` use `features_large` features, the others
+/// `features_small` ("64/16"); nets `0..unet_nets` run the core at half resolution (one-level U-Net).
+///
+/// TODO (memory): the paper discards activations inside each per-iteration net and recomputes them on
+/// the backward pass. burn's `.gradient_checkpointing()` does not drop conv activations and no manual
+/// recompute is implemented yet, so training memory grows with the number of nets.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct DeepViewConfig {
+    /// Preset name (informational).
+    pub name: String,
+    /// A fixed number of input views the weights were trained for, or `None` (any number; the
+    /// architecture itself accepts any K).
+    pub views: Option<usize>,
+    /// Plane counts used for training and (by default) inference.
+    pub train_planes: usize,
+    pub infer_planes: usize,
+    /// Number of update nets (LGD iterations after the initialisation; paper: 3).
+    pub updates: usize,
+    pub features_large: usize,
+    pub features_small: usize,
+    /// Nets `0..large_nets` use `features_large`.
+    pub large_nets: usize,
+    /// Nets `0..unet_nets` run at half resolution (downsample in, bilinear upsample out).
+    pub unet_nets: usize,
+    /// Channels carried between iterations besides RGBA logits (paper: 4).
+    pub extra_channels: usize,
+    /// Number of (max over views, concat, 2 convs) stages (DESIGN.md: 3).
+    pub max_pool_stages: usize,
+}
+
+impl DeepViewConfig {
+    /// A preset by name: `paper-kalantari`, `paper-spaces-4view`, `paper-spaces-12view`, `cpu`.
+    pub fn preset(name: &str) -> Result<Self, ConfigError> {
+        let paper = |name: &str, views, train, infer, unet| DeepViewConfig {
+            name: name.to_string(),
+            views: Some(views),
+            train_planes: train,
+            infer_planes: infer,
+            updates: 3,
+            features_large: 64,
+            features_small: 16,
+            large_nets: 2,
+            unet_nets: unet,
+            extra_channels: 4,
+            max_pool_stages: 3,
+        };
+        Ok(match name {
+            "paper-kalantari" => paper(name, 4, 28, 28, 0),
+            "paper-spaces-4view" => paper(name, 4, 64, 80, 2),
+            "paper-spaces-12view" => paper(name, 12, 64, 80, 2),
+            // Small enough to train usefully on 2 CPU cores; any number of views.
+            "cpu" => DeepViewConfig {
+                name: name.to_string(),
+                views: None,
+                train_planes: 16,
+                infer_planes: 32,
+                updates: 2,
+                features_large: 16,
+                features_small: 8,
+                large_nets: 2,
+                unet_nets: 0,
+                extra_channels: 4,
+                max_pool_stages: 3,
+            },
+            other => return Err(ConfigError::UnknownPreset(other.to_string())),
+        })
+    }
+
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let bad = |m: &str| Err(ConfigError::Invalid(m.to_string()));
+        if self.features_large == 0 || self.features_small == 0 {
+            return bad("feature counts must be positive");
+        }
+        if self.train_planes == 0 || self.infer_planes == 0 {
+            return bad("plane counts must be positive");
+        }
+        if self.views == Some(0) {
+            return bad("a fixed view count must be positive");
+        }
+        if self.max_pool_stages == 0 {
+            return bad("at least one max-pool stage is needed");
+        }
+        Ok(())
+    }
+
+    /// Total number of nets (initialisation + updates).
+    pub fn nets(&self) -> usize {
+        1 + self.updates
+    }
+
+    /// Channels of the MPI state `M_n`: RGBA logits and the extra channels.
+    pub fn state_channels(&self) -> usize {
+        4 + self.extra_channels
+    }
+
+    pub fn features(&self, net: usize) -> usize {
+        if net < self.large_nets { self.features_large } else { self.features_small }
+    }
+
+    pub fn unet(&self, net: usize) -> bool {
+        net < self.unet_nets
+    }
+
+    /// Number of 3x3 convolutions in one core net.
+    pub fn convs_per_net(&self) -> usize {
+        2 + 2 * self.max_pool_stages + 2
+    }
+
+    /// Receptive-field radius of net `net` in MPI pixels (how far an output pixel sees), rounded up to
+    /// an even number so crops by it keep the U-Net's 2x2 grid aligned. U-Net nets: `2 r + 4`
+    /// (downsampling by 2 and the bilinear upsample's extra texel on each side).
+    pub fn net_margin(&self, net: usize) -> usize {
+        let r = self.convs_per_net();
+        let m = if self.unet(net) { 2 * r + 4 } else { r };
+        m.next_multiple_of(2)
+    }
+
+    /// Sum of [`Self::net_margin`] over nets `from..`.
+    pub fn margin_from(&self, from: usize) -> usize {
+        (from..self.nets()).map(|n| self.net_margin(n)).sum()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_are_valid_and_serde_round_trips() {
+        for name in ["paper-kalantari", "paper-spaces-4view", "paper-spaces-12view", "cpu"] {
+            let c = DeepViewConfig::preset(name).unwrap();
+            c.validate().unwrap();
+            let s = serde_json::to_string(&c).unwrap();
+            assert_eq!(serde_json::from_str::<DeepViewConfig>(&s).unwrap(), c);
+        }
+        let k = DeepViewConfig::preset("paper-kalantari").unwrap();
+        assert_eq!((k.views, k.train_planes, k.unet_nets, k.nets()), (Some(4), 28, 0, 4));
+        let s = DeepViewConfig::preset("paper-spaces-12view").unwrap();
+        assert_eq!((s.views, s.train_planes, s.infer_planes, s.features(1), s.features(2)), (Some(12), 64, 80, 64, 16));
+        assert!(s.unet(1) && !s.unet(2));
+        assert_eq!(s.net_margin(0), 24);
+        assert_eq!(s.net_margin(2), 10);
+        assert!(DeepViewConfig::preset("nope").is_err());
+    }
+}

@@ -1,0 +1,484 @@
+//! The differentiable forward model on burn tensors: homography warps, over-compositing with net
+//! transmittance `T` and accumulated over `A`, plane sweep volumes and the paper's gradient components.
+//!
+//! Layouts (all `f32`, any device, differentiable w.r.t. every tensor argument):
+//! - an MPI (or any stack of planes) is `[D, C, h, w]`, plane 0 the farthest (back to front), RGBA colour
+//!   premultiplied;
+//! - an image is `[3, h, w]`;
+//! - homographies are row-major 3x3, mapping OUTPUT pixels to SOURCE pixels (continuous coordinates,
+//!   pixel centres at +0.5).
+//!
+//! Sampling rule (identical to `deepview_mpi::warp`, including its f32 arithmetic): output pixel `(x, y)`
+//! samples the source at `H (x + 0.5, y + 0.5, 1)`; a sample with `w <= 0` or outside `[0, W] x [0, H]` is
+//! 0 (transparent, invalid); inside, bilinear interpolation between the four nearest texel centres,
+//! clamped to the edge texel. The homographies are constants, so the sampling taps (indices and weights)
+//! are computed on the CPU ([`WarpTable`]) and applied with one `select` (a gather; its backward is a
+//! scatter-add) and a weighted sum: no `grid_sample`, whose backward is ~10x its forward on `flex`.
+
+use burn::tensor::{Device, Int, Tensor, TensorData};
+
+/// A row-major 3x3 homography (f64), output pixels -> source pixels.
+pub type Hom = [f64; 9];
+
+/// Precomputed bilinear taps of `planes` homography warps from a `src_w x src_h` source to an
+/// `out_w x out_h` output.
+#[derive(Clone, Debug)]
+pub struct WarpTable {
+    pub planes: usize,
+    pub src_w: usize,
+    pub src_h: usize,
+    pub out_w: usize,
+    pub out_h: usize,
+    /// `[4][planes * out_h * out_w]` texel indices within one source plane (`y * src_w + x`).
+    idx: Vec<i64>,
+    /// `[4][planes * out_h * out_w]` bilinear weights (0 for invalid samples).
+    w: Vec<f32>,
+    /// `[planes * out_h * out_w]`: 1 where the sample is inside the source.
+    valid: Vec<f32>,
+}
+
+impl WarpTable {
+    /// Taps of `homs.len()` warps (one per plane). Empty sources or outputs are allowed (all invalid).
+    pub fn new(homs: &[Hom], src_w: usize, src_h: usize, out_w: usize, out_h: usize) -> Self {
+        let n = homs.len() * out_w * out_h;
+        let mut idx = vec![0i64; 4 * n];
+        let mut w = vec![0f32; 4 * n];
+        let mut valid = vec![0f32; n];
+        let (wf, hf) = (src_w as f32, src_h as f32);
+        let (wmax, hmax) = (src_w as i32 - 1, src_h as i32 - 1);
+        for (d, h) in homs.iter().enumerate() {
+            let a = [h[0] as f32, h[3] as f32, h[6] as f32];
+            for y in 0..out_h {
+                let v = y as f64 + 0.5;
+                let b = [(h[1] * v + h[2]) as f32, (h[4] * v + h[5]) as f32, (h[7] * v + h[8]) as f32];
+                for x in 0..out_w {
+                    let o = (d * out_h + y) * out_w + x;
+                    let u = x as f32 + 0.5;
+                    let wn = a[2].mul_add(u, b[2]);
+                    if wn <= 0.0 || src_w == 0 || src_h == 0 {
+                        continue;
+                    }
+                    let inv = 1.0 / wn;
+                    let sx = a[0].mul_add(u, b[0]) * inv;
+                    let sy = a[1].mul_add(u, b[1]) * inv;
+                    if !(sx >= 0.0 && sx <= wf && sy >= 0.0 && sy <= hf) {
+                        continue;
+                    }
+                    let (fx, fy) = (sx - 0.5, sy - 0.5);
+                    let (x0, y0) = (fx.floor(), fy.floor());
+                    let (tx, ty) = (fx - x0, fy - y0);
+                    let (x0, y0) = (x0 as i32, y0 as i32);
+                    let xa = x0.clamp(0, wmax) as i64;
+                    let xb = (x0 + 1).clamp(0, wmax) as i64;
+                    let ya = y0.clamp(0, hmax) as i64 * src_w as i64;
+                    let yb = (y0 + 1).clamp(0, hmax) as i64 * src_w as i64;
+                    let taps = [ya + xa, ya + xb, yb + xa, yb + xb];
+                    let ws = [(1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty];
+                    for t in 0..4 {
+                        idx[t * n + o] = taps[t];
+                        w[t * n + o] = ws[t];
+                    }
+                    valid[o] = 1.0;
+                }
+            }
+        }
+        Self { planes: homs.len(), src_w, src_h, out_w, out_h, idx, w, valid }
+    }
+
+    /// Warp `src` `[S, C, src_h, src_w]` -> `[planes, C, out_h, out_w]`. `S` is `planes` (plane `d` is
+    /// warped by homography `d`) or 1 (the one source is broadcast to every plane: a plane sweep).
+    pub fn apply(&self, src: Tensor<4>) -> Tensor<4> {
+        let [s, c, sh, sw] = src.dims();
+        assert_eq!((sh, sw), (self.src_h, self.src_w), "warp source size mismatch");
+        assert!(s == self.planes || s == 1, "warp source has {s} planes, table has {}", self.planes);
+        let device = src.device();
+        let n = self.valid.len();
+        let (d, oh, ow) = (self.planes, self.out_h, self.out_w);
+        if n == 0 || sh * sw == 0 {
+            return Tensor::zeros([d, c, oh, ow], &device);
+        }
+        let per_plane = oh * ow;
+        let plane_len = (sh * sw) as i64;
+        let idx: Vec<i64> = if s == 1 {
+            self.idx.clone()
+        } else {
+            self.idx.iter().enumerate().map(|(i, &v)| v + ((i % n) / per_plane) as i64 * plane_len).collect()
+        };
+        let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [4 * n]), &device);
+        let w = Tensor::<3>::from_data(TensorData::new(self.w.clone(), [4, n, 1]), &device);
+        let flat = src.permute([0, 2, 3, 1]).reshape([s * sh * sw, c]);
+        let taps = flat.select(0, idx).reshape([4, n, c]);
+        let out = (taps * w).sum_dim(0).reshape([d, oh, ow, c]);
+        out.permute([0, 3, 1, 2])
+    }
+
+    /// Validity `[planes, 1, out_h, out_w]`: 1 where the sample falls inside the source.
+    pub fn valid(&self, device: &Device) -> Tensor<4> {
+        Tensor::from_data(
+            TensorData::new(self.valid.clone(), [self.planes, 1, self.out_h, self.out_w]),
+            device,
+        )
+    }
+
+    /// The validity mask as plain data, `[planes][out_h][out_w]`.
+    pub fn valid_data(&self) -> &[f32] {
+        &self.valid
+    }
+}
+
+/// Invert a row-major 3x3 matrix (f64). Singular matrices give non-finite entries (all samples invalid).
+pub fn invert(h: &Hom) -> Hom {
+    let m = glam::DMat3::from_cols_array(h).transpose();
+    let inv = m.inverse().transpose();
+    inv.to_cols_array()
+}
+
+/// `a * b` for row-major 3x3 matrices.
+pub fn mul(a: &Hom, b: &Hom) -> Hom {
+    let mut out = [0.0; 9];
+    for r in 0..3 {
+        for c in 0..3 {
+            out[r * 3 + c] = (0..3).map(|k| a[r * 3 + k] * b[k * 3 + c]).sum();
+        }
+    }
+    out
+}
+
+/// The homography of the same map after moving the output origin to output pixel `(x0, y0)`
+/// (i.e. `H * translate(x0, y0)`): use it for a crop of the output.
+pub fn crop_output(h: &Hom, x0: f64, y0: f64) -> Hom {
+    mul(h, &[1.0, 0.0, x0, 0.0, 1.0, y0, 0.0, 0.0, 1.0])
+}
+
+/// The homography of the same map after moving the source origin to source pixel `(x0, y0)`
+/// (i.e. `translate(-x0, -y0) * H`): use it for a crop of the source.
+pub fn crop_source(h: &Hom, x0: f64, y0: f64) -> Hom {
+    mul(&[1.0, 0.0, -x0, 0.0, 1.0, -y0, 0.0, 0.0, 1.0], h)
+}
+
+/// Warp every plane of `planes` `[D, C, h_src, w_src]` by its homography (`homographies[d]`, row-major
+/// f32, output pixels -> source pixels) into `[D, C, out_h, out_w]`, with the sampling rule above.
+pub fn warp_planes(planes: Tensor<4>, homographies: &[[f32; 9]], out_h: usize, out_w: usize) -> Tensor<4> {
+    let [_, _, sh, sw] = planes.dims();
+    let homs: Vec<Hom> = homographies.iter().map(|h| h.map(|v| v as f64)).collect();
+    WarpTable::new(&homs, sw, sh, out_w, out_h).apply(planes)
+}
+
+/// The same warp with `grid_sample_2d` (bilinear, `align_corners = false`, border padding) and an explicit
+/// in-bounds mask: identical results, kept for benchmarking (its backward is much slower on `flex`).
+pub fn warp_planes_grid_sample(
+    planes: Tensor<4>,
+    homographies: &[[f32; 9]],
+    out_h: usize,
+    out_w: usize,
+) -> Tensor<4> {
+    use burn::tensor::ops::{GridSampleOptions, GridSamplePaddingMode, InterpolateMode};
+    let [d, _, sh, sw] = planes.dims();
+    let device = planes.device();
+    let homs: Vec<Hom> = homographies.iter().map(|h| h.map(|v| v as f64)).collect();
+    let table = WarpTable::new(&homs, sw, sh, out_w, out_h);
+    let mut grid = vec![0f32; d * out_h * out_w * 2];
+    for (p, h) in homographies.iter().enumerate() {
+        let a = [h[0], h[3], h[6]];
+        for y in 0..out_h {
+            let v = y as f64 + 0.5;
+            let hh = homs[p];
+            let b = [(hh[1] * v + hh[2]) as f32, (hh[4] * v + hh[5]) as f32, (hh[7] * v + hh[8]) as f32];
+            for x in 0..out_w {
+                let u = x as f32 + 0.5;
+                let inv = 1.0 / a[2].mul_add(u, b[2]);
+                let sx = a[0].mul_add(u, b[0]) * inv;
+                let sy = a[1].mul_add(u, b[1]) * inv;
+                let o = ((p * out_h + y) * out_w + x) * 2;
+                // align_corners = false: normalised -1..1 spans the outer texel edges 0..W.
+                let gx = if sx.is_finite() { 2.0 * sx / sw as f32 - 1.0 } else { -2.0 };
+                let gy = if sy.is_finite() { 2.0 * sy / sh as f32 - 1.0 } else { -2.0 };
+                grid[o] = gx;
+                grid[o + 1] = gy;
+            }
+        }
+    }
+    let grid = Tensor::<4>::from_data(TensorData::new(grid, [d, out_h, out_w, 2]), &device);
+    let opts = GridSampleOptions::new(InterpolateMode::Bilinear)
+        .with_padding_mode(GridSamplePaddingMode::Border)
+        .with_align_corners(false);
+    planes.grid_sample_2d(grid, opts) * table.valid(&device)
+}
+
+/// The over-composite of `rgba` `[D, 4, h, w]` (premultiplied, back to front) and its per-plane gradient
+/// components.
+#[derive(Clone, Debug)]
+pub struct Composite {
+    /// `[3, h, w]`: `sum_d c_d T_d`.
+    pub render: Tensor<3>,
+    /// `[D, 1, h, w]`: net transmittance `T_d = prod_{i>d} (1 - a_i)`.
+    pub transmittance: Tensor<4>,
+    /// `[D, 3, h, w]`: accumulated over `A_d = sum_{i<d} c_i prod_{i<j<d} (1 - a_j)`.
+    pub accumulated: Tensor<4>,
+}
+
+/// Over-composite `rgba` `[D, 4, h, w]` (premultiplied colour, plane 0 the farthest). A loop over planes
+/// (no division, so alpha = 1 is safe); `d render / d c_d = T_d` and `d render / d a_d = -A_d T_d`.
+pub fn composite(rgba: Tensor<4>) -> Composite {
+    let [d, _, h, w] = rgba.dims();
+    let device = rgba.device();
+    let colour = rgba.clone().narrow(1, 0, 3);
+    let one_minus = rgba.narrow(1, 3, 1).neg().add_scalar(1.0);
+    // Accumulated over, back to front.
+    let mut acc: Vec<Tensor<4>> = Vec::with_capacity(d);
+    let mut a = Tensor::<4>::zeros([1, 3, h, w], &device);
+    for p in 0..d {
+        acc.push(a.clone());
+        a = a * one_minus.clone().narrow(0, p, 1) + colour.clone().narrow(0, p, 1);
+    }
+    let render = a.reshape([3, h, w]);
+    // Transmittance, front to back.
+    let mut trans: Vec<Tensor<4>> = vec![Tensor::zeros([1, 1, 1, 1], &device); d];
+    let mut t = Tensor::<4>::ones([1, 1, h, w], &device);
+    for p in (0..d).rev() {
+        trans[p] = t.clone();
+        if p > 0 {
+            t = t * one_minus.clone().narrow(0, p, 1);
+        }
+    }
+    Composite { render, transmittance: Tensor::cat(trans, 0), accumulated: Tensor::cat(acc, 0) }
+}
+
+/// Render an MPI `rgba` `[D, 4, H, W]` into a view: `view_to_mpi[d]` maps view pixels to MPI pixels of
+/// plane `d`; the output is `out_w x out_h` view pixels. Returns the composite with its `T` and `A`.
+pub fn render_view(rgba: Tensor<4>, view_to_mpi: &[Hom], out_h: usize, out_w: usize) -> Composite {
+    let [_, _, h, w] = rgba.dims();
+    composite(WarpTable::new(view_to_mpi, w, h, out_w, out_h).apply(rgba))
+}
+
+/// The plane sweep volume of `image` `[3, hv, wv]` on a `w x h` MPI window: `mpi_to_view[d]` maps MPI
+/// window pixels to view pixels. Returns `[D, 4, h, w]`: RGB and a validity channel (1 where the sample
+/// falls inside the image).
+pub fn plane_sweep_volume(image: Tensor<3>, mpi_to_view: &[Hom], h: usize, w: usize) -> Tensor<4> {
+    let [c, hv, wv] = image.dims();
+    let table = WarpTable::new(mpi_to_view, wv, hv, w, h);
+    let device = image.device();
+    let psv = table.apply(image.reshape([1, c, hv, wv]));
+    Tensor::cat(vec![psv, table.valid(&device)], 1)
+}
+
+/// Number of channels of [`gradient_components`]: `[I (3), R (3), A (3), T (1), validity (1)]`.
+pub const GRADIENT_CHANNELS: usize = 11;
+
+/// The gradient components of one view on an MPI region, `[D, 11, h, w]`, channels
+/// `[I_k (3), R_k (3), A_k (3), T_k (1), validity (1)]`, all inverse-warped into MPI space.
+///
+/// - `rgba` `[D, 4, Hm, Wm]`: the MPI (premultiplied) that is rendered into the view; its pixel frame is
+///   the one `mpi_to_view` starts from;
+/// - `image` `[3, hv, wv]`: the view's image (or a crop of it, with `mpi_to_view` mapping to crop pixels);
+/// - `region = (x0, y0, w, h)`: the MPI pixels (in `rgba`'s frame) where the components are wanted.
+///
+/// `R_k`, `A_k`, `T_k` are computed at every pixel of `image` from the whole of `rgba` (outside `rgba`
+/// the MPI is transparent).
+pub fn gradient_components(
+    rgba: Tensor<4>,
+    image: Tensor<3>,
+    mpi_to_view: &[Hom],
+    region: (usize, usize, usize, usize),
+) -> Tensor<4> {
+    let [_, hv, wv] = image.dims();
+    let view_to_mpi: Vec<Hom> = mpi_to_view.iter().map(invert).collect();
+    let comp = render_view(rgba, &view_to_mpi, hv, wv);
+    let (x0, y0, w, h) = region;
+    let region_homs: Vec<Hom> = mpi_to_view.iter().map(|m| crop_output(m, x0 as f64, y0 as f64)).collect();
+    let table = WarpTable::new(&region_homs, wv, hv, w, h);
+    let images = Tensor::cat(vec![image.reshape([1, 3, hv, wv]), comp.render.reshape([1, 3, hv, wv])], 1);
+    let planes = Tensor::cat(vec![comp.accumulated, comp.transmittance], 1);
+    let device = planes.device();
+    Tensor::cat(vec![table.apply(images), table.apply(planes), table.valid(&device)], 1)
+}
+
+/// Tensor `[3, h, w]` from an interleaved RGB(A...) image (first three channels).
+pub fn image_tensor(data: &[f32], width: usize, height: usize, channels: usize, device: &Device) -> Tensor<3> {
+    let mut out = vec![0f32; 3 * width * height];
+    for p in 0..width * height {
+        for c in 0..3 {
+            out[c * width * height + p] = data[p * channels + c];
+        }
+    }
+    Tensor::from_data(TensorData::new(out, [3, height, width]), device)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::Distribution;
+
+    fn dev() -> Device {
+        Device::flex()
+    }
+
+    fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+        t.into_data().try_to_vec::<f32>().unwrap()
+    }
+
+    /// Independent scalar warp (f64 arithmetic) for one plane, `[C][H][W]` layout.
+    fn scalar_warp(src: &[f32], c: usize, sh: usize, sw: usize, h: &Hom, oh: usize, ow: usize) -> Vec<f32> {
+        let mut out = vec![0f32; c * oh * ow];
+        for y in 0..oh {
+            for x in 0..ow {
+                let (u, v) = (x as f64 + 0.5, y as f64 + 0.5);
+                let z = h[6] * u + h[7] * v + h[8];
+                if z <= 0.0 {
+                    continue;
+                }
+                let sx = (h[0] * u + h[1] * v + h[2]) / z;
+                let sy = (h[3] * u + h[4] * v + h[5]) / z;
+                if !(0.0..=sw as f64).contains(&sx) || !(0.0..=sh as f64).contains(&sy) {
+                    continue;
+                }
+                let get = |ch: usize, xi: i64, yi: i64| {
+                    let xi = xi.clamp(0, sw as i64 - 1) as usize;
+                    let yi = yi.clamp(0, sh as i64 - 1) as usize;
+                    src[(ch * sh + yi) * sw + xi] as f64
+                };
+                let (fx, fy) = (sx - 0.5, sy - 0.5);
+                let (x0, y0) = (fx.floor(), fy.floor());
+                let (tx, ty) = (fx - x0, fy - y0);
+                let (x0, y0) = (x0 as i64, y0 as i64);
+                for ch in 0..c {
+                    let val = (1.0 - tx) * (1.0 - ty) * get(ch, x0, y0)
+                        + tx * (1.0 - ty) * get(ch, x0 + 1, y0)
+                        + (1.0 - tx) * ty * get(ch, x0, y0 + 1)
+                        + tx * ty * get(ch, x0 + 1, y0 + 1);
+                    out[(ch * oh + y) * ow + x] = val as f32;
+                }
+            }
+        }
+        out
+    }
+
+    fn some_homs(d: usize) -> Vec<Hom> {
+        (0..d)
+            .map(|i| {
+                let s = i as f64;
+                [1.05 + 0.02 * s, 0.03, -1.7 + s, -0.02, 0.97, 0.8 - 0.5 * s, 0.0005, -0.0003, 1.0]
+            })
+            .collect()
+    }
+
+    #[test]
+    fn identity_warp_is_exact() {
+        let x = Tensor::<4>::random([3, 4, 9, 13], Distribution::Uniform(0.0, 1.0), &dev());
+        let id = [[1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]; 3];
+        let y = warp_planes(x.clone(), &id, 9, 13);
+        assert_eq!(to_vec(x), to_vec(y));
+    }
+
+    #[test]
+    fn warp_matches_scalar_reference() {
+        let (d, c, sh, sw, oh, ow) = (3, 2, 17, 23, 15, 26);
+        let x = Tensor::<4>::random([d, c, sh, sw], Distribution::Uniform(0.0, 1.0), &dev());
+        let homs = some_homs(d);
+        let homs32: Vec<[f32; 9]> = homs.iter().map(|h| h.map(|v| v as f32)).collect();
+        let y = to_vec(warp_planes(x.clone(), &homs32, oh, ow));
+        let xs = to_vec(x.clone());
+        let mut n_valid = 0;
+        for p in 0..d {
+            let h64 = homs32[p].map(|v| v as f64);
+            let src = &xs[p * c * sh * sw..(p + 1) * c * sh * sw];
+            let expect = scalar_warp(src, c, sh, sw, &h64, oh, ow);
+            let got = &y[p * c * oh * ow..(p + 1) * c * oh * ow];
+            for (e, g) in expect.iter().zip(got) {
+                assert!((e - g).abs() < 2e-5, "plane {p}: {e} vs {g}");
+                n_valid += (*e != 0.0) as usize;
+            }
+        }
+        assert!(n_valid > d * c * oh * ow / 2, "test should sample mostly inside");
+        // grid_sample variant agrees.
+        let g = to_vec(warp_planes_grid_sample(x, &homs32, oh, ow));
+        for (a, b) in y.iter().zip(&g) {
+            assert!((a - b).abs() < 1e-4, "{a} vs {b}");
+        }
+    }
+
+    #[test]
+    fn broadcast_source_equals_repeated_source() {
+        let img = Tensor::<4>::random([1, 3, 10, 12], Distribution::Uniform(0.0, 1.0), &dev());
+        let homs = some_homs(4);
+        let t = WarpTable::new(&homs, 12, 10, 11, 9);
+        let a = to_vec(t.apply(img.clone()));
+        let b = to_vec(t.apply(img.repeat_dim(0, 4)));
+        assert_eq!(a, b);
+    }
+
+    fn random_rgba(d: usize, h: usize, w: usize, device: &Device) -> Tensor<4> {
+        let alpha = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(0.05, 0.95), device);
+        let col = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(0.0, 1.0), device);
+        Tensor::cat(vec![col * alpha.clone(), alpha], 1)
+    }
+
+    #[test]
+    fn composite_matches_scalar_over_and_autodiff_identities() {
+        let device = dev().autodiff();
+        let (d, h, w) = (5, 3, 4);
+        let rgba = random_rgba(d, h, w, &dev());
+        let rgba = Tensor::<4>::from_data(rgba.into_data(), &device).require_grad();
+        let comp = composite(rgba.clone());
+        let vals = to_vec(rgba.clone());
+        let px = h * w;
+        // Scalar over, back to front.
+        let render = to_vec(comp.render.clone());
+        for c in 0..3 {
+            for p in 0..px {
+                let mut acc = 0.0f32;
+                for pl in 0..d {
+                    let a = vals[(pl * 4 + 3) * px + p];
+                    acc = acc * (1.0 - a) + vals[(pl * 4 + c) * px + p];
+                }
+                assert!((acc - render[c * px + p]).abs() < 1e-5);
+            }
+        }
+        // Gradient of sum(render * weights) w.r.t. c_d and a_d.
+        let wts = Tensor::<3>::random([3, h, w], Distribution::Uniform(0.5, 1.5), &device);
+        let loss = (comp.render.clone() * wts.clone()).sum();
+        let grads = loss.backward();
+        let g = to_vec(rgba.grad(&grads).unwrap());
+        let t = to_vec(comp.transmittance.clone());
+        let acc = to_vec(comp.accumulated.clone());
+        let wv = to_vec(wts);
+        for pl in 0..d {
+            for p in 0..px {
+                let tt = t[pl * px + p];
+                let mut da = 0.0;
+                for c in 0..3 {
+                    let dc = g[(pl * 4 + c) * px + p];
+                    assert!((dc - wv[c * px + p] * tt).abs() < 1e-5, "dR/dc = T");
+                    da += -acc[(pl * 3 + c) * px + p] * tt * wv[c * px + p];
+                }
+                assert!((g[(pl * 4 + 3) * px + p] - da).abs() < 1e-5, "dR/da = -A T");
+            }
+        }
+        // Front plane has T = 1, back plane has A = 0.
+        assert!(t[(d - 1) * px..].iter().all(|&v| v == 1.0));
+        assert!(acc[..3 * px].iter().all(|&v| v == 0.0));
+    }
+
+    #[test]
+    fn warp_gradient_matches_finite_differences() {
+        let device = dev().autodiff();
+        let x = Tensor::<4>::random([2, 1, 6, 7], Distribution::Uniform(0.0, 1.0), &dev());
+        let xs = to_vec(x.clone());
+        let homs = some_homs(2);
+        let t = WarpTable::new(&homs, 7, 6, 6, 5);
+        let xa = Tensor::<4>::from_data(x.into_data(), &device).require_grad();
+        let y = t.apply(xa.clone());
+        let wts = Tensor::<4>::random(y.dims(), Distribution::Uniform(0.0, 1.0), &device);
+        let grads = (y * wts.clone()).sum().backward();
+        let g = to_vec(xa.grad(&grads).unwrap());
+        // The warp is linear: the gradient w.r.t. texel i is the output for a unit impulse at i.
+        for i in [0, 5, 13, 40, 60, 83] {
+            let mut e = vec![0f32; xs.len()];
+            e[i] = 1.0;
+            let imp = Tensor::<4>::from_data(TensorData::new(e, [2, 1, 6, 7]), &dev());
+            let yi = (t.apply(imp) * Tensor::<4>::from_data(wts.clone().into_data(), &dev())).sum();
+            let expect: f32 = yi.into_scalar();
+            assert!((expect - g[i]).abs() < 1e-5, "texel {i}: {expect} vs {}", g[i]);
+        }
+    }
+}

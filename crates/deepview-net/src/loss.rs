@@ -1,0 +1,154 @@
+//! The training loss: the paper's VGG-16 feature loss (supplement, "Training hyperparameters"), or plain L1.
+//!
+//! Feature loss, as written in the supplement:
+//! 1. reflect-pad the 32x32 prediction and target crops to 40x40 (conv3_3's receptive field is 40x40);
+//!    for a crop of any size `s` we pad by `s / 8` per side, i.e. 4 px for 32;
+//! 2. VGG-16 features conv1_2, conv2_2, conv3_3 (after ReLU; Caffe preprocessing, see [`crate::vgg`]);
+//! 3. sum the L1 differences of the layers weighted by `[11.17, 35.04, 29.09]`;
+//! 4. divide by the crop area `32 * 32`.
+//!
+//! Interpretation (the supplement does not spell these out): "L1 difference of a layer" is the *sum* of
+//! absolute differences over all channels and positions of that layer's feature map of the padded crop
+//! (the division by the crop area in step 4 only makes sense for a sum); features are on the Caffe scale
+//! (inputs 0..255), which these weights expect. A batch's loss is the mean of its examples' losses.
+
+use crate::vgg::Vgg16;
+use burn::tensor::Tensor;
+use burn::tensor::ops::PadMode;
+use serde::{Deserialize, Serialize};
+
+/// Per-layer weights of conv1_2, conv2_2, conv3_3 (Chen & Koltun style scaling, values from the supplement).
+pub const VGG_LAYER_WEIGHTS: [f32; 3] = [11.17, 35.04, 29.09];
+
+/// Which training loss.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum LossKind {
+    /// The paper's VGG-16 feature loss.
+    #[default]
+    Vgg,
+    /// Mean absolute colour difference (cheap; for smoke tests and quick runs).
+    L1,
+}
+
+impl std::str::FromStr for LossKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s.to_ascii_lowercase().as_str() {
+            "vgg" => Ok(Self::Vgg),
+            "l1" => Ok(Self::L1),
+            other => Err(format!("unknown loss `{other}` (expected vgg or l1)")),
+        }
+    }
+}
+
+/// A loss function ready to evaluate (holds the VGG weights when needed).
+#[derive(Debug)]
+pub enum Loss {
+    Vgg(Box<Vgg16>),
+    L1,
+}
+
+impl Loss {
+    pub fn kind(&self) -> LossKind {
+        match self {
+            Loss::Vgg(_) => LossKind::Vgg,
+            Loss::L1 => LossKind::L1,
+        }
+    }
+
+    /// Per-example losses, shape [n]. `pred`, `target`: [n, 3, h, w] RGB in 0..1.
+    pub fn per_example(&self, pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
+        let [n, _, h, w] = pred.dims();
+        match self {
+            Loss::L1 => (pred - target).abs().reshape([n as i32, -1]).mean_dim(1).reshape([n]),
+            Loss::Vgg(vgg) => vgg_feature_loss(vgg, pred, target, h, w),
+        }
+    }
+
+    /// Sum of the per-example losses (the batch mean is this over the global batch size).
+    pub fn sum(&self, pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
+        self.per_example(pred, target).sum()
+    }
+}
+
+/// Reflect padding per side used for an `h x w` crop: `size / 8` (4 for 32, giving the paper's 40).
+pub fn feature_loss_padding(h: usize, w: usize) -> (usize, usize) {
+    (h / 8, w / 8)
+}
+
+fn vgg_feature_loss(vgg: &Vgg16, pred: Tensor<4>, target: Tensor<4>, h: usize, w: usize) -> Tensor<1> {
+    let n = pred.dims()[0];
+    let (ph, pw) = feature_loss_padding(h, w);
+    let pad = |t: Tensor<4>| if ph + pw > 0 { t.pad([(ph, ph), (pw, pw)], PadMode::Reflect) } else { t };
+    // One VGG pass over prediction and target together.
+    let both = Tensor::cat(vec![pad(pred), pad(target)], 0);
+    let f = vgg.features(both);
+    let l1 = |t: Tensor<4>| {
+        let d = t.dims()[0] / 2;
+        (t.clone().narrow(0, 0, d) - t.narrow(0, d, d)).abs().reshape([n as i32, -1]).sum_dim(1).reshape([n])
+    };
+    let [a, b, c] = VGG_LAYER_WEIGHTS;
+    (l1(f.conv1_2) * a + l1(f.conv2_2) * b + l1(f.conv3_3) * c) / (h * w) as f32
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::{Device, Distribution};
+
+    fn losses(device: &Device) -> Vec<Loss> {
+        let mut v = vec![Loss::L1];
+        match Vgg16::load_default(device) {
+            Ok(vgg) => v.push(Loss::Vgg(Box::new(vgg))),
+            Err(e) => eprintln!("SKIP vgg loss: {e}"),
+        }
+        v
+    }
+
+    #[test]
+    fn zero_for_identical_positive_otherwise_and_grad_flows() {
+        let device = Device::flex().autodiff();
+        for loss in losses(&device) {
+            let t = Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
+            let same = loss.per_example(t.clone(), t.clone()).into_data().try_to_vec::<f32>().unwrap();
+            assert!(same.iter().all(|v| *v == 0.0), "{:?}: {same:?}", loss.kind());
+            let p = Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device).require_grad();
+            let l = loss.sum(p.clone(), t);
+            let v = l.clone().into_scalar::<f32>();
+            assert!(v.is_finite() && v > 0.0, "{:?}: {v}", loss.kind());
+            let g = p.grad(&l.backward()).expect("gradient reaches the prediction");
+            let g = g.into_data().try_to_vec::<f32>().unwrap();
+            assert!(g.iter().all(|x| x.is_finite()));
+            assert!(g.iter().any(|x| *x != 0.0), "{:?}: zero gradient", loss.kind());
+        }
+    }
+
+    /// The loss of one example does not depend on the other examples of the batch, and the directional
+    /// derivative agrees with a finite difference.
+    #[test]
+    fn per_example_and_finite_difference() {
+        let device = Device::flex().autodiff();
+        for loss in losses(&device) {
+            let t = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+            let p = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
+            let both = loss.per_example(p.clone(), t.clone()).into_data().try_to_vec::<f32>().unwrap();
+            let first = loss.per_example(p.clone().narrow(0, 0, 1), t.clone().narrow(0, 0, 1)).into_scalar::<f32>();
+            assert!((both[0] - first).abs() <= 1e-4 * first.abs(), "{both:?} vs {first}");
+            let dir = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(-1.0, 1.0), &device);
+            let pg = p.clone().require_grad();
+            let l = loss.sum(pg.clone(), t.clone());
+            let g = pg.grad(&l.backward()).unwrap();
+            let analytic = (g * dir.clone().inner()).sum().into_scalar::<f32>() as f64;
+            let eps = 1e-3;
+            let lp = loss.sum(p.clone() + dir.clone() * eps, t.clone()).into_scalar::<f32>() as f64;
+            let lm = loss.sum(p - dir * eps, t).into_scalar::<f32>() as f64;
+            let numeric = (lp - lm) / (2.0 * eps as f64);
+            assert!(
+                (analytic - numeric).abs() < 0.05 * numeric.abs().max(1e-3),
+                "{:?}: analytic {analytic} numeric {numeric}",
+                loss.kind()
+            );
+        }
+    }
+}

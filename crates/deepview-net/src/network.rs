@@ -1,0 +1,392 @@
+//! The DeepView network: an initialisation net on plane sweep volumes and update nets on gradient
+//! components (learned gradient descent), all sharing one core architecture (see [`CoreNet`]).
+//!
+//! Shapes: K views, D planes (back to front), an MPI window of `h x w` pixels (a crop of the reference
+//! camera's image). Per-(view, plane) tensors are stacked view-major: index `k * D + d`.
+//!
+//! ```text
+//! M_0     = N_0([PSV_k, valid_k]_k)                         (init input: 4 channels per slice)
+//! M_{n+1} = M_n + N_n([grad_{n,k}, M_n]_k),  n = 1..=updates (update input: 11 + 8 channels)
+//! RGBA    = sigmoid(M[0..4]) with colour premultiplied by alpha
+//! ```
+//!
+//! Training windows ([`ModelInputs::shrink`]): after net `n` the state is cropped by
+//! [`DeepViewConfig::net_margin`]`(n)` on every side, so a window grown by
+//! [`DeepViewConfig::margin_from`]`(0)` around what the loss needs ends with exactly that region and no
+//! conv zero-padding effects inside it. Caveat (documented approximation): the gradient components of
+//! iteration `n` render the views from the *current window* only (outside it the MPI is transparent),
+//! whereas the full-image computation would also see MPI content outside the window through parallax.
+//! Inference (`infer.rs`) has no such approximation: it tiles each net separately and renders the views
+//! from the full MPI.
+
+use crate::config::DeepViewConfig;
+use crate::forward::{GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume};
+use burn::module::Module;
+use burn::nn::PaddingConfig2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::tensor::activation::{elu, sigmoid};
+use burn::tensor::module::{avg_pool2d, interpolate};
+use burn::tensor::ops::{AvgPoolOptions, InterpolateMode, InterpolateOptions};
+use burn::tensor::{Device, Tensor};
+
+/// Input channels per (view, plane) slice of the initialisation net: PSV RGB + validity.
+pub const INIT_CHANNELS: usize = 4;
+
+/// One per-iteration CNN (DESIGN.md section 4).
+#[derive(Module, Debug)]
+pub struct CoreNet {
+    /// Two per-view convs.
+    pub input: Vec<Conv2d>,
+    /// `2 * stages` convs, each pair after a (max over views, concat) step.
+    pub stages: Vec<Conv2d>,
+    /// After the final max over views: conv(F) ELU, conv(out) linear.
+    pub head: Conv2d,
+    pub out: Conv2d,
+    /// Run at half resolution (one-level U-Net).
+    pub unet: bool,
+}
+
+fn conv(i: usize, o: usize, device: &Device) -> Conv2d {
+    Conv2dConfig::new([i, o], [3, 3]).with_padding(PaddingConfig2d::Same).init(device)
+}
+
+impl CoreNet {
+    pub fn new(in_channels: usize, features: usize, out: usize, stages: usize, unet: bool, device: &Device) -> Self {
+        let f = features;
+        let mut st = Vec::new();
+        for _ in 0..stages {
+            st.push(conv(2 * f, f, device));
+            st.push(conv(f, f, device));
+        }
+        Self {
+            input: vec![conv(in_channels, f, device), conv(f, f, device)],
+            stages: st,
+            head: conv(f, f, device),
+            out: conv(f, out, device),
+            unet,
+        }
+    }
+
+    /// `x` `[K*D, C_in, h, w]` (view-major) -> `[D, out, h, w]`. Invariant to the order of the views.
+    pub fn forward(&self, x: Tensor<4>, views: usize) -> Tensor<4> {
+        let [kd, _, h, w] = x.dims();
+        let d = kd / views;
+        let x = if self.unet {
+            let opts = AvgPoolOptions::new([2, 2]).with_padding_pairs([(0, h % 2), (0, w % 2)]);
+            avg_pool2d(x, opts)
+        } else {
+            x
+        };
+        let mut f = x;
+        for c in &self.input {
+            f = elu(c.forward(f), 1.0);
+        }
+        for pair in self.stages.chunks(2) {
+            let [_, fc, hh, ww] = f.dims();
+            let m = max_over_views(f.clone(), views).reshape([1, d, fc, hh, ww]).repeat_dim(0, views);
+            f = Tensor::cat(vec![f, m.reshape([kd, fc, hh, ww])], 1);
+            for c in pair {
+                f = elu(c.forward(f), 1.0);
+            }
+        }
+        let m = max_over_views(f, views);
+        let o = self.out.forward(elu(self.head.forward(m), 1.0));
+        if self.unet {
+            let [_, _, hh, ww] = o.dims();
+            let opts = InterpolateOptions::new(InterpolateMode::Bilinear)
+                .with_align_corners(false)
+                .with_output_size([2 * hh, 2 * ww]);
+            interpolate(o, opts).narrow(2, 0, h).narrow(3, 0, w)
+        } else {
+            o
+        }
+    }
+}
+
+/// `[K*D, C, h, w]` -> `[D, C, h, w]`, element-wise maximum over the K views.
+pub fn max_over_views(x: Tensor<4>, views: usize) -> Tensor<4> {
+    let [kd, c, h, w] = x.dims();
+    let d = kd / views;
+    x.reshape([views, d * c, h, w]).max_dim(0).reshape([d, c, h, w])
+}
+
+/// The network state `M` `[D, 4 + extra, h, w]` -> RGBA `[D, 4, h, w]` (sigmoid, colour premultiplied).
+pub fn state_to_rgba(state: Tensor<4>) -> Tensor<4> {
+    let s = sigmoid(state.narrow(1, 0, 4));
+    let a = s.clone().narrow(1, 3, 1);
+    Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)
+}
+
+/// What the model needs: K view images and the plane homographies from the MPI window to each view.
+#[derive(Clone, Debug)]
+pub struct ModelInputs {
+    /// K images `[3, hv_k, wv_k]` (whole views or crops of them), values in 0..1.
+    pub images: Vec<Tensor<3>>,
+    /// `mpi_to_view[k][d]`: row-major homography from MPI-window pixels of plane `d` (back to front) to
+    /// pixels of `images[k]` (use `forward::crop_output`/`crop_source` for window and image crops).
+    pub mpi_to_view: Vec<Vec<Hom>>,
+    /// MPI window size.
+    pub height: usize,
+    pub width: usize,
+    /// Crop the state by each net's margin after that net (training windows; see the module docs).
+    pub shrink: bool,
+}
+
+impl ModelInputs {
+    pub fn views(&self) -> usize {
+        self.images.len()
+    }
+    pub fn planes(&self) -> usize {
+        self.mpi_to_view.first().map_or(0, |h| h.len())
+    }
+}
+
+/// The model's result on a window.
+#[derive(Clone, Debug)]
+pub struct ModelOutput {
+    /// Premultiplied RGBA MPI `[D, 4, h, w]`, plane 0 the farthest.
+    pub rgba: Tensor<4>,
+    /// The final state `M_N` `[D, 4 + extra, h, w]`.
+    pub state: Tensor<4>,
+    /// Top-left of the output in the input window's pixels (non-zero with `shrink`): the output covers
+    /// `[x0, x0 + w) x [y0, y0 + h)` of the window.
+    pub offset: (usize, usize),
+}
+
+/// The whole learned-gradient-descent model.
+#[derive(Module, Debug)]
+pub struct DeepViewModel {
+    pub nets: Vec<CoreNet>,
+    /// Carried in the module as constants: RGBA + extra channels, views fixed by the weights (0 = any).
+    pub state_channels: usize,
+    pub fixed_views: usize,
+}
+
+impl DeepViewModel {
+    pub fn new(config: &DeepViewConfig, device: &Device) -> Self {
+        let sc = config.state_channels();
+        let nets = (0..config.nets())
+            .map(|n| {
+                let cin = if n == 0 { INIT_CHANNELS } else { GRADIENT_CHANNELS + sc };
+                CoreNet::new(cin, config.features(n), sc, config.max_pool_stages, config.unet(n), device)
+            })
+            .collect();
+        Self { nets, state_channels: sc, fixed_views: config.views.unwrap_or(0) }
+    }
+
+    /// Input of the initialisation net for one view on a region of the window: `[D, 4, h, w]` (PSV and
+    /// validity). `mpi_to_view` is relative to the window; `region = (x0, y0, w, h)`.
+    pub fn init_input(image: Tensor<3>, mpi_to_view: &[Hom], region: (usize, usize, usize, usize)) -> Tensor<4> {
+        let (x0, y0, w, h) = region;
+        let homs: Vec<Hom> = mpi_to_view.iter().map(|m| crop_output(m, x0 as f64, y0 as f64)).collect();
+        plane_sweep_volume(image, &homs, h, w)
+    }
+
+    /// Run net `n` on per-view inputs (each `[D, C, h, w]`); update nets also get the state `[D, S, h, w]`
+    /// concatenated. Returns the net's output `[D, S, h, w]` (the state for n = 0, the update otherwise).
+    pub fn run_net(&self, n: usize, per_view: Vec<Tensor<4>>, state: Option<Tensor<4>>) -> Tensor<4> {
+        let k = per_view.len();
+        let x = per_view
+            .into_iter()
+            .map(|v| match &state {
+                Some(s) => Tensor::cat(vec![v, s.clone()], 1),
+                None => v,
+            })
+            .collect();
+        self.nets[n].forward(Tensor::cat(x, 0), k)
+    }
+
+    /// The whole model on a window (see [`ModelInputs`]).
+    pub fn forward(&self, inputs: &ModelInputs) -> ModelOutput {
+        let k = inputs.views();
+        let (mut w, mut h) = (inputs.width, inputs.height);
+        let mut homs = inputs.mpi_to_view.clone();
+        let mut offset = (0usize, 0usize);
+        let mut state: Option<Tensor<4>> = None;
+        for n in 0..self.nets.len() {
+            let per_view: Vec<Tensor<4>> = (0..k)
+                .map(|v| match &state {
+                    None => Self::init_input(inputs.images[v].clone(), &homs[v], (0, 0, w, h)),
+                    Some(s) => {
+                        gradient_components(state_to_rgba(s.clone()), inputs.images[v].clone(), &homs[v], (0, 0, w, h))
+                    }
+                })
+                .collect();
+            let out = self.run_net(n, per_view, state.clone());
+            let mut s = match state {
+                None => out,
+                Some(s) => s + out,
+            };
+            if inputs.shrink {
+                let m = self.margin(n);
+                let m = m.min((w.saturating_sub(1)) / 2).min((h.saturating_sub(1)) / 2) & !1;
+                if m > 0 {
+                    w -= 2 * m;
+                    h -= 2 * m;
+                    s = s.narrow(3, m, w).narrow(2, m, h);
+                    offset = (offset.0 + m, offset.1 + m);
+                    for hv in homs.iter_mut() {
+                        for hom in hv.iter_mut() {
+                            *hom = crop_output(hom, m as f64, m as f64);
+                        }
+                    }
+                }
+            }
+            state = Some(s);
+        }
+        let state = state.expect("at least one net");
+        ModelOutput { rgba: state_to_rgba(state.clone()), state, offset }
+    }
+
+    /// Receptive-field margin of net `n` (same rule as [`DeepViewConfig::net_margin`]).
+    pub fn margin(&self, n: usize) -> usize {
+        let r = self.nets[n].input.len() + self.nets[n].stages.len() + 2;
+        let m = if self.nets[n].unet { 2 * r + 4 } else { r };
+        m.next_multiple_of(2)
+    }
+
+    /// Sum of the margins of nets `from..`.
+    pub fn margin_from(&self, from: usize) -> usize {
+        (from..self.nets.len()).map(|n| self.margin(n)).sum()
+    }
+}
+
+/// Synthetic inputs for tests and benchmarks: K cameras on a small circle around a reference camera
+/// looking down +z, random images, planes between depth 1 and 10.
+pub fn synthetic_inputs(views: usize, planes: usize, h: usize, w: usize, device: &Device) -> ModelInputs {
+    use burn::tensor::Distribution;
+    use deepview_geometry::{Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths, plane_homography};
+    let reference = Camera::new(w as u32, h as u32, Intrinsics::centred(w as f64, w as u32, h as u32), Pose::IDENTITY);
+    let depths = plane_depths(1.0, 10.0, planes, PlaneSpacing::InverseDepth).expect("valid depths");
+    let mut images = Vec::new();
+    let mut mpi_to_view = Vec::new();
+    for k in 0..views {
+        let t = k as f64 / views as f64 * std::f64::consts::TAU;
+        let cam = Camera::new(
+            w as u32,
+            h as u32,
+            reference.intrinsics,
+            Pose::from_center(DMat3::IDENTITY, DVec3::new(0.05 * t.cos(), 0.05 * t.sin(), 0.0)),
+        );
+        images.push(Tensor::<3>::random([3, h, w], Distribution::Uniform(0.0, 1.0), device));
+        mpi_to_view.push(depths.iter().map(|&d| plane_homography(&reference, &cam, d).to_row_major()).collect());
+    }
+    ModelInputs { images, mpi_to_view, height: h, width: w, shrink: false }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn small_config() -> DeepViewConfig {
+        DeepViewConfig { features_large: 6, features_small: 4, updates: 2, unet_nets: 1, ..DeepViewConfig::preset("cpu").unwrap() }
+    }
+
+    fn max_diff(a: Tensor<4>, b: Tensor<4>) -> f32 {
+        (a - b).abs().max().into_scalar()
+    }
+
+    #[test]
+    fn order_invariant_in_views() {
+        let dev = Device::flex();
+        let model = DeepViewModel::new(&small_config(), &dev);
+        let inputs = synthetic_inputs(4, 5, 17, 21, &dev);
+        let out = model.forward(&inputs);
+        assert_eq!(out.rgba.dims(), [5, 4, 17, 21]);
+        let mut perm = inputs.clone();
+        let order = [2, 0, 3, 1];
+        perm.images = order.iter().map(|&i| inputs.images[i].clone()).collect();
+        perm.mpi_to_view = order.iter().map(|&i| inputs.mpi_to_view[i].clone()).collect();
+        let out2 = model.forward(&perm);
+        assert!(max_diff(out.rgba.clone(), out2.rgba) < 1e-5);
+        // The output is a valid premultiplied MPI.
+        let v: Vec<f32> = out.rgba.into_data().try_to_vec().unwrap();
+        assert!(v.iter().all(|x| (0.0..=1.0).contains(x)));
+    }
+
+    #[test]
+    fn any_view_count_plane_count_and_size() {
+        let dev = Device::flex();
+        let model = DeepViewModel::new(&small_config(), &dev);
+        for (k, d, h, w) in [(2, 3, 16, 16), (5, 4, 13, 19), (3, 1, 9, 30)] {
+            let out = model.forward(&synthetic_inputs(k, d, h, w, &dev));
+            assert_eq!(out.rgba.dims(), [d, 4, h, w]);
+            let s: f32 = out.rgba.sum().into_scalar();
+            assert!(s.is_finite());
+        }
+    }
+
+    #[test]
+    fn shrinking_window_crops_by_the_margins() {
+        let dev = Device::flex();
+        let cfg = small_config();
+        let model = DeepViewModel::new(&cfg, &dev);
+        let total = cfg.margin_from(0);
+        assert_eq!(total, model.margin_from(0));
+        let (h, w) = (2 * total + 6, 2 * total + 8);
+        let mut inputs = synthetic_inputs(2, 3, h, w, &dev);
+        inputs.shrink = true;
+        let out = model.forward(&inputs);
+        assert_eq!(out.rgba.dims(), [3, 4, 6, 8]);
+        assert_eq!(out.offset, (total, total));
+    }
+
+    #[test]
+    fn unet_net_is_translation_equivariant_by_even_shifts() {
+        // The property tiled inference relies on: a U-Net core net's output on a crop (at an even offset,
+        // away from the crop border by its margin) equals the crop of its output.
+        let dev = Device::flex();
+        let net = CoreNet::new(3, 5, 8, 2, true, &dev);
+        let x = Tensor::<4>::random([6, 3, 60, 66], burn::tensor::Distribution::Uniform(-1.0, 1.0), &dev);
+        let full = net.forward(x.clone(), 2);
+        let m = 2 * (2 + 4 + 2) + 4;
+        let (x0, y0) = (2usize, 4usize);
+        let (h, w) = (60 - y0, 66 - x0 - 1);
+        let crop = net.forward(x.narrow(2, y0, h).narrow(3, x0, w), 2);
+        let a = full.narrow(2, y0 + m, h - 2 * m).narrow(3, x0 + m, w - 2 * m);
+        let b = crop.narrow(2, m, h - 2 * m).narrow(3, m, w - 2 * m);
+        assert!(max_diff(a, b) < 1e-5);
+    }
+
+    /// `cargo test --release -p deepview-net -- --ignored bench_cpu_preset --nocapture`
+    #[test]
+    #[ignore]
+    fn bench_cpu_preset() {
+        use std::time::Instant;
+        let cfg = DeepViewConfig::preset("cpu").unwrap();
+        let inner = Device::flex();
+        let model = DeepViewModel::new(&cfg, &inner);
+        let inputs = synthetic_inputs(4, 16, 48, 48, &inner);
+        let _: f32 = model.forward(&inputs).rgba.sum().into_scalar();
+        let t = Instant::now();
+        let _: f32 = model.forward(&inputs).rgba.sum().into_scalar();
+        let fwd = t.elapsed().as_secs_f64();
+        let ad = inner.clone().autodiff();
+        let model = DeepViewModel::new(&cfg, &ad);
+        let inputs = synthetic_inputs(4, 16, 48, 48, &ad);
+        let mut times = Vec::new();
+        for _ in 0..3 {
+            let t = Instant::now();
+            let out = model.forward(&inputs);
+            let loss = out.rgba.mean();
+            let _g = loss.backward();
+            times.push(t.elapsed().as_secs_f64());
+        }
+        println!("cpu preset 4 views x 16 planes x 48x48: forward {fwd:.3}s, forward+backward {times:.3?}");
+        // Warp: gather vs grid_sample, 16 planes x 4 channels x 96x96, forward + backward.
+        let x = Tensor::<4>::random([16, 4, 96, 96], burn::tensor::Distribution::Uniform(0.0, 1.0), &ad).require_grad();
+        let homs: Vec<[f32; 9]> = (0..16).map(|i| [1.01, 0.01, 0.3 * i as f32, 0.0, 0.99, -0.2, 0.0, 0.0, 1.0]).collect();
+        for name in ["gather", "grid_sample"] {
+            let t = Instant::now();
+            for _ in 0..3 {
+                let y = if name == "gather" {
+                    crate::forward::warp_planes(x.clone(), &homs, 96, 96)
+                } else {
+                    crate::forward::warp_planes_grid_sample(x.clone(), &homs, 96, 96)
+                };
+                let _g = y.sum().backward();
+            }
+            println!("warp {name}: fwd+bwd {:.1} ms", t.elapsed().as_secs_f64() / 3.0 * 1e3);
+        }
+    }
+}

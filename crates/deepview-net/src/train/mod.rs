@@ -1,0 +1,3 @@
+//! Training (see the module docs of each file).
+
+pub mod clip;
