@@ -30,6 +30,14 @@ enum Command {
     /// Print what a dataset folder contains (format, views, cameras, depth bounds).
     Info(cmd::info::Args),
     // -- commands added by the other parts of the project go below this line --
+    /// Score a method (nearest, psv-mean, optimize, deepview) on a scene under a protocol: SSIM, PSNR, JSON.
+    Eval(cmd::eval::Args),
+    /// Fit an MPI to input views by classical gradient descent (no learning) and write it.
+    Optimize(cmd::optimize::Args),
+    /// Train the network (runs/<name>/: config, metrics, checkpoints; --resume; Ctrl-C saves).
+    Train(cmd::train::Args),
+    /// Infer an MPI from a few posed views with the learned network (tiled, bounded memory).
+    Infer(cmd::infer::Args),
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
@@ -41,6 +49,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Info(a) => cmd::info::run(a),
         // -- dispatch lines of the other commands go below this line --
+        Command::Eval(a) => cmd::eval::run(a),
+        Command::Optimize(a) => cmd::optimize::run(a),
+        Command::Train(a) => cmd::train::run(a),
+        Command::Infer(a) => cmd::infer::run(a),
     }
 }
 

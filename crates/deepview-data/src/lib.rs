@@ -27,25 +27,55 @@ pub use formats::spaces::{spaces_relative_path, write_spaces_models};
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {
     #[error("cannot read {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("cannot write {path}: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error(transparent)]
     Image(#[from] ImageError),
     #[error("{path}: malformed JSON: {source}")]
-    Json { path: PathBuf, source: serde_json::Error },
+    Json {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
     #[error("{}: {msg}", location(.path, *.line))]
-    Parse { path: PathBuf, line: Option<usize>, msg: String },
+    Parse {
+        path: PathBuf,
+        line: Option<usize>,
+        msg: String,
+    },
     #[error("{path}: {what}: {source}")]
-    Geometry { path: PathBuf, what: String, source: GeometryError },
+    Geometry {
+        path: PathBuf,
+        what: String,
+        source: GeometryError,
+    },
     #[error("image file {path} (view {view}) does not exist")]
     MissingImage { path: PathBuf, view: String },
-    #[error("image {path} is {got:?} (width, height) but its camera from {calibration} says {expected:?}")]
-    ImageSize { path: PathBuf, calibration: PathBuf, expected: (u32, u32), got: (u32, u32) },
+    #[error(
+        "image {path} is {got:?} (width, height) but its camera from {calibration} says {expected:?}"
+    )]
+    ImageSize {
+        path: PathBuf,
+        calibration: PathBuf,
+        expected: (u32, u32),
+        got: (u32, u32),
+    },
     #[error("{path}: {msg}")]
     CountMismatch { path: PathBuf, msg: String },
-    #[error("{path}: rig position {rig} is out of range: the file has {count} rig position(s) (0..{count})")]
-    RigOutOfRange { path: PathBuf, rig: usize, count: usize },
+    #[error(
+        "{path}: rig position {rig} is out of range: the file has {count} rig position(s) (0..{count})"
+    )]
+    RigOutOfRange {
+        path: PathBuf,
+        rig: usize,
+        count: usize,
+    },
     #[error("{path}: no depth bounds known for this scene; pass --near and --far{hint}")]
     NoDepthBounds { path: PathBuf, hint: String },
     #[error("{path}: cannot detect the dataset format; looked for {looked_for}")]
@@ -63,19 +93,36 @@ fn location(path: &Path, line: Option<usize>) -> String {
 
 impl DataError {
     pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
-        DataError::Io { path: path.into(), source }
+        DataError::Io {
+            path: path.into(),
+            source,
+        }
     }
     pub(crate) fn write(path: &Path, source: std::io::Error) -> Self {
-        DataError::Write { path: path.into(), source }
+        DataError::Write {
+            path: path.into(),
+            source,
+        }
     }
     pub(crate) fn parse(path: &Path, line: Option<usize>, msg: impl Into<String>) -> Self {
-        DataError::Parse { path: path.into(), line, msg: msg.into() }
+        DataError::Parse {
+            path: path.into(),
+            line,
+            msg: msg.into(),
+        }
     }
     pub(crate) fn invalid(path: &Path, msg: impl Into<String>) -> Self {
-        DataError::Invalid { path: path.into(), msg: msg.into() }
+        DataError::Invalid {
+            path: path.into(),
+            msg: msg.into(),
+        }
     }
     pub(crate) fn geometry(path: &Path, what: impl Into<String>, source: GeometryError) -> Self {
-        DataError::Geometry { path: path.into(), what: what.into(), source }
+        DataError::Geometry {
+            path: path.into(),
+            what: what.into(),
+            source,
+        }
     }
 }
 
@@ -94,8 +141,12 @@ pub enum SceneFormat {
 }
 
 impl SceneFormat {
-    pub const ALL: [SceneFormat; 4] =
-        [SceneFormat::Llff, SceneFormat::Colmap, SceneFormat::Spaces, SceneFormat::LightField];
+    pub const ALL: [SceneFormat; 4] = [
+        SceneFormat::Llff,
+        SceneFormat::Colmap,
+        SceneFormat::Spaces,
+        SceneFormat::LightField,
+    ];
 
     pub fn name(&self) -> &'static str {
         match self {
@@ -121,7 +172,9 @@ impl FromStr for SceneFormat {
             "colmap" => Ok(SceneFormat::Colmap),
             "spaces" => Ok(SceneFormat::Spaces),
             "light-field" | "lightfield" | "hci" => Ok(SceneFormat::LightField),
-            _ => Err(format!("unknown scene format '{s}' (expected llff, colmap, spaces or light-field)")),
+            _ => Err(format!(
+                "unknown scene format '{s}' (expected llff, colmap, spaces or light-field)"
+            )),
         }
     }
 }
@@ -163,7 +216,8 @@ pub struct LoadOptions {
     pub far: Option<f64>,
 }
 
-/// The scene flags every command shares.
+// The scene flags every command shares. (A plain comment: clap would turn a doc comment into the
+// `about` text of every command that flattens this.)
 #[derive(clap::Args, Clone, Debug, Default)]
 pub struct SceneArgs {
     /// Dataset format; detected from the folder contents when omitted.
@@ -210,7 +264,10 @@ pub const DETECTION_RULES: &str = "poses_bounds.npy (LLFF), models.json (Spaces)
 /// Detect the format of a dataset folder from its contents.
 pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
     if !path.is_dir() {
-        return Err(DataError::invalid(path, "is not a folder (expected a dataset folder)"));
+        return Err(DataError::invalid(
+            path,
+            "is not a folder (expected a dataset folder)",
+        ));
     }
     let has = |p: &str| path.join(p).exists();
     if has("poses_bounds.npy") {
@@ -222,7 +279,10 @@ pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
     } else if has("input_Cam000.png") {
         Ok(SceneFormat::LightField)
     } else {
-        Err(DataError::NotDetected { path: path.into(), looked_for: DETECTION_RULES.into() })
+        Err(DataError::NotDetected {
+            path: path.into(),
+            looked_for: DETECTION_RULES.into(),
+        })
     }
 }
 
@@ -283,7 +343,9 @@ impl Scene {
         match self.format {
             SceneFormat::Llff => self.root.join("poses_bounds.npy"),
             SceneFormat::Spaces => self.root.join("models.json"),
-            SceneFormat::Colmap => formats::colmap::model_dir(&self.root).unwrap_or(self.root.clone()),
+            SceneFormat::Colmap => {
+                formats::colmap::model_dir(&self.root).unwrap_or(self.root.clone())
+            }
             SceneFormat::LightField => self.root.clone(),
         }
     }
@@ -292,7 +354,10 @@ impl Scene {
     pub fn check_image(&self, i: usize) -> Result<(), DataError> {
         let v = self.view(i)?;
         if !v.image_path.is_file() {
-            return Err(DataError::MissingImage { path: v.image_path.clone(), view: v.name.clone() });
+            return Err(DataError::MissingImage {
+                path: v.image_path.clone(),
+                view: v.name.clone(),
+            });
         }
         let got = image_size(&v.image_path)?;
         let expected = (v.camera.width, v.camera.height);
@@ -314,7 +379,13 @@ impl Scene {
 
     fn view(&self, i: usize) -> Result<&View, DataError> {
         self.views.get(i).ok_or_else(|| {
-            DataError::invalid(&self.root, format!("view {i} out of range (the scene has {} views)", self.views.len()))
+            DataError::invalid(
+                &self.root,
+                format!(
+                    "view {i} out of range (the scene has {} views)",
+                    self.views.len()
+                ),
+            )
         })
     }
 
@@ -339,10 +410,14 @@ impl Scene {
         self.depth_bounds.ok_or_else(|| DataError::NoDepthBounds {
             path: self.root.clone(),
             hint: match self.format {
-                SceneFormat::Spaces => " (Spaces models.json carries no depth bounds; the paper's scenes \
+                SceneFormat::Spaces => {
+                    " (Spaces models.json carries no depth bounds; the paper's scenes \
                                         span roughly 0.7 m to 100 m)"
-                    .into(),
-                SceneFormat::Colmap => " (the COLMAP model has no 3D points to derive them from)".into(),
+                        .into()
+                }
+                SceneFormat::Colmap => {
+                    " (the COLMAP model has no 3D points to derive them from)".into()
+                }
                 _ => String::new(),
             },
         })
@@ -367,8 +442,14 @@ pub(crate) fn list_images(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
     for entry in rd {
         let entry = entry.map_err(|e| DataError::io(dir, e))?;
         let p = entry.path();
-        let ext = p.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-        let hidden = p.file_name().map(|n| n.to_string_lossy().starts_with('.')).unwrap_or(true);
+        let ext = p
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        let hidden = p
+            .file_name()
+            .map(|n| n.to_string_lossy().starts_with('.'))
+            .unwrap_or(true);
         if !hidden && p.is_file() && matches!(ext.as_str(), "png" | "jpg" | "jpeg") {
             out.push(p);
         }
@@ -412,7 +493,10 @@ mod tests {
             let j = serde_json::to_string(&f).unwrap();
             assert_eq!(j, format!("\"{f}\""));
             assert_eq!(serde_json::from_str::<SceneFormat>(&j).unwrap(), f);
-            assert_eq!(<SceneFormat as clap::ValueEnum>::from_str(f.name(), false).unwrap(), f);
+            assert_eq!(
+                <SceneFormat as clap::ValueEnum>::from_str(f.name(), false).unwrap(),
+                f
+            );
         }
         assert!("nope".parse::<SceneFormat>().is_err());
     }
@@ -420,8 +504,15 @@ mod tests {
     #[test]
     fn undetectable_folder_lists_what_was_looked_for() {
         let dir = tempfile::tempdir().unwrap();
-        let e = load_scene(dir.path(), &LoadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("poses_bounds.npy") && e.contains("models.json") && e.contains("input_Cam000.png"), "{e}");
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("poses_bounds.npy")
+                && e.contains("models.json")
+                && e.contains("input_Cam000.png"),
+            "{e}"
+        );
         assert!(e.contains(&dir.path().display().to_string()), "{e}");
     }
 
@@ -433,7 +524,17 @@ mod tests {
             #[command(flatten)]
             scene: SceneArgs,
         }
-        let c = Cli::parse_from(["x", "--format", "light-field", "--rig", "2", "--near", "1.5", "--images", "images_4"]);
+        let c = Cli::parse_from([
+            "x",
+            "--format",
+            "light-field",
+            "--rig",
+            "2",
+            "--near",
+            "1.5",
+            "--images",
+            "images_4",
+        ]);
         let o = c.scene.load_options();
         assert_eq!(o.format, Some(SceneFormat::LightField));
         assert_eq!((o.rig, o.near, o.far), (2, Some(1.5), None));

@@ -20,9 +20,14 @@ pub fn read_npy(path: &Path) -> Result<NpyArray, DataError> {
 
 /// Parse `.npy` bytes; `path` only names the source in errors.
 pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray, DataError> {
-    let err = |msg: String| DataError::Invalid { path: path.into(), msg: format!("malformed .npy file: {msg}") };
+    let err = |msg: String| DataError::Invalid {
+        path: path.into(),
+        msg: format!("malformed .npy file: {msg}"),
+    };
     if bytes.len() < 10 || &bytes[..6] != MAGIC {
-        return Err(err("missing the \\x93NUMPY magic string (not a .npy file or truncated)".into()));
+        return Err(err(
+            "missing the \\x93NUMPY magic string (not a .npy file or truncated)".into(),
+        ));
     }
     let major = bytes[6];
     let (header_len, start) = match major {
@@ -31,34 +36,54 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray, DataError> {
             if bytes.len() < 12 {
                 return Err(err("truncated header".into()));
             }
-            (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12)
+            (
+                u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+                12,
+            )
         }
         v => return Err(err(format!("unsupported format version {v}"))),
     };
     let end = start + header_len;
     if bytes.len() < end {
-        return Err(err(format!("header says {header_len} bytes but the file ends at {}", bytes.len())));
+        return Err(err(format!(
+            "header says {header_len} bytes but the file ends at {}",
+            bytes.len()
+        )));
     }
-    let header = std::str::from_utf8(&bytes[start..end]).map_err(|_| err("header is not text".into()))?;
-    let descr = dict_value(header, "descr").ok_or_else(|| err(format!("no 'descr' in header {header:?}")))?;
+    let header =
+        std::str::from_utf8(&bytes[start..end]).map_err(|_| err("header is not text".into()))?;
+    let descr = dict_value(header, "descr")
+        .ok_or_else(|| err(format!("no 'descr' in header {header:?}")))?;
     let descr = descr.trim().trim_matches(|c| c == '\'' || c == '"');
     let fortran = dict_value(header, "fortran_order")
         .ok_or_else(|| err(format!("no 'fortran_order' in header {header:?}")))?;
     let fortran = match fortran.trim() {
         "True" => true,
         "False" => false,
-        v => return Err(err(format!("fortran_order must be True or False, got {v:?}"))),
+        v => {
+            return Err(err(format!(
+                "fortran_order must be True or False, got {v:?}"
+            )));
+        }
     };
-    let shape = dict_value(header, "shape").ok_or_else(|| err(format!("no 'shape' in header {header:?}")))?;
+    let shape = dict_value(header, "shape")
+        .ok_or_else(|| err(format!("no 'shape' in header {header:?}")))?;
     let shape = parse_shape(shape).ok_or_else(|| err(format!("cannot parse shape {shape:?}")))?;
     let (size, little) = match descr {
         "<f8" | "=f8" => (8, true),
         "<f4" | "=f4" => (4, true),
         ">f8" => (8, false),
         ">f4" => (4, false),
-        d => return Err(err(format!("unsupported dtype {d:?} (expected float64 or float32)"))),
+        d => {
+            return Err(err(format!(
+                "unsupported dtype {d:?} (expected float64 or float32)"
+            )));
+        }
     };
-    let count = shape.iter().try_fold(1usize, |a, &b| a.checked_mul(b)).ok_or_else(|| err("shape overflows".into()))?;
+    let count = shape
+        .iter()
+        .try_fold(1usize, |a, &b| a.checked_mul(b))
+        .ok_or_else(|| err("shape overflows".into()))?;
     let payload = &bytes[end..];
     if payload.len() < count * size {
         return Err(err(format!(
@@ -76,13 +101,19 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray, DataError> {
             (_, false) => f32::from_be_bytes(c.try_into().unwrap()) as f64,
         })
         .collect();
-    let data = if fortran && shape.len() > 1 { fortran_to_c(&data, &shape) } else { data };
+    let data = if fortran && shape.len() > 1 {
+        fortran_to_c(&data, &shape)
+    } else {
+        data
+    };
     Ok(NpyArray { shape, data })
 }
 
 /// The text of a value in a Python dict literal (`'key': value,`), up to the next top-level comma or `}`.
 fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
-    let pos = header.find(&format!("'{key}'")).or_else(|| header.find(&format!("\"{key}\"")))?;
+    let pos = header
+        .find(&format!("'{key}'"))
+        .or_else(|| header.find(&format!("\"{key}\"")))?;
     let rest = &header[pos + key.len() + 2..];
     let rest = rest.trim_start().strip_prefix(':')?;
     let mut depth = 0i32;
@@ -99,7 +130,12 @@ fn dict_value<'a>(header: &'a str, key: &str) -> Option<&'a str> {
 
 fn parse_shape(s: &str) -> Option<Vec<usize>> {
     let inner = s.trim().strip_prefix('(')?.strip_suffix(')')?;
-    inner.split(',').map(str::trim).filter(|t| !t.is_empty()).map(|t| t.trim_end_matches('L').parse().ok()).collect()
+    inner
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(|t| t.trim_end_matches('L').parse().ok())
+        .collect()
 }
 
 fn fortran_to_c(data: &[f64], shape: &[usize]) -> Vec<f64> {
@@ -126,9 +162,17 @@ fn fortran_to_c(data: &[f64], shape: &[usize]) -> Vec<f64> {
 
 /// `.npy` bytes (version 1, `<f8`, C order) for `data` of `shape`.
 pub fn npy_bytes(shape: &[usize], data: &[f64]) -> Vec<u8> {
-    assert_eq!(shape.iter().product::<usize>(), data.len(), "npy_bytes: shape does not match the data");
+    assert_eq!(
+        shape.iter().product::<usize>(),
+        data.len(),
+        "npy_bytes: shape does not match the data"
+    );
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let shape_txt = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
+    let shape_txt = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
     let mut header = format!("{{'descr': '<f8', 'fortran_order': False, 'shape': {shape_txt}, }}");
     let total = MAGIC.len() + 4 + header.len() + 1;
     header.push_str(&" ".repeat((64 - total % 64) % 64));
@@ -147,7 +191,10 @@ pub fn npy_bytes(shape: &[usize], data: &[f64]) -> Vec<u8> {
 /// Write a `<f8` C-order `.npy` file atomically.
 pub fn write_npy(path: &Path, shape: &[usize], data: &[f64]) -> Result<(), DataError> {
     if shape.iter().product::<usize>() != data.len() {
-        return Err(DataError::invalid(path, format!("shape {shape:?} does not match {} values", data.len())));
+        return Err(DataError::invalid(
+            path,
+            format!("shape {shape:?} does not match {} values", data.len()),
+        ));
     }
     crate::write_bytes(path, &npy_bytes(shape, data))
 }
@@ -179,7 +226,13 @@ mod tests {
         let b = npy_bytes(&[2, 3], &data);
         let header_end = 10 + u16::from_le_bytes([b[8], b[9]]) as usize;
         assert_eq!(header_end % 64, 0);
-        assert_eq!(parse_npy(&b, p()).unwrap(), NpyArray { shape: vec![2, 3], data });
+        assert_eq!(
+            parse_npy(&b, p()).unwrap(),
+            NpyArray {
+                shape: vec![2, 3],
+                data
+            }
+        );
         let one = npy_bytes(&[3], &[1.0, 2.0, 3.0]);
         assert_eq!(parse_npy(&one, p()).unwrap().shape, vec![3]);
     }
@@ -187,13 +240,27 @@ mod tests {
     #[test]
     fn v2_f4_and_fortran_order() {
         // Column-major [[1, 2, 3], [4, 5, 6]] stored as 1 4 2 5 3 6, float32.
-        let payload: Vec<u8> = [1.0f32, 4.0, 2.0, 5.0, 3.0, 6.0].iter().flat_map(|v| v.to_le_bytes()).collect();
-        let b = with_header(2, "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }\n", &payload);
+        let payload: Vec<u8> = [1.0f32, 4.0, 2.0, 5.0, 3.0, 6.0]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
+        let b = with_header(
+            2,
+            "{'descr': '<f4', 'fortran_order': True, 'shape': (2, 3), }\n",
+            &payload,
+        );
         let a = parse_npy(&b, p()).unwrap();
         assert_eq!(a.shape, vec![2, 3]);
         assert_eq!(a.data, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
-        let payload: Vec<u8> = [1.5f64, -2.0].iter().flat_map(|v| v.to_be_bytes()).collect();
-        let b = with_header(1, "{'descr': '>f8', 'fortran_order': False, 'shape': (2,), }\n", &payload);
+        let payload: Vec<u8> = [1.5f64, -2.0]
+            .iter()
+            .flat_map(|v| v.to_be_bytes())
+            .collect();
+        let b = with_header(
+            1,
+            "{'descr': '>f8', 'fortran_order': False, 'shape': (2,), }\n",
+            &payload,
+        );
         assert_eq!(parse_npy(&b, p()).unwrap().data, vec![1.5, -2.0]);
     }
 
@@ -205,9 +272,26 @@ mod tests {
             (good[..5].to_vec(), "magic"),
             (b"PK\x03\x04 not npy at all".to_vec(), "magic"),
             (good[..40].to_vec(), "header says"),
-            (with_header(1, "{'descr': '<i8', 'fortran_order': False, 'shape': (2,), }\n", &[0; 16]), "dtype"),
-            (with_header(1, "{'descr': '<f8', 'shape': (2,), }\n", &[0; 16]), "fortran_order"),
-            (with_header(1, "{'descr': '<f8', 'fortran_order': False, 'shape': (2,x), }\n", &[0; 16]), "shape"),
+            (
+                with_header(
+                    1,
+                    "{'descr': '<i8', 'fortran_order': False, 'shape': (2,), }\n",
+                    &[0; 16],
+                ),
+                "dtype",
+            ),
+            (
+                with_header(1, "{'descr': '<f8', 'shape': (2,), }\n", &[0; 16]),
+                "fortran_order",
+            ),
+            (
+                with_header(
+                    1,
+                    "{'descr': '<f8', 'fortran_order': False, 'shape': (2,x), }\n",
+                    &[0; 16],
+                ),
+                "shape",
+            ),
             (with_header(7, "{}", &[]), "version"),
         ];
         for (bytes, want) in cases {

@@ -19,7 +19,10 @@ pub fn read_pfm(path: &Path) -> Result<Pfm, DataError> {
 
 /// Parse PFM bytes; `path` only names the source in errors.
 pub fn parse_pfm(bytes: &[u8], path: &Path) -> Result<Pfm, DataError> {
-    let err = |msg: String| DataError::Invalid { path: path.into(), msg: format!("malformed PFM file: {msg}") };
+    let err = |msg: String| DataError::Invalid {
+        path: path.into(),
+        msg: format!("malformed PFM file: {msg}"),
+    };
     // Three whitespace-separated header tokens after the magic: width, height, scale; one whitespace byte
     // then the data.
     let mut tokens = Vec::new();
@@ -43,9 +46,15 @@ pub fn parse_pfm(bytes: &[u8], path: &Path) -> Result<Pfm, DataError> {
         "PF" => 3,
         m => return Err(err(format!("bad magic {m:?} (expected Pf or PF)"))),
     };
-    let width: usize = tokens[1].parse().map_err(|_| err(format!("bad width {:?}", tokens[1])))?;
-    let height: usize = tokens[2].parse().map_err(|_| err(format!("bad height {:?}", tokens[2])))?;
-    let scale: f64 = tokens[3].parse().map_err(|_| err(format!("bad scale {:?}", tokens[3])))?;
+    let width: usize = tokens[1]
+        .parse()
+        .map_err(|_| err(format!("bad width {:?}", tokens[1])))?;
+    let height: usize = tokens[2]
+        .parse()
+        .map_err(|_| err(format!("bad height {:?}", tokens[2])))?;
+    let scale: f64 = tokens[3]
+        .parse()
+        .map_err(|_| err(format!("bad scale {:?}", tokens[3])))?;
     if scale == 0.0 || !scale.is_finite() {
         return Err(err(format!("bad scale {scale}")));
     }
@@ -53,7 +62,11 @@ pub fn parse_pfm(bytes: &[u8], path: &Path) -> Result<Pfm, DataError> {
     let n = width * height * channels;
     let payload = bytes.get(i..).unwrap_or(&[]);
     if payload.len() < n * 4 {
-        return Err(err(format!("truncated: {width}x{height}x{channels} needs {} bytes, has {}", n * 4, payload.len())));
+        return Err(err(format!(
+            "truncated: {width}x{height}x{channels} needs {} bytes, has {}",
+            n * 4,
+            payload.len()
+        )));
     }
     let mut data = vec![0.0f32; n];
     let row = width * channels;
@@ -66,7 +79,12 @@ pub fn parse_pfm(bytes: &[u8], path: &Path) -> Result<Pfm, DataError> {
         let (y_file, x) = (k / row, k % row);
         data[(height - 1 - y_file) * row + x] = v;
     }
-    Ok(Pfm { width, height, channels, data })
+    Ok(Pfm {
+        width,
+        height,
+        channels,
+        data,
+    })
 }
 
 /// PFM bytes (little-endian) of `pfm` (rows top to bottom in memory).
@@ -84,7 +102,10 @@ pub fn pfm_bytes(pfm: &Pfm) -> Vec<u8> {
 
 pub fn write_pfm(path: &Path, pfm: &Pfm) -> Result<(), DataError> {
     if !matches!(pfm.channels, 1 | 3) || pfm.data.len() != pfm.width * pfm.height * pfm.channels {
-        return Err(DataError::invalid(path, "PFM needs 1 or 3 channels and matching data length"));
+        return Err(DataError::invalid(
+            path,
+            "PFM needs 1 or 3 channels and matching data length",
+        ));
     }
     crate::write_bytes(path, &pfm_bytes(pfm))
 }
@@ -95,7 +116,12 @@ mod tests {
 
     #[test]
     fn round_trip_and_row_order() {
-        let pfm = Pfm { width: 3, height: 2, channels: 1, data: vec![1.0, 2.0, 3.0, 4.0, 5.0, -6.5] };
+        let pfm = Pfm {
+            width: 3,
+            height: 2,
+            channels: 1,
+            data: vec![1.0, 2.0, 3.0, 4.0, 5.0, -6.5],
+        };
         let b = pfm_bytes(&pfm);
         // The first stored row is the bottom one.
         let hdr = b"Pf\n3 2\n-1\n".len();

@@ -14,7 +14,12 @@ pub struct BorderCrop {
 
 impl BorderCrop {
     pub fn uniform(n: u32) -> Self {
-        Self { left: n, top: n, right: n, bottom: n }
+        Self {
+            left: n,
+            top: n,
+            right: n,
+            bottom: n,
+        }
     }
 
     pub fn apply(&self, img: &ImageF32) -> Result<ImageF32, MetricsError> {
@@ -25,10 +30,33 @@ impl BorderCrop {
 /// Remove `left`, `top`, `right`, `bottom` pixels from the sides of `img` (numpy `img[top:-bottom, left:-right]`).
 ///
 /// Errors when nothing would be left.
-pub fn crop_border(img: &ImageF32, left: u32, top: u32, right: u32, bottom: u32) -> Result<ImageF32, MetricsError> {
-    let too_large = || MetricsError::CropTooLarge { left, top, right, bottom, width: img.width, height: img.height };
-    let w = img.width.checked_sub(left).and_then(|v| v.checked_sub(right)).filter(|&v| v > 0).ok_or_else(too_large)?;
-    let h = img.height.checked_sub(top).and_then(|v| v.checked_sub(bottom)).filter(|&v| v > 0).ok_or_else(too_large)?;
+pub fn crop_border(
+    img: &ImageF32,
+    left: u32,
+    top: u32,
+    right: u32,
+    bottom: u32,
+) -> Result<ImageF32, MetricsError> {
+    let too_large = || MetricsError::CropTooLarge {
+        left,
+        top,
+        right,
+        bottom,
+        width: img.width,
+        height: img.height,
+    };
+    let w = img
+        .width
+        .checked_sub(left)
+        .and_then(|v| v.checked_sub(right))
+        .filter(|&v| v > 0)
+        .ok_or_else(too_large)?;
+    let h = img
+        .height
+        .checked_sub(top)
+        .and_then(|v| v.checked_sub(bottom))
+        .filter(|&v| v > 0)
+        .ok_or_else(too_large)?;
     Ok(img.crop(left, top, w, h))
 }
 
@@ -37,8 +65,17 @@ pub fn crop_border(img: &ImageF32, left: u32, top: u32, right: u32, bottom: u32)
 /// The Spaces protocol scores saved PNGs, so a float prediction is quantised before scoring to compare like
 /// with like.
 pub fn quantize_u8(img: &ImageF32) -> ImageF32 {
-    let data = img.data.iter().map(|&v| deepview_image::to_u8(v) as f32 / 255.0).collect();
-    ImageF32 { width: img.width, height: img.height, channels: img.channels, data }
+    let data = img
+        .data
+        .iter()
+        .map(|&v| deepview_image::to_u8(v) as f32 / 255.0)
+        .collect();
+    ImageF32 {
+        width: img.width,
+        height: img.height,
+        channels: img.channels,
+        data,
+    }
 }
 
 #[cfg(test)]
@@ -63,14 +100,21 @@ mod tests {
     #[test]
     fn crop_too_large_is_an_error() {
         let img = ramp(6, 5);
-        assert!(matches!(crop_border(&img, 3, 0, 3, 0), Err(MetricsError::CropTooLarge { .. })));
+        assert!(matches!(
+            crop_border(&img, 3, 0, 3, 0),
+            Err(MetricsError::CropTooLarge { .. })
+        ));
         assert!(crop_border(&img, 0, 4, 0, 2).is_err());
         assert!(crop_border(&img, u32::MAX, 0, 0, 0).is_err());
     }
 
     #[test]
     fn quantisation_rounds_to_8_bit() {
-        let img = ImageF32::from_data(3, 1, 1, vec![-0.5, 0.5, 100.0 / 255.0 + 0.4 / 255.0]).unwrap();
-        assert_eq!(quantize_u8(&img).data, vec![0.0, 128.0 / 255.0, 100.0 / 255.0]);
+        let img =
+            ImageF32::from_data(3, 1, 1, vec![-0.5, 0.5, 100.0 / 255.0 + 0.4 / 255.0]).unwrap();
+        assert_eq!(
+            quantize_u8(&img).data,
+            vec![0.0, 128.0 / 255.0, 100.0 / 255.0]
+        );
     }
 }

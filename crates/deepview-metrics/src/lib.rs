@@ -24,8 +24,17 @@ pub enum MetricsError {
     ChannelMismatch(usize, usize),
     #[error("image {0}x{1} is smaller than the {2}x{2} SSIM window")]
     TooSmall(u32, u32, usize),
-    #[error("border crop (left {left}, top {top}, right {right}, bottom {bottom}) leaves nothing of a {width}x{height} image")]
-    CropTooLarge { left: u32, top: u32, right: u32, bottom: u32, width: u32, height: u32 },
+    #[error(
+        "border crop (left {left}, top {top}, right {right}, bottom {bottom}) leaves nothing of a {width}x{height} image"
+    )]
+    CropTooLarge {
+        left: u32,
+        top: u32,
+        right: u32,
+        bottom: u32,
+        width: u32,
+        height: u32,
+    },
     #[error("image has no pixels")]
     Empty,
     #[error("invalid SSIM options: {0}")]
@@ -44,9 +53,14 @@ pub(crate) fn compared_channels(a: usize, b: usize) -> Result<usize, MetricsErro
     }
 }
 
-pub(crate) fn check_sizes(a: &deepview_image::ImageF32, b: &deepview_image::ImageF32) -> Result<usize, MetricsError> {
+pub(crate) fn check_sizes(
+    a: &deepview_image::ImageF32,
+    b: &deepview_image::ImageF32,
+) -> Result<usize, MetricsError> {
     if a.width != b.width || a.height != b.height {
-        return Err(MetricsError::SizeMismatch(a.width, a.height, b.width, b.height));
+        return Err(MetricsError::SizeMismatch(
+            a.width, a.height, b.width, b.height,
+        ));
     }
     if a.width == 0 || a.height == 0 {
         return Err(MetricsError::Empty);

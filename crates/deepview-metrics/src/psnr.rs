@@ -29,7 +29,11 @@ pub fn mse(a: &ImageF32, b: &ImageF32) -> Result<f64, MetricsError> {
 /// PSNR in dB for data range 1: `10 log10(1 / mse)`; `f64::INFINITY` for identical images.
 pub fn psnr(a: &ImageF32, b: &ImageF32) -> Result<f64, MetricsError> {
     let m = mse(a, b)?;
-    Ok(if m == 0.0 { f64::INFINITY } else { -10.0 * m.log10() })
+    Ok(if m == 0.0 {
+        f64::INFINITY
+    } else {
+        -10.0 * m.log10()
+    })
 }
 
 #[cfg(test)]
@@ -39,7 +43,8 @@ mod tests {
     #[test]
     fn psnr_of_a_constant_offset() {
         // Every RGB value off by 0.1: mse = 0.01, psnr = 20 dB exactly; alpha is ignored.
-        let a = ImageF32::from_data(5, 4, 4, (0..80).map(|i| (i % 7) as f32 / 10.0).collect()).unwrap();
+        let a =
+            ImageF32::from_data(5, 4, 4, (0..80).map(|i| (i % 7) as f32 / 10.0).collect()).unwrap();
         let mut b = a.clone();
         for (i, v) in b.data.iter_mut().enumerate() {
             *v = if i % 4 == 3 { 0.0 } else { *v + 0.1 };
@@ -52,8 +57,17 @@ mod tests {
     #[test]
     fn mismatches_are_errors() {
         let a = ImageF32::new(4, 4, 3);
-        assert_eq!(mse(&a, &ImageF32::new(4, 5, 3)), Err(MetricsError::SizeMismatch(4, 4, 4, 5)));
-        assert_eq!(mse(&a, &ImageF32::new(4, 4, 1)), Err(MetricsError::ChannelMismatch(3, 1)));
-        assert_eq!(mse(&ImageF32::new(0, 4, 3), &ImageF32::new(0, 4, 3)), Err(MetricsError::Empty));
+        assert_eq!(
+            mse(&a, &ImageF32::new(4, 5, 3)),
+            Err(MetricsError::SizeMismatch(4, 4, 4, 5))
+        );
+        assert_eq!(
+            mse(&a, &ImageF32::new(4, 4, 1)),
+            Err(MetricsError::ChannelMismatch(3, 1))
+        );
+        assert_eq!(
+            mse(&ImageF32::new(0, 4, 3), &ImageF32::new(0, 4, 3)),
+            Err(MetricsError::Empty)
+        );
     }
 }

@@ -34,7 +34,13 @@ pub struct SsimOptions {
 
 impl Default for SsimOptions {
     fn default() -> Self {
-        Self { sigma: 1.5, radius: 5, k1: 0.01, k2: 0.03, data_range: 1.0 }
+        Self {
+            sigma: 1.5,
+            radius: 5,
+            k1: 0.01,
+            k2: 0.03,
+            data_range: 1.0,
+        }
     }
 }
 
@@ -42,7 +48,9 @@ impl SsimOptions {
     fn validate(&self) -> Result<(), MetricsError> {
         let ok = |v: f64| v.is_finite() && v > 0.0;
         if !(ok(self.sigma) && ok(self.k1) && ok(self.k2) && ok(self.data_range)) {
-            return Err(MetricsError::BadOptions(format!("{self:?}: sigma, K1, K2 and data range must be positive")));
+            return Err(MetricsError::BadOptions(format!(
+                "{self:?}: sigma, K1, K2 and data range must be positive"
+            )));
         }
         Ok(())
     }
@@ -80,7 +88,11 @@ pub fn ssim_with(a: &ImageF32, b: &ImageF32, options: &SsimOptions) -> Result<f6
 }
 
 /// The SSIM of each compared channel.
-pub fn ssim_per_channel(a: &ImageF32, b: &ImageF32, options: &SsimOptions) -> Result<Vec<f64>, MetricsError> {
+pub fn ssim_per_channel(
+    a: &ImageF32,
+    b: &ImageF32,
+    options: &SsimOptions,
+) -> Result<Vec<f64>, MetricsError> {
     let n = check_sizes(a, b)?;
     options.validate()?;
     let win = options.window_size();
@@ -88,7 +100,10 @@ pub fn ssim_per_channel(a: &ImageF32, b: &ImageF32, options: &SsimOptions) -> Re
         return Err(MetricsError::TooSmall(a.width, a.height, win));
     }
     let g = gaussian_window(options.sigma, options.radius);
-    Ok((0..n).into_par_iter().map(|c| channel_ssim(a, b, c, &g, options)).collect())
+    Ok((0..n)
+        .into_par_iter()
+        .map(|c| channel_ssim(a, b, c, &g, options))
+        .collect())
 }
 
 /// Mean SSIM of channel `c`: a horizontal then a vertical 'valid' pass over the five moments
@@ -103,8 +118,12 @@ fn channel_ssim(a: &ImageF32, b: &ImageF32, c: usize, g: &[f64], o: &SsimOptions
     // Horizontal pass: [h][ow] moments.
     let mut horiz = vec![[0.0f64; 5]; ow * h];
     horiz.par_chunks_mut(ow).enumerate().for_each(|(y, out)| {
-        let row_a: Vec<f64> = (0..w).map(|x| a.data[(y * w + x) * ca + c] as f64).collect();
-        let row_b: Vec<f64> = (0..w).map(|x| b.data[(y * w + x) * cb + c] as f64).collect();
+        let row_a: Vec<f64> = (0..w)
+            .map(|x| a.data[(y * w + x) * ca + c] as f64)
+            .collect();
+        let row_b: Vec<f64> = (0..w)
+            .map(|x| b.data[(y * w + x) * cb + c] as f64)
+            .collect();
         for (x, m) in out.iter_mut().enumerate() {
             let mut s = [0.0f64; 5];
             for (k, &gk) in g.iter().enumerate() {
@@ -211,8 +230,17 @@ mod tests {
         let a = pattern(10, 20, 3, 0);
         assert_eq!(ssim(&a, &a), Err(MetricsError::TooSmall(10, 20, 11)));
         let b = pattern(12, 12, 3, 0);
-        assert!(matches!(ssim(&b, &pattern(12, 13, 3, 0)), Err(MetricsError::SizeMismatch(..))));
-        let bad = SsimOptions { sigma: 0.0, ..Default::default() };
-        assert!(matches!(ssim_with(&b, &b, &bad), Err(MetricsError::BadOptions(_))));
+        assert!(matches!(
+            ssim(&b, &pattern(12, 13, 3, 0)),
+            Err(MetricsError::SizeMismatch(..))
+        ));
+        let bad = SsimOptions {
+            sigma: 0.0,
+            ..Default::default()
+        };
+        assert!(matches!(
+            ssim_with(&b, &b, &bad),
+            Err(MetricsError::BadOptions(_))
+        ));
     }
 }

@@ -6,6 +6,8 @@ use deepview_image::ImageF32;
 use deepview_metrics::{crop_border, psnr, ssim};
 
 type Formula = fn(u32, u32, u32) -> f64;
+/// (name, a, b, width, height, channels, crop [left, top, right, bottom])
+type Case = (&'static str, Formula, Formula, u32, u32, usize, [u32; 4]);
 
 fn hash_a(x: u32, y: u32, c: u32) -> f64 {
     ((x * x * 7 + y * 13 + c * 29 + x * y * 3) % 251) as f64 / 250.0
@@ -41,14 +43,29 @@ fn make(f: Formula, w: u32, h: u32, ch: usize) -> ImageF32 {
     img
 }
 
-/// (name, a, b, width, height, channels, crop [left, top, right, bottom])
-fn cases() -> Vec<(&'static str, Formula, Formula, u32, u32, usize, [u32; 4])> {
+fn cases() -> Vec<Case> {
     vec![
         ("hash", hash_a, hash_b, 37, 23, 3, [0, 0, 0, 0]),
         ("smooth_noisy", smooth, noisy, 40, 29, 3, [0, 0, 0, 0]),
         ("smooth_shifted", smooth, shifted, 64, 48, 3, [0, 0, 0, 0]),
-        ("smooth_noisy_cropped", smooth, noisy, 40, 29, 3, [3, 2, 5, 1]),
-        ("hash_grey_min_size", hash_a, hash_b, 12, 11, 1, [0, 0, 0, 0]),
+        (
+            "smooth_noisy_cropped",
+            smooth,
+            noisy,
+            40,
+            29,
+            3,
+            [3, 2, 5, 1],
+        ),
+        (
+            "hash_grey_min_size",
+            hash_a,
+            hash_b,
+            12,
+            11,
+            1,
+            [0, 0, 0, 0],
+        ),
     ]
 }
 
@@ -63,13 +80,21 @@ const EXPECTED: [(&str, f64, f64); 5] = [
 
 #[test]
 fn ssim_and_psnr_match_scikit_image() {
-    for ((name, fa, fb, w, h, ch, [l, t, r, b]), (ename, essim, epsnr)) in cases().into_iter().zip(EXPECTED) {
+    for ((name, fa, fb, w, h, ch, [l, t, r, b]), (ename, essim, epsnr)) in
+        cases().into_iter().zip(EXPECTED)
+    {
         assert_eq!(name, ename);
         let a = crop_border(&make(fa, w, h, ch), l, t, r, b).unwrap();
         let bb = crop_border(&make(fb, w, h, ch), l, t, r, b).unwrap();
         let s = ssim(&a, &bb).unwrap();
         let p = psnr(&a, &bb).unwrap();
-        assert!((s - essim).abs() < 1e-9, "{name}: ssim {s} vs reference {essim}");
-        assert!((p - epsnr).abs() < 1e-9, "{name}: psnr {p} vs reference {epsnr}");
+        assert!(
+            (s - essim).abs() < 1e-9,
+            "{name}: ssim {s} vs reference {essim}"
+        );
+        assert!(
+            (p - epsnr).abs() < 1e-9,
+            "{name}: psnr {p} vs reference {epsnr}"
+        );
     }
 }

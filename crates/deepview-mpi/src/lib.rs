@@ -13,6 +13,7 @@ pub mod io;
 pub mod mpi;
 pub mod psv;
 pub mod render;
+pub mod simd;
 pub mod warp;
 
 pub use composite::{RenderComponents, render_components};

@@ -63,6 +63,11 @@ pub struct RowSampler {
 }
 
 impl RowSampler {
+    /// The row's coefficients `src = a * u + b` for the SIMD kernels.
+    pub fn coefficients(&self) -> crate::simd::RowCoefficients {
+        crate::simd::RowCoefficients { a: self.a, b: self.b }
+    }
+
     /// The bilinear tap of output column `x` (texel indices in texels, not channels), or `None` outside.
     #[inline(always)]
     pub fn tap(&self, x: u32) -> Option<Tap> {

@@ -5,7 +5,9 @@ use serde::{Deserialize, Serialize};
 /// Errors of a configuration.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ConfigError {
-    #[error("unknown preset {0:?} (known: paper-kalantari, paper-spaces-4view, paper-spaces-12view, cpu)")]
+    #[error(
+        "unknown preset {0:?} (known: paper-kalantari, paper-spaces-4view, paper-spaces-12view, cpu)"
+    )]
     UnknownPreset(String),
     #[error("invalid network config: {0}")]
     Invalid(String),
@@ -112,7 +114,11 @@ impl DeepViewConfig {
     }
 
     pub fn features(&self, net: usize) -> usize {
-        if net < self.large_nets { self.features_large } else { self.features_small }
+        if net < self.large_nets {
+            self.features_large
+        } else {
+            self.features_small
+        }
     }
 
     pub fn unet(&self, net: usize) -> bool {
@@ -145,16 +151,33 @@ mod tests {
 
     #[test]
     fn presets_are_valid_and_serde_round_trips() {
-        for name in ["paper-kalantari", "paper-spaces-4view", "paper-spaces-12view", "cpu"] {
+        for name in [
+            "paper-kalantari",
+            "paper-spaces-4view",
+            "paper-spaces-12view",
+            "cpu",
+        ] {
             let c = DeepViewConfig::preset(name).unwrap();
             c.validate().unwrap();
             let s = serde_json::to_string(&c).unwrap();
             assert_eq!(serde_json::from_str::<DeepViewConfig>(&s).unwrap(), c);
         }
         let k = DeepViewConfig::preset("paper-kalantari").unwrap();
-        assert_eq!((k.views, k.train_planes, k.unet_nets, k.nets()), (Some(4), 28, 0, 4));
+        assert_eq!(
+            (k.views, k.train_planes, k.unet_nets, k.nets()),
+            (Some(4), 28, 0, 4)
+        );
         let s = DeepViewConfig::preset("paper-spaces-12view").unwrap();
-        assert_eq!((s.views, s.train_planes, s.infer_planes, s.features(1), s.features(2)), (Some(12), 64, 80, 64, 16));
+        assert_eq!(
+            (
+                s.views,
+                s.train_planes,
+                s.infer_planes,
+                s.features(1),
+                s.features(2)
+            ),
+            (Some(12), 64, 80, 64, 16)
+        );
         assert!(s.unet(1) && !s.unet(2));
         assert_eq!(s.net_margin(0), 24);
         assert_eq!(s.net_margin(2), 10);

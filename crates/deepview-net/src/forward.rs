@@ -50,7 +50,11 @@ impl WarpTable {
             let a = [h[0] as f32, h[3] as f32, h[6] as f32];
             for y in 0..out_h {
                 let v = y as f64 + 0.5;
-                let b = [(h[1] * v + h[2]) as f32, (h[4] * v + h[5]) as f32, (h[7] * v + h[8]) as f32];
+                let b = [
+                    (h[1] * v + h[2]) as f32,
+                    (h[4] * v + h[5]) as f32,
+                    (h[7] * v + h[8]) as f32,
+                ];
                 for x in 0..out_w {
                     let o = (d * out_h + y) * out_w + x;
                     let u = x as f32 + 0.5;
@@ -73,7 +77,12 @@ impl WarpTable {
                     let ya = y0.clamp(0, hmax) as i64 * src_w as i64;
                     let yb = (y0 + 1).clamp(0, hmax) as i64 * src_w as i64;
                     let taps = [ya + xa, ya + xb, yb + xa, yb + xb];
-                    let ws = [(1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty];
+                    let ws = [
+                        (1.0 - tx) * (1.0 - ty),
+                        tx * (1.0 - ty),
+                        (1.0 - tx) * ty,
+                        tx * ty,
+                    ];
                     for t in 0..4 {
                         idx[t * n + o] = taps[t];
                         w[t * n + o] = ws[t];
@@ -82,15 +91,32 @@ impl WarpTable {
                 }
             }
         }
-        Self { planes: homs.len(), src_w, src_h, out_w, out_h, idx, w, valid }
+        Self {
+            planes: homs.len(),
+            src_w,
+            src_h,
+            out_w,
+            out_h,
+            idx,
+            w,
+            valid,
+        }
     }
 
     /// Warp `src` `[S, C, src_h, src_w]` -> `[planes, C, out_h, out_w]`. `S` is `planes` (plane `d` is
     /// warped by homography `d`) or 1 (the one source is broadcast to every plane: a plane sweep).
     pub fn apply(&self, src: Tensor<4>) -> Tensor<4> {
         let [s, c, sh, sw] = src.dims();
-        assert_eq!((sh, sw), (self.src_h, self.src_w), "warp source size mismatch");
-        assert!(s == self.planes || s == 1, "warp source has {s} planes, table has {}", self.planes);
+        assert_eq!(
+            (sh, sw),
+            (self.src_h, self.src_w),
+            "warp source size mismatch"
+        );
+        assert!(
+            s == self.planes || s == 1,
+            "warp source has {s} planes, table has {}",
+            self.planes
+        );
         let device = src.device();
         let n = self.valid.len();
         let (d, oh, ow) = (self.planes, self.out_h, self.out_w);
@@ -102,7 +128,11 @@ impl WarpTable {
         let idx: Vec<i64> = if s == 1 {
             self.idx.clone()
         } else {
-            self.idx.iter().enumerate().map(|(i, &v)| v + ((i % n) / per_plane) as i64 * plane_len).collect()
+            self.idx
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| v + ((i % n) / per_plane) as i64 * plane_len)
+                .collect()
         };
         let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [4 * n]), &device);
         let w = Tensor::<3>::from_data(TensorData::new(self.w.clone(), [4, n, 1]), &device);
@@ -158,7 +188,12 @@ pub fn crop_source(h: &Hom, x0: f64, y0: f64) -> Hom {
 
 /// Warp every plane of `planes` `[D, C, h_src, w_src]` by its homography (`homographies[d]`, row-major
 /// f32, output pixels -> source pixels) into `[D, C, out_h, out_w]`, with the sampling rule above.
-pub fn warp_planes(planes: Tensor<4>, homographies: &[[f32; 9]], out_h: usize, out_w: usize) -> Tensor<4> {
+pub fn warp_planes(
+    planes: Tensor<4>,
+    homographies: &[[f32; 9]],
+    out_h: usize,
+    out_w: usize,
+) -> Tensor<4> {
     let [_, _, sh, sw] = planes.dims();
     let homs: Vec<Hom> = homographies.iter().map(|h| h.map(|v| v as f64)).collect();
     WarpTable::new(&homs, sw, sh, out_w, out_h).apply(planes)
@@ -183,7 +218,11 @@ pub fn warp_planes_grid_sample(
         for y in 0..out_h {
             let v = y as f64 + 0.5;
             let hh = homs[p];
-            let b = [(hh[1] * v + hh[2]) as f32, (hh[4] * v + hh[5]) as f32, (hh[7] * v + hh[8]) as f32];
+            let b = [
+                (hh[1] * v + hh[2]) as f32,
+                (hh[4] * v + hh[5]) as f32,
+                (hh[7] * v + hh[8]) as f32,
+            ];
             for x in 0..out_w {
                 let u = x as f32 + 0.5;
                 let inv = 1.0 / a[2].mul_add(u, b[2]);
@@ -191,8 +230,16 @@ pub fn warp_planes_grid_sample(
                 let sy = a[1].mul_add(u, b[1]) * inv;
                 let o = ((p * out_h + y) * out_w + x) * 2;
                 // align_corners = false: normalised -1..1 spans the outer texel edges 0..W.
-                let gx = if sx.is_finite() { 2.0 * sx / sw as f32 - 1.0 } else { -2.0 };
-                let gy = if sy.is_finite() { 2.0 * sy / sh as f32 - 1.0 } else { -2.0 };
+                let gx = if sx.is_finite() {
+                    2.0 * sx / sw as f32 - 1.0
+                } else {
+                    -2.0
+                };
+                let gy = if sy.is_finite() {
+                    2.0 * sy / sh as f32 - 1.0
+                } else {
+                    -2.0
+                };
                 grid[o] = gx;
                 grid[o + 1] = gy;
             }
@@ -241,7 +288,11 @@ pub fn composite(rgba: Tensor<4>) -> Composite {
             t = t * one_minus.clone().narrow(0, p, 1);
         }
     }
-    Composite { render, transmittance: Tensor::cat(trans, 0), accumulated: Tensor::cat(acc, 0) }
+    Composite {
+        render,
+        transmittance: Tensor::cat(trans, 0),
+        accumulated: Tensor::cat(acc, 0),
+    }
 }
 
 /// Render an MPI `rgba` `[D, 4, H, W]` into a view: `view_to_mpi[d]` maps view pixels to MPI pixels of
@@ -285,16 +336,38 @@ pub fn gradient_components(
     let view_to_mpi: Vec<Hom> = mpi_to_view.iter().map(invert).collect();
     let comp = render_view(rgba, &view_to_mpi, hv, wv);
     let (x0, y0, w, h) = region;
-    let region_homs: Vec<Hom> = mpi_to_view.iter().map(|m| crop_output(m, x0 as f64, y0 as f64)).collect();
+    let region_homs: Vec<Hom> = mpi_to_view
+        .iter()
+        .map(|m| crop_output(m, x0 as f64, y0 as f64))
+        .collect();
     let table = WarpTable::new(&region_homs, wv, hv, w, h);
-    let images = Tensor::cat(vec![image.reshape([1, 3, hv, wv]), comp.render.reshape([1, 3, hv, wv])], 1);
+    let images = Tensor::cat(
+        vec![
+            image.reshape([1, 3, hv, wv]),
+            comp.render.reshape([1, 3, hv, wv]),
+        ],
+        1,
+    );
     let planes = Tensor::cat(vec![comp.accumulated, comp.transmittance], 1);
     let device = planes.device();
-    Tensor::cat(vec![table.apply(images), table.apply(planes), table.valid(&device)], 1)
+    Tensor::cat(
+        vec![
+            table.apply(images),
+            table.apply(planes),
+            table.valid(&device),
+        ],
+        1,
+    )
 }
 
 /// Tensor `[3, h, w]` from an interleaved RGB(A...) image (first three channels).
-pub fn image_tensor(data: &[f32], width: usize, height: usize, channels: usize, device: &Device) -> Tensor<3> {
+pub fn image_tensor(
+    data: &[f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    device: &Device,
+) -> Tensor<3> {
     let mut out = vec![0f32; 3 * width * height];
     for p in 0..width * height {
         for c in 0..3 {
@@ -318,7 +391,15 @@ mod tests {
     }
 
     /// Independent scalar warp (f64 arithmetic) for one plane, `[C][H][W]` layout.
-    fn scalar_warp(src: &[f32], c: usize, sh: usize, sw: usize, h: &Hom, oh: usize, ow: usize) -> Vec<f32> {
+    fn scalar_warp(
+        src: &[f32],
+        c: usize,
+        sh: usize,
+        sw: usize,
+        h: &Hom,
+        oh: usize,
+        ow: usize,
+    ) -> Vec<f32> {
         let mut out = vec![0f32; c * oh * ow];
         for y in 0..oh {
             for x in 0..ow {
@@ -357,7 +438,17 @@ mod tests {
         (0..d)
             .map(|i| {
                 let s = i as f64;
-                [1.05 + 0.02 * s, 0.03, -1.7 + s, -0.02, 0.97, 0.8 - 0.5 * s, 0.0005, -0.0003, 1.0]
+                [
+                    1.05 + 0.02 * s,
+                    0.03,
+                    -1.7 + s,
+                    -0.02,
+                    0.97,
+                    0.8 - 0.5 * s,
+                    0.0005,
+                    -0.0003,
+                    1.0,
+                ]
             })
             .collect()
     }
@@ -389,7 +480,10 @@ mod tests {
                 n_valid += (*e != 0.0) as usize;
             }
         }
-        assert!(n_valid > d * c * oh * ow / 2, "test should sample mostly inside");
+        assert!(
+            n_valid > d * c * oh * ow / 2,
+            "test should sample mostly inside"
+        );
         // grid_sample variant agrees.
         let g = to_vec(warp_planes_grid_sample(x, &homs32, oh, ow));
         for (a, b) in y.iter().zip(&g) {
@@ -478,7 +572,99 @@ mod tests {
             let imp = Tensor::<4>::from_data(TensorData::new(e, [2, 1, 6, 7]), &dev());
             let yi = (t.apply(imp) * Tensor::<4>::from_data(wts.clone().into_data(), &dev())).sum();
             let expect: f32 = yi.into_scalar();
-            assert!((expect - g[i]).abs() < 1e-5, "texel {i}: {expect} vs {}", g[i]);
+            assert!(
+                (expect - g[i]).abs() < 1e-5,
+                "texel {i}: {expect} vs {}",
+                g[i]
+            );
+        }
+    }
+
+    #[test]
+    fn matches_the_cpu_renderer_and_plane_sweep() {
+        use deepview_geometry::{
+            Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths, plane_homography,
+        };
+        let reference = Camera::new(30, 24, Intrinsics::centred(28.0, 30, 24), Pose::IDENTITY);
+        let target = Camera::new(
+            27,
+            22,
+            Intrinsics::new(26.0, 27.0, 13.1, 11.4),
+            Pose::from_center(DMat3::from_rotation_y(0.03), DVec3::new(0.12, -0.05, 0.02)),
+        );
+        let depths = plane_depths(1.0, 8.0, 5, PlaneSpacing::InverseDepth).unwrap();
+        let (d, h, w) = (5, 24, 30);
+        let rgba = random_rgba(d, h, w, &dev());
+        let vals = to_vec(rgba.clone());
+        // [D][4][H][W] -> Mpi layers [D][H][W][4]
+        let mut layers = vec![0f32; vals.len()];
+        for p in 0..d {
+            for c in 0..4 {
+                for i in 0..h * w {
+                    layers[(p * h * w + i) * 4 + c] = vals[(p * 4 + c) * h * w + i];
+                }
+            }
+        }
+        let mpi = deepview_mpi::Mpi {
+            camera: reference,
+            depths: depths.clone(),
+            layers,
+        };
+        let cpu = deepview_mpi::render_components(&mpi, &target);
+        let homs = deepview_mpi::target_to_plane_homographies(&reference, &target, &depths);
+        let comp = render_view(rgba, &homs, 22, 27);
+        let px = 22 * 27;
+        let (r, t, a) = (
+            to_vec(comp.render),
+            to_vec(comp.transmittance),
+            to_vec(comp.accumulated),
+        );
+        for i in 0..px {
+            for c in 0..3 {
+                assert!((r[c * px + i] - cpu.render.data[i * 4 + c]).abs() < 1e-5);
+                for p in 0..d {
+                    assert!(
+                        (a[(p * 3 + c) * px + i] - cpu.accumulated_over[(p * px + i) * 3 + c])
+                            .abs()
+                            < 1e-5
+                    );
+                }
+            }
+            for p in 0..d {
+                assert!((t[p * px + i] - cpu.transmittance[p * px + i]).abs() < 1e-5);
+            }
+        }
+        // Plane sweep of a target image onto the reference planes.
+        let img = Tensor::<3>::random([3, 22, 27], Distribution::Uniform(0.0, 1.0), &dev());
+        let iv = to_vec(img.clone());
+        let mut data = vec![0f32; 3 * px];
+        for c in 0..3 {
+            for i in 0..px {
+                data[i * 3 + c] = iv[c * px + i];
+            }
+        }
+        let image = deepview_image::ImageF32 {
+            width: 27,
+            height: 22,
+            channels: 3,
+            data,
+        };
+        let cpu_psv = deepview_mpi::plane_sweep(&image, &target, &reference, &depths);
+        let m2v: Vec<Hom> = depths
+            .iter()
+            .map(|&z| plane_homography(&reference, &target, z).to_row_major())
+            .collect();
+        let psv = to_vec(plane_sweep_volume(img, &m2v, h, w));
+        for p in 0..d {
+            for c in 0..4 {
+                for i in 0..h * w {
+                    assert!(
+                        (psv[(p * 4 + c) * h * w + i] - cpu_psv.data[(p * h * w + i) * 4 + c])
+                            .abs()
+                            < 1e-5
+                    );
+                }
+            }
         }
     }
 }

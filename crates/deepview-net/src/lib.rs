@@ -4,8 +4,13 @@
 
 pub mod config;
 pub mod forward;
+pub mod infer;
 pub mod network;
+pub mod weights;
 
 pub mod loss;
 pub mod train;
 pub mod vgg;
+
+/// burn, re-exported so dependants use the same version (e.g. `deepview_net::burn::tensor::Device::flex()`).
+pub use burn;

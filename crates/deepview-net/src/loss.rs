@@ -43,7 +43,7 @@ impl std::str::FromStr for LossKind {
 }
 
 /// A loss function ready to evaluate (holds the VGG weights when needed).
-#[derive(Debug)]
+#[derive(Clone, Debug)]
 pub enum Loss {
     Vgg(Box<Vgg16>),
     L1,
@@ -61,7 +61,11 @@ impl Loss {
     pub fn per_example(&self, pred: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
         let [n, _, h, w] = pred.dims();
         match self {
-            Loss::L1 => (pred - target).abs().reshape([n as i32, -1]).mean_dim(1).reshape([n]),
+            Loss::L1 => (pred - target)
+                .abs()
+                .reshape([n as i32, -1])
+                .mean_dim(1)
+                .reshape([n]),
             Loss::Vgg(vgg) => vgg_feature_loss(vgg, pred, target, h, w),
         }
     }
@@ -77,16 +81,32 @@ pub fn feature_loss_padding(h: usize, w: usize) -> (usize, usize) {
     (h / 8, w / 8)
 }
 
-fn vgg_feature_loss(vgg: &Vgg16, pred: Tensor<4>, target: Tensor<4>, h: usize, w: usize) -> Tensor<1> {
+fn vgg_feature_loss(
+    vgg: &Vgg16,
+    pred: Tensor<4>,
+    target: Tensor<4>,
+    h: usize,
+    w: usize,
+) -> Tensor<1> {
     let n = pred.dims()[0];
     let (ph, pw) = feature_loss_padding(h, w);
-    let pad = |t: Tensor<4>| if ph + pw > 0 { t.pad([(ph, ph), (pw, pw)], PadMode::Reflect) } else { t };
+    let pad = |t: Tensor<4>| {
+        if ph + pw > 0 {
+            t.pad([(ph, ph), (pw, pw)], PadMode::Reflect)
+        } else {
+            t
+        }
+    };
     // One VGG pass over prediction and target together.
     let both = Tensor::cat(vec![pad(pred), pad(target)], 0);
     let f = vgg.features(both);
     let l1 = |t: Tensor<4>| {
         let d = t.dims()[0] / 2;
-        (t.clone().narrow(0, 0, d) - t.narrow(0, d, d)).abs().reshape([n as i32, -1]).sum_dim(1).reshape([n])
+        (t.clone().narrow(0, 0, d) - t.narrow(0, d, d))
+            .abs()
+            .reshape([n as i32, -1])
+            .sum_dim(1)
+            .reshape([n])
     };
     let [a, b, c] = VGG_LAYER_WEIGHTS;
     (l1(f.conv1_2) * a + l1(f.conv2_2) * b + l1(f.conv3_3) * c) / (h * w) as f32
@@ -111,16 +131,31 @@ mod tests {
         let device = Device::flex().autodiff();
         for loss in losses(&device) {
             let t = Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device);
-            let same = loss.per_example(t.clone(), t.clone()).into_data().try_to_vec::<f32>().unwrap();
-            assert!(same.iter().all(|v| *v == 0.0), "{:?}: {same:?}", loss.kind());
-            let p = Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device).require_grad();
+            let same = loss
+                .per_example(t.clone(), t.clone())
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap();
+            assert!(
+                same.iter().all(|v| *v == 0.0),
+                "{:?}: {same:?}",
+                loss.kind()
+            );
+            let p = Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device)
+                .require_grad();
             let l = loss.sum(p.clone(), t);
             let v = l.clone().into_scalar::<f32>();
             assert!(v.is_finite() && v > 0.0, "{:?}: {v}", loss.kind());
-            let g = p.grad(&l.backward()).expect("gradient reaches the prediction");
+            let g = p
+                .grad(&l.backward())
+                .expect("gradient reaches the prediction");
             let g = g.into_data().try_to_vec::<f32>().unwrap();
             assert!(g.iter().all(|x| x.is_finite()));
-            assert!(g.iter().any(|x| *x != 0.0), "{:?}: zero gradient", loss.kind());
+            assert!(
+                g.iter().any(|x| *x != 0.0),
+                "{:?}: zero gradient",
+                loss.kind()
+            );
         }
     }
 
@@ -132,16 +167,28 @@ mod tests {
         for loss in losses(&device) {
             let t = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
             let p = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(0.0, 1.0), &device);
-            let both = loss.per_example(p.clone(), t.clone()).into_data().try_to_vec::<f32>().unwrap();
-            let first = loss.per_example(p.clone().narrow(0, 0, 1), t.clone().narrow(0, 0, 1)).into_scalar::<f32>();
-            assert!((both[0] - first).abs() <= 1e-4 * first.abs(), "{both:?} vs {first}");
-            let dir = Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(-1.0, 1.0), &device);
+            let both = loss
+                .per_example(p.clone(), t.clone())
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap();
+            let first = loss
+                .per_example(p.clone().narrow(0, 0, 1), t.clone().narrow(0, 0, 1))
+                .into_scalar::<f32>();
+            assert!(
+                (both[0] - first).abs() <= 1e-4 * first.abs(),
+                "{both:?} vs {first}"
+            );
+            let dir =
+                Tensor::<4>::random([2, 3, 16, 16], Distribution::Uniform(-1.0, 1.0), &device);
             let pg = p.clone().require_grad();
             let l = loss.sum(pg.clone(), t.clone());
             let g = pg.grad(&l.backward()).unwrap();
             let analytic = (g * dir.clone().inner()).sum().into_scalar::<f32>() as f64;
             let eps = 1e-3;
-            let lp = loss.sum(p.clone() + dir.clone() * eps, t.clone()).into_scalar::<f32>() as f64;
+            let lp = loss
+                .sum(p.clone() + dir.clone() * eps, t.clone())
+                .into_scalar::<f32>() as f64;
             let lm = loss.sum(p - dir * eps, t).into_scalar::<f32>() as f64;
             let numeric = (lp - lm) / (2.0 * eps as f64);
             assert!(

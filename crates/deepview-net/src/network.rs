@@ -20,7 +20,9 @@
 //! from the full MPI.
 
 use crate::config::DeepViewConfig;
-use crate::forward::{GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume};
+use crate::forward::{
+    GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume,
+};
 use burn::module::Module;
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
@@ -47,11 +49,20 @@ pub struct CoreNet {
 }
 
 fn conv(i: usize, o: usize, device: &Device) -> Conv2d {
-    Conv2dConfig::new([i, o], [3, 3]).with_padding(PaddingConfig2d::Same).init(device)
+    Conv2dConfig::new([i, o], [3, 3])
+        .with_padding(PaddingConfig2d::Same)
+        .init(device)
 }
 
 impl CoreNet {
-    pub fn new(in_channels: usize, features: usize, out: usize, stages: usize, unet: bool, device: &Device) -> Self {
+    pub fn new(
+        in_channels: usize,
+        features: usize,
+        out: usize,
+        stages: usize,
+        unet: bool,
+        device: &Device,
+    ) -> Self {
         let f = features;
         let mut st = Vec::new();
         for _ in 0..stages {
@@ -83,7 +94,9 @@ impl CoreNet {
         }
         for pair in self.stages.chunks(2) {
             let [_, fc, hh, ww] = f.dims();
-            let m = max_over_views(f.clone(), views).reshape([1, d, fc, hh, ww]).repeat_dim(0, views);
+            let m = max_over_views(f.clone(), views)
+                .reshape([1, d, fc, hh, ww])
+                .repeat_dim(0, views);
             f = Tensor::cat(vec![f, m.reshape([kd, fc, hh, ww])], 1);
             for c in pair {
                 f = elu(c.forward(f), 1.0);
@@ -107,7 +120,9 @@ impl CoreNet {
 pub fn max_over_views(x: Tensor<4>, views: usize) -> Tensor<4> {
     let [kd, c, h, w] = x.dims();
     let d = kd / views;
-    x.reshape([views, d * c, h, w]).max_dim(0).reshape([d, c, h, w])
+    x.reshape([views, d * c, h, w])
+        .max_dim(0)
+        .reshape([d, c, h, w])
 }
 
 /// The network state `M` `[D, 4 + extra, h, w]` -> RGBA `[D, 4, h, w]` (sigmoid, colour premultiplied).
@@ -167,24 +182,51 @@ impl DeepViewModel {
         let sc = config.state_channels();
         let nets = (0..config.nets())
             .map(|n| {
-                let cin = if n == 0 { INIT_CHANNELS } else { GRADIENT_CHANNELS + sc };
-                CoreNet::new(cin, config.features(n), sc, config.max_pool_stages, config.unet(n), device)
+                let cin = if n == 0 {
+                    INIT_CHANNELS
+                } else {
+                    GRADIENT_CHANNELS + sc
+                };
+                CoreNet::new(
+                    cin,
+                    config.features(n),
+                    sc,
+                    config.max_pool_stages,
+                    config.unet(n),
+                    device,
+                )
             })
             .collect();
-        Self { nets, state_channels: sc, fixed_views: config.views.unwrap_or(0) }
+        Self {
+            nets,
+            state_channels: sc,
+            fixed_views: config.views.unwrap_or(0),
+        }
     }
 
     /// Input of the initialisation net for one view on a region of the window: `[D, 4, h, w]` (PSV and
     /// validity). `mpi_to_view` is relative to the window; `region = (x0, y0, w, h)`.
-    pub fn init_input(image: Tensor<3>, mpi_to_view: &[Hom], region: (usize, usize, usize, usize)) -> Tensor<4> {
+    pub fn init_input(
+        image: Tensor<3>,
+        mpi_to_view: &[Hom],
+        region: (usize, usize, usize, usize),
+    ) -> Tensor<4> {
         let (x0, y0, w, h) = region;
-        let homs: Vec<Hom> = mpi_to_view.iter().map(|m| crop_output(m, x0 as f64, y0 as f64)).collect();
+        let homs: Vec<Hom> = mpi_to_view
+            .iter()
+            .map(|m| crop_output(m, x0 as f64, y0 as f64))
+            .collect();
         plane_sweep_volume(image, &homs, h, w)
     }
 
     /// Run net `n` on per-view inputs (each `[D, C, h, w]`); update nets also get the state `[D, S, h, w]`
     /// concatenated. Returns the net's output `[D, S, h, w]` (the state for n = 0, the update otherwise).
-    pub fn run_net(&self, n: usize, per_view: Vec<Tensor<4>>, state: Option<Tensor<4>>) -> Tensor<4> {
+    pub fn run_net(
+        &self,
+        n: usize,
+        per_view: Vec<Tensor<4>>,
+        state: Option<Tensor<4>>,
+    ) -> Tensor<4> {
         let k = per_view.len();
         let x = per_view
             .into_iter()
@@ -207,9 +249,12 @@ impl DeepViewModel {
             let per_view: Vec<Tensor<4>> = (0..k)
                 .map(|v| match &state {
                     None => Self::init_input(inputs.images[v].clone(), &homs[v], (0, 0, w, h)),
-                    Some(s) => {
-                        gradient_components(state_to_rgba(s.clone()), inputs.images[v].clone(), &homs[v], (0, 0, w, h))
-                    }
+                    Some(s) => gradient_components(
+                        state_to_rgba(s.clone()),
+                        inputs.images[v].clone(),
+                        &homs[v],
+                        (0, 0, w, h),
+                    ),
                 })
                 .collect();
             let out = self.run_net(n, per_view, state.clone());
@@ -219,7 +264,10 @@ impl DeepViewModel {
             };
             if inputs.shrink {
                 let m = self.margin(n);
-                let m = m.min((w.saturating_sub(1)) / 2).min((h.saturating_sub(1)) / 2) & !1;
+                let m = m
+                    .min((w.saturating_sub(1)) / 2)
+                    .min((h.saturating_sub(1)) / 2)
+                    & !1;
                 if m > 0 {
                     w -= 2 * m;
                     h -= 2 * m;
@@ -235,7 +283,11 @@ impl DeepViewModel {
             state = Some(s);
         }
         let state = state.expect("at least one net");
-        ModelOutput { rgba: state_to_rgba(state.clone()), state, offset }
+        ModelOutput {
+            rgba: state_to_rgba(state.clone()),
+            state,
+            offset,
+        }
     }
 
     /// Receptive-field margin of net `n` (same rule as [`DeepViewConfig::net_margin`]).
@@ -253,10 +305,23 @@ impl DeepViewModel {
 
 /// Synthetic inputs for tests and benchmarks: K cameras on a small circle around a reference camera
 /// looking down +z, random images, planes between depth 1 and 10.
-pub fn synthetic_inputs(views: usize, planes: usize, h: usize, w: usize, device: &Device) -> ModelInputs {
+pub fn synthetic_inputs(
+    views: usize,
+    planes: usize,
+    h: usize,
+    w: usize,
+    device: &Device,
+) -> ModelInputs {
     use burn::tensor::Distribution;
-    use deepview_geometry::{Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths, plane_homography};
-    let reference = Camera::new(w as u32, h as u32, Intrinsics::centred(w as f64, w as u32, h as u32), Pose::IDENTITY);
+    use deepview_geometry::{
+        Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths, plane_homography,
+    };
+    let reference = Camera::new(
+        w as u32,
+        h as u32,
+        Intrinsics::centred(w as f64, w as u32, h as u32),
+        Pose::IDENTITY,
+    );
     let depths = plane_depths(1.0, 10.0, planes, PlaneSpacing::InverseDepth).expect("valid depths");
     let mut images = Vec::new();
     let mut mpi_to_view = Vec::new();
@@ -266,12 +331,30 @@ pub fn synthetic_inputs(views: usize, planes: usize, h: usize, w: usize, device:
             w as u32,
             h as u32,
             reference.intrinsics,
-            Pose::from_center(DMat3::IDENTITY, DVec3::new(0.05 * t.cos(), 0.05 * t.sin(), 0.0)),
+            Pose::from_center(
+                DMat3::IDENTITY,
+                DVec3::new(0.05 * t.cos(), 0.05 * t.sin(), 0.0),
+            ),
         );
-        images.push(Tensor::<3>::random([3, h, w], Distribution::Uniform(0.0, 1.0), device));
-        mpi_to_view.push(depths.iter().map(|&d| plane_homography(&reference, &cam, d).to_row_major()).collect());
+        images.push(Tensor::<3>::random(
+            [3, h, w],
+            Distribution::Uniform(0.0, 1.0),
+            device,
+        ));
+        mpi_to_view.push(
+            depths
+                .iter()
+                .map(|&d| plane_homography(&reference, &cam, d).to_row_major())
+                .collect(),
+        );
     }
-    ModelInputs { images, mpi_to_view, height: h, width: w, shrink: false }
+    ModelInputs {
+        images,
+        mpi_to_view,
+        height: h,
+        width: w,
+        shrink: false,
+    }
 }
 
 #[cfg(test)]
@@ -279,7 +362,13 @@ mod tests {
     use super::*;
 
     fn small_config() -> DeepViewConfig {
-        DeepViewConfig { features_large: 6, features_small: 4, updates: 2, unet_nets: 1, ..DeepViewConfig::preset("cpu").unwrap() }
+        DeepViewConfig {
+            features_large: 6,
+            features_small: 4,
+            updates: 2,
+            unet_nets: 1,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        }
     }
 
     fn max_diff(a: Tensor<4>, b: Tensor<4>) -> f32 {
@@ -296,7 +385,10 @@ mod tests {
         let mut perm = inputs.clone();
         let order = [2, 0, 3, 1];
         perm.images = order.iter().map(|&i| inputs.images[i].clone()).collect();
-        perm.mpi_to_view = order.iter().map(|&i| inputs.mpi_to_view[i].clone()).collect();
+        perm.mpi_to_view = order
+            .iter()
+            .map(|&i| inputs.mpi_to_view[i].clone())
+            .collect();
         let out2 = model.forward(&perm);
         assert!(max_diff(out.rgba.clone(), out2.rgba) < 1e-5);
         // The output is a valid premultiplied MPI.
@@ -337,13 +429,19 @@ mod tests {
         // away from the crop border by its margin) equals the crop of its output.
         let dev = Device::flex();
         let net = CoreNet::new(3, 5, 8, 2, true, &dev);
-        let x = Tensor::<4>::random([6, 3, 60, 66], burn::tensor::Distribution::Uniform(-1.0, 1.0), &dev);
+        let x = Tensor::<4>::random(
+            [6, 3, 60, 66],
+            burn::tensor::Distribution::Uniform(-1.0, 1.0),
+            &dev,
+        );
         let full = net.forward(x.clone(), 2);
         let m = 2 * (2 + 4 + 2) + 4;
         let (x0, y0) = (2usize, 4usize);
         let (h, w) = (60 - y0, 66 - x0 - 1);
         let crop = net.forward(x.narrow(2, y0, h).narrow(3, x0, w), 2);
-        let a = full.narrow(2, y0 + m, h - 2 * m).narrow(3, x0 + m, w - 2 * m);
+        let a = full
+            .narrow(2, y0 + m, h - 2 * m)
+            .narrow(3, x0 + m, w - 2 * m);
         let b = crop.narrow(2, m, h - 2 * m).narrow(3, m, w - 2 * m);
         assert!(max_diff(a, b) < 1e-5);
     }
@@ -372,10 +470,39 @@ mod tests {
             let _g = loss.backward();
             times.push(t.elapsed().as_secs_f64());
         }
-        println!("cpu preset 4 views x 16 planes x 48x48: forward {fwd:.3}s, forward+backward {times:.3?}");
+        println!(
+            "cpu preset 4 views x 16 planes x 48x48: forward {fwd:.3}s, forward+backward {times:.3?}"
+        );
+        let rgba = Tensor::<4>::random(
+            [16, 4, 48, 48],
+            burn::tensor::Distribution::Uniform(0.0, 1.0),
+            &inner,
+        );
+        let inputs_inner = synthetic_inputs(4, 16, 48, 48, &inner);
+        let t = Instant::now();
+        for k in 0..4 {
+            let g = crate::forward::gradient_components(
+                rgba.clone(),
+                inputs_inner.images[k].clone(),
+                &inputs_inner.mpi_to_view[k],
+                (0, 0, 48, 48),
+            );
+            let _: f32 = g.sum().into_scalar();
+        }
+        println!(
+            "gradient components, 4 views: {:.1} ms",
+            t.elapsed().as_secs_f64() * 1e3
+        );
         // Warp: gather vs grid_sample, 16 planes x 4 channels x 96x96, forward + backward.
-        let x = Tensor::<4>::random([16, 4, 96, 96], burn::tensor::Distribution::Uniform(0.0, 1.0), &ad).require_grad();
-        let homs: Vec<[f32; 9]> = (0..16).map(|i| [1.01, 0.01, 0.3 * i as f32, 0.0, 0.99, -0.2, 0.0, 0.0, 1.0]).collect();
+        let x = Tensor::<4>::random(
+            [16, 4, 96, 96],
+            burn::tensor::Distribution::Uniform(0.0, 1.0),
+            &ad,
+        )
+        .require_grad();
+        let homs: Vec<[f32; 9]> = (0..16)
+            .map(|i| [1.01, 0.01, 0.3 * i as f32, 0.0, 0.99, -0.2, 0.0, 0.0, 1.0])
+            .collect();
         for name in ["gather", "grid_sample"] {
             let t = Instant::now();
             for _ in 0..3 {
@@ -386,7 +513,10 @@ mod tests {
                 };
                 let _g = y.sum().backward();
             }
-            println!("warp {name}: fwd+bwd {:.1} ms", t.elapsed().as_secs_f64() / 3.0 * 1e3);
+            println!(
+                "warp {name}: fwd+bwd {:.1} ms",
+                t.elapsed().as_secs_f64() / 3.0 * 1e3
+            );
         }
     }
 }

@@ -40,14 +40,23 @@ pub const LAYERS: [(&str, usize, usize); 7] = [
 /// Errors reading the VGG weights; every message names the file.
 #[derive(Debug, thiserror::Error)]
 pub enum VggError {
-    #[error("cannot read VGG-16 weights {path}: {source} (see data/vgg16/README.md for how to obtain them)")]
-    Io { path: PathBuf, source: std::io::Error },
+    #[error(
+        "cannot read VGG-16 weights {path}: {source} (see data/vgg16/README.md for how to obtain them)"
+    )]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("VGG-16 weights {path} are truncated or corrupt: {detail}")]
     Corrupt { path: PathBuf, detail: String },
     #[error("VGG-16 weights {path} lack tensor `{name}`")]
     Missing { path: PathBuf, name: String },
     #[error("VGG-16 weights {path}: tensor `{name}` has {detail}")]
-    BadTensor { path: PathBuf, name: String, detail: String },
+    BadTensor {
+        path: PathBuf,
+        name: String,
+        detail: String,
+    },
 }
 
 /// The data folder: env `DEEPVIEW_DATA`, default `<workspace>/../shared/data` (same rule as `deepview-data`).
@@ -72,29 +81,50 @@ pub struct RawTensor {
 
 /// Read every float32 tensor of a safetensors file (small files only: it is read whole).
 pub fn read_safetensors_f32(path: &Path) -> Result<HashMap<String, RawTensor>, VggError> {
-    let bytes = std::fs::read(path).map_err(|source| VggError::Io { path: path.to_path_buf(), source })?;
+    let bytes = std::fs::read(path).map_err(|source| VggError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
     parse_safetensors_f32(&bytes, path)
 }
 
-fn parse_safetensors_f32(bytes: &[u8], path: &Path) -> Result<HashMap<String, RawTensor>, VggError> {
-    let corrupt = |detail: String| VggError::Corrupt { path: path.to_path_buf(), detail };
+fn parse_safetensors_f32(
+    bytes: &[u8],
+    path: &Path,
+) -> Result<HashMap<String, RawTensor>, VggError> {
+    let corrupt = |detail: String| VggError::Corrupt {
+        path: path.to_path_buf(),
+        detail,
+    };
     if bytes.len() < 8 {
-        return Err(corrupt(format!("{} bytes, shorter than the 8-byte header length", bytes.len())));
+        return Err(corrupt(format!(
+            "{} bytes, shorter than the 8-byte header length",
+            bytes.len()
+        )));
     }
     let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
     if n > bytes.len() - 8 {
-        return Err(corrupt(format!("header of {n} bytes but the file has {} bytes", bytes.len())));
+        return Err(corrupt(format!(
+            "header of {n} bytes but the file has {} bytes",
+            bytes.len()
+        )));
     }
-    let header: serde_json::Value =
-        serde_json::from_slice(&bytes[8..8 + n]).map_err(|e| corrupt(format!("header is not JSON: {e}")))?;
-    let obj = header.as_object().ok_or_else(|| corrupt("header is not a JSON object".into()))?;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n])
+        .map_err(|e| corrupt(format!("header is not JSON: {e}")))?;
+    let obj = header
+        .as_object()
+        .ok_or_else(|| corrupt("header is not a JSON object".into()))?;
     let data = &bytes[8 + n..];
     let mut out = HashMap::new();
     for (name, info) in obj {
         if name == "__metadata__" {
             continue;
         }
-        let bad = |detail: String| VggError::BadTensor { path: path.to_path_buf(), name: name.clone(), detail };
+        let bad = |detail: String| VggError::BadTensor {
+            path: path.to_path_buf(),
+            name: name.clone(),
+            detail,
+        };
         let dtype = info.get("dtype").and_then(|v| v.as_str()).unwrap_or("?");
         if dtype != "F32" {
             return Err(bad(format!("dtype {dtype}, expected F32")));
@@ -102,12 +132,20 @@ fn parse_safetensors_f32(bytes: &[u8], path: &Path) -> Result<HashMap<String, Ra
         let shape: Vec<usize> = info
             .get("shape")
             .and_then(|v| v.as_array())
-            .map(|a| a.iter().filter_map(|x| x.as_u64().map(|x| x as usize)).collect())
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_u64().map(|x| x as usize))
+                    .collect()
+            })
             .ok_or_else(|| bad("no shape".into()))?;
         let offs: Vec<usize> = info
             .get("data_offsets")
             .and_then(|v| v.as_array())
-            .map(|a| a.iter().filter_map(|x| x.as_u64().map(|x| x as usize)).collect())
+            .map(|a| {
+                a.iter()
+                    .filter_map(|x| x.as_u64().map(|x| x as usize))
+                    .collect()
+            })
             .ok_or_else(|| bad("no data_offsets".into()))?;
         if offs.len() != 2 || offs[0] > offs[1] {
             return Err(bad(format!("bad data_offsets {offs:?}")));
@@ -121,11 +159,22 @@ fn parse_safetensors_f32(bytes: &[u8], path: &Path) -> Result<HashMap<String, Ra
         }
         let count: usize = shape.iter().product();
         if offs[1] - offs[0] != count * 4 {
-            return Err(bad(format!("{} bytes for shape {shape:?}", offs[1] - offs[0])));
+            return Err(bad(format!(
+                "{} bytes for shape {shape:?}",
+                offs[1] - offs[0]
+            )));
         }
-        let values =
-            data[offs[0]..offs[1]].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-        out.insert(name.clone(), RawTensor { shape, data: values });
+        let values = data[offs[0]..offs[1]]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        out.insert(
+            name.clone(),
+            RawTensor {
+                shape,
+                data: values,
+            },
+        );
     }
     Ok(out)
 }
@@ -164,7 +213,10 @@ impl Vgg16 {
         let mut tensors = read_safetensors_f32(path)?;
         let mut take = |name: &str, cin: usize, cout: usize| -> Result<Conv2d, VggError> {
             let mut get = |key: String, shape: Vec<usize>| -> Result<RawTensor, VggError> {
-                let t = tensors.remove(&key).ok_or_else(|| VggError::Missing { path: path.into(), name: key.clone() })?;
+                let t = tensors.remove(&key).ok_or_else(|| VggError::Missing {
+                    path: path.into(),
+                    name: key.clone(),
+                })?;
                 if t.shape != shape {
                     return Err(VggError::BadTensor {
                         path: path.into(),
@@ -173,15 +225,27 @@ impl Vgg16 {
                     });
                 }
                 if !t.data.iter().all(|v| v.is_finite()) {
-                    return Err(VggError::BadTensor { path: path.into(), name: key, detail: "non-finite values".into() });
+                    return Err(VggError::BadTensor {
+                        path: path.into(),
+                        name: key,
+                        detail: "non-finite values".into(),
+                    });
                 }
                 Ok(t)
             };
             let w = get(format!("{name}.weight"), vec![cout, cin, 3, 3])?;
             let b = get(format!("{name}.bias"), vec![cout])?;
-            let mut conv = Conv2dConfig::new([cin, cout], [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device);
-            conv.weight = Param::from_tensor(Tensor::<4>::from_data(TensorData::new(w.data, w.shape), device));
-            conv.bias = Some(Param::from_tensor(Tensor::<1>::from_data(TensorData::new(b.data, b.shape), device)));
+            let mut conv = Conv2dConfig::new([cin, cout], [3, 3])
+                .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+                .init(device);
+            conv.weight = Param::from_tensor(Tensor::<4>::from_data(
+                TensorData::new(w.data, w.shape),
+                device,
+            ));
+            conv.bias = Some(Param::from_tensor(Tensor::<1>::from_data(
+                TensorData::new(b.data, b.shape),
+                device,
+            )));
             Ok(conv)
         };
         let vgg = Vgg16 {
@@ -218,7 +282,11 @@ impl Vgg16 {
         let x = relu(self.conv3_1.forward(x));
         let x = relu(self.conv3_2.forward(x));
         let conv3_3 = relu(self.conv3_3.forward(x));
-        VggFeatures { conv1_2, conv2_2, conv3_3 }
+        VggFeatures {
+            conv1_2,
+            conv2_2,
+            conv3_3,
+        }
     }
 
     /// conv1_1 after ReLU (for tests).
@@ -236,7 +304,10 @@ mod tests {
         if p.exists() {
             Some(p)
         } else {
-            eprintln!("SKIP: VGG weights not found at {} (set DEEPVIEW_DATA)", p.display());
+            eprintln!(
+                "SKIP: VGG weights not found at {} (set DEEPVIEW_DATA)",
+                p.display()
+            );
             None
         }
     }
@@ -251,12 +322,20 @@ mod tests {
         let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + n]).unwrap();
         let read = |name: &str| -> Vec<f32> {
             let o = header[name]["data_offsets"].as_array().unwrap();
-            let (a, b) = (o[0].as_u64().unwrap() as usize, o[1].as_u64().unwrap() as usize);
-            bytes[8 + n + a..8 + n + b].chunks(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
+            let (a, b) = (
+                o[0].as_u64().unwrap() as usize,
+                o[1].as_u64().unwrap() as usize,
+            );
+            bytes[8 + n + a..8 + n + b]
+                .chunks(4)
+                .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+                .collect()
         };
         let (w, bias) = (read("conv1_1.weight"), read("conv1_1.bias"));
         let (h, wd) = (7usize, 9usize);
-        let img: Vec<f32> = (0..3 * h * wd).map(|i| ((i * 37 % 101) as f32) / 100.0).collect(); // CHW, RGB
+        let img: Vec<f32> = (0..3 * h * wd)
+            .map(|i| ((i * 37 % 101) as f32) / 100.0)
+            .collect(); // CHW, RGB
         let device = Device::flex();
         let vgg = Vgg16::load(&path, &device).unwrap();
         let x = Tensor::<4>::from_data(TensorData::new(img.clone(), [1, 3, h, wd]), &device);
@@ -273,14 +352,18 @@ mod tests {
                         if y < 0 || x < 0 || y >= h as i64 || x >= wd as i64 {
                             continue;
                         }
-                        let v = img[src * h * wd + y as usize * wd + x as usize] as f64 * 255.0 - mean[ic] as f64;
+                        let v = img[src * h * wd + y as usize * wd + x as usize] as f64 * 255.0
+                            - mean[ic] as f64;
                         acc += w[((oc * 3 + ic) * 3 + ky) * 3 + kx] as f64 * v;
                     }
                 }
             }
             let expect = acc.max(0.0);
             let got = out[oc * h * wd + oy * wd + ox] as f64;
-            assert!((got - expect).abs() < 1e-3 * (1.0 + expect.abs()), "({oy},{ox},{oc}): {got} vs {expect}");
+            assert!(
+                (got - expect).abs() < 1e-3 * (1.0 + expect.abs()),
+                "({oy},{ox},{oc}): {got} vs {expect}"
+            );
         }
     }
 
@@ -300,7 +383,9 @@ mod tests {
     fn errors_name_the_file() {
         let dir = tempfile::tempdir().unwrap();
         let missing = dir.path().join("nope.safetensors");
-        let e = Vgg16::load(&missing, &Device::flex()).unwrap_err().to_string();
+        let e = Vgg16::load(&missing, &Device::flex())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("nope.safetensors"), "{e}");
         let Some(path) = weights() else { return };
         let bytes = std::fs::read(&path).unwrap();
@@ -310,6 +395,9 @@ mod tests {
         assert!(matches!(e, VggError::Corrupt { .. }), "{e}");
         assert!(e.to_string().contains("cut.safetensors"), "{e}");
         std::fs::write(&cut, &bytes[..5]).unwrap();
-        assert!(matches!(Vgg16::load(&cut, &Device::flex()).unwrap_err(), VggError::Corrupt { .. }));
+        assert!(matches!(
+            Vgg16::load(&cut, &Device::flex()).unwrap_err(),
+            VggError::Corrupt { .. }
+        ));
     }
 }

@@ -2,7 +2,71 @@
 
 pub mod bench;
 pub mod depth;
+pub mod eval;
+pub mod infer;
 pub mod info;
+pub mod optimize;
 pub mod psv;
 pub mod render;
 pub mod synth;
+pub mod train;
+
+use anyhow::{Context, bail};
+use deepview_geometry::{Camera, CameraJson};
+use std::path::Path;
+
+/// Read a camera JSON file (`{"width","height","fx","fy","cx","cy","camera_from_world":[16]}`).
+pub fn read_camera_json(path: &Path) -> anyhow::Result<Camera> {
+    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read camera file {}", path.display()))?;
+    let json: CameraJson =
+        serde_json::from_str(&text).with_context(|| format!("{} is not a valid camera JSON", path.display()))?;
+    json.to_camera().with_context(|| format!("invalid camera in {}", path.display()))
+}
+
+/// Parse a comma-separated list of view indices, checking them against the view count.
+pub fn parse_indices(text: &str, views: usize) -> anyhow::Result<Vec<usize>> {
+    let mut out = Vec::new();
+    for part in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+        let i: usize = part.parse().with_context(|| format!("{part:?} is not a view index"))?;
+        if i >= views {
+            bail!("view index {i} out of range: the scene has {views} views (0..{})", views.saturating_sub(1));
+        }
+        out.push(i);
+    }
+    if out.is_empty() {
+        bail!("no view indices given");
+    }
+    Ok(out)
+}
+
+/// Where a camera comes from: a camera JSON file, or a view of a dataset.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct CameraSource {
+    /// Camera JSON: {"width","height","fx","fy","cx","cy","camera_from_world":[16 numbers, row-major]}.
+    #[arg(long, conflicts_with = "scene_dir")]
+    pub camera: Option<std::path::PathBuf>,
+    /// A dataset folder whose view `--view` gives the camera.
+    #[arg(long = "scene", requires = "view")]
+    pub scene_dir: Option<std::path::PathBuf>,
+    /// View index in `--scene`.
+    #[arg(long)]
+    pub view: Option<usize>,
+    #[command(flatten)]
+    pub scene: deepview_data::SceneArgs,
+}
+
+impl CameraSource {
+    /// The camera, or `None` when neither `--camera` nor `--scene` was given.
+    pub fn camera(&self) -> anyhow::Result<Option<Camera>> {
+        if let Some(p) = &self.camera {
+            return Ok(Some(read_camera_json(p)?));
+        }
+        if let Some(dir) = &self.scene_dir {
+            let scene = deepview_data::load_scene(dir, &self.scene.load_options())?;
+            let v = self.view.unwrap_or(0);
+            parse_indices(&v.to_string(), scene.views.len())?;
+            return Ok(Some(scene.views[v].camera));
+        }
+        Ok(None)
+    }
+}

@@ -46,7 +46,15 @@ pub struct LightFieldCameras {
 /// focus depth `focal / D_INF`.
 pub fn light_field_cameras(rows: usize, cols: usize, width: u32, height: u32) -> LightFieldCameras {
     let focal = width as f64;
-    LightFieldCameras { rows, cols, width, height, focal, baseline: 1.0, focus_depth: focal / D_INF }
+    LightFieldCameras {
+        rows,
+        cols,
+        width,
+        height,
+        focal,
+        baseline: 1.0,
+        focus_depth: focal / D_INF,
+    }
 }
 
 impl LightFieldCameras {
@@ -60,8 +68,15 @@ impl LightFieldCameras {
 
     /// Camera centre of grid position `(r, c)`.
     pub fn center(&self, r: usize, c: usize) -> DVec3 {
-        let (rc, cc) = ((self.rows as f64 - 1.0) / 2.0, (self.cols as f64 - 1.0) / 2.0);
-        DVec3::new((c as f64 - cc) * self.baseline, (r as f64 - rc) * self.baseline, 0.0)
+        let (rc, cc) = (
+            (self.rows as f64 - 1.0) / 2.0,
+            (self.cols as f64 - 1.0) / 2.0,
+        );
+        DVec3::new(
+            (c as f64 - cc) * self.baseline,
+            (r as f64 - rc) * self.baseline,
+            0.0,
+        )
     }
 
     pub fn camera(&self, r: usize, c: usize) -> Camera {
@@ -73,12 +88,19 @@ impl LightFieldCameras {
             w / 2.0 + self.focal * ctr.x / self.focus_depth,
             h / 2.0 + self.focal * ctr.y / self.focus_depth,
         );
-        Camera::new(self.width, self.height, k, Pose::from_center(DMat3::IDENTITY, ctr))
+        Camera::new(
+            self.width,
+            self.height,
+            k,
+            Pose::from_center(DMat3::IDENTITY, ctr),
+        )
     }
 
     /// All cameras, row-major.
     pub fn cameras(&self) -> Vec<Camera> {
-        (0..self.rows).flat_map(|r| (0..self.cols).map(move |c| self.camera(r, c))).collect()
+        (0..self.rows)
+            .flat_map(|r| (0..self.cols).map(move |c| self.camera(r, c)))
+            .collect()
     }
 
     /// `(near, far)` depths of a disparity range `(d_min, d_max)`, far clamped to disparity
@@ -87,7 +109,10 @@ impl LightFieldCameras {
         let d_inf = self.focal * self.baseline / self.focus_depth;
         let far_d = d_min.max(-0.9 * d_inf);
         let near_d = d_max.max(far_d + 1e-3);
-        (self.disparity_to_depth(near_d), self.disparity_to_depth(far_d))
+        (
+            self.disparity_to_depth(near_d),
+            self.disparity_to_depth(far_d),
+        )
     }
 }
 
@@ -100,13 +125,18 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
     if n == 0 || side * side != n {
         return Err(DataError::CountMismatch {
             path: root.into(),
-            msg: format!("found {n} consecutive input_CamNNN.png files from input_Cam000.png; a grid needs N x N"),
+            msg: format!(
+                "found {n} consecutive input_CamNNN.png files from input_Cam000.png; a grid needs N x N"
+            ),
         });
     }
     if root.join(light_field_image_name(n + 1)).exists() {
         return Err(DataError::CountMismatch {
             path: root.into(),
-            msg: format!("{} is missing but later views exist", light_field_image_name(n)),
+            msg: format!(
+                "{} is missing but later views exist",
+                light_field_image_name(n)
+            ),
         });
     }
     let first = root.join(light_field_image_name(0));
@@ -117,15 +147,26 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
         let path = root.join(light_field_image_name(i));
         let got = crate::image_size(&path)?;
         if got != (w, h) {
-            return Err(DataError::ImageSize { path, calibration: first.clone(), expected: (w, h), got });
+            return Err(DataError::ImageSize {
+                path,
+                calibration: first.clone(),
+                expected: (w, h),
+                got,
+            });
         }
-        views.push(View { name: format!("input_Cam{i:03}"), image_path: path, camera });
+        views.push(View {
+            name: format!("input_Cam{i:03}"),
+            image_path: path,
+            camera,
+        });
     }
     let gt = root.join(GT_DISPARITY);
     let (d_min, d_max) = if gt.is_file() {
         let pfm = read_pfm(&gt)?;
         let finite = pfm.data.iter().filter(|v| v.is_finite()).map(|&v| v as f64);
-        let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+        let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
+            (a.min(v), b.max(v))
+        });
         if lo > hi {
             return Err(DataError::invalid(&gt, "no finite disparity values"));
         }
@@ -146,11 +187,20 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
 
 /// Write a light field: `images` (row-major, `rows * cols`, `rows == cols` for the HCI layout) as
 /// `input_CamNNN.png`, and the centre view's disparity as `gt_disp_lowres.pfm` when given.
-pub fn write_light_field(dir: &Path, rows: usize, cols: usize, images: &[ImageF32], disparity: Option<&Pfm>) -> Result<(), DataError> {
+pub fn write_light_field(
+    dir: &Path,
+    rows: usize,
+    cols: usize,
+    images: &[ImageF32],
+    disparity: Option<&Pfm>,
+) -> Result<(), DataError> {
     if images.len() != rows * cols || rows != cols {
         return Err(DataError::CountMismatch {
             path: dir.into(),
-            msg: format!("{} images for a {rows} x {cols} grid (the HCI layout needs a square grid)", images.len()),
+            msg: format!(
+                "{} images for a {rows} x {cols} grid (the HCI layout needs a square grid)",
+                images.len()
+            ),
         });
     }
     for (i, img) in images.iter().enumerate() {
@@ -187,7 +237,10 @@ mod tests {
             }
         }
         let (near, far) = lf.depth_bounds(-4.0, 4.0);
-        assert!((lf.depth_to_disparity(near) - 4.0).abs() < 1e-9 && (lf.depth_to_disparity(far) + 4.0).abs() < 1e-9);
+        assert!(
+            (lf.depth_to_disparity(near) - 4.0).abs() < 1e-9
+                && (lf.depth_to_disparity(far) + 4.0).abs() < 1e-9
+        );
         assert!(lf.depth_bounds(-100.0, 0.0).1.is_finite());
     }
 
@@ -195,17 +248,27 @@ mod tests {
     fn write_then_load() {
         let dir = tempfile::tempdir().unwrap();
         let imgs: Vec<ImageF32> = (0..9).map(|_| ImageF32::new(8, 6, 3)).collect();
-        let disp = Pfm { width: 8, height: 6, channels: 1, data: vec![1.0; 48] };
+        let disp = Pfm {
+            width: 8,
+            height: 6,
+            channels: 1,
+            data: vec![1.0; 48],
+        };
         write_light_field(dir.path(), 3, 3, &imgs, Some(&disp)).unwrap();
         let s = crate::load_scene(dir.path(), &LoadOptions::default()).unwrap();
-        assert_eq!((s.format, s.grid, s.len()), (SceneFormat::LightField, Some((3, 3)), 9));
+        assert_eq!(
+            (s.format, s.grid, s.len()),
+            (SceneFormat::LightField, Some((3, 3)), 9)
+        );
         let lf = light_field_cameras(3, 3, 8, 6);
         let (near, far) = s.near_far().unwrap();
         // Disparity exactly 1 everywhere, margin 0.25 px.
         assert!((lf.depth_to_disparity(near) - 1.25).abs() < 1e-9);
         assert!((lf.depth_to_disparity(far) - 0.75).abs() < 1e-9);
         std::fs::remove_file(dir.path().join("input_Cam008.png")).unwrap();
-        let e = crate::load_scene(dir.path(), &LoadOptions::default()).unwrap_err().to_string();
+        let e = crate::load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("found 8") && e.contains("N x N"), "{e}");
     }
 }

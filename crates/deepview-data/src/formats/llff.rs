@@ -29,12 +29,18 @@ pub struct LlffRecord {
 pub fn read_poses_bounds(path: &Path) -> Result<Vec<LlffRecord>, DataError> {
     let a = read_npy(path)?;
     if a.shape.len() != 2 || a.shape[1] != 17 {
-        return Err(DataError::invalid(path, format!("expected an N x 17 array, got shape {:?}", a.shape)));
+        return Err(DataError::invalid(
+            path,
+            format!("expected an N x 17 array, got shape {:?}", a.shape),
+        ));
     }
     let mut out = Vec::with_capacity(a.shape[0]);
     for (i, row) in a.data.chunks_exact(17).enumerate() {
         if let Some(k) = row.iter().position(|v| !v.is_finite()) {
-            return Err(DataError::invalid(path, format!("row {i}: non-finite value {} at column {k}", row[k])));
+            return Err(DataError::invalid(
+                path,
+                format!("row {i}: non-finite value {} at column {k}", row[k]),
+            ));
         }
         let mut c2w = [[0.0; 4]; 3];
         for r in 0..3 {
@@ -42,7 +48,12 @@ pub fn read_poses_bounds(path: &Path) -> Result<Vec<LlffRecord>, DataError> {
                 c2w[r][c] = row[r * 5 + c];
             }
         }
-        out.push(LlffRecord { c2w, hwf: [row[4], row[9], row[14]], near: row[15], far: row[16] });
+        out.push(LlffRecord {
+            c2w,
+            hwf: [row[4], row[9], row[14]],
+            near: row[15],
+            far: row[16],
+        });
     }
     Ok(out)
 }
@@ -52,7 +63,10 @@ fn choose_image_dir(root: &Path, opts: &LoadOptions) -> Result<PathBuf, DataErro
     if let Some(name) = &opts.images {
         let d = root.join(name);
         if !d.is_dir() {
-            return Err(DataError::invalid(&d, "image folder does not exist (from --images)"));
+            return Err(DataError::invalid(
+                &d,
+                "image folder does not exist (from --images)",
+            ));
         }
         return Ok(d);
     }
@@ -61,7 +75,10 @@ fn choose_image_dir(root: &Path, opts: &LoadOptions) -> Result<PathBuf, DataErro
     let mut candidates = Vec::new();
     for entry in rd {
         let p = entry.map_err(|e| DataError::io(root, e))?.path();
-        let name = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = p
+            .file_name()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default();
         if !p.is_dir() || !(name == "images" || name.starts_with("images_")) {
             continue;
         }
@@ -69,7 +86,10 @@ fn choose_image_dir(root: &Path, opts: &LoadOptions) -> Result<PathBuf, DataErro
         if let Some(first) = list_images(&p)?.first() {
             let (w, h) = crate::image_size(first)?;
             let px = w as u64 * h as u64;
-            if best.as_ref().is_none_or(|(b, bp)| px < *b || (px == *b && p < *bp)) {
+            if best
+                .as_ref()
+                .is_none_or(|(b, bp)| px < *b || (px == *b && p < *bp))
+            {
                 best = Some((px, p));
             }
         }
@@ -104,7 +124,10 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         let (w, h) = crate::image_size(file)?;
         let [full_h, full_w, focal] = rec.hwf;
         if !(full_h > 0.0 && full_w > 0.0 && focal > 0.0) {
-            return Err(DataError::invalid(&npy, format!("row {i}: bad [h, w, focal] = {:?}", rec.hwf)));
+            return Err(DataError::invalid(
+                &npy,
+                format!("row {i}: bad [h, w, focal] = {:?}", rec.hwf),
+            ));
         }
         let (sx, sy) = (w as f64 / full_w, h as f64 / full_h);
         // Downsampled folders round sizes; anything else means the images do not belong to the poses.
@@ -118,13 +141,24 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
             });
         }
         size0 = Some((w, h));
-        let pose = llff_c2w_to_pose(rec.c2w).map_err(|e| DataError::geometry(&npy, format!("row {i}"), e))?;
+        let pose = llff_c2w_to_pose(rec.c2w)
+            .map_err(|e| DataError::geometry(&npy, format!("row {i}"), e))?;
         let intr = Intrinsics::new(focal * sx, focal * sy, w as f64 / 2.0, h as f64 / 2.0);
-        let name = file.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-        views.push(View { name, image_path: file.clone(), camera: Camera::new(w, h, intr, pose) });
+        let name = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        views.push(View {
+            name,
+            image_path: file.clone(),
+            camera: Camera::new(w, h, intr, pose),
+        });
     }
     let near = records.iter().map(|r| r.near).fold(f64::INFINITY, f64::min);
-    let far = records.iter().map(|r| r.far).fold(f64::NEG_INFINITY, f64::max);
+    let far = records
+        .iter()
+        .map(|r| r.far)
+        .fold(f64::NEG_INFINITY, f64::max);
     Ok(Scene {
         root: root.into(),
         format: SceneFormat::Llff,
@@ -157,21 +191,33 @@ pub fn write_llff(
             ),
         });
     }
-    let folder = if factor == 1 { "images".to_string() } else { format!("images_{factor}") };
+    let folder = if factor == 1 {
+        "images".to_string()
+    } else {
+        format!("images_{factor}")
+    };
     let mut rows = Vec::with_capacity(cameras.len() * 17);
     for (i, ((cam, &(near, far)), img)) in cameras.iter().zip(bounds).zip(images).enumerate() {
         let k = &cam.intrinsics;
         let (w, h) = (cam.width as f64, cam.height as f64);
-        if (k.fx - k.fy).abs() > 1e-9 * k.fx || (k.cx - w / 2.0).abs() > 1e-9 * w || (k.cy - h / 2.0).abs() > 1e-9 * h {
+        if (k.fx - k.fy).abs() > 1e-9 * k.fx
+            || (k.cx - w / 2.0).abs() > 1e-9 * w
+            || (k.cy - h / 2.0).abs() > 1e-9 * h
+        {
             return Err(DataError::invalid(
                 &npy,
-                format!("camera {i}: LLFF needs fx == fy and a centred principal point, got {k:?} for {w}x{h}"),
+                format!(
+                    "camera {i}: LLFF needs fx == fy and a centred principal point, got {k:?} for {w}x{h}"
+                ),
             ));
         }
         if (img.width, img.height) != (cam.width, cam.height) {
             return Err(DataError::invalid(
                 &npy,
-                format!("image {i} is {}x{} but its camera is {}x{}", img.width, img.height, cam.width, cam.height),
+                format!(
+                    "image {i} is {}x{} but its camera is {}x{}",
+                    img.width, img.height, cam.width, cam.height
+                ),
             ));
         }
         let c2w = pose_to_llff_c2w(&cam.pose);
@@ -200,20 +246,34 @@ mod tests {
         (0..n)
             .map(|i| {
                 let r = DMat3::from_rotation_y(0.05 * i as f64) * DMat3::from_rotation_x(-0.1);
-                Camera::new(12, 8, Intrinsics::centred(10.0, 12, 8), Pose::from_center(r, DVec3::new(i as f64 * 0.1, 0.0, -1.0)))
+                Camera::new(
+                    12,
+                    8,
+                    Intrinsics::centred(10.0, 12, 8),
+                    Pose::from_center(r, DVec3::new(i as f64 * 0.1, 0.0, -1.0)),
+                )
             })
             .collect()
     }
 
     fn images(n: usize) -> Vec<ImageF32> {
-        (0..n).map(|i| ImageF32::from_data(12, 8, 3, vec![i as f32 / 8.0; 12 * 8 * 3]).unwrap()).collect()
+        (0..n)
+            .map(|i| ImageF32::from_data(12, 8, 3, vec![i as f32 / 8.0; 12 * 8 * 3]).unwrap())
+            .collect()
     }
 
     #[test]
     fn write_then_load_round_trip() {
         let dir = tempfile::tempdir().unwrap();
         let c = cams(3);
-        write_llff(dir.path(), &c, &[(1.0, 5.0), (0.5, 4.0), (2.0, 9.0)], &images(3), 4).unwrap();
+        write_llff(
+            dir.path(),
+            &c,
+            &[(1.0, 5.0), (0.5, 4.0), (2.0, 9.0)],
+            &images(3),
+            4,
+        )
+        .unwrap();
         let s = load_scene(dir.path(), &LoadOptions::default()).unwrap();
         assert_eq!(s.format, SceneFormat::Llff);
         assert_eq!(s.depth_bounds, Some((0.5, 9.0)));
@@ -232,13 +292,27 @@ mod tests {
         write_llff(dir.path(), &cams(3), &[(1.0, 5.0); 3], &images(3), 8).unwrap();
         // One image too many.
         crate::write_image(&dir.path().join("images_8/image999.png"), &images(1)[0]).unwrap();
-        let e = load_scene(dir.path(), &LoadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("poses_bounds.npy") && e.contains("3 camera rows but 4 image files"), "{e}");
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("poses_bounds.npy") && e.contains("3 camera rows but 4 image files"),
+            "{e}"
+        );
         std::fs::remove_file(dir.path().join("images_8/image999.png")).unwrap();
         // An image of the wrong size.
-        crate::write_image(&dir.path().join("images_8/image001.png"), &ImageF32::new(12, 5, 3)).unwrap();
-        let e = load_scene(dir.path(), &LoadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("image001.png") && e.contains("poses_bounds.npy"), "{e}");
+        crate::write_image(
+            &dir.path().join("images_8/image001.png"),
+            &ImageF32::new(12, 5, 3),
+        )
+        .unwrap();
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("image001.png") && e.contains("poses_bounds.npy"),
+            "{e}"
+        );
         crate::write_image(&dir.path().join("images_8/image001.png"), &images(1)[0]).unwrap();
         assert!(load_scene(dir.path(), &LoadOptions::default()).is_ok());
         // A NaN in the poses.
@@ -246,17 +320,32 @@ mod tests {
         let mut a = crate::npy::read_npy(&npy).unwrap();
         a.data[17 + 3] = f64::NAN;
         crate::npy::write_npy(&npy, &a.shape, &a.data).unwrap();
-        let e = load_scene(dir.path(), &LoadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("poses_bounds.npy") && e.contains("row 1") && e.contains("non-finite"), "{e}");
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("poses_bounds.npy") && e.contains("row 1") && e.contains("non-finite"),
+            "{e}"
+        );
         // Wrong shape.
         crate::npy::write_npy(&npy, &[3, 16], &[0.0; 48]).unwrap();
-        let e = load_scene(dir.path(), &LoadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("poses_bounds.npy") && e.contains("N x 17"), "{e}");
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("poses_bounds.npy") && e.contains("N x 17"),
+            "{e}"
+        );
         // Truncated.
         let b = crate::npy::npy_bytes(&[3, 17], &[0.0; 51]);
         std::fs::write(&npy, &b[..b.len() - 3]).unwrap();
-        let e = load_scene(dir.path(), &LoadOptions::default()).unwrap_err().to_string();
-        assert!(e.contains("poses_bounds.npy") && e.contains("truncated"), "{e}");
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("poses_bounds.npy") && e.contains("truncated"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -266,6 +355,9 @@ mod tests {
         let s = load_scene(dir.path(), &LoadOptions::default()).unwrap();
         std::fs::remove_file(&s.views[1].image_path).unwrap();
         let e = s.load_image(1).unwrap_err().to_string();
-        assert!(e.contains("image001.png") && e.contains("does not exist"), "{e}");
+        assert!(
+            e.contains("image001.png") && e.contains("does not exist"),
+            "{e}"
+        );
     }
 }

@@ -45,14 +45,21 @@ impl ModuleVisitor for Scale<'_> {
 
 /// Multiply every gradient of `module`'s parameters by `factor`.
 pub fn scale<M: Module>(module: &M, mut grads: GradientsParams, factor: f32) -> GradientsParams {
-    let mut v = Scale { grads: &mut grads, factor };
+    let mut v = Scale {
+        grads: &mut grads,
+        factor,
+    };
     module.visit(&mut v);
     grads
 }
 
 /// Clip to global norm `max_norm`: if the global norm `n` exceeds it, scale every gradient by
 /// `max_norm / n`. Returns the clipped gradients and the norm before clipping.
-pub fn clip_global_norm<M: Module>(module: &M, grads: GradientsParams, max_norm: f64) -> (GradientsParams, f64) {
+pub fn clip_global_norm<M: Module>(
+    module: &M,
+    grads: GradientsParams,
+    max_norm: f64,
+) -> (GradientsParams, f64) {
     let norm = global_norm(module, &grads);
     if norm.is_finite() && norm > max_norm {
         (scale(module, grads, (max_norm / norm) as f32), norm)
@@ -69,7 +76,9 @@ struct Sum<'a> {
 
 impl ModuleVisitor for Sum<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-        let Some(g) = self.new.remove::<D>(param.id) else { return };
+        let Some(g) = self.new.remove::<D>(param.id) else {
+            return;
+        };
         let g = g.to_device(self.device);
         let out = match self.acc.remove::<D>(param.id) {
             Some(a) => a + g,
@@ -80,10 +89,18 @@ impl ModuleVisitor for Sum<'_> {
 }
 
 /// Sum gradient sets (one per replica) on `device`.
-pub fn sum_on_device<M: Module>(module: &M, sets: Vec<GradientsParams>, device: &Device) -> GradientsParams {
+pub fn sum_on_device<M: Module>(
+    module: &M,
+    sets: Vec<GradientsParams>,
+    device: &Device,
+) -> GradientsParams {
     let mut acc = GradientsParams::new();
     for new in sets {
-        let mut v = Sum { acc: &mut acc, new, device };
+        let mut v = Sum {
+            acc: &mut acc,
+            new,
+            device,
+        };
         module.visit(&mut v);
     }
     acc
@@ -105,41 +122,89 @@ mod tests {
         // everywhere (shapes 2x3, 3, 3x1, 1).
         let mut g = GradientsParams::new();
         g.register::<2>(m.a.weight.id, Tensor::<2>::full([2, 3], values[0], dev));
-        g.register::<1>(m.a.bias.as_ref().unwrap().id, Tensor::<1>::full([3], values[1], dev));
+        g.register::<1>(
+            m.a.bias.as_ref().unwrap().id,
+            Tensor::<1>::full([3], values[1], dev),
+        );
         g.register::<2>(m.b.weight.id, Tensor::<2>::full([3, 1], values[2], dev));
-        g.register::<1>(m.b.bias.as_ref().unwrap().id, Tensor::<1>::full([1], values[3], dev));
+        g.register::<1>(
+            m.b.bias.as_ref().unwrap().id,
+            Tensor::<1>::full([1], values[3], dev),
+        );
         g
     }
 
     #[test]
     fn global_norm_clipping_on_known_gradients() {
         let dev = Device::flex();
-        let m = Two { a: LinearConfig::new(2, 3).init(&dev), b: LinearConfig::new(3, 1).init(&dev) };
+        let m = Two {
+            a: LinearConfig::new(2, 3).init(&dev),
+            b: LinearConfig::new(3, 1).init(&dev),
+        };
         // norm^2 = 6*2^2 + 3*1^2 + 3*2^2 + 1*3^2 = 24 + 3 + 12 + 9 = 48
         let g = grads_of(&m, &dev, [2.0, 1.0, 2.0, 3.0]);
         assert!((global_norm(&m, &g) - 48f64.sqrt()).abs() < 1e-6);
         // Below the threshold: untouched.
         let (g, n) = clip_global_norm(&m, g, 8.0);
         assert!((n - 48f64.sqrt()).abs() < 1e-6);
-        assert_eq!(g.get::<2>(m.a.weight.id).unwrap().into_data().try_to_vec::<f32>().unwrap(), vec![2.0; 6]);
+        assert_eq!(
+            g.get::<2>(m.a.weight.id)
+                .unwrap()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap(),
+            vec![2.0; 6]
+        );
         // Above: every tensor scaled by the same factor 2 / sqrt(48), so the global norm becomes 2, and the
         // direction is kept (per-tensor clipping would not keep it).
         let (g, _) = clip_global_norm(&m, g, 2.0);
         assert!((global_norm(&m, &g) - 2.0).abs() < 1e-5);
         let f = 2.0 / 48f32.sqrt();
-        let bb = g.get::<1>(m.b.bias.as_ref().unwrap().id).unwrap().into_scalar::<f32>();
+        let bb = g
+            .get::<1>(m.b.bias.as_ref().unwrap().id)
+            .unwrap()
+            .into_scalar::<f32>();
         assert!((bb - 3.0 * f).abs() < 1e-6, "{bb}");
-        let aw = g.get::<2>(m.a.weight.id).unwrap().into_data().try_to_vec::<f32>().unwrap();
+        let aw = g
+            .get::<2>(m.a.weight.id)
+            .unwrap()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
         assert!(aw.iter().all(|v| (v - 2.0 * f).abs() < 1e-6));
     }
 
     #[test]
     fn sum_and_nan() {
         let dev = Device::flex();
-        let m = Two { a: LinearConfig::new(2, 3).init(&dev), b: LinearConfig::new(3, 1).init(&dev) };
-        let s = sum_on_device(&m, vec![grads_of(&m, &dev, [1.0; 4]), grads_of(&m, &dev, [2.0, 0.0, 0.0, 0.0])], &dev);
-        assert_eq!(s.get::<2>(m.a.weight.id).unwrap().into_data().try_to_vec::<f32>().unwrap(), vec![3.0; 6]);
-        assert_eq!(s.get::<1>(m.a.bias.as_ref().unwrap().id).unwrap().into_data().try_to_vec::<f32>().unwrap(), vec![1.0; 3]);
+        let m = Two {
+            a: LinearConfig::new(2, 3).init(&dev),
+            b: LinearConfig::new(3, 1).init(&dev),
+        };
+        let s = sum_on_device(
+            &m,
+            vec![
+                grads_of(&m, &dev, [1.0; 4]),
+                grads_of(&m, &dev, [2.0, 0.0, 0.0, 0.0]),
+            ],
+            &dev,
+        );
+        assert_eq!(
+            s.get::<2>(m.a.weight.id)
+                .unwrap()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap(),
+            vec![3.0; 6]
+        );
+        assert_eq!(
+            s.get::<1>(m.a.bias.as_ref().unwrap().id)
+                .unwrap()
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap(),
+            vec![1.0; 3]
+        );
         let bad = grads_of(&m, &dev, [1.0, f32::NAN, 0.0, 0.0]);
         assert!(!global_norm(&m, &bad).is_finite());
     }

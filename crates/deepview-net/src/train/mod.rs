@@ -1,3 +1,799 @@
-//! Training (see the module docs of each file).
+//! Training (`deepview train`): Adam (lr 1.5e-4), global-norm gradient clipping at 8.0, the VGG feature
+//! loss (or L1) on `crop x crop` target crops, checkpoints with optimizer and RNG state, exact resume,
+//! data parallelism across devices.
+//!
+//! A run lives in `runs/<name>/`:
+//! - `config.json`: [`RunConfig`] (model + training config);
+//! - `checkpoints/step-NNNNNNN/`: `model.bpk` (burnpack, parameter ids kept so the optimizer state maps
+//!   back), `optimizer.bpk` (Adam moments), `state.json` (step, RNG state, wall time); each written into a
+//!   temporary folder and renamed into place; the last `keep_checkpoints` (3) are kept;
+//! - `metrics.jsonl`: one JSON object per step (step, loss, grad_norm, views, steps_per_s, wall_time_s,
+//!   skipped).
+//!
+//! A step: draw K (per batch) and `batch` tuples ([`data`]); split them across the devices; each replica
+//! (a copy of the model on its device) runs forward, loss and backward per example (loss divided by the
+//! batch size) and sums its gradients; the sums are moved to the first device and added (= the gradient
+//! of the batch-mean loss); a non-finite loss or gradient norm skips the step (weights and optimizer state
+//! untouched, message printed, `skipped` in the metrics); otherwise the global norm is clipped and Adam
+//! steps. With one device the replicas run in turn; with several, one thread per device.
+//!
+//! Not done (see `config.rs`): the paper's per-iteration activation recomputation (gradient checkpointing);
+//! all activations of a tuple are kept until its backward pass.
 
 pub mod clip;
+pub mod data;
+pub mod synthetic;
+
+pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
+
+use crate::config::DeepViewConfig;
+use crate::forward::{Hom, crop_output, image_tensor, invert, render_view};
+use crate::loss::{Loss, LossKind};
+use crate::network::{DeepViewModel, ModelInputs};
+use crate::vgg::{Vgg16, VggError};
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
+use burn::tensor::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
+
+/// The paper's learning rate.
+pub const PAPER_LEARNING_RATE: f64 = 1.5e-4;
+
+/// Errors of a training run; messages name the file or folder.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError {
+    #[error(transparent)]
+    Data(#[from] data::DataError),
+    #[error(transparent)]
+    Vgg(#[from] VggError),
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {message}")]
+    Run { path: PathBuf, message: String },
+    #[error("invalid training configuration: {0}")]
+    Config(String),
+    #[error("device `{name}`: {message}")]
+    Device { name: String, message: String },
+}
+
+fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
+    move |source| TrainError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+fn run_err(path: &Path, message: impl std::fmt::Display) -> TrainError {
+    TrainError::Run {
+        path: path.to_path_buf(),
+        message: message.to_string(),
+    }
+}
+
+/// Everything about how to train (saved in `config.json` beside the model config).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct TrainConfig {
+    /// Dataset folders (`synthetic:two-planes` for the built-in analytic scene).
+    pub data: Vec<PathBuf>,
+    /// Total number of steps of the run.
+    pub steps: u64,
+    /// Tuples per step (over all devices).
+    pub batch: usize,
+    pub sample: SampleConfig,
+    pub loss: LossKind,
+    pub learning_rate: f64,
+    /// Global gradient-norm threshold (paper: 8.0).
+    pub clip_norm: f64,
+    pub checkpoint_every: u64,
+    pub keep_checkpoints: usize,
+    pub seed: u64,
+    /// Devices (`cpu`, `wgpu`, `wgpu:N`, `cuda:N`); the first one holds the master weights.
+    pub devices: Vec<String>,
+    /// Hold out every n-th view of LLFF/COLMAP/light-field scenes (0 or 1: none).
+    pub holdout_every: usize,
+}
+
+impl TrainConfig {
+    /// Defaults for `model`: paper learning rate and clipping, VGG loss, 32x32 crops, the model's
+    /// training plane count, 2..=4 views (or the preset's fixed count), batch 1.
+    pub fn defaults(model: &DeepViewConfig) -> Self {
+        let (lo, hi) = match model.views {
+            Some(k) => (k, k),
+            None => (2, 4),
+        };
+        Self {
+            data: Vec::new(),
+            steps: 1000,
+            batch: 1,
+            sample: SampleConfig {
+                crop: 32,
+                views_min: lo,
+                views_max: hi,
+                planes: model.train_planes,
+                jitter: true,
+            },
+            loss: LossKind::Vgg,
+            learning_rate: PAPER_LEARNING_RATE,
+            clip_norm: clip::PAPER_CLIP_NORM,
+            checkpoint_every: 500,
+            keep_checkpoints: 3,
+            seed: 0,
+            devices: vec!["cpu".into()],
+            holdout_every: 8,
+        }
+    }
+
+    pub fn validate(&self) -> Result<(), TrainError> {
+        let bad = |m: String| Err(TrainError::Config(m));
+        if self.batch == 0 {
+            return bad("batch must be at least 1".into());
+        }
+        if self.sample.crop < 4 {
+            return bad(format!(
+                "crop {} is too small (at least 4)",
+                self.sample.crop
+            ));
+        }
+        if self.sample.views_min == 0 || self.sample.views_min > self.sample.views_max {
+            return bad(format!(
+                "bad view range {}..={}",
+                self.sample.views_min, self.sample.views_max
+            ));
+        }
+        if self.sample.planes == 0 {
+            return bad("planes must be at least 1".into());
+        }
+        if !(self.learning_rate > 0.0 && self.learning_rate.is_finite()) {
+            return bad(format!(
+                "learning rate {} must be positive",
+                self.learning_rate
+            ));
+        }
+        if !(self.clip_norm > 0.0) {
+            return bad(format!("clip norm {} must be positive", self.clip_norm));
+        }
+        if self.devices.is_empty() {
+            return bad("no devices".into());
+        }
+        if self.checkpoint_every == 0 || self.keep_checkpoints == 0 {
+            return bad("checkpoint_every and keep_checkpoints must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// `config.json` of a run.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunConfig {
+    pub model: DeepViewConfig,
+    pub train: TrainConfig,
+}
+
+/// `state.json` of a checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointState {
+    pub step: u64,
+    pub rng: Rng,
+    /// Training wall time up to this checkpoint (seconds, over all sessions).
+    pub wall_time_s: f64,
+}
+
+/// What one step did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepReport {
+    pub step: u64,
+    /// Mean loss of the batch (NaN if skipped because of it).
+    pub loss: f64,
+    /// Global gradient norm before clipping (NaN when not computed).
+    pub grad_norm: f64,
+    pub views: usize,
+    /// Why the step was skipped (weights untouched), if it was.
+    pub skipped: Option<String>,
+}
+
+/// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N` (feature `wgpu`), `cuda`/`cuda:N`
+/// (feature `cuda`).
+pub fn parse_device(name: &str) -> Result<Device, TrainError> {
+    let err = |m: &str| TrainError::Device {
+        name: name.to_string(),
+        message: m.to_string(),
+    };
+    let (kind, index) = match name.split_once(':') {
+        Some((k, i)) => (
+            k,
+            Some(
+                i.parse::<usize>()
+                    .map_err(|_| err("the index after ':' must be a number"))?,
+            ),
+        ),
+        None => (name, None),
+    };
+    match kind {
+        "cpu" | "flex" => Ok(Device::flex()),
+        #[cfg(feature = "wgpu")]
+        "wgpu" => Ok(match index {
+            Some(i) => Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)),
+            None => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
+        }),
+        #[cfg(not(feature = "wgpu"))]
+        "wgpu" => {
+            let _ = index;
+            Err(err(
+                "this build has no wgpu support (rebuild with `--features wgpu`)",
+            ))
+        }
+        #[cfg(feature = "cuda")]
+        "cuda" => Ok(Device::cuda(index.unwrap_or(0))),
+        #[cfg(not(feature = "cuda"))]
+        "cuda" => Err(err(
+            "this build has no CUDA support (rebuild with `--features cuda`)",
+        )),
+        _ => Err(err("unknown device (expected cpu, wgpu[:N] or cuda[:N])")),
+    }
+}
+
+/// The loss of one tuple, shape `[1]`: run the model on the tuple's window, render the output MPI into
+/// the target crop and compare.
+pub fn example_loss(
+    model: &DeepViewModel,
+    loss: &Loss,
+    ex: &Example,
+    device: &Device,
+) -> Tensor<1> {
+    let images = ex
+        .images
+        .iter()
+        .map(|im| {
+            image_tensor(
+                &im.data,
+                im.width as usize,
+                im.height as usize,
+                im.channels,
+                device,
+            )
+        })
+        .collect();
+    let (_, _, ww, wh) = ex.window;
+    let inputs = ModelInputs {
+        images,
+        mpi_to_view: ex.mpi_to_view.clone(),
+        height: wh,
+        width: ww,
+        shrink: true,
+    };
+    let out = model.forward(&inputs);
+    let (ox, oy) = out.offset;
+    let view_to_mpi: Vec<Hom> = ex
+        .window_to_target
+        .iter()
+        .map(|h| invert(&crop_output(h, ox as f64, oy as f64)))
+        .collect();
+    let (c, r) = (
+        ex.target_crop.width as usize,
+        ex.target_crop.height as usize,
+    );
+    let pred = render_view(out.rgba, &view_to_mpi, r, c)
+        .render
+        .reshape([1, 3, r, c]);
+    let target = image_tensor(&ex.target_crop.data, c, r, ex.target_crop.channels, device)
+        .reshape([1, 3, r, c]);
+    loss.per_example(pred, target)
+}
+
+/// All parameter values of a module, flattened in visiting order (for tests and comparisons).
+pub fn parameter_values<M: Module>(module: &M) -> Vec<f32> {
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0
+                .extend(param.val().into_data().convert::<f32>().iter::<f32>());
+        }
+    }
+    let mut c = Collect(Vec::new());
+    module.visit(&mut c);
+    c.0
+}
+
+/// One replica's work: per-example forward/backward, gradients summed on the replica's device.
+fn run_replica(
+    model: &DeepViewModel,
+    loss: &Loss,
+    examples: &[Example],
+    device: &Device,
+    batch: usize,
+) -> (Option<GradientsParams>, Vec<f32>) {
+    let inner = device.clone().inner();
+    let mut acc: Option<GradientsParams> = None;
+    let mut losses = Vec::with_capacity(examples.len());
+    for ex in examples {
+        let l = example_loss(model, loss, ex, device);
+        let v = l.clone().into_scalar::<f32>();
+        losses.push(v);
+        if !v.is_finite() {
+            return (None, losses);
+        }
+        let g = GradientsParams::from_grads((l / batch as f32).backward(), model);
+        acc = Some(match acc {
+            None => g,
+            Some(a) => clip::sum_on_device(model, vec![a, g], &inner),
+        });
+    }
+    (acc, losses)
+}
+
+/// A training run in progress.
+pub struct Trainer {
+    run_dir: PathBuf,
+    pub config: RunConfig,
+    pub model: DeepViewModel,
+    optim: ModuleOptimizer,
+    pub step: u64,
+    pub rng: Rng,
+    data: TrainData,
+    /// Autodiff devices; the first holds the master weights.
+    devices: Vec<Device>,
+    /// One loss (VGG copy) per device.
+    losses: Vec<Loss>,
+    wall_offset: f64,
+    session_start: Instant,
+    session_steps: u64,
+}
+
+fn adam() -> ModuleOptimizer {
+    // TensorFlow's Adam defaults (the paper's framework): beta 0.9 / 0.999, epsilon 1e-8.
+    AdamConfig::new().with_epsilon(1e-8).init()
+}
+
+fn make_losses(kind: LossKind, devices: &[Device]) -> Result<Vec<Loss>, TrainError> {
+    match kind {
+        LossKind::L1 => Ok(devices.iter().map(|_| Loss::L1).collect()),
+        LossKind::Vgg => {
+            let vgg = Vgg16::load_default(&devices[0])?;
+            Ok(devices
+                .iter()
+                .map(|d| Loss::Vgg(Box::new(vgg.clone().to_device(d))))
+                .collect())
+        }
+    }
+}
+
+/// Write `bytes` to `path` atomically (temporary file in the same folder, then rename).
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
+    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
+    std::fs::write(&tmp, bytes).map_err(io_err(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io_err(path))
+}
+
+/// Checkpoints of a run folder, sorted by step.
+pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainError> {
+    let dir = run_dir.join("checkpoints");
+    if !dir.is_dir() {
+        return Ok(Vec::new());
+    }
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(&dir).map_err(io_err(&dir))? {
+        let e = e.map_err(io_err(&dir))?;
+        let name = e.file_name().to_string_lossy().to_string();
+        if let Some(n) = name
+            .strip_prefix("step-")
+            .and_then(|s| s.parse::<u64>().ok())
+        {
+            out.push((n, e.path()));
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+impl Trainer {
+    /// Start a new run in `run_dir` (created; an error if it already holds checkpoints).
+    pub fn create(run_dir: &Path, config: RunConfig, data: TrainData) -> Result<Self, TrainError> {
+        config
+            .model
+            .validate()
+            .map_err(|e| TrainError::Config(e.to_string()))?;
+        config.train.validate()?;
+        if !list_checkpoints(run_dir)?.is_empty() {
+            return Err(run_err(
+                run_dir,
+                "this run already has checkpoints: pass --resume to continue it, or choose another --name",
+            ));
+        }
+        std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
+        let cfg_path = run_dir.join("config.json");
+        write_atomic(
+            &cfg_path,
+            serde_json::to_string_pretty(&config)
+                .expect("serialisable")
+                .as_bytes(),
+        )?;
+        let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
+        let devices = Self::devices(&config.train.devices)?;
+        devices[0].seed(config.train.seed);
+        let model = DeepViewModel::new(&config.model, &devices[0]);
+        // Materialise lazily initialised parameters now, right after seeding.
+        parameter_values(&model);
+        let losses = make_losses(config.train.loss, &devices)?;
+        Ok(Self {
+            run_dir: run_dir.to_path_buf(),
+            rng: Rng::new(config.train.seed),
+            config,
+            model,
+            optim: adam(),
+            step: 0,
+            data,
+            devices,
+            losses,
+            wall_offset: 0.0,
+            session_start: Instant::now(),
+            session_steps: 0,
+        })
+    }
+
+    /// Continue the run in `run_dir` from its latest checkpoint. `steps` overrides the total number of
+    /// steps, `devices` the devices (neither changes the result of a step on CPU).
+    pub fn resume(
+        run_dir: &Path,
+        data: TrainData,
+        steps: Option<u64>,
+        devices: Option<Vec<String>>,
+    ) -> Result<Self, TrainError> {
+        let cfg_path = run_dir.join("config.json");
+        let text = std::fs::read_to_string(&cfg_path).map_err(io_err(&cfg_path))?;
+        let mut config: RunConfig =
+            serde_json::from_str(&text).map_err(|e| run_err(&cfg_path, e))?;
+        if let Some(s) = steps {
+            config.train.steps = s;
+        }
+        if let Some(d) = devices {
+            config.train.devices = d;
+        }
+        config.train.validate()?;
+        let (step, ck) = list_checkpoints(run_dir)?
+            .pop()
+            .ok_or_else(|| run_err(run_dir, "no checkpoint to resume from (checkpoints/step-*)"))?;
+        let state_path = ck.join("state.json");
+        let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
+        let state: CheckpointState =
+            serde_json::from_str(&text).map_err(|e| run_err(&state_path, e))?;
+        if state.step != step {
+            return Err(run_err(
+                &state_path,
+                format!("says step {} but the folder is step {step}", state.step),
+            ));
+        }
+        let devices = Self::devices(&config.train.devices)?;
+        let model_path = ck.join("model.bpk");
+        if !model_path.is_file() {
+            return Err(run_err(&model_path, "missing"));
+        }
+        let model = DeepViewModel::new(&config.model, &devices[0])
+            .try_load_file(&model_path)
+            .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
+        let optim_path = ck.join("optimizer.bpk");
+        if !optim_path.is_file() {
+            return Err(run_err(&optim_path, "missing"));
+        }
+        let optim = adam()
+            .load(&optim_path)
+            .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+        let losses = make_losses(config.train.loss, &devices)?;
+        let trainer = Self {
+            run_dir: run_dir.to_path_buf(),
+            config,
+            model,
+            optim,
+            step,
+            rng: state.rng,
+            data,
+            devices,
+            losses,
+            wall_offset: state.wall_time_s,
+            session_start: Instant::now(),
+            session_steps: 0,
+        };
+        trainer.truncate_metrics()?;
+        Ok(trainer)
+    }
+
+    fn devices(names: &[String]) -> Result<Vec<Device>, TrainError> {
+        names
+            .iter()
+            .map(|n| parse_device(n).map(|d| d.autodiff()))
+            .collect()
+    }
+
+    pub fn run_dir(&self) -> &Path {
+        &self.run_dir
+    }
+
+    /// Steps per second in this session.
+    pub fn steps_per_second(&self) -> f64 {
+        self.session_steps as f64 / self.session_start.elapsed().as_secs_f64().max(1e-9)
+    }
+
+    /// Total training wall time (all sessions).
+    pub fn wall_time(&self) -> f64 {
+        self.wall_offset + self.session_start.elapsed().as_secs_f64()
+    }
+
+    /// Draw a batch with the run's RNG.
+    pub fn draw_batch(&mut self) -> Result<Vec<Example>, TrainError> {
+        let t = &self.config.train;
+        let k = self.data.draw_views(&t.sample, &mut self.rng);
+        (0..t.batch)
+            .map(|_| {
+                self.data
+                    .sample(&t.sample, &self.config.model, k, &mut self.rng)
+                    .map_err(TrainError::from)
+            })
+            .collect()
+    }
+
+    /// One training step on a freshly drawn batch.
+    pub fn train_step(&mut self) -> Result<StepReport, TrainError> {
+        let batch = self.draw_batch()?;
+        Ok(self.step_on(batch))
+    }
+
+    /// One training step on a given batch (the step counter advances even when the step is skipped).
+    pub fn step_on(&mut self, batch: Vec<Example>) -> StepReport {
+        self.step += 1;
+        self.session_steps += 1;
+        let n = batch.len();
+        let views = batch.first().map_or(0, |e| e.inputs.len());
+        let nd = self.devices.len().min(n.max(1));
+        let chunks: Vec<&[Example]> = (0..nd)
+            .map(|i| &batch[i * n / nd..(i + 1) * n / nd])
+            .collect();
+        let results: Vec<(Option<GradientsParams>, Vec<f32>)> = if nd == 1 {
+            vec![run_replica(
+                &self.model,
+                &self.losses[0],
+                chunks[0],
+                &self.devices[0],
+                n,
+            )]
+        } else {
+            std::thread::scope(|scope| {
+                let handles: Vec<_> = chunks
+                    .iter()
+                    .enumerate()
+                    .map(|(i, chunk)| {
+                        let device = self.devices[i].clone();
+                        let model = if i == 0 {
+                            self.model.clone()
+                        } else {
+                            self.model.clone().fork(&device)
+                        };
+                        let loss = self.losses[i].clone();
+                        scope.spawn(move || run_replica(&model, &loss, chunk, &device, n))
+                    })
+                    .collect();
+                handles
+                    .into_iter()
+                    .map(|h| h.join().expect("replica thread panicked"))
+                    .collect()
+            })
+        };
+        let losses: Vec<f32> = results.iter().flat_map(|r| r.1.iter().copied()).collect();
+        let mean = losses.iter().map(|&v| v as f64).sum::<f64>() / losses.len().max(1) as f64;
+        let mut report = StepReport {
+            step: self.step,
+            loss: mean,
+            grad_norm: f64::NAN,
+            views,
+            skipped: None,
+        };
+        if let Some(i) = losses.iter().position(|v| !v.is_finite()) {
+            let ex = &batch[i];
+            report.skipped = Some(format!(
+                "step {}: non-finite loss ({}) on tuple {i} (scene {}, target view {}, inputs {:?}); step skipped, \
+                 weights unchanged",
+                self.step, losses[i], self.data.scenes[ex.scene].name, ex.target, ex.inputs
+            ));
+            return report;
+        }
+        let main = self.devices[0].clone().inner();
+        let sets: Vec<GradientsParams> = results.into_iter().filter_map(|r| r.0).collect();
+        let grads = clip::sum_on_device(&self.model, sets, &main);
+        let (grads, norm) = clip::clip_global_norm(&self.model, grads, self.config.train.clip_norm);
+        report.grad_norm = norm;
+        if !norm.is_finite() {
+            report.skipped = Some(format!(
+                "step {}: non-finite gradient norm ({norm}); step skipped, weights unchanged",
+                self.step
+            ));
+            return report;
+        }
+        let model = self.model.clone();
+        self.model = self
+            .optim
+            .step(self.config.train.learning_rate, model, grads);
+        report
+    }
+
+    /// Write a checkpoint of the current state (atomically) and prune old ones. Returns its folder.
+    pub fn save_checkpoint(&self) -> Result<PathBuf, TrainError> {
+        let dir = self.run_dir.join("checkpoints");
+        std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
+        let done = dir.join(format!("step-{:07}", self.step));
+        if done.exists() {
+            return Ok(done);
+        }
+        let tmp = dir.join(format!(".tmp-step-{:07}-{}", self.step, std::process::id()));
+        if tmp.exists() {
+            std::fs::remove_dir_all(&tmp).map_err(io_err(&tmp))?;
+        }
+        std::fs::create_dir(&tmp).map_err(io_err(&tmp))?;
+        let model_path = tmp.join("model.bpk");
+        self.model
+            .clone()
+            .save_file(&model_path)
+            .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
+        let optim_path = tmp.join("optimizer.bpk");
+        self.optim
+            .save(&optim_path)
+            .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+        let state = CheckpointState {
+            step: self.step,
+            rng: self.rng,
+            wall_time_s: self.wall_time(),
+        };
+        let state_path = tmp.join("state.json");
+        std::fs::write(
+            &state_path,
+            serde_json::to_string_pretty(&state).expect("serialisable"),
+        )
+        .map_err(io_err(&state_path))?;
+        std::fs::rename(&tmp, &done).map_err(io_err(&done))?;
+        let all = list_checkpoints(&self.run_dir)?;
+        let keep = self.config.train.keep_checkpoints.max(1);
+        for (_, p) in all.iter().take(all.len().saturating_sub(keep)) {
+            std::fs::remove_dir_all(p).map_err(io_err(p))?;
+        }
+        Ok(done)
+    }
+
+    /// Drop metric lines after the current step (written after the checkpoint we resume from).
+    fn truncate_metrics(&self) -> Result<(), TrainError> {
+        let path = self.run_dir.join("metrics.jsonl");
+        let Ok(text) = std::fs::read_to_string(&path) else {
+            return Ok(());
+        };
+        let kept: String = text
+            .lines()
+            .filter(|l| {
+                serde_json::from_str::<serde_json::Value>(l)
+                    .ok()
+                    .and_then(|v| v.get("step").and_then(|s| s.as_u64()))
+                    .is_some_and(|s| s <= self.step)
+            })
+            .map(|l| format!("{l}\n"))
+            .collect();
+        write_atomic(&path, kept.as_bytes())
+    }
+
+    fn append_metrics(&self, r: &StepReport) -> Result<(), TrainError> {
+        let path = self.run_dir.join("metrics.jsonl");
+        let num = |v: f64| {
+            if v.is_finite() {
+                serde_json::json!(v)
+            } else {
+                serde_json::Value::Null
+            }
+        };
+        let line = serde_json::json!({
+            "step": r.step,
+            "loss": num(r.loss),
+            "grad_norm": num(r.grad_norm),
+            "views": r.views,
+            "steps_per_s": num(self.steps_per_second()),
+            "wall_time_s": self.wall_time(),
+            "skipped": r.skipped.is_some(),
+        });
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&path)
+            .map_err(io_err(&path))?;
+        writeln!(f, "{line}").map_err(io_err(&path))
+    }
+
+    /// Train until `config.train.steps` or until `stop` is set (Ctrl-C), checkpointing every
+    /// `checkpoint_every` steps and at the end. Returns the reports of this session's steps.
+    pub fn run(
+        &mut self,
+        stop: &AtomicBool,
+        progress: bool,
+    ) -> Result<Vec<StepReport>, TrainError> {
+        let total = self.config.train.steps;
+        let pb = if progress {
+            let pb = indicatif::ProgressBar::new(total);
+            pb.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{bar:30.cyan/blue} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
+                )
+                .expect("valid template"),
+            );
+            pb.set_position(self.step);
+            pb
+        } else {
+            indicatif::ProgressBar::hidden()
+        };
+        let mut reports = Vec::new();
+        let mut ema: Option<f64> = None;
+        while self.step < total && !stop.load(Ordering::SeqCst) {
+            let r = self.train_step()?;
+            self.append_metrics(&r)?;
+            if let Some(msg) = &r.skipped {
+                if progress {
+                    pb.println(format!("warning: {msg}"));
+                } else {
+                    eprintln!("warning: {msg}");
+                }
+            } else {
+                ema = Some(ema.map_or(r.loss, |e| 0.9 * e + 0.1 * r.loss));
+            }
+            pb.set_position(self.step);
+            pb.set_message(format!(
+                "loss {:.4} (avg {:.4}) {:.2} steps/s",
+                r.loss,
+                ema.unwrap_or(f64::NAN),
+                self.steps_per_second()
+            ));
+            if self.step % self.config.train.checkpoint_every == 0 {
+                self.save_checkpoint()?;
+            }
+            reports.push(r);
+        }
+        self.save_checkpoint()?;
+        pb.finish_and_clear();
+        Ok(reports)
+    }
+}
+
+/// Install a Ctrl-C handler that sets the returned flag (the training loop then saves a checkpoint and
+/// returns); a second Ctrl-C exits at once with code 130.
+pub fn install_ctrlc() -> Result<Arc<AtomicBool>, TrainError> {
+    let flag = Arc::new(AtomicBool::new(false));
+    let f = flag.clone();
+    ctrlc::set_handler(move || {
+        if f.swap(true, Ordering::SeqCst) {
+            std::process::exit(130);
+        }
+        eprintln!(
+            "\ninterrupted: finishing the current step, saving a checkpoint (Ctrl-C again to abort)"
+        );
+    })
+    .map_err(|e| TrainError::Config(format!("cannot install the Ctrl-C handler: {e}")))?;
+    Ok(flag)
+}
+
+/// Load training data: dataset folders through `deepview_data`, or `synthetic:two-planes`.
+pub fn load_data(
+    paths: &[PathBuf],
+    opts: &deepview_data::LoadOptions,
+    holdout_every: usize,
+) -> Result<TrainData, TrainError> {
+    let mut scenes = Vec::new();
+    for p in paths {
+        if p.to_str() == Some("synthetic:two-planes") {
+            scenes.push(synthetic::two_plane_scene(4, 4, 96, 0.08));
+        } else {
+            scenes.push(TrainScene::load(p, opts, holdout_every)?);
+        }
+    }
+    Ok(TrainData::new(scenes)?)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,128 @@
+//! `deepview info SCENE`: what a dataset folder contains (format, views, image size, depth bounds, cameras).
+
+use anyhow::Context;
+use deepview_data::{Scene, SceneArgs, load_scene};
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Dataset folder (LLFF, COLMAP, Spaces or light-field grid).
+    pub scene: PathBuf,
+    #[command(flatten)]
+    pub scene_args: SceneArgs,
+    /// Print a JSON summary (every camera included) instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Number of camera centres to print in the text summary.
+    #[arg(long, default_value_t = 5)]
+    pub show: usize,
+}
+
+/// `(min, max)` of image widths and heights over the views.
+fn size_range(scene: &Scene) -> ((u32, u32), (u32, u32)) {
+    let ws = scene.views.iter().map(|v| v.camera.width);
+    let hs = scene.views.iter().map(|v| v.camera.height);
+    (
+        (ws.clone().min().unwrap_or(0), ws.max().unwrap_or(0)),
+        (hs.clone().min().unwrap_or(0), hs.max().unwrap_or(0)),
+    )
+}
+
+fn range_text((lo, hi): (u32, u32)) -> String {
+    if lo == hi {
+        lo.to_string()
+    } else {
+        format!("{lo}..{hi}")
+    }
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let scene = load_scene(&args.scene, &args.scene_args.load_options())
+        .with_context(|| format!("cannot load scene {}", args.scene.display()))?;
+    let (wr, hr) = size_range(&scene);
+    // Image problems (missing files, wrong sizes) are reported, not fatal: cameras alone are useful.
+    let image_problem = scene.check_images().err().map(|e| e.to_string());
+    if args.json {
+        let cameras: Vec<serde_json::Value> = scene
+            .views
+            .iter()
+            .map(|v| {
+                serde_json::json!({
+                    "name": v.name,
+                    "image": v.image_path,
+                    "center": v.camera.center().to_array(),
+                    "camera": v.camera.to_json(),
+                })
+            })
+            .collect();
+        let summary = serde_json::json!({
+            "root": scene.root,
+            "format": scene.format,
+            "views": scene.len(),
+            "width": [wr.0, wr.1],
+            "height": [hr.0, hr.1],
+            "depth_bounds": scene.depth_bounds.map(|(n, f)| [n, f]),
+            "grid": scene.grid.map(|(r, c)| [r, c]),
+            "rig": args.scene_args.rig,
+            "rig_count": scene.rig_count,
+            "images_ok": image_problem.is_none(),
+            "image_problem": image_problem,
+            "cameras": cameras,
+        });
+        return emit(&(serde_json::to_string_pretty(&summary)? + "\n"));
+    }
+    let mut out = String::new();
+    writeln!(out, "scene        {}", scene.root.display())?;
+    writeln!(out, "format       {}", scene.format)?;
+    writeln!(out, "views        {}", scene.len())?;
+    if let Some((r, c)) = scene.grid {
+        writeln!(out, "grid         {r} x {c} (row-major)")?;
+    }
+    if scene.format == deepview_data::SceneFormat::Spaces {
+        writeln!(
+            out,
+            "rig          {} of {} rig position(s)",
+            args.scene_args.rig, scene.rig_count
+        )?;
+    }
+    writeln!(out, "image size   {} x {}", range_text(wr), range_text(hr))?;
+    let k = scene.views[0].camera.intrinsics;
+    writeln!(
+        out,
+        "intrinsics   view 0: fx {:.3} fy {:.3} cx {:.3} cy {:.3}",
+        k.fx, k.fy, k.cx, k.cy
+    )?;
+    match scene.depth_bounds {
+        Some((n, f)) => writeln!(out, "depth        near {n:.6} far {f:.6}"),
+        None => writeln!(out, "depth        unknown (pass --near and --far)"),
+    }?;
+    match &image_problem {
+        None => writeln!(out, "images       all present with the calibrated sizes"),
+        Some(e) => writeln!(out, "images       problem: {e}"),
+    }?;
+    let shown = args.show.min(scene.len());
+    writeln!(out, "centres      first {shown} of {}:", scene.len())?;
+    for v in scene.views.iter().take(shown) {
+        let c = v.camera.center();
+        // `+ 0.0` turns -0 into 0.
+        writeln!(
+            out,
+            "  {:<24} [{:.6}, {:.6}, {:.6}]",
+            v.name,
+            c.x + 0.0,
+            c.y + 0.0,
+            c.z + 0.0
+        )?;
+    }
+    emit(&out)
+}
+
+/// Print `text`; a closed pipe (`| head`) is not an error.
+fn emit(text: &str) -> anyhow::Result<()> {
+    match std::io::stdout().lock().write_all(text.as_bytes()) {
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => Ok(()),
+        r => Ok(r?),
+    }
+}

@@ -1,0 +1,180 @@
+//! `deepview train`: train the DeepView network on one or more datasets.
+
+use anyhow::{Context, bail};
+use deepview_net::config::DeepViewConfig;
+use deepview_net::loss::LossKind;
+use deepview_net::train::{RunConfig, TrainConfig, Trainer, install_ctrlc, list_checkpoints, load_data};
+use std::path::PathBuf;
+
+/// Train the network (Adam, lr 1.5e-4, global gradient clipping at 8, VGG feature loss on 32x32 target
+/// crops, as in the paper). A run lives in `<runs>/<name>/`: config.json, metrics.jsonl and
+/// checkpoints/step-NNNNNNN/ (the last 3 are kept). Ctrl-C saves a checkpoint and exits; `--resume`
+/// continues a run exactly where its last checkpoint left it.
+#[derive(clap::Args, Debug)]
+#[command(after_help = "Examples:\n  deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000\n  \
+    deepview train --name fern --resume --steps 4000\n  \
+    deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu")]
+pub struct Args {
+    /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
+    /// built-in analytic scene. With --resume, defaults to the run's own list.
+    #[arg(long = "data")]
+    pub data: Vec<PathBuf>,
+    /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view.
+    #[arg(long, default_value = "cpu")]
+    pub preset: String,
+    /// Run name: the run lives in <runs>/<name>/.
+    #[arg(long)]
+    pub name: String,
+    /// Folder holding the runs.
+    #[arg(long, default_value = "runs")]
+    pub runs: PathBuf,
+    /// Total number of steps of the run (with --resume: the new total).
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// Training tuples per step, split over the devices.
+    #[arg(long, default_value_t = 1)]
+    pub batch: usize,
+    /// Target crop side in pixels (paper: 32).
+    #[arg(long, default_value_t = 32)]
+    pub crop: usize,
+    /// Number of input views: `K` or a range `A..B` (inclusive) drawn per batch. Default: the preset's
+    /// fixed count, or 2..4.
+    #[arg(long)]
+    pub views: Option<String>,
+    /// MPI planes during training (default: the preset's training plane count).
+    #[arg(long)]
+    pub planes: Option<usize>,
+    /// Training loss: vgg (the paper's feature loss) or l1.
+    #[arg(long, default_value = "vgg")]
+    pub loss: LossKind,
+    /// Learning rate (paper: 1.5e-4).
+    #[arg(long, default_value_t = deepview_net::train::PAPER_LEARNING_RATE)]
+    pub lr: f64,
+    /// Global gradient-norm clipping threshold (paper: 8).
+    #[arg(long, default_value_t = 8.0)]
+    pub clip: f64,
+    /// Continue the run from its latest checkpoint (optimizer and RNG state included).
+    #[arg(long)]
+    pub resume: bool,
+    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], cuda[:N] (GPU ones need the
+    /// deepview-net features `wgpu` / `cuda`). Example: cpu,cpu.
+    #[arg(long)]
+    pub devices: Option<String>,
+    /// Write a checkpoint every N steps (and always at the end or on Ctrl-C).
+    #[arg(long, default_value_t = 500)]
+    pub checkpoint_every: u64,
+    /// Random seed (weights initialisation and tuple sampling).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Disable the random jitter of plane depths.
+    #[arg(long)]
+    pub no_jitter: bool,
+    /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none).
+    #[arg(long, default_value_t = 8)]
+    pub holdout_every: usize,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+    #[command(flatten)]
+    pub scene: deepview_data::SceneArgs,
+}
+
+fn parse_views(s: &str) -> anyhow::Result<(usize, usize)> {
+    let parse = |t: &str| t.trim().parse::<usize>().with_context(|| format!("--views: {t:?} is not a number"));
+    let (a, b) = match s.split_once("..") {
+        Some((a, b)) => (parse(a)?, parse(b.trim_start_matches('='))?),
+        None => (parse(s)?, parse(s)?),
+    };
+    if a == 0 || a > b {
+        bail!("--views {s}: need 1 <= A <= B");
+    }
+    Ok((a, b))
+}
+
+fn device_list(s: &Option<String>) -> Option<Vec<String>> {
+    s.as_ref().map(|s| s.split(',').map(|d| d.trim().to_string()).filter(|d| !d.is_empty()).collect())
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let run_dir = args.runs.join(&args.name);
+    let opts = args.scene.load_options();
+    let mut trainer = if args.resume && !list_checkpoints(&run_dir)?.is_empty() {
+        let cfg_path = run_dir.join("config.json");
+        let text = std::fs::read_to_string(&cfg_path).with_context(|| format!("cannot read {}", cfg_path.display()))?;
+        let cfg: RunConfig = serde_json::from_str(&text).with_context(|| format!("invalid {}", cfg_path.display()))?;
+        let paths = if args.data.is_empty() { cfg.train.data.clone() } else { args.data.clone() };
+        let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
+        let t = Trainer::resume(&run_dir, data, args.steps, device_list(&args.devices))?;
+        eprintln!("resuming {} at step {} of {}", run_dir.display(), t.step, t.config.train.steps);
+        t
+    } else {
+        if args.data.is_empty() {
+            bail!("no training data: pass --data DIR (repeatable)");
+        }
+        let model = DeepViewConfig::preset(&args.preset)?;
+        let mut train = TrainConfig::defaults(&model);
+        train.data = args.data.clone();
+        train.steps = args.steps.unwrap_or(train.steps);
+        train.batch = args.batch;
+        train.sample.crop = args.crop;
+        if let Some(v) = &args.views {
+            (train.sample.views_min, train.sample.views_max) = parse_views(v)?;
+        }
+        if let Some(p) = args.planes {
+            train.sample.planes = p;
+        }
+        train.sample.jitter = !args.no_jitter;
+        train.loss = args.loss;
+        train.learning_rate = args.lr;
+        train.clip_norm = args.clip;
+        train.checkpoint_every = args.checkpoint_every;
+        train.seed = args.seed;
+        train.holdout_every = args.holdout_every;
+        if let Some(d) = device_list(&args.devices) {
+            train.devices = d;
+        }
+        let data = load_data(&train.data, &opts, train.holdout_every)?;
+        let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
+        eprintln!(
+            "training {} ({} preset) on {} scene(s), {views} training views, devices {:?}",
+            run_dir.display(),
+            model.name,
+            data.scenes.len(),
+            train.devices
+        );
+        Trainer::create(&run_dir, RunConfig { model, train }, data)?
+    };
+    let stop = install_ctrlc()?;
+    let start_step = trainer.step;
+    let reports = trainer.run(&stop, !args.quiet)?;
+    let last: Vec<f64> = reports.iter().rev().take(50).filter(|r| r.skipped.is_none()).map(|r| r.loss).collect();
+    let skipped = reports.iter().filter(|r| r.skipped.is_some()).count();
+    eprintln!(
+        "{} at step {} ({} steps this session, {skipped} skipped, {:.3} steps/s); mean loss of the last {}: {:.5}",
+        if stop.load(std::sync::atomic::Ordering::SeqCst) { "stopped" } else { "done" },
+        trainer.step,
+        trainer.step - start_step,
+        trainer.steps_per_second(),
+        last.len(),
+        last.iter().sum::<f64>() / last.len().max(1) as f64
+    );
+    if let Some((_, ck)) = list_checkpoints(&run_dir)?.pop() {
+        eprintln!("checkpoint: {}", ck.display());
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn views_ranges() {
+        assert_eq!(parse_views("4").unwrap(), (4, 4));
+        assert_eq!(parse_views("2..4").unwrap(), (2, 4));
+        assert_eq!(parse_views("2..=5").unwrap(), (2, 5));
+        assert!(parse_views("4..2").is_err());
+        assert!(parse_views("0").is_err());
+        assert!(parse_views("x").is_err());
+    }
+}

@@ -1,0 +1,371 @@
+//! The eval runner: predict every target of a protocol, score it, and report like nerfstudio's `eval`.
+
+use crate::error::EvalError;
+use crate::method::Method;
+use crate::protocol::{Protocol, ViewSplit};
+use deepview_data::Scene;
+use deepview_geometry::Camera;
+use deepview_image::ImageF32;
+use deepview_metrics::{BorderCrop, psnr, quantize_u8, ssim};
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// How to run an evaluation.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EvalOptions {
+    /// Box-downscale every image by this integer factor (cameras scaled by exactly `1 / factor`); border crops
+    /// are divided by it, rounding up.
+    pub downscale: u32,
+    /// Depth bounds; default the scene's (`Scene::near_far`).
+    pub near_far: Option<(f64, f64)>,
+    /// Crop this many pixels from every side instead of the protocol's crop (scene pixels).
+    pub crop: Option<u32>,
+    /// Round predictions (and ground truth) to 8 bits before scoring, as the Spaces protocol scores saved PNGs.
+    pub quantize: bool,
+    /// Write `prediction | ground truth | error` images here, one PNG per target.
+    pub save_renders: Option<PathBuf>,
+    /// Recorded in the report (the learned model's weights).
+    pub checkpoint: Option<String>,
+    /// Print one line per view to stderr as it is scored.
+    pub verbose: bool,
+}
+
+impl Default for EvalOptions {
+    fn default() -> Self {
+        Self {
+            downscale: 1,
+            near_far: None,
+            crop: None,
+            quantize: true,
+            save_renders: None,
+            checkpoint: None,
+            verbose: false,
+        }
+    }
+}
+
+/// One scored target view.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ViewResult {
+    pub target: usize,
+    pub target_name: String,
+    pub inputs: Vec<usize>,
+    pub ssim: f64,
+    /// dB; `null` in JSON when the prediction is exact (infinite PSNR).
+    pub psnr: f64,
+    pub seconds: f64,
+    /// Pixels cropped `[left, top, right, bottom]` at the evaluated resolution.
+    pub crop: [u32; 4],
+}
+
+/// Means and sample standard deviations (n - 1, as nerfstudio's `torch.std`; 0 for one view) over the views.
+/// An exact prediction has infinite PSNR, which makes `psnr` infinite and `psnr_std` NaN: both `null` in JSON.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalResults {
+    pub ssim: f64,
+    pub ssim_std: f64,
+    pub psnr: f64,
+    pub psnr_std: f64,
+    pub seconds_per_view: f64,
+    pub num_views: usize,
+}
+
+/// The report, shaped like nerfstudio's eval JSON (`method`, `checkpoint`, `results`), plus the protocol, the
+/// scene and per-view scores.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct EvalReport {
+    pub method: String,
+    pub checkpoint: Option<String>,
+    pub protocol: String,
+    pub scene: String,
+    pub results: EvalResults,
+    pub views: Vec<ViewResult>,
+}
+
+fn mean_std(v: &[f64]) -> (f64, f64) {
+    let n = v.len() as f64;
+    let mean = v.iter().sum::<f64>() / n;
+    let std = if v.len() > 1 {
+        (v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+    } else {
+        0.0
+    };
+    (mean, std)
+}
+
+impl EvalReport {
+    /// A fixed-width table: one row per view, then the mean +- std.
+    pub fn table(&self) -> String {
+        let mut s = String::new();
+        let _ = writeln!(
+            s,
+            "method {}  protocol {}  scene {}",
+            self.method, self.protocol, self.scene
+        );
+        let _ = writeln!(
+            s,
+            "{:>6}  {:<24} {:<20} {:>8} {:>8} {:>8}",
+            "target", "name", "inputs", "SSIM", "PSNR", "s/view"
+        );
+        for v in &self.views {
+            let ins = v
+                .inputs
+                .iter()
+                .map(|i| i.to_string())
+                .collect::<Vec<_>>()
+                .join(",");
+            let _ = writeln!(
+                s,
+                "{:>6}  {:<24} {:<20} {:>8.4} {:>8.2} {:>8.2}",
+                v.target, v.target_name, ins, v.ssim, v.psnr, v.seconds
+            );
+        }
+        let r = &self.results;
+        let _ = writeln!(
+            s,
+            "{:>6}  {:<24} {:<20} {:>8.4} {:>8.2} {:>8.2}   (std SSIM {:.4}, PSNR {:.2}; {} views)",
+            "mean", "", "", r.ssim, r.psnr, r.seconds_per_view, r.ssim_std, r.psnr_std, r.num_views
+        );
+        s
+    }
+
+    /// Write the report as pretty JSON, atomically.
+    pub fn write_json(&self, path: &Path) -> Result<(), EvalError> {
+        let text = serde_json::to_string_pretty(self)
+            .map_err(|e| EvalError::Invalid(format!("cannot serialise the report: {e}")))?;
+        if let Some(parent) = path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            std::fs::create_dir_all(parent).map_err(|source| EvalError::Write {
+                path: parent.into(),
+                source,
+            })?;
+        }
+        deepview_image::write_atomic(path, text.as_bytes())?;
+        Ok(())
+    }
+}
+
+/// Evaluate `method` on `scene` under `protocol`.
+pub fn evaluate(
+    scene: &Scene,
+    protocol: &Protocol,
+    method: &mut dyn Method,
+    options: &EvalOptions,
+) -> Result<EvalReport, EvalError> {
+    let resolved = protocol.resolve(scene)?;
+    let splits = resolved.splits(scene)?;
+    evaluate_splits(scene, &resolved.to_string(), &splits, method, options)
+}
+
+/// Evaluate `method` on explicit view splits (`protocol` only names them in the report).
+pub fn evaluate_splits(
+    scene: &Scene,
+    protocol: &str,
+    splits: &[ViewSplit],
+    method: &mut dyn Method,
+    options: &EvalOptions,
+) -> Result<EvalReport, EvalError> {
+    if options.downscale == 0 {
+        return Err(EvalError::Invalid(
+            "downscale factor must be at least 1".into(),
+        ));
+    }
+    let near_far = match options.near_far {
+        Some(nf) => nf,
+        None => scene.near_far()?,
+    };
+    if let Some(dir) = &options.save_renders {
+        std::fs::create_dir_all(dir).map_err(|source| EvalError::Write {
+            path: dir.clone(),
+            source,
+        })?;
+    }
+    let mut cache: HashMap<usize, (ImageF32, Camera)> = HashMap::new();
+    let mut views = Vec::with_capacity(splits.len());
+    for split in splits {
+        for &i in split.inputs.iter().chain([&split.target]) {
+            if i >= scene.views.len() {
+                return Err(EvalError::ViewOutOfRange {
+                    protocol: protocol.into(),
+                    index: i,
+                    views: scene.views.len(),
+                });
+            }
+            if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(i) {
+                e.insert(load_view(scene, i, options.downscale)?);
+            }
+        }
+        let inputs: Vec<(ImageF32, Camera)> =
+            split.inputs.iter().map(|i| cache[i].clone()).collect();
+        let (gt, target_cam) = &cache[&split.target];
+        let start = Instant::now();
+        let pred = method.predict(&inputs, target_cam, near_far)?;
+        let seconds = start.elapsed().as_secs_f64();
+        if (pred.width, pred.height) != (target_cam.width, target_cam.height) || pred.channels < 3 {
+            return Err(EvalError::Method {
+                method: method.name().into(),
+                msg: format!(
+                    "prediction for view {} is {}x{}x{}, expected {}x{}x3",
+                    split.target,
+                    pred.width,
+                    pred.height,
+                    pred.channels,
+                    target_cam.width,
+                    target_cam.height
+                ),
+            });
+        }
+        if !pred.is_finite() {
+            return Err(EvalError::Method {
+                method: method.name().into(),
+                msg: format!(
+                    "prediction for view {} has NaN or infinite values",
+                    split.target
+                ),
+            });
+        }
+        let crop = scaled_crop(split.crop, options.crop, options.downscale);
+        let (p, g) = if options.quantize {
+            (quantize_u8(&pred.to_rgb()), quantize_u8(gt))
+        } else {
+            (pred.to_rgb(), gt.clone())
+        };
+        let (pc, gc) = (crop.apply(&p)?, crop.apply(&g)?);
+        let result = ViewResult {
+            target: split.target,
+            target_name: scene.views[split.target].name.clone(),
+            inputs: split.inputs.clone(),
+            ssim: ssim(&pc, &gc)?,
+            psnr: psnr(&pc, &gc)?,
+            seconds,
+            crop: [crop.left, crop.top, crop.right, crop.bottom],
+        };
+        if options.verbose {
+            eprintln!(
+                "view {:>4} {:<24} SSIM {:.4}  PSNR {:.2}  {:.2} s",
+                result.target, result.target_name, result.ssim, result.psnr, seconds
+            );
+        }
+        if let Some(dir) = &options.save_renders {
+            let safe: String = result
+                .target_name
+                .chars()
+                .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+                .collect();
+            let path = dir.join(format!("{:03}_{safe}.png", split.target));
+            deepview_image::write_png(&path, &side_by_side(&p, &g, crop))?;
+        }
+        views.push(result);
+    }
+    let ssims: Vec<f64> = views.iter().map(|v| v.ssim).collect();
+    let psnrs: Vec<f64> = views.iter().map(|v| v.psnr).collect();
+    let (ssim_mean, ssim_std) = mean_std(&ssims);
+    let (psnr_mean, psnr_std) = mean_std(&psnrs);
+    Ok(EvalReport {
+        method: method.name().into(),
+        checkpoint: options.checkpoint.clone(),
+        protocol: protocol.into(),
+        scene: scene.root.display().to_string(),
+        results: EvalResults {
+            ssim: ssim_mean,
+            ssim_std,
+            psnr: psnr_mean,
+            psnr_std,
+            seconds_per_view: views.iter().map(|v| v.seconds).sum::<f64>()
+                / views.len().max(1) as f64,
+            num_views: views.len(),
+        },
+        views,
+    })
+}
+
+/// View `i`'s RGB image and camera at `1 / downscale` resolution.
+fn load_view(scene: &Scene, i: usize, downscale: u32) -> Result<(ImageF32, Camera), EvalError> {
+    let img = scene.load_image(i)?;
+    let cam = scene.views[i].camera;
+    if downscale == 1 {
+        return Ok((img, cam));
+    }
+    let small = img.downscale(downscale);
+    let s = 1.0 / downscale as f64;
+    Ok((
+        small.clone(),
+        Camera::new(
+            small.width,
+            small.height,
+            cam.intrinsics.scaled(s, s),
+            cam.pose,
+        ),
+    ))
+}
+
+/// The protocol's crop (or the uniform override) at the evaluated resolution, rounded up.
+fn scaled_crop(protocol: BorderCrop, uniform: Option<u32>, downscale: u32) -> BorderCrop {
+    let c = uniform.map(BorderCrop::uniform).unwrap_or(protocol);
+    let s = |v: u32| v.div_ceil(downscale);
+    BorderCrop {
+        left: s(c.left),
+        top: s(c.top),
+        right: s(c.right),
+        bottom: s(c.bottom),
+    }
+}
+
+/// `prediction | ground truth | error` side by side; the error panel is the mean absolute RGB error x4 in the
+/// turbo colour map, and pixels outside the scored region are dimmed in all three panels.
+fn side_by_side(pred: &ImageF32, gt: &ImageF32, crop: BorderCrop) -> ImageF32 {
+    let (w, h) = (pred.width, pred.height);
+    let mut out = ImageF32::new(w * 3, h, 3);
+    for y in 0..h {
+        for x in 0..w {
+            let inside =
+                x >= crop.left && y >= crop.top && x + crop.right < w && y + crop.bottom < h;
+            let dim = if inside { 1.0 } else { 0.4 };
+            let (p, g) = (pred.pixel(x, y), gt.pixel(x, y));
+            let err = (0..3).map(|c| (p[c] - g[c]).abs()).sum::<f32>() / 3.0;
+            let e = deepview_mpi::turbo((4.0 * err).min(1.0));
+            for c in 0..3 {
+                out.pixel_mut(x, y)[c] = p[c] * dim;
+                out.pixel_mut(x + w, y)[c] = g[c] * dim;
+                out.pixel_mut(x + 2 * w, y)[c] = e[c] * dim;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crops_scale_with_downscale_rounding_up() {
+        let c = BorderCrop {
+            left: 40,
+            top: 16,
+            right: 16,
+            bottom: 15,
+        };
+        assert_eq!(
+            scaled_crop(c, None, 2),
+            BorderCrop {
+                left: 20,
+                top: 8,
+                right: 8,
+                bottom: 8
+            }
+        );
+        assert_eq!(scaled_crop(c, Some(5), 2), BorderCrop::uniform(3));
+        assert_eq!(scaled_crop(c, None, 1), c);
+    }
+
+    #[test]
+    fn sample_standard_deviation() {
+        let (m, s) = mean_std(&[1.0, 2.0, 3.0, 4.0]);
+        assert_eq!(m, 2.5);
+        assert!((s - (5.0f64 / 3.0).sqrt()).abs() < 1e-12);
+        assert_eq!(mean_std(&[0.7]), (0.7, 0.0));
+    }
+}

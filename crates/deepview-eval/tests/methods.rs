@@ -1,0 +1,186 @@
+//! Each baseline on a textured fronto-parallel plane whose images are known exactly.
+
+mod common;
+
+use common::*;
+use deepview_eval::{
+    EvalError, Method, NearestView, OptimizeOptions, PsvMean, PsvMeanOptions, agreement_mpi,
+    optimize_mpi_with_history,
+};
+use deepview_geometry::{Camera, DVec3};
+use deepview_image::ImageF32;
+use deepview_mpi::render;
+
+const W: u32 = 48;
+const H: u32 = 32;
+const F: f64 = 40.0;
+const DEPTH: f64 = 2.0;
+
+fn quad_inputs(offset: f64) -> Vec<(ImageF32, Camera)> {
+    [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)]
+        .iter()
+        .map(|&(x, y)| {
+            let cam = camera_at(DVec3::new(x * offset, y * offset, 0.0), W, H, F);
+            (render_plane(&cam, DEPTH), cam)
+        })
+        .collect()
+}
+
+#[test]
+fn nearest_at_the_right_depth_reproduces_the_target() {
+    // Target 0.1 right of the nearest input: disparity f t / d = 40 * 0.1 / 2 = 2 px exactly, so the single plane
+    // at the plane's depth is an integer shift and bilinear sampling hits texel centres.
+    let near_cam = camera_at(DVec3::ZERO, W, H, F);
+    let far_cam = camera_at(DVec3::new(0.5, 0.0, 0.0), W, H, F);
+    let inputs = vec![
+        (render_plane(&far_cam, DEPTH), far_cam),
+        (render_plane(&near_cam, DEPTH), near_cam),
+    ];
+    let target = camera_at(DVec3::new(0.1, 0.0, 0.0), W, H, F);
+    let truth = render_plane(&target, DEPTH);
+    let pred = NearestView
+        .predict(&inputs, &target, bounds_around(DEPTH))
+        .unwrap();
+    assert_eq!((pred.width, pred.height, pred.channels), (W, H, 3));
+    let mut max_err = 0.0f32;
+    for y in 0..H {
+        for x in 0..W - 2 {
+            for c in 0..3 {
+                max_err = max_err.max((pred.pixel(x, y)[c] - truth.pixel(x, y)[c]).abs());
+            }
+        }
+    }
+    assert!(max_err < 1e-4, "max error {max_err}");
+    // The last 2 columns see beyond the input image: black.
+    assert!(pred.pixel(W - 1, 5).iter().all(|&v| v == 0.0));
+    // At a wrong depth the same method is clearly worse.
+    let wrong = NearestView
+        .predict(&inputs, &target, bounds_around(DEPTH * 3.0))
+        .unwrap();
+    assert!(psnr_interior(&wrong, &truth, 4) < psnr_interior(&pred, &truth, 4) - 10.0);
+}
+
+#[test]
+fn psv_mean_finds_the_plane_and_renders_the_target() {
+    // A texture 3x finer than the other tests', so colours disagree clearly one plane off.
+    let freq = 3.0;
+    let inputs: Vec<(ImageF32, Camera)> = quad_inputs(0.1)
+        .into_iter()
+        .map(|(_, c)| (render_plane_scaled(&c, DEPTH, freq), c))
+        .collect();
+    let target = camera_at(DVec3::new(0.03, -0.02, 0.0), W, H, F);
+    let truth = render_plane_scaled(&target, DEPTH, freq);
+    // 9 planes, the middle one on the textured plane; inverse depths 0.1 .. 0.9 in steps of 0.1, i.e. 0.8 px of
+    // disparity per plane step across the 0.2 baseline.
+    let options = PsvMeanOptions {
+        planes: 9,
+        ..Default::default()
+    };
+    let nf = (1.0 / 0.9, 1.0 / 0.1);
+    let mpi = agreement_mpi(&inputs, nf, &options).unwrap();
+    assert!((mpi.depths[4] - DEPTH).abs() < 1e-9);
+    // In the reference view, the visible contribution of each plane; the true plane should dominate.
+    let (rw, rh) = (mpi.camera.width, mpi.camera.height);
+    let (mut on_plane, mut total, mut argmax_right, mut pixels) = (0.0f64, 0.0f64, 0, 0);
+    for y in 6..rh - 6 {
+        for x in 6..rw - 6 {
+            let p = (y * rw + x) as usize;
+            let mut front = 1.0f64;
+            let mut best = (0, 0.0);
+            for d in (0..9).rev() {
+                let a = mpi.plane(d)[p * 4 + 3] as f64;
+                let w = a * front;
+                if d == 4 {
+                    on_plane += w;
+                }
+                if w > best.1 {
+                    best = (d, w);
+                }
+                total += w;
+                front *= 1.0 - a;
+            }
+            argmax_right += (best.0 == 4) as usize;
+            pixels += 1;
+        }
+    }
+    assert!(
+        on_plane / total > 0.5,
+        "weight on the true plane {}",
+        on_plane / total
+    );
+    assert!(
+        argmax_right as f64 > 0.9 * pixels as f64,
+        "true plane strongest at {argmax_right} of {pixels} pixels"
+    );
+    let pred = PsvMean { options }.predict(&inputs, &target, nf).unwrap();
+    let p = psnr_interior(&pred, &truth, 6);
+    assert!(p > 25.0, "psv-mean PSNR {p}");
+    // predict is the render of agreement_mpi.
+    assert_eq!(render(&mpi, &target).to_rgb(), pred);
+    eprintln!(
+        "psv-mean: weight on the true plane {:.3}, PSNR {p:.2}",
+        on_plane / total
+    );
+}
+
+#[test]
+fn optimize_reduces_the_input_view_loss_and_generalises() {
+    let inputs = quad_inputs(0.1);
+    let target = camera_at(DVec3::new(0.03, -0.02, 0.0), W, H, F);
+    let truth = render_plane(&target, DEPTH);
+    let options = OptimizeOptions {
+        planes: 9,
+        steps: 150,
+        learning_rate: 0.1,
+        max_width: 160,
+    };
+    let (mpi, history) =
+        optimize_mpi_with_history(&inputs, bounds_around(DEPTH), &options).unwrap();
+    assert_eq!(history.len(), 151);
+    let (first, last) = (history[0], *history.last().unwrap());
+    assert!(last < 0.25 * first, "loss {first} -> {last}");
+    let p = psnr_interior(&render(&mpi, &target).to_rgb(), &truth, 6);
+    assert!(p > 25.0, "optimize PSNR on a held-out view {p}");
+}
+
+#[test]
+fn optimize_works_at_reduced_resolution() {
+    let inputs = quad_inputs(0.1);
+    let options = OptimizeOptions {
+        planes: 5,
+        steps: 20,
+        learning_rate: 0.1,
+        max_width: 24,
+    };
+    let (mpi, history) =
+        optimize_mpi_with_history(&inputs, bounds_around(DEPTH), &options).unwrap();
+    assert!(
+        mpi.camera.width <= 32,
+        "MPI at the working resolution, got {}",
+        mpi.camera.width
+    );
+    assert!(history.last().unwrap() < &history[0]);
+}
+
+#[test]
+fn bad_inputs_are_clear_errors() {
+    let target = camera_at(DVec3::ZERO, W, H, F);
+    let e = NearestView.predict(&[], &target, (1.0, 2.0)).unwrap_err();
+    assert!(
+        matches!(e, EvalError::Method { .. }) && e.to_string().contains("no input views"),
+        "{e}"
+    );
+    let inputs = quad_inputs(0.1);
+    let e = PsvMean::default()
+        .predict(&inputs, &target, (2.0, 1.0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("near 2") && e.contains("far 1"), "{e}");
+    let mut wrong_size = inputs.clone();
+    wrong_size[0].0 = ImageF32::new(5, 5, 3);
+    let e = NearestView
+        .predict(&wrong_size, &target, (1.0, 2.0))
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("input 0") && e.contains("5x5"), "{e}");
+}

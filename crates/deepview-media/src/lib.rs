@@ -1,0 +1,63 @@
+//! Media around multiplane images: camera paths, nerfstudio `camera_path.json`, videos and interchange.
+//!
+//! - [`path`]: `spiral`, `circle` and `swing` paths around an MPI's reference camera, kept inside the range
+//!   where the MPI is valid (translations small relative to the near plane).
+//! - [`camera_path`]: nerfstudio's `camera_path.json` (OpenGL camera-to-world, vertical fov in degrees).
+//! - [`video`]: PNG frames, animated GIF, MP4 through an `ffmpeg` found on `PATH`, with a progress bar.
+//! - [`interchange`]: LLFF (`metadata.txt` + `mpi.b`), stereo magnification (`mpi_rgb_NN.png`,
+//!   `mpi_alpha_NN.png`, `intrinsics.txt`) and a compact tiled export, all exact on the 8-bit layers.
+//!
+//! ```
+//! use deepview_geometry::{Camera, Intrinsics, Pose};
+//! use deepview_media::path::{PathKind, PathSpec, Radius, camera_path};
+//! let reference = Camera::new(64, 48, Intrinsics::centred(60.0, 64, 48), Pose::IDENTITY);
+//! let depths = [10.0, 5.0, 2.0];
+//! let spec = PathSpec { kind: PathKind::Spiral, frames: 30, radius: Radius::NearFraction(0.05), focus_depth: None };
+//! let cams = camera_path(&reference, &depths, &spec).unwrap();
+//! assert_eq!(cams.len(), 30);
+//! ```
+
+pub mod camera_path;
+pub mod interchange;
+pub mod path;
+pub mod video;
+
+use std::path::PathBuf;
+
+/// Errors of this crate; every message names the file (when there is one) and the problem.
+#[derive(Debug, thiserror::Error)]
+pub enum MediaError {
+    #[error("{path}: {msg}")]
+    Invalid { path: PathBuf, msg: String },
+    #[error("{0}")]
+    Config(String),
+    #[error("cannot read {path}: {source}")]
+    Read { path: PathBuf, source: std::io::Error },
+    #[error("cannot write {path}: {source}")]
+    Write { path: PathBuf, source: std::io::Error },
+    #[error("{path} is not valid JSON for {what}: {source}")]
+    Json { path: PathBuf, what: &'static str, source: serde_json::Error },
+    #[error(transparent)]
+    Image(#[from] deepview_image::ImageError),
+    #[error(transparent)]
+    Mpi(#[from] deepview_mpi::MpiError),
+    #[error("{0}")]
+    Ffmpeg(String),
+}
+
+pub(crate) fn invalid(path: impl Into<PathBuf>, msg: impl Into<String>) -> MediaError {
+    MediaError::Invalid { path: path.into(), msg: msg.into() }
+}
+
+pub(crate) fn read_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> MediaError + '_ {
+    move |source| MediaError::Read { path: path.to_path_buf(), source }
+}
+
+pub(crate) fn write_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> MediaError + '_ {
+    move |source| MediaError::Write { path: path.to_path_buf(), source }
+}
+
+pub use camera_path::{CameraPathFile, read_camera_path, write_camera_path};
+pub use interchange::{ExportFormat, ExportReport, ImportFormat, detect_format, export, import};
+pub use path::{PathKind, PathSpec, Radius, camera_path as make_camera_path};
+pub use video::{VideoFormat, VideoReport, render_video};

@@ -1,0 +1,232 @@
+//! Videos of an MPI along a camera path: PNG frames, animated GIF, or MP4 through `ffmpeg`.
+//!
+//! The format follows the output path: `*.gif` -> GIF (the `image` crate's encoder, looping),
+//! `*.mp4` / `*.mov` / `*.mkv` -> raw RGB frames piped to `ffmpeg` (H.264, yuv420p; found on `PATH` or
+//! named by `DEEPVIEW_FFMPEG`), anything else -> a folder of `frame_00000.png ...`. Frames are the
+//! premultiplied render over black. Every file is written atomically (GIF and MP4 into a temporary file
+//! renamed at the end).
+
+use crate::{MediaError, write_err};
+use deepview_geometry::Camera;
+use deepview_image::{temp_path, write_atomic, write_png_u8};
+use deepview_mpi::{MpiU8, render_rgba8_into};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum VideoFormat {
+    PngFrames,
+    Gif,
+    Mp4,
+}
+
+impl VideoFormat {
+    pub fn from_path(path: &Path) -> VideoFormat {
+        match path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
+            Some("gif") => VideoFormat::Gif,
+            Some("mp4" | "mov" | "mkv") => VideoFormat::Mp4,
+            _ => VideoFormat::PngFrames,
+        }
+    }
+}
+
+/// What was written.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VideoReport {
+    pub format: VideoFormat,
+    pub path: PathBuf,
+    pub frames: usize,
+    pub seconds_rendering: f64,
+}
+
+/// A consumer of RGB8 frames.
+pub trait FrameSink {
+    fn push(&mut self, rgb: &[u8]) -> Result<(), MediaError>;
+    fn finish(self: Box<Self>) -> Result<(), MediaError>;
+}
+
+/// `frame_00000.png ...` in a folder.
+pub struct PngFrames {
+    dir: PathBuf,
+    width: u32,
+    height: u32,
+    next: usize,
+}
+
+impl PngFrames {
+    pub fn new(dir: &Path, width: u32, height: u32) -> Result<Self, MediaError> {
+        std::fs::create_dir_all(dir).map_err(write_err(dir))?;
+        Ok(Self { dir: dir.into(), width, height, next: 0 })
+    }
+}
+
+impl FrameSink for PngFrames {
+    fn push(&mut self, rgb: &[u8]) -> Result<(), MediaError> {
+        let p = self.dir.join(format!("frame_{:05}.png", self.next));
+        write_png_u8(&p, self.width, self.height, 3, rgb)?;
+        self.next += 1;
+        Ok(())
+    }
+    fn finish(self: Box<Self>) -> Result<(), MediaError> {
+        Ok(())
+    }
+}
+
+/// Animated, looping GIF (encoded in memory, written atomically at the end).
+pub struct GifSink {
+    path: PathBuf,
+    width: u32,
+    height: u32,
+    delay_ms: u32,
+    frames: Vec<image::Frame>,
+}
+
+impl GifSink {
+    pub fn new(path: &Path, width: u32, height: u32, fps: f64) -> Self {
+        let delay_ms = (1000.0 / fps.max(1e-3)).round().clamp(10.0, 655_350.0) as u32;
+        Self { path: path.into(), width, height, delay_ms, frames: Vec::new() }
+    }
+}
+
+impl FrameSink for GifSink {
+    fn push(&mut self, rgb: &[u8]) -> Result<(), MediaError> {
+        let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
+        let buf = image::RgbaImage::from_raw(self.width, self.height, rgba).expect("frame size matches");
+        let delay = image::Delay::from_numer_denom_ms(self.delay_ms, 1);
+        self.frames.push(image::Frame::from_parts(buf, 0, 0, delay));
+        Ok(())
+    }
+    fn finish(self: Box<Self>) -> Result<(), MediaError> {
+        use image::codecs::gif::{GifEncoder, Repeat};
+        let mut bytes = Vec::new();
+        {
+            let mut enc = GifEncoder::new_with_speed(&mut bytes, 10);
+            let enc_err = |e: image::ImageError| deepview_image::ImageError::Encode { path: self.path.clone(), source: e };
+            enc.set_repeat(Repeat::Infinite).map_err(enc_err)?;
+            enc.encode_frames(self.frames).map_err(enc_err)?;
+        }
+        write_atomic(&self.path, &bytes)?;
+        Ok(())
+    }
+}
+
+/// MP4 (or any container ffmpeg knows by extension) from raw RGB frames piped to `ffmpeg`.
+pub struct Mp4Sink {
+    path: PathBuf,
+    tmp: PathBuf,
+    child: Child,
+}
+
+/// The ffmpeg program: `DEEPVIEW_FFMPEG` if set, else `ffmpeg` (searched on `PATH`).
+pub fn ffmpeg_program() -> String {
+    std::env::var("DEEPVIEW_FFMPEG").unwrap_or_else(|_| "ffmpeg".into())
+}
+
+impl Mp4Sink {
+    pub fn new(path: &Path, width: u32, height: u32, fps: f64, program: &str) -> Result<Self, MediaError> {
+        if width % 2 == 1 || height % 2 == 1 {
+            return Err(MediaError::Config(format!(
+                "MP4 (H.264, yuv420p) needs an even frame size, got {width}x{height}; use --size or a GIF/PNG frames"
+            )));
+        }
+        let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("mp4");
+        let tmp = temp_path(path).with_extension(format!("tmp.{ext}"));
+        let child = Command::new(program)
+            .args(["-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s"])
+            .arg(format!("{width}x{height}"))
+            .arg("-r")
+            .arg(format!("{fps}"))
+            .args(["-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart"])
+            .arg(&tmp)
+            .stdin(Stdio::piped())
+            .stdout(Stdio::null())
+            .stderr(Stdio::piped())
+            .spawn()
+            .map_err(|e| {
+                if e.kind() == std::io::ErrorKind::NotFound {
+                    MediaError::Ffmpeg(format!(
+                        "cannot write {}: `{program}` was not found on PATH; install ffmpeg (e.g. apt-get install \
+                         ffmpeg), set DEEPVIEW_FFMPEG, or write a .gif or a folder of PNG frames instead",
+                        path.display()
+                    ))
+                } else {
+                    MediaError::Ffmpeg(format!("cannot start `{program}` for {}: {e}", path.display()))
+                }
+            })?;
+        Ok(Self { path: path.into(), tmp, child })
+    }
+}
+
+impl FrameSink for Mp4Sink {
+    fn push(&mut self, rgb: &[u8]) -> Result<(), MediaError> {
+        let stdin = self.child.stdin.as_mut().expect("stdin is piped");
+        stdin.write_all(rgb).map_err(|e| MediaError::Ffmpeg(format!("ffmpeg stopped accepting frames for {}: {e}", self.path.display())))
+    }
+    fn finish(mut self: Box<Self>) -> Result<(), MediaError> {
+        drop(self.child.stdin.take());
+        let out = self.child.wait_with_output().map_err(|e| MediaError::Ffmpeg(format!("waiting for ffmpeg: {e}")))?;
+        if !out.status.success() {
+            let _ = std::fs::remove_file(&self.tmp);
+            return Err(MediaError::Ffmpeg(format!(
+                "ffmpeg failed writing {} ({}): {}",
+                self.path.display(),
+                out.status,
+                String::from_utf8_lossy(&out.stderr).trim()
+            )));
+        }
+        std::fs::rename(&self.tmp, &self.path).map_err(write_err(&self.path))
+    }
+}
+
+/// Open the sink for `out` (format from its extension).
+pub fn open_sink(out: &Path, width: u32, height: u32, fps: f64) -> Result<Box<dyn FrameSink>, MediaError> {
+    Ok(match VideoFormat::from_path(out) {
+        VideoFormat::PngFrames => Box::new(PngFrames::new(out, width, height)?),
+        VideoFormat::Gif => Box::new(GifSink::new(out, width, height, fps)),
+        VideoFormat::Mp4 => Box::new(Mp4Sink::new(out, width, height, fps, &ffmpeg_program())?),
+    })
+}
+
+/// Render `mpi` into every camera of `cameras` (all of one size) and write the video `out` at `fps`.
+/// Shows an indicatif progress bar on stderr when `progress` is true.
+pub fn render_video(mpi: &MpiU8, cameras: &[Camera], out: &Path, fps: f64, progress: bool) -> Result<VideoReport, MediaError> {
+    let first = cameras.first().ok_or_else(|| MediaError::Config("the camera path has no cameras".into()))?;
+    if !(fps.is_finite() && fps > 0.0) {
+        return Err(MediaError::Config(format!("fps must be positive (got {fps})")));
+    }
+    let (w, h) = (first.width, first.height);
+    if let Some(c) = cameras.iter().find(|c| (c.width, c.height) != (w, h)) {
+        return Err(MediaError::Config(format!("all cameras of a video must share one size ({w}x{h} vs {}x{})", c.width, c.height)));
+    }
+    let mut sink = open_sink(out, w, h, fps)?;
+    let bar = if progress {
+        let b = indicatif::ProgressBar::new(cameras.len() as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})")
+                .expect("valid template")
+                .progress_chars("=> "),
+        );
+        b.set_message(format!("rendering {}", out.display()));
+        b
+    } else {
+        indicatif::ProgressBar::hidden()
+    };
+    let start = std::time::Instant::now();
+    let (mut scratch, mut rgba, mut rgb) = (Vec::new(), Vec::new(), Vec::new());
+    for cam in cameras {
+        render_rgba8_into(mpi, cam, &mut scratch, &mut rgba);
+        rgb.clear();
+        rgb.extend(rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]));
+        sink.push(&rgb)?;
+        bar.inc(1);
+    }
+    sink.finish()?;
+    bar.finish_and_clear();
+    Ok(VideoReport {
+        format: VideoFormat::from_path(out),
+        path: out.into(),
+        frames: cameras.len(),
+        seconds_rendering: start.elapsed().as_secs_f64(),
+    })
+}

@@ -1,0 +1,377 @@
+//! Camera paths, camera_path.json, videos and interchange round trips on small MPIs built here.
+
+use deepview_geometry::{Camera, DMat3, DVec2, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths};
+use deepview_media::camera_path::{camera_path_file, parse_camera_path, read_camera_path, write_camera_path};
+use deepview_media::interchange::{self, ExportFormat, ImportFormat, ImportOptions, compact, read_straight};
+use deepview_media::path::{PathKind, PathSpec, Radius, camera_path, spiral};
+use deepview_media::video::{FrameSink, Mp4Sink};
+use deepview_media::{MediaError, render_video};
+use deepview_mpi::{Mpi, write_mpi};
+use std::path::Path;
+
+fn reference() -> Camera {
+    let r = DMat3::from_rotation_x(0.1) * DMat3::from_rotation_y(-0.2);
+    Camera::new(70, 45, Intrinsics::new(60.0, 61.0, 35.5, 22.0), Pose::from_center(r, DVec3::new(0.5, -1.0, 2.0)))
+}
+
+/// A test MPI: 5 planes with pseudo-random texels, the upper-left block of every plane fully transparent
+/// (so the compact export drops tiles), and the near plane transparent except for one square.
+fn test_mpi() -> Mpi {
+    let cam = reference();
+    let depths = plane_depths(2.0, 20.0, 5, PlaneSpacing::InverseDepth).unwrap();
+    let mut mpi = Mpi::transparent(cam, depths);
+    let (w, h) = (cam.width as usize, cam.height as usize);
+    let mut s = 12345u32;
+    for d in 0..5 {
+        let plane = mpi.plane_mut(d);
+        for y in 0..h {
+            for x in 0..w {
+                s ^= s << 13;
+                s ^= s >> 17;
+                s ^= s << 5;
+                let transparent = (x < 33 && y < 33) || (d == 4 && !(40..50).contains(&x));
+                let a = if transparent { 0.0 } else { ((s % 251) as f32 / 250.0).max(0.05) };
+                let p = &mut plane[(y * w + x) * 4..(y * w + x) * 4 + 4];
+                p[3] = a;
+                for k in 0..3 {
+                    p[k] = (((s >> (8 * k)) % 256) as f32 / 255.0) * a;
+                }
+            }
+        }
+    }
+    mpi
+}
+
+fn write_test_mpi(dir: &Path) {
+    write_mpi(dir, &test_mpi()).unwrap();
+}
+
+fn angle_between(a: &DMat3, b: &DMat3) -> f64 {
+    let r = *a * b.transpose();
+    ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0).acos()
+}
+
+#[test]
+fn spiral_is_continuous_closed_and_within_the_valid_range() {
+    let cam = reference();
+    let depths = [20.0, 8.0, 2.0];
+    let frames = 120;
+    let r = 0.05;
+    let cams = spiral(&cam, &depths, r, frames).unwrap();
+    assert_eq!(cams.len(), frames);
+    let radius = r * 2.0;
+    // Path length of two turns plus the forward motion, over frames: a bound on consecutive steps.
+    let max_step = 2.0 * std::f64::consts::TAU * radius * 1.2 / frames as f64;
+    for i in 0..frames {
+        let (a, b) = (&cams[i], &cams[(i + 1) % frames]);
+        let step = (a.center() - b.center()).length();
+        assert!(step < max_step && step > 0.0, "frame {i}: step {step} (max {max_step})");
+        assert!(angle_between(&a.pose.rotation, &b.pose.rotation) < 0.01, "frame {i}");
+        assert!((a.center() - cam.center()).length() <= radius * 1.2);
+        assert!(a.pose.validate().is_ok());
+        assert_eq!(a.intrinsics, cam.intrinsics);
+    }
+    // Every camera looks at the focus point (default: middle of the disparity range) through its principal point.
+    let focus = 2.0 / (1.0 / 20.0 + 1.0 / 2.0);
+    let p = cam.unproject(DVec2::new(cam.intrinsics.cx, cam.intrinsics.cy), focus);
+    for c in &cams {
+        let q = c.project(p).unwrap();
+        assert!((q - DVec2::new(c.intrinsics.cx, c.intrinsics.cy)).length() < 1e-9, "{q}");
+    }
+    // Swing stays on the reference x axis; circle stays in the reference image plane.
+    for (kind, axis) in [(PathKind::Swing, 0), (PathKind::Circle, 1)] {
+        let spec = PathSpec { kind, frames: 16, radius: Radius::Scene(0.1), focus_depth: Some(5.0) };
+        for c in camera_path(&cam, &depths, &spec).unwrap() {
+            let off = cam.pose.transform_point(c.center());
+            assert!(off.z.abs() < 1e-12, "{off}");
+            if axis == 0 {
+                assert!(off.y.abs() < 1e-12, "{off}");
+            }
+            assert!(off.length() <= 0.1 + 1e-12);
+        }
+    }
+    // Too far from the reference: refused with the reason.
+    let e = spiral(&cam, &depths, 0.5, 10).unwrap_err().to_string();
+    assert!(e.contains("valid"), "{e}");
+    assert!(spiral(&cam, &depths, 0.05, 0).is_err());
+    assert!("zigzag".parse::<PathKind>().is_err());
+}
+
+#[test]
+fn camera_path_json_round_trip_and_axes() {
+    let dir = tempfile::tempdir().unwrap();
+    // Square pixels, centred principal point: representable exactly.
+    let base = Camera::new(64, 48, Intrinsics::centred(50.0, 64, 48), reference().pose);
+    let cams = spiral(&base, &[20.0, 2.0], 0.05, 12).unwrap();
+    let p = dir.path().join("camera_path.json");
+    write_camera_path(&p, &cams, 2.0).unwrap();
+    let back = read_camera_path(&p).unwrap();
+    assert_eq!(back.cameras.len(), 12);
+    assert!((back.seconds - 2.0).abs() < 1e-12 && (back.fps() - 6.0).abs() < 1e-12);
+    for (a, b) in cams.iter().zip(&back.cameras) {
+        assert!(a.pose.rotation.abs_diff_eq(b.pose.rotation, 1e-12));
+        assert!(a.pose.translation.abs_diff_eq(b.pose.translation, 1e-12));
+        let (ka, kb) = (a.intrinsics, b.intrinsics);
+        assert!((ka.fx - kb.fx).abs() < 1e-9 && (ka.fy - kb.fy).abs() < 1e-9 && ka.cx == kb.cx && ka.cy == kb.cy);
+    }
+    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    assert_eq!(json["render_width"], 64);
+    assert_eq!(json["camera_path"][0]["camera_to_world"].as_array().unwrap().len(), 16);
+
+    // Known case written by hand: an OpenGL camera at (2, 0, 0) rotated +90 deg about y (right = -z,
+    // up = +y, back = +x), so it looks along -x at the origin; vertical fov 2 atan(5/10) on a 10x10 image
+    // gives f = 10.
+    let fov = (2.0 * (0.5f64).atan()).to_degrees();
+    let text = format!(
+        r#"{{"render_width": 10, "render_height": 10, "seconds": 1,
+            "camera_path": [{{"camera_to_world": [0,0,1,2, 0,1,0,0, -1,0,0,0, 0,0,0,1], "fov": {fov}}}]}}"#
+    );
+    let cp = parse_camera_path(&text, Path::new("known.json")).unwrap();
+    let c = cp.cameras[0];
+    assert!((c.intrinsics.fy - 10.0).abs() < 1e-9 && (c.intrinsics.fx - 10.0).abs() < 1e-9);
+    let near = |p: DVec3, expect: DVec2| {
+        let q = c.project(p).unwrap();
+        assert!((q - expect).length() < 1e-9, "{p} -> {q}, expected {expect}");
+    };
+    near(DVec3::ZERO, DVec2::new(5.0, 5.0));
+    near(DVec3::new(0.0, 1.0, 0.0), DVec2::new(5.0, 0.0)); // world up is image up
+    near(DVec3::new(0.0, 0.0, -1.0), DVec2::new(10.0, 5.0)); // camera right is world -z
+    assert!(c.project(DVec3::new(4.0, 0.0, 0.0)).is_none()); // behind the camera
+    // Writing it back gives the same numbers.
+    let f = camera_path_file(&cp.cameras, 1.0).unwrap();
+    let expect = [0.0, 0.0, 1.0, 2.0, 0.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    for (a, b) in f.camera_path[0].camera_to_world.iter().zip(expect) {
+        assert!((a - b).abs() < 1e-12);
+    }
+    assert!((f.camera_path[0].fov - fov).abs() < 1e-9);
+}
+
+#[test]
+fn malformed_camera_path_files_give_clear_errors() {
+    let good_c2w = "[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]";
+    let cases = [
+        ("{not json".to_string(), "not valid JSON"),
+        (r#"{"render_width": 10, "seconds": 1, "camera_path": []}"#.to_string(), "render_height"),
+        (format!(r#"{{"render_width":10,"render_height":10,"seconds":1,"camera_path":[]}}"#), "empty"),
+        (r#"{"render_width":10,"render_height":10,"seconds":1,"camera_path":[{"camera_to_world":[1,0,0],"fov":50}]}"#.to_string(), "has 3 numbers"),
+        (format!(r#"{{"render_width":10,"render_height":10,"seconds":1,"camera_path":[{{"camera_to_world":{good_c2w},"fov":0}}]}}"#), "fov"),
+        (format!(r#"{{"render_width":10,"render_height":10,"seconds":0,"camera_path":[{{"camera_to_world":{good_c2w},"fov":50}}]}}"#), "seconds"),
+        (r#"{"render_width":10,"render_height":10,"seconds":1,"camera_path":[{"camera_to_world":[2,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1],"fov":50}]}"#.to_string(), "camera_path[0].camera_to_world"),
+        (r#"{"render_width":10,"render_height":10,"seconds":1,"camera_path":[{"camera_to_world":[1,0,0,0, 0,1,0,0, 0,0,1,0, 1,0,0,1],"fov":50}]}"#.to_string(), "last row"),
+        (format!(r#"{{"camera_type":"fisheye","render_width":10,"render_height":10,"seconds":1,"camera_path":[{{"camera_to_world":{good_c2w},"fov":50}}]}}"#), "fisheye"),
+    ];
+    for (text, needle) in cases {
+        let e = parse_camera_path(&text, Path::new("bad_path.json")).unwrap_err().to_string();
+        assert!(e.contains("bad_path.json") && e.contains(needle), "{needle}: {e}");
+    }
+    let e = read_camera_path(Path::new("/nonexistent/camera_path.json")).unwrap_err().to_string();
+    assert!(e.contains("/nonexistent/camera_path.json"), "{e}");
+}
+
+#[test]
+fn gif_and_png_frames_are_written_and_decodable() {
+    let dir = tempfile::tempdir().unwrap();
+    let mpi = test_mpi();
+    let cams = spiral(&mpi.camera, &mpi.depths, 0.05, 7).unwrap();
+    let u8mpi = mpi.to_u8();
+    let gif = dir.path().join("path.gif");
+    let rep = render_video(&u8mpi, &cams, &gif, 10.0, false).unwrap();
+    assert_eq!(rep.frames, 7);
+    use image::AnimationDecoder;
+    let dec = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let frames = dec.into_frames().collect_frames().unwrap();
+    assert_eq!(frames.len(), 7);
+    assert_eq!(frames[0].buffer().dimensions(), (70, 45));
+    assert_eq!(frames[0].delay().numer_denom_ms(), (100, 1));
+    // The first GIF frame resembles the native render of the first camera (GIF palette: loose bound).
+    let native = deepview_mpi::render_u8(&u8mpi, &cams[0]);
+    let mut err = 0.0f64;
+    for (g, n) in frames[0].buffer().pixels().zip(native.data.chunks_exact(4)) {
+        for k in 0..3 {
+            err += (g[k] as f64 / 255.0 - n[k] as f64).abs();
+        }
+    }
+    assert!(err / (70.0 * 45.0 * 3.0) < 0.05, "mean abs error {}", err / (70.0 * 45.0 * 3.0));
+
+    let frames_dir = dir.path().join("frames");
+    render_video(&u8mpi, &cams[..3], &frames_dir, 10.0, false).unwrap();
+    let names: Vec<_> = (0..3).map(|i| frames_dir.join(format!("frame_{i:05}.png"))).collect();
+    for n in &names {
+        assert_eq!(image::image_dimensions(n).unwrap(), (70, 45));
+    }
+    assert_eq!(std::fs::read_dir(&frames_dir).unwrap().count(), 3, "no temporary files left");
+}
+
+#[test]
+fn missing_ffmpeg_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = Mp4Sink::new(&dir.path().join("v.mp4"), 64, 48, 30.0, "/nonexistent/ffmpeg-for-test").err().unwrap();
+    let msg = e.to_string();
+    assert!(msg.contains("not found") && msg.contains("v.mp4") && msg.contains(".gif"), "{msg}");
+    let e = Mp4Sink::new(&dir.path().join("v.mp4"), 63, 48, 30.0, "ffmpeg").err().unwrap();
+    assert!(e.to_string().contains("even"), "{e}");
+}
+
+#[test]
+fn mp4_through_ffmpeg_when_available() {
+    if std::process::Command::new("ffmpeg").arg("-version").output().is_err() {
+        eprintln!("ffmpeg not on PATH: MP4 writing not exercised (missing_ffmpeg_is_a_clear_error covers the message)");
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("v.mp4");
+    let mut sink: Box<dyn FrameSink> = Box::new(Mp4Sink::new(&out, 64, 48, 10.0, "ffmpeg").unwrap());
+    for i in 0..5u8 {
+        sink.push(&vec![i * 40; 64 * 48 * 3]).unwrap();
+    }
+    sink.finish().unwrap();
+    assert!(std::fs::metadata(&out).unwrap().len() > 100);
+}
+
+fn assert_same_layers(a: &Path, b: &Path) {
+    let (x, y) = (read_straight(a).unwrap(), read_straight(b).unwrap());
+    assert_eq!(x.planes.len(), y.planes.len());
+    for (d, (p, q)) in x.planes.iter().zip(&y.planes).enumerate() {
+        assert!(p == q, "plane {d} differs");
+    }
+    assert_eq!((x.camera.width, x.camera.height), (y.camera.width, y.camera.height));
+    for (u, v) in x.depths.iter().zip(&y.depths) {
+        assert!((u - v).abs() < 1e-9 * u, "{u} vs {v}");
+    }
+}
+
+#[test]
+fn llff_round_trip_is_exact_on_layers() {
+    let dir = tempfile::tempdir().unwrap();
+    let (src, llff, back) = (dir.path().join("mpi"), dir.path().join("llff"), dir.path().join("back"));
+    // LLFF keeps one focal and a centred principal point: use such a camera so the camera round-trips too.
+    let mut mpi = test_mpi();
+    mpi.camera.intrinsics = Intrinsics::centred(60.0, 70, 45);
+    write_mpi(&src, &mpi).unwrap();
+    let rep = interchange::export(&src, &llff, ExportFormat::Llff).unwrap();
+    assert!(rep.warnings.is_empty(), "{:?}", rep.warnings);
+    // Layout: metadata.txt "H W D focal", four pose columns, "far near"; mpi.b = D*H*W*4 bytes.
+    let meta = std::fs::read_to_string(llff.join("metadata.txt")).unwrap();
+    let lines: Vec<&str> = meta.lines().collect();
+    assert_eq!(lines.len(), 6);
+    assert_eq!(lines[0], "45 70 5 60");
+    let far_near: Vec<f64> = lines[5].split(' ').map(|v| v.parse().unwrap()).collect();
+    assert!((far_near[0] - 20.0).abs() < 1e-9 && (far_near[1] - 2.0).abs() < 1e-12);
+    assert_eq!(std::fs::metadata(llff.join("mpi.b")).unwrap().len(), 5 * 45 * 70 * 4);
+    // The pose lines are OpenGL camera-to-world columns: line 4 is the camera centre, line 3 "back".
+    let col = |i: usize| -> DVec3 {
+        let v: Vec<f64> = lines[i].split(' ').map(|v| v.parse().unwrap()).collect();
+        DVec3::new(v[0], v[1], v[2])
+    };
+    assert!((col(4) - mpi.camera.center()).length() < 1e-12);
+    let forward_world = mpi.camera.pose.rotation.transpose() * DVec3::Z;
+    assert!((col(3) + forward_world).length() < 1e-12);
+    assert_eq!(interchange::detect_format(&llff).unwrap(), ImportFormat::Llff);
+    interchange::import(&llff, &back, &ImportOptions::default()).unwrap();
+    assert_same_layers(&src, &back);
+    let (a, b) = (read_straight(&src).unwrap().camera, read_straight(&back).unwrap().camera);
+    assert!(a.pose.rotation.abs_diff_eq(b.pose.rotation, 1e-12) && a.pose.translation.abs_diff_eq(b.pose.translation, 1e-12));
+    assert_eq!(a.intrinsics, b.intrinsics);
+    // A non-centred principal point is reported.
+    let src2 = dir.path().join("mpi2");
+    write_test_mpi(&src2);
+    let rep = interchange::export(&src2, &dir.path().join("llff2"), ExportFormat::Llff).unwrap();
+    assert!(rep.warnings.iter().any(|w| w.contains("principal point")), "{:?}", rep.warnings);
+    // Truncated mpi.b.
+    let bytes = std::fs::read(llff.join("mpi.b")).unwrap();
+    std::fs::write(llff.join("mpi.b"), &bytes[..1000]).unwrap();
+    let e = interchange::import(&llff, &dir.path().join("x"), &ImportOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("mpi.b") && e.contains("1000 bytes"), "{e}");
+    std::fs::write(llff.join("metadata.txt"), "45 70 5\n").unwrap();
+    let e = interchange::import(&llff, &dir.path().join("x"), &ImportOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("metadata.txt"), "{e}");
+}
+
+#[test]
+fn stereo_mag_round_trip_is_exact_on_layers() {
+    let dir = tempfile::tempdir().unwrap();
+    let (src, sm, back) = (dir.path().join("mpi"), dir.path().join("sm"), dir.path().join("back"));
+    write_test_mpi(&src);
+    interchange::export(&src, &sm, ExportFormat::StereoMag).unwrap();
+    for name in ["mpi_rgb_00.png", "mpi_alpha_04.png", "intrinsics.txt", "README"] {
+        assert!(sm.join(name).is_file(), "{name}");
+    }
+    // Plane 00 is the farthest: the alpha of our layer 0 is in mpi_alpha_00.png.
+    let ours = read_straight(&src).unwrap();
+    let a0 = image::open(sm.join("mpi_alpha_00.png")).unwrap().into_luma8().into_raw();
+    assert!(a0.iter().zip(ours.planes[0].chunks_exact(4)).all(|(a, p)| *a == p[3]));
+    interchange::import(&sm, &back, &ImportOptions::default()).unwrap();
+    assert_same_layers(&src, &back);
+    assert_eq!(read_straight(&back).unwrap().camera, ours.camera);
+    // Without the sidecar: depths from the README flags, identity pose, intrinsics from intrinsics.txt.
+    std::fs::remove_file(sm.join("deepview_camera.json")).unwrap();
+    let back2 = dir.path().join("back2");
+    interchange::import(&sm, &back2, &ImportOptions::default()).unwrap();
+    assert_same_layers(&src, &back2);
+    assert_eq!(read_straight(&back2).unwrap().camera.intrinsics, ours.camera.intrinsics);
+    // Without README either: a clear request for near/far, then explicit bounds work.
+    std::fs::remove_file(sm.join("README")).unwrap();
+    let e = interchange::import(&sm, &dir.path().join("x"), &ImportOptions::default()).unwrap_err().to_string();
+    assert!(e.contains("--near"), "{e}");
+    interchange::import(&sm, &dir.path().join("x"), &ImportOptions { near_far: Some((2.0, 20.0)) }).unwrap();
+    // A missing alpha layer is named.
+    std::fs::remove_file(sm.join("mpi_alpha_02.png")).unwrap();
+    let e = interchange::import(&sm, &dir.path().join("y"), &ImportOptions { near_far: Some((2.0, 20.0)) })
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("mpi_alpha_02.png"), "{e}");
+}
+
+#[test]
+fn compact_round_trip_is_exact() {
+    let dir = tempfile::tempdir().unwrap();
+    let (src, cp, back) = (dir.path().join("mpi"), dir.path().join("compact"), dir.path().join("back"));
+    write_test_mpi(&src);
+    let rep = interchange::export(&src, &cp, ExportFormat::Compact).unwrap();
+    // 70x45 with 32x32 tiles: 3x2 tiles per plane; tile (0,0) is transparent everywhere (33x33 block), and the
+    // near plane only has content in columns 40..50 (tiles x = 1, y = 0..1).
+    let (kept, total) = rep.tiles.unwrap();
+    assert_eq!(total, 5 * 6);
+    assert_eq!(kept, 4 * 5 + 2);
+    let (meta, _) = compact::CompactMeta::read(&cp).unwrap();
+    assert_eq!(meta.planes[4], vec![1, 4]);
+    assert_eq!(meta.planes[0], vec![1, 2, 3, 4, 5]);
+    // Noise texels do not compress, so the files are about as large as the layers' (the dropped tiles are
+    // all zero and cheap in PNG too); the saving is in decoded texels uploaded by the viewer: 22 of 30 tiles.
+    assert!(rep.bytes > 0 && rep.source_bytes > 0);
+    assert_eq!(interchange::detect_format(&cp).unwrap(), ImportFormat::Compact);
+    interchange::import(&cp, &back, &ImportOptions::default()).unwrap();
+    assert_same_layers(&src, &back);
+    assert_eq!(read_straight(&back).unwrap().camera, read_straight(&src).unwrap().camera);
+    // Several pages and an odd tile size also round-trip.
+    let ours = read_straight(&src).unwrap();
+    let cp2 = dir.path().join("compact2");
+    compact::write_with_tile(&cp2, &ours, 1).unwrap();
+    let (m2, _) = compact::CompactMeta::read(&cp2).unwrap();
+    assert!(m2.pages.len() > 1, "{}", m2.pages.len());
+    assert_eq!(compact::read(&cp2).unwrap().planes, ours.planes);
+    // A missing page is named.
+    std::fs::remove_file(cp2.join("tiles_001.png")).unwrap();
+    let e = compact::read(&cp2).unwrap_err().to_string();
+    assert!(e.contains("tiles_001.png"), "{e}");
+}
+
+#[test]
+fn bad_mpi_folders_are_reported() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path().join("mpi");
+    write_test_mpi(&src);
+    std::fs::remove_file(src.join("layer_003.png")).unwrap();
+    for f in [ExportFormat::Llff, ExportFormat::StereoMag, ExportFormat::Compact] {
+        let e = interchange::export(&src, &dir.path().join("out"), f).unwrap_err();
+        assert!(e.to_string().contains("layer_003.png"), "{e}");
+    }
+    write_test_mpi(&src);
+    deepview_image::write_png_u8(&src.join("layer_002.png"), 4, 4, 4, &[0; 64]).unwrap();
+    let e = interchange::export(&src, &dir.path().join("out"), ExportFormat::Compact).unwrap_err().to_string();
+    assert!(e.contains("layer_002.png") && e.contains("4x4"), "{e}");
+    let e = interchange::detect_format(dir.path()).unwrap_err().to_string();
+    assert!(e.contains("no known MPI format"), "{e}");
+    let e: MediaError = "webm".parse::<ExportFormat>().unwrap_err();
+    assert!(e.to_string().contains("llff"));
+}

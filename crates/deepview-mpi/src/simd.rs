@@ -1,0 +1,192 @@
+//! AVX2 + FMA kernel for the 8-bit renderer: 8 output pixels at a time.
+//!
+//! Same maths and sampling rule as the scalar path in `render.rs` (tested against it): per plane, the
+//! homography gives 8 source positions; in-extent lanes gather their 4 bilinear taps (RGBA8 as one u32),
+//! and the premultiplied colour is over-composited into structure-of-arrays row accumulators.
+
+#[cfg(target_arch = "x86_64")]
+use std::arch::x86_64::*;
+
+/// Whether the CPU can run [`composite_row_u8_avx2`].
+pub fn available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Accumulator length per channel for a row of `width` pixels (a multiple of 8).
+pub fn padded_width(width: usize) -> usize {
+    width.div_ceil(8) * 8
+}
+
+/// Row set-up of one plane: `src = H (u, v, 1)` with `v` fixed, split into `a * u + b` per coordinate.
+#[derive(Clone, Copy, Debug)]
+pub struct RowCoefficients {
+    pub a: [f32; 3],
+    pub b: [f32; 3],
+}
+
+/// Over-composite one plane into the row accumulators `acc` (`[4][padded_width(width)]`, planar r, g, b,
+/// a; the padding lanes receive unused values).
+///
+/// # Safety
+/// The CPU must support AVX2 and FMA ([`available`]). `layer` holds `plane_w * plane_h` RGBA8 texels.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+pub unsafe fn composite_row_u8_avx2(
+    layer: &[u8],
+    plane_w: u32,
+    plane_h: u32,
+    coeff: RowCoefficients,
+    acc: &mut [f32],
+    width: usize,
+) {
+    debug_assert_eq!(layer.len(), plane_w as usize * plane_h as usize * 4);
+    let wp = padded_width(width);
+    assert!(acc.len() >= 4 * wp);
+    let base = layer.as_ptr() as *const i32;
+    let (ar, ag, ab, aa) = {
+        let (r, rest) = acc.split_at_mut(wp);
+        let (g, rest) = rest.split_at_mut(wp);
+        let (b, a) = rest.split_at_mut(wp);
+        (r.as_mut_ptr(), g.as_mut_ptr(), b.as_mut_ptr(), a.as_mut_ptr())
+    };
+    let ax = _mm256_set1_ps(coeff.a[0]);
+    let ay = _mm256_set1_ps(coeff.a[1]);
+    let aw = _mm256_set1_ps(coeff.a[2]);
+    let bx = _mm256_set1_ps(coeff.b[0]);
+    let by = _mm256_set1_ps(coeff.b[1]);
+    let bw = _mm256_set1_ps(coeff.b[2]);
+    let wf = _mm256_set1_ps(plane_w as f32);
+    let hf = _mm256_set1_ps(plane_h as f32);
+    let zero = _mm256_setzero_ps();
+    let half = _mm256_set1_ps(0.5);
+    let one = _mm256_set1_ps(1.0);
+    let inv255 = _mm256_set1_ps(1.0 / 255.0);
+    let wmax = _mm256_set1_epi32(plane_w as i32 - 1);
+    let hmax = _mm256_set1_epi32(plane_h as i32 - 1);
+    let izero = _mm256_setzero_si256();
+    let ione = _mm256_set1_epi32(1);
+    let stride = _mm256_set1_epi32(plane_w as i32);
+    let byte = _mm256_set1_epi32(0xff);
+    let seven = _mm256_set1_epi32(7);
+    let lane = _mm256_setr_ps(0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5);
+    let mut x = 0usize;
+    while x < width {
+        let u = _mm256_add_ps(_mm256_set1_ps(x as f32), lane);
+        let wn = _mm256_fmadd_ps(aw, u, bw);
+        let inv = _mm256_div_ps(one, wn);
+        let sx = _mm256_mul_ps(_mm256_fmadd_ps(ax, u, bx), inv);
+        let sy = _mm256_mul_ps(_mm256_fmadd_ps(ay, u, by), inv);
+        // Inside the plane's extent and in front (ordered comparisons are false for NaN).
+        let mut m = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(wn, zero), _mm256_cmp_ps::<_CMP_GE_OQ>(sx, zero));
+        m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(sx, wf));
+        m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_GE_OQ>(sy, zero));
+        m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(sy, hf));
+        let mi = _mm256_castps_si256(m);
+        if _mm256_testz_si256(mi, mi) == 0 {
+            let fx = _mm256_sub_ps(sx, half);
+            let fy = _mm256_sub_ps(sy, half);
+            let x0f = _mm256_floor_ps(fx);
+            let y0f = _mm256_floor_ps(fy);
+            let tx = _mm256_sub_ps(fx, x0f);
+            let ty = _mm256_sub_ps(fy, y0f);
+            let x0 = _mm256_cvttps_epi32(x0f);
+            let y0 = _mm256_cvttps_epi32(y0f);
+            macro_rules! clamp {
+                ($v:expr, $hi:expr) => {
+                    _mm256_min_epi32(_mm256_max_epi32($v, izero), $hi)
+                };
+            }
+            let xa = clamp!(x0, wmax);
+            let xb = clamp!(_mm256_add_epi32(x0, ione), wmax);
+            let ya = _mm256_mullo_epi32(clamp!(y0, hmax), stride);
+            let yb = _mm256_mullo_epi32(clamp!(_mm256_add_epi32(y0, ione), hmax), stride);
+            // Fast path: when every active lane reads the same two source rows and its taps lie within
+            // 8 consecutive texels (true for views near the reference camera), two contiguous loads and
+            // four lane permutations replace the four gathers.
+            let ya0 = _mm256_permutevar8x32_epi32(ya, izero);
+            let xs = _mm256_min_epi32(_mm256_permutevar8x32_epi32(xa, izero), _mm256_set1_epi32(plane_w as i32 - 8));
+            let ia = _mm256_and_si256(_mm256_sub_epi32(xa, xs), mi);
+            let ib = _mm256_and_si256(_mm256_sub_epi32(xb, xs), mi);
+            let same_rows = _mm256_andnot_si256(_mm256_cmpeq_epi32(ya, ya0), mi);
+            let out_of_window = _mm256_or_si256(
+                _mm256_or_si256(_mm256_cmpgt_epi32(izero, ia), _mm256_cmpgt_epi32(ia, seven)),
+                _mm256_or_si256(_mm256_cmpgt_epi32(izero, ib), _mm256_cmpgt_epi32(ib, seven)),
+            );
+            let lane0_active = _mm256_extract_epi32::<0>(mi) != 0;
+            let permutable = plane_w >= 8
+                && lane0_active
+                && _mm256_testz_si256(_mm256_or_si256(same_rows, out_of_window), mi) != 0;
+            let (t00, t01, t10, t11) = if permutable {
+                let off = (_mm256_extract_epi32::<0>(ya0) + _mm256_extract_epi32::<0>(xs)) as usize;
+                let dy = (_mm256_extract_epi32::<0>(_mm256_permutevar8x32_epi32(yb, izero))
+                    - _mm256_extract_epi32::<0>(ya0)) as usize;
+                // SAFETY: xs + 8 <= plane_w and both rows are inside the plane.
+                let (ra, rb) = unsafe {
+                    (
+                        _mm256_loadu_si256(base.add(off) as *const __m256i),
+                        _mm256_loadu_si256(base.add(off + dy) as *const __m256i),
+                    )
+                };
+                (
+                    _mm256_and_si256(_mm256_permutevar8x32_epi32(ra, ia), mi),
+                    _mm256_and_si256(_mm256_permutevar8x32_epi32(ra, ib), mi),
+                    _mm256_and_si256(_mm256_permutevar8x32_epi32(rb, ia), mi),
+                    _mm256_and_si256(_mm256_permutevar8x32_epi32(rb, ib), mi),
+                )
+            } else {
+                // SAFETY: indices are clamped into the plane, so every lane (masked or not) is in bounds.
+                unsafe {
+                    (
+                        _mm256_mask_i32gather_epi32::<4>(izero, base, _mm256_add_epi32(ya, xa), mi),
+                        _mm256_mask_i32gather_epi32::<4>(izero, base, _mm256_add_epi32(ya, xb), mi),
+                        _mm256_mask_i32gather_epi32::<4>(izero, base, _mm256_add_epi32(yb, xa), mi),
+                        _mm256_mask_i32gather_epi32::<4>(izero, base, _mm256_add_epi32(yb, xb), mi),
+                    )
+                }
+            };
+            // Bilinear weights with the 1/255 of the 8-bit texels folded in.
+            let sx1 = _mm256_mul_ps(_mm256_sub_ps(one, tx), inv255);
+            let sx2 = _mm256_mul_ps(tx, inv255);
+            let oy = _mm256_sub_ps(one, ty);
+            let w00 = _mm256_mul_ps(sx1, oy);
+            let w01 = _mm256_mul_ps(sx2, oy);
+            let w10 = _mm256_mul_ps(sx1, ty);
+            let w11 = _mm256_mul_ps(sx2, ty);
+            macro_rules! chan {
+                ($t:expr, $shift:literal) => {
+                    _mm256_cvtepi32_ps(_mm256_and_si256(_mm256_srli_epi32::<$shift>($t), byte))
+                };
+            }
+            macro_rules! sample {
+                ($shift:literal) => {{
+                    let s = _mm256_mul_ps(w00, chan!(t00, $shift));
+                    let s = _mm256_fmadd_ps(w01, chan!(t01, $shift), s);
+                    let s = _mm256_fmadd_ps(w10, chan!(t10, $shift), s);
+                    _mm256_fmadd_ps(w11, chan!(t11, $shift), s)
+                }};
+            }
+            let a = sample!(24);
+            let keep = _mm256_sub_ps(one, a);
+            // SAFETY (the four accumulators): x + 8 <= wp, the padded length of each.
+            macro_rules! over {
+                ($ptr:expr, $value:expr) => {{
+                    let p = unsafe { $ptr.add(x) };
+                    let cur = unsafe { _mm256_loadu_ps(p) };
+                    unsafe { _mm256_storeu_ps(p, _mm256_fmadd_ps(keep, cur, $value)) };
+                }};
+            }
+            over!(ar, sample!(0));
+            over!(ag, sample!(8));
+            over!(ab, sample!(16));
+            over!(aa, a);
+        }
+        x += 8;
+    }
+}

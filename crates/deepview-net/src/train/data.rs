@@ -1,0 +1,606 @@
+//! Training tuples: K input views, a target view and a `crop x crop` crop in the target, plus exactly the
+//! MPI window and input-image crops needed to render that crop (supplement, "Reducing Memory Usage").
+//!
+//! Sampling (one tuple):
+//! 1. a scene uniformly; a target among its training views (LLFF/COLMAP/light fields: every 8th view,
+//!    `index % 8 == 0`, is held out as an evaluation target and never used in training, neither as target
+//!    nor as input; Spaces and synthetic scenes hold out nothing by default);
+//! 2. the inputs: the K training views nearest to the target by camera centre (K drawn per batch);
+//! 3. the reference camera: [`deepview_geometry::reference_camera`] of the inputs (centroid, average
+//!    orientation and intrinsics);
+//! 4. plane depths: `D` planes equally spaced in inverse depth between the scene's near and far, the whole
+//!    grid shifted by a random offset of up to half a step (plane-depth jitter, paper section 4);
+//! 5. a uniformly random `crop x crop` crop of the target image.
+//!
+//! The MPI window (in reference-camera pixels): project the target crop's corners through every plane
+//! into the reference camera (`plane_homography(ref, target, d)^-1`), take the bounding box, add 1 px
+//! for the bilinear taps of the final render, then grow it by the model's total receptive-field margin
+//! ([`DeepViewConfig::margin_from`]`(0)`, the sum of every net's margin); the width and height are
+//! rounded up to even numbers (U-Net nets downsample by 2). The model shrinks the window by each net's
+//! margin after that net (`ModelInputs::shrink`), so its output is the bounding box and its values there
+//! have no conv zero-padding effects.
+//!
+//! Input crops: the window's corners projected through every plane into input view k give the part of
+//! that image the window sees; its bounding box grown by 2 px (bilinear taps, edge clamping), clipped to
+//! the image, is the crop. Samples that fall outside the crop also fall outside the image, so plane sweep
+//! volumes and validity are those of the whole image. (The gradient components render the views from the
+//! current window only: the approximation documented in `network.rs`.)
+
+use crate::config::DeepViewConfig;
+use crate::forward::{Hom, crop_output, crop_source};
+use deepview_geometry::{
+    Camera, DVec2, PlaneSpacing, ReferenceOptions, plane_homography, reference_camera,
+};
+use deepview_image::ImageF32;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+
+/// Errors building training data.
+#[derive(Debug, thiserror::Error)]
+pub enum DataError {
+    #[error("cannot load training scene {path}: {source}")]
+    Scene {
+        path: PathBuf,
+        source: deepview_data::DataError,
+    },
+    #[error("training scene {path}: {message}")]
+    Invalid { path: PathBuf, message: String },
+    #[error("no training data: {0}")]
+    Empty(String),
+    #[error("geometry error in scene {scene}: {source}")]
+    Geometry {
+        scene: String,
+        source: deepview_geometry::GeometryError,
+    },
+}
+
+/// A small, serialisable random number generator (SplitMix64): its whole state is one `u64`, saved in
+/// checkpoints so a resumed run draws the same tuples.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Rng {
+    pub state: u64,
+}
+
+impl Rng {
+    pub fn new(seed: u64) -> Self {
+        Self {
+            state: seed ^ 0x5DEE_CE66_D1CE_4E5B,
+        }
+    }
+    pub fn next_u64(&mut self) -> u64 {
+        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.state;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+    /// Uniform in [0, 1).
+    pub fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+    /// Uniform integer in `0..n` (`n > 0`).
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.uniform() * n as f64) as usize % n.max(1)
+    }
+}
+
+/// Which views of a scene are held out (never used in training).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Holdout {
+    /// None.
+    Nothing,
+    /// Every n-th view (`index % n == 0`): the general protocol for posed captures.
+    EveryNth(usize),
+}
+
+/// A scene ready for sampling: cameras, decoded images (cached in memory), depth bounds.
+#[derive(Clone, Debug)]
+pub struct TrainScene {
+    pub name: String,
+    pub cameras: Vec<Camera>,
+    pub images: Vec<ImageF32>,
+    pub near: f64,
+    pub far: f64,
+    /// Views used for training (targets and inputs).
+    pub train_views: Vec<usize>,
+}
+
+impl TrainScene {
+    /// A scene from cameras and RGB images (e.g. a synthetic scene), with a holdout rule.
+    pub fn new(
+        name: &str,
+        cameras: Vec<Camera>,
+        images: Vec<ImageF32>,
+        near: f64,
+        far: f64,
+        holdout: Holdout,
+    ) -> Result<Self, DataError> {
+        let invalid = |message: String| DataError::Invalid {
+            path: PathBuf::from(name),
+            message,
+        };
+        if cameras.len() != images.len() {
+            return Err(invalid(format!(
+                "{} cameras but {} images",
+                cameras.len(),
+                images.len()
+            )));
+        }
+        for (i, (c, im)) in cameras.iter().zip(&images).enumerate() {
+            if (c.width, c.height) != (im.width, im.height) || im.channels != 3 {
+                return Err(invalid(format!(
+                    "view {i}: camera {}x{} but image {}x{}x{}",
+                    c.width, c.height, im.width, im.height, im.channels
+                )));
+            }
+        }
+        if !(near > 0.0 && far > near && far.is_finite()) {
+            return Err(invalid(format!("bad depth bounds near {near}, far {far}")));
+        }
+        let train_views: Vec<usize> = (0..cameras.len())
+            .filter(|i| match holdout {
+                Holdout::Nothing => true,
+                Holdout::EveryNth(n) => n == 0 || i % n != 0,
+            })
+            .collect();
+        if train_views.len() < 2 {
+            return Err(invalid(format!(
+                "{} training views after holding out evaluation views; need at least 2 (one input, one target)",
+                train_views.len()
+            )));
+        }
+        Ok(Self {
+            name: name.to_string(),
+            cameras,
+            images,
+            near,
+            far,
+            train_views,
+        })
+    }
+
+    /// Load a dataset folder with `deepview_data` and decode every image. LLFF, COLMAP and light fields
+    /// hold out every `holdout_every`-th view; Spaces holds out nothing (its test scenes are separate).
+    pub fn load(
+        path: &Path,
+        opts: &deepview_data::LoadOptions,
+        holdout_every: usize,
+    ) -> Result<Self, DataError> {
+        let scene_err = |source| DataError::Scene {
+            path: path.to_path_buf(),
+            source,
+        };
+        let scene = deepview_data::load_scene(path, opts).map_err(scene_err)?;
+        let (near, far) = scene.near_far().map_err(scene_err)?;
+        let images = (0..scene.len())
+            .map(|i| scene.load_image(i))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(scene_err)?;
+        let holdout = match scene.format {
+            deepview_data::SceneFormat::Spaces => Holdout::Nothing,
+            _ if holdout_every > 1 => Holdout::EveryNth(holdout_every),
+            _ => Holdout::Nothing,
+        };
+        Self::new(
+            &path.display().to_string(),
+            scene.cameras(),
+            images,
+            near,
+            far,
+            holdout,
+        )
+    }
+}
+
+/// How tuples are drawn (part of the run's `config.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SampleConfig {
+    /// Target crop side in pixels (paper: 32).
+    pub crop: usize,
+    /// Number of input views, drawn per batch uniformly in `views_min..=views_max`.
+    pub views_min: usize,
+    pub views_max: usize,
+    /// Planes during training.
+    pub planes: usize,
+    /// Random offset of the inverse-depth grid by up to half a step.
+    pub jitter: bool,
+}
+
+/// One training tuple, device-free (plain `f32` data).
+#[derive(Clone, Debug)]
+pub struct Example {
+    pub scene: usize,
+    pub target: usize,
+    pub inputs: Vec<usize>,
+    pub depths: Vec<f64>,
+    /// Input image crops (RGB, interleaved).
+    pub images: Vec<ImageF32>,
+    /// Top-left of each input crop in its full image.
+    pub image_origins: Vec<(u32, u32)>,
+    /// `mpi_to_view[k][d]`: MPI-window pixels of plane d -> pixels of `images[k]`.
+    pub mpi_to_view: Vec<Vec<Hom>>,
+    /// The window: top-left in reference pixels and size.
+    pub window: (i64, i64, usize, usize),
+    /// `window_to_target[d]`: MPI-window pixels of plane d -> target-crop pixels.
+    pub window_to_target: Vec<Hom>,
+    /// Target crop (RGB, interleaved, `crop x crop`) and its top-left in the target image.
+    pub target_crop: ImageF32,
+    pub crop_origin: (u32, u32),
+}
+
+/// All training scenes.
+#[derive(Clone, Debug, Default)]
+pub struct TrainData {
+    pub scenes: Vec<TrainScene>,
+}
+
+/// Plane depths, back to front, with an optional jitter `u` in [-0.5, 0.5] steps of inverse depth.
+pub fn jittered_depths(near: f64, far: f64, planes: usize, u: f64) -> Vec<f64> {
+    if planes <= 1 {
+        return deepview_geometry::plane_depths(
+            near,
+            far,
+            planes.max(1),
+            PlaneSpacing::InverseDepth,
+        )
+        .unwrap_or_else(|_| vec![0.5 * (near + far)]);
+    }
+    let step = (1.0 / near - 1.0 / far) / (planes - 1) as f64;
+    // Keep the farthest plane at a positive inverse depth.
+    let u = u.clamp(-0.5, 0.5).max(-0.9 / (far * step));
+    (0..planes)
+        .map(|i| 1.0 / (1.0 / far + (i as f64 + u) * step))
+        .collect()
+}
+
+fn bbox(points: impl IntoIterator<Item = DVec2>) -> Option<(f64, f64, f64, f64)> {
+    let mut b = (
+        f64::INFINITY,
+        f64::INFINITY,
+        f64::NEG_INFINITY,
+        f64::NEG_INFINITY,
+    );
+    for p in points {
+        if !p.is_finite() {
+            return None;
+        }
+        b = (b.0.min(p.x), b.1.min(p.y), b.2.max(p.x), b.3.max(p.y));
+    }
+    Some(b)
+}
+
+fn apply(h: &Hom, x: f64, y: f64) -> Option<DVec2> {
+    let w = h[6] * x + h[7] * y + h[8];
+    if w <= 0.0 {
+        return None;
+    }
+    Some(DVec2::new(
+        (h[0] * x + h[1] * y + h[2]) / w,
+        (h[3] * x + h[4] * y + h[5]) / w,
+    ))
+}
+
+impl TrainData {
+    pub fn new(scenes: Vec<TrainScene>) -> Result<Self, DataError> {
+        if scenes.is_empty() {
+            return Err(DataError::Empty("no scenes given".into()));
+        }
+        Ok(Self { scenes })
+    }
+
+    /// Load several dataset folders.
+    pub fn load(
+        paths: &[PathBuf],
+        opts: &deepview_data::LoadOptions,
+        holdout_every: usize,
+    ) -> Result<Self, DataError> {
+        Self::new(
+            paths
+                .iter()
+                .map(|p| TrainScene::load(p, opts, holdout_every))
+                .collect::<Result<_, _>>()?,
+        )
+    }
+
+    /// Draw the number of input views for a batch.
+    pub fn draw_views(&self, cfg: &SampleConfig, rng: &mut Rng) -> usize {
+        let lo = cfg.views_min.max(1);
+        let hi = cfg.views_max.max(lo);
+        lo + rng.below(hi - lo + 1)
+    }
+
+    /// Draw one tuple with `views` inputs (fewer if the scene has fewer training views).
+    pub fn sample(
+        &self,
+        cfg: &SampleConfig,
+        model: &DeepViewConfig,
+        views: usize,
+        rng: &mut Rng,
+    ) -> Result<Example, DataError> {
+        let si = rng.below(self.scenes.len());
+        let s = &self.scenes[si];
+        let target = s.train_views[rng.below(s.train_views.len())];
+        let u = if cfg.jitter { rng.uniform() - 0.5 } else { 0.0 };
+        let depths = jittered_depths(s.near, s.far, cfg.planes, u);
+        let tcam = &s.cameras[target];
+        let c = cfg.crop as u32;
+        if tcam.width < c || tcam.height < c {
+            return Err(DataError::Invalid {
+                path: s.name.clone().into(),
+                message: format!(
+                    "view {target} ({}x{}) is smaller than the {c}x{c} crop",
+                    tcam.width, tcam.height
+                ),
+            });
+        }
+        let cx0 = rng.below((tcam.width - c + 1) as usize) as u32;
+        let cy0 = rng.below((tcam.height - c + 1) as usize) as u32;
+        self.example(
+            si,
+            target,
+            views,
+            depths,
+            (cx0, cy0),
+            cfg.crop,
+            model.margin_from(0),
+        )
+    }
+
+    /// Build the tuple for a given scene, target, input count, plane depths and target crop.
+    pub fn example(
+        &self,
+        si: usize,
+        target: usize,
+        views: usize,
+        depths: Vec<f64>,
+        crop_origin: (u32, u32),
+        crop: usize,
+        margin: usize,
+    ) -> Result<Example, DataError> {
+        let s = &self.scenes[si];
+        let geo = |source| DataError::Geometry {
+            scene: s.name.clone(),
+            source,
+        };
+        let tcam = s.cameras[target];
+        // K nearest other training views (ties broken by index).
+        let mut others: Vec<(f64, usize)> = s
+            .train_views
+            .iter()
+            .filter(|&&v| v != target)
+            .map(|&v| ((s.cameras[v].center() - tcam.center()).length(), v))
+            .collect();
+        others.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let inputs: Vec<usize> = others.iter().take(views.max(1)).map(|x| x.1).collect();
+        let in_cams: Vec<Camera> = inputs.iter().map(|&i| s.cameras[i]).collect();
+        let reference = reference_camera(&in_cams, &ReferenceOptions::default()).map_err(geo)?;
+
+        // Window: target crop corners through every plane into the reference camera.
+        let (cx0, cy0) = (crop_origin.0 as f64, crop_origin.1 as f64);
+        let cf = crop as f64;
+        let corners = [
+            (cx0, cy0),
+            (cx0 + cf, cy0),
+            (cx0, cy0 + cf),
+            (cx0 + cf, cy0 + cf),
+        ];
+        let ref_to_target: Vec<Hom> = depths
+            .iter()
+            .map(|&d| plane_homography(&reference, &tcam, d).to_row_major())
+            .collect();
+        let mut pts = Vec::new();
+        for h in &ref_to_target {
+            let inv = crate::forward::invert(h);
+            for &(x, y) in &corners {
+                pts.push(apply(&inv, x, y).unwrap_or(DVec2::NAN));
+            }
+        }
+        let invalid = |message: String| DataError::Invalid {
+            path: s.name.clone().into(),
+            message,
+        };
+        let (bx0, by0, bx1, by1) = bbox(pts).ok_or_else(|| {
+            invalid(format!("the target view {target}'s crop is not visible on every plane from the reference camera"))
+        })?;
+        let m = margin as f64 + 1.0;
+        let (wx0, wy0) = ((bx0 - m).floor(), (by0 - m).floor());
+        let (mut ww, mut wh) = (
+            ((bx1 + m).ceil() - wx0) as usize,
+            ((by1 + m).ceil() - wy0) as usize,
+        );
+        ww += ww % 2;
+        wh += wh % 2;
+        if ww * wh > 4096 * 4096 {
+            return Err(invalid(format!(
+                "MPI window of {ww}x{wh} px for one crop: depth bounds too wide?"
+            )));
+        }
+
+        // Input crops: what the window sees on all planes.
+        let mut images = Vec::with_capacity(inputs.len());
+        let mut image_origins = Vec::with_capacity(inputs.len());
+        let mut mpi_to_view = Vec::with_capacity(inputs.len());
+        for &v in &inputs {
+            let cam = s.cameras[v];
+            let homs: Vec<Hom> = depths
+                .iter()
+                .map(|&d| {
+                    crop_output(
+                        &plane_homography(&reference, &cam, d).to_row_major(),
+                        wx0,
+                        wy0,
+                    )
+                })
+                .collect();
+            let (w, h) = (cam.width as f64, cam.height as f64);
+            let mut pts = Vec::new();
+            for hm in &homs {
+                for (x, y) in [
+                    (0.0, 0.0),
+                    (ww as f64, 0.0),
+                    (0.0, wh as f64),
+                    (ww as f64, wh as f64),
+                ] {
+                    pts.push(apply(hm, x, y).unwrap_or(DVec2::NAN));
+                }
+            }
+            let (ix0, iy0, ix1, iy1) = match bbox(pts) {
+                Some((x0, y0, x1, y1)) => {
+                    let x0 = ((x0 - 2.0).floor().max(0.0)).min(w - 1.0);
+                    let y0 = ((y0 - 2.0).floor().max(0.0)).min(h - 1.0);
+                    (
+                        (x0),
+                        (y0),
+                        (x1 + 2.0).ceil().min(w).max(x0 + 1.0),
+                        (y1 + 2.0).ceil().min(h).max(y0 + 1.0),
+                    )
+                }
+                None => (0.0, 0.0, w, h),
+            };
+            let (ix0, iy0, iw, ih) = (
+                ix0 as u32,
+                iy0 as u32,
+                (ix1 - ix0) as u32,
+                (iy1 - iy0) as u32,
+            );
+            images.push(s.images[v].crop(ix0, iy0, iw, ih));
+            image_origins.push((ix0, iy0));
+            mpi_to_view.push(
+                homs.iter()
+                    .map(|hm| crop_source(hm, ix0 as f64, iy0 as f64))
+                    .collect(),
+            );
+        }
+        let window_to_target = ref_to_target
+            .iter()
+            .map(|h| crop_source(&crop_output(h, wx0, wy0), cx0, cy0))
+            .collect();
+        let target_crop =
+            s.images[target].crop(crop_origin.0, crop_origin.1, crop as u32, crop as u32);
+        Ok(Example {
+            scene: si,
+            target,
+            inputs,
+            depths,
+            images,
+            image_origins,
+            mpi_to_view,
+            window: (wx0 as i64, wy0 as i64, ww, wh),
+            window_to_target,
+            target_crop,
+            crop_origin,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::train::synthetic::two_plane_scene;
+
+    #[test]
+    fn jitter_keeps_spacing_and_bounds() {
+        let d = jittered_depths(1.0, 10.0, 5, 0.0);
+        assert!((d[0] - 10.0).abs() < 1e-9 && (d[4] - 1.0).abs() < 1e-9);
+        let j = jittered_depths(1.0, 10.0, 5, 0.5);
+        let step = (1.0 - 0.1) / 4.0;
+        for (a, b) in d.iter().zip(&j) {
+            assert!((1.0 / b - 1.0 / a - 0.5 * step).abs() < 1e-9);
+        }
+        assert!(
+            jittered_depths(1.0, 1e9, 3, -0.5)
+                .iter()
+                .all(|x| x.is_finite() && *x > 0.0)
+        );
+    }
+
+    #[test]
+    fn holdout_every_8th() {
+        let s = two_plane_scene(3, 3, 24, 0.1);
+        let t = TrainScene::new(
+            "t",
+            s.cameras,
+            s.images,
+            s.near,
+            s.far,
+            Holdout::EveryNth(8),
+        )
+        .unwrap();
+        assert_eq!(t.train_views, vec![1, 2, 3, 4, 5, 6, 7]);
+    }
+
+    /// The window covers everything the target crop samples on every plane, after the model's shrink;
+    /// input crops cover every in-image sample of the window.
+    #[test]
+    fn window_and_crops_cover_what_is_needed() {
+        let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.15)]).unwrap();
+        let cfg = SampleConfig {
+            crop: 16,
+            views_min: 2,
+            views_max: 4,
+            planes: 6,
+            jitter: true,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let margin = model.margin_from(0);
+        let mut rng = Rng::new(3);
+        for _ in 0..20 {
+            let k = data.draw_views(&cfg, &mut rng);
+            let ex = data.sample(&cfg, &model, k, &mut rng).unwrap();
+            assert_eq!(ex.inputs.len(), k);
+            assert!(!ex.inputs.contains(&ex.target));
+            let (_, _, ww, wh) = ex.window;
+            assert!(ww % 2 == 0 && wh % 2 == 0);
+            // Target-crop pixel centres land inside the shrunk window (with 1 px for bilinear taps).
+            for h in &ex.window_to_target {
+                let inv = crate::forward::invert(h);
+                for (x, y) in [
+                    (0.5, 0.5),
+                    (15.5, 0.5),
+                    (0.5, 15.5),
+                    (15.5, 15.5),
+                    (8.0, 8.0),
+                ] {
+                    let p = apply(&inv, x, y).unwrap();
+                    assert!(
+                        p.x >= (margin + 1) as f64 - 1e-6 && p.x <= (ww - margin - 1) as f64 + 1e-6,
+                        "{p:?} {ww}"
+                    );
+                    assert!(
+                        p.y >= (margin + 1) as f64 - 1e-6 && p.y <= (wh - margin - 1) as f64 + 1e-6,
+                        "{p:?} {wh}"
+                    );
+                }
+            }
+            // Every window sample that falls inside the full image falls inside the crop.
+            let s = &data.scenes[0];
+            for (k, &v) in ex.inputs.iter().enumerate() {
+                let cam = s.cameras[v];
+                let (crop, (ox, oy)) = (&ex.images[k], ex.image_origins[k]);
+                for h in &ex.mpi_to_view[k] {
+                    for (x, y) in [
+                        (0.5, 0.5),
+                        (ww as f64 - 0.5, wh as f64 - 0.5),
+                        (ww as f64 / 2.0, 0.5),
+                        (0.5, wh as f64 / 2.0),
+                    ] {
+                        let p = apply(h, x, y).unwrap();
+                        let q = (p.x + ox as f64, p.y + oy as f64);
+                        if q.0 >= 0.0
+                            && q.1 >= 0.0
+                            && q.0 <= cam.width as f64
+                            && q.1 <= cam.height as f64
+                        {
+                            assert!(
+                                p.x >= 0.0
+                                    && p.y >= 0.0
+                                    && p.x <= crop.width as f64
+                                    && p.y <= crop.height as f64
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}

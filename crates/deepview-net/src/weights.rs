@@ -1,0 +1,330 @@
+//! Weights I/O: a directory with `config.json` ([`DeepViewConfig`]) and `model.safetensors` (the
+//! [`DeepViewModel`] tensors, named by their module path, e.g. `nets.0.input.1.weight`).
+//!
+//! Loading checks everything a user can get wrong and names the file and the tensor: unreadable or
+//! truncated files, weights saved for another configuration (missing tensors, shape mismatches),
+//! non-finite weights, and (with [`check_views`]) a view count the weights were not trained for.
+
+use crate::config::{ConfigError, DeepViewConfig};
+use crate::network::DeepViewModel;
+use burn::module::Param;
+use burn::nn::conv::Conv2d;
+use burn::store::{ModuleSnapshot, SafetensorsStore};
+use burn::tensor::Device;
+use std::path::{Path, PathBuf};
+
+pub const CONFIG_FILE: &str = "config.json";
+pub const WEIGHTS_FILE: &str = "model.safetensors";
+
+#[derive(Debug, thiserror::Error)]
+pub enum WeightsError {
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: invalid config: {msg}")]
+    Config { path: PathBuf, msg: String },
+    #[error("{path}: not a readable safetensors file (truncated or corrupt?): {msg}")]
+    Corrupt { path: PathBuf, msg: String },
+    #[error("{path}: weights do not match the config in {config}: {msg}")]
+    Mismatch {
+        path: PathBuf,
+        config: PathBuf,
+        msg: String,
+    },
+    #[error("{path}: tensor {tensor} contains non-finite values (NaN or infinity)")]
+    NonFinite { path: PathBuf, tensor: String },
+    #[error(
+        "these weights were trained for exactly {expected} input views, got {got} (config {config})"
+    )]
+    WrongViews {
+        expected: usize,
+        got: usize,
+        config: String,
+    },
+}
+
+fn io(path: &Path) -> impl FnOnce(std::io::Error) -> WeightsError + '_ {
+    move |source| WeightsError::Io {
+        path: path.to_path_buf(),
+        source,
+    }
+}
+
+/// Write `bytes` to `path` atomically (temp file in the same directory, then rename).
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), WeightsError> {
+    let tmp = path.with_extension("tmp-write");
+    std::fs::write(&tmp, bytes).map_err(io(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io(path))
+}
+
+/// Save `model` and `config` into `dir` (created if needed).
+pub fn save_model(
+    dir: &Path,
+    model: &DeepViewModel,
+    config: &DeepViewConfig,
+) -> Result<(), WeightsError> {
+    std::fs::create_dir_all(dir).map_err(io(dir))?;
+    let weights = dir.join(WEIGHTS_FILE);
+    let mut store = SafetensorsStore::from_bytes(None);
+    model
+        .save_into(&mut store)
+        .map_err(|e| WeightsError::Corrupt {
+            path: weights.clone(),
+            msg: e.to_string(),
+        })?;
+    let bytes = store.get_bytes().map_err(|e| WeightsError::Corrupt {
+        path: weights.clone(),
+        msg: e.to_string(),
+    })?;
+    write_atomic(&weights, &bytes)?;
+    let json = serde_json::to_string_pretty(config).expect("config serialises");
+    write_atomic(&dir.join(CONFIG_FILE), json.as_bytes())
+}
+
+/// Read `dir/config.json`.
+pub fn load_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
+    let path = dir.join(CONFIG_FILE);
+    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
+    let config: DeepViewConfig = serde_json::from_str(&text).map_err(|e| WeightsError::Config {
+        path: path.clone(),
+        msg: e.to_string(),
+    })?;
+    config
+        .validate()
+        .map_err(|e: ConfigError| WeightsError::Config {
+            path,
+            msg: e.to_string(),
+        })?;
+    Ok(config)
+}
+
+/// Load the model saved in `dir` onto `device`.
+pub fn load_model(
+    dir: &Path,
+    device: &Device,
+) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    let config = load_config(dir)?;
+    let path = dir.join(WEIGHTS_FILE);
+    let bytes = std::fs::read(&path).map_err(io(&path))?;
+    let mut model = DeepViewModel::new(&config, device);
+    let mut store = SafetensorsStore::from_bytes(Some(bytes))
+        .allow_partial(true)
+        .validate(false);
+    let result = model
+        .load_from(&mut store)
+        .map_err(|e| WeightsError::Corrupt {
+            path: path.clone(),
+            msg: e.to_string(),
+        })?;
+    let mismatch = |msg: String| WeightsError::Mismatch {
+        path: path.clone(),
+        config: dir.join(CONFIG_FILE),
+        msg,
+    };
+    if let Some(e) = result.errors.first() {
+        return Err(mismatch(format!("{e:?}")));
+    }
+    if let Some((name, _)) = result.missing.first() {
+        return Err(mismatch(format!(
+            "tensor {name} is missing ({} missing in all)",
+            result.missing.len()
+        )));
+    }
+    if let Some(name) = result.unused.first() {
+        return Err(mismatch(format!(
+            "the file has tensor {name} that the config has no place for"
+        )));
+    }
+    if let Some(tensor) = first_non_finite(&model) {
+        return Err(WeightsError::NonFinite { path, tensor });
+    }
+    Ok((model, config))
+}
+
+/// Refuse a view count that weights trained for a fixed number of views cannot take.
+pub fn check_views(config: &DeepViewConfig, views: usize) -> Result<(), WeightsError> {
+    match config.views {
+        Some(k) if k != views => Err(WeightsError::WrongViews {
+            expected: k,
+            got: views,
+            config: config.name.clone(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+fn param_non_finite<const D: usize>(p: &Param<burn::tensor::Tensor<D>>) -> bool {
+    let v = p.val();
+    let finite: bool = v.is_finite().all().into_scalar();
+    !finite
+}
+
+fn conv_non_finite(c: &Conv2d, name: &str) -> Option<String> {
+    if param_non_finite(&c.weight) {
+        return Some(format!("{name}.weight"));
+    }
+    match &c.bias {
+        Some(b) if param_non_finite(b) => Some(format!("{name}.bias")),
+        _ => None,
+    }
+}
+
+/// The module path of the first tensor with a NaN or infinity.
+pub fn first_non_finite(model: &DeepViewModel) -> Option<String> {
+    for (n, net) in model.nets.iter().enumerate() {
+        let convs = net
+            .input
+            .iter()
+            .enumerate()
+            .map(|(i, c)| (c, format!("nets.{n}.input.{i}")))
+            .chain(
+                net.stages
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| (c, format!("nets.{n}.stages.{i}"))),
+            )
+            .chain([
+                (&net.head, format!("nets.{n}.head")),
+                (&net.out, format!("nets.{n}.out")),
+            ]);
+        for (c, name) in convs {
+            if let Some(t) = conv_non_finite(c, &name) {
+                return Some(t);
+            }
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::Tensor;
+
+    fn cfg() -> DeepViewConfig {
+        DeepViewConfig {
+            features_large: 4,
+            features_small: 3,
+            updates: 1,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        }
+    }
+
+    #[test]
+    fn round_trip_gives_identical_outputs() {
+        let dev = Device::flex();
+        let dir = tempfile::tempdir().unwrap();
+        let model = DeepViewModel::new(&cfg(), &dev);
+        save_model(dir.path(), &model, &cfg()).unwrap();
+        let (loaded, c2) = load_model(dir.path(), &dev).unwrap();
+        assert_eq!(c2, cfg());
+        let inputs = crate::network::synthetic_inputs(2, 3, 12, 14, &dev);
+        let a = model.forward(&inputs).rgba;
+        let b = loaded.forward(&inputs).rgba;
+        let d: f32 = (a - b).abs().max().into_scalar();
+        assert_eq!(d, 0.0);
+    }
+
+    #[test]
+    fn truncated_file_is_refused() {
+        let dev = Device::flex();
+        let dir = tempfile::tempdir().unwrap();
+        save_model(dir.path(), &DeepViewModel::new(&cfg(), &dev), &cfg()).unwrap();
+        let p = dir.path().join(WEIGHTS_FILE);
+        let bytes = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+        let e = load_model(dir.path(), &dev).unwrap_err();
+        assert!(matches!(e, WeightsError::Corrupt { .. }), "{e}");
+        assert!(e.to_string().contains(WEIGHTS_FILE));
+        std::fs::remove_file(&p).unwrap();
+        assert!(matches!(
+            load_model(dir.path(), &dev).unwrap_err(),
+            WeightsError::Io { .. }
+        ));
+    }
+
+    #[test]
+    fn weights_of_another_config_name_the_tensor() {
+        let dev = Device::flex();
+        let dir = tempfile::tempdir().unwrap();
+        save_model(dir.path(), &DeepViewModel::new(&cfg(), &dev), &cfg()).unwrap();
+        // Same files, but the config now asks for more features.
+        let other = DeepViewConfig {
+            features_large: 5,
+            ..cfg()
+        };
+        std::fs::write(
+            dir.path().join(CONFIG_FILE),
+            serde_json::to_string(&other).unwrap(),
+        )
+        .unwrap();
+        let e = load_model(dir.path(), &dev).unwrap_err().to_string();
+        assert!(
+            e.contains("nets.0.input.0.weight") || e.contains("nets.0."),
+            "{e}"
+        );
+        assert!(e.contains("Shape") || e.contains("shape"), "{e}");
+        // More nets than the file has: a missing tensor is named.
+        let more = DeepViewConfig {
+            updates: 2,
+            ..cfg()
+        };
+        std::fs::write(
+            dir.path().join(CONFIG_FILE),
+            serde_json::to_string(&more).unwrap(),
+        )
+        .unwrap();
+        let e = load_model(dir.path(), &dev).unwrap_err().to_string();
+        assert!(e.contains("nets.2."), "{e}");
+    }
+
+    #[test]
+    fn nan_weights_are_refused() {
+        let dev = Device::flex();
+        let dir = tempfile::tempdir().unwrap();
+        let mut model = DeepViewModel::new(&cfg(), &dev);
+        let w = model.nets[1].head.weight.val();
+        let bad = w.clone().mask_fill(w.ones_like().equal_elem(1.0), f32::NAN);
+        model.nets[1].head.weight = Param::from_tensor(bad);
+        save_model(dir.path(), &model, &cfg()).unwrap();
+        let e = load_model(dir.path(), &dev).unwrap_err();
+        assert!(
+            matches!(&e, WeightsError::NonFinite { tensor, .. } if tensor == "nets.1.head.weight"),
+            "{e}"
+        );
+        let _ = Tensor::<1>::zeros([1], &dev);
+    }
+
+    #[test]
+    fn fixed_view_count_is_checked() {
+        let k = DeepViewConfig::preset("paper-kalantari").unwrap();
+        assert!(check_views(&k, 4).is_ok());
+        let e = check_views(&k, 3).unwrap_err().to_string();
+        assert!(e.contains("exactly 4") && e.contains("got 3"), "{e}");
+        assert!(check_views(&DeepViewConfig::preset("cpu").unwrap(), 7).is_ok());
+        // A corrupt config file is reported with its path.
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(CONFIG_FILE), "{ not json").unwrap();
+        let e = load_config(dir.path()).unwrap_err().to_string();
+        assert!(e.contains(CONFIG_FILE), "{e}");
+    }
+
+    /// Untrained `cpu` weights for smoke-testing `deepview infer`:
+    /// `DEEPVIEW_WEIGHTS_OUT=/tmp/w cargo test --release -p deepview-net -- --ignored write_untrained`
+    #[test]
+    #[ignore]
+    fn write_untrained_cpu_weights() {
+        let Ok(out) = std::env::var("DEEPVIEW_WEIGHTS_OUT") else {
+            return;
+        };
+        let c = DeepViewConfig::preset("cpu").unwrap();
+        save_model(
+            Path::new(&out),
+            &DeepViewModel::new(&c, &Device::flex()),
+            &c,
+        )
+        .unwrap();
+    }
+}

@@ -1,0 +1,9 @@
+//! Synthetic scenes with ground truth: procedural planar layers ([`scene`]) rendered through a camera rig
+//! (a generated light-field grid, or the cameras of any dataset folder) and written in that rig's own
+//! format, plus the ground-truth MPI ([`write`]).
+
+pub mod scene;
+pub mod write;
+
+pub use scene::{Layer, SynthScene};
+pub use write::{Rig, SynthOptions, SynthOutput, synthesize};

@@ -1,0 +1,177 @@
+//! Rendering a synthetic scene through a rig and writing it in the rig's own dataset format.
+
+use crate::scene::SynthScene;
+use deepview_data::{
+    DataError, LoadOptions, SceneFormat, light_field_cameras, load_scene, write_colmap_text,
+    write_light_field, write_llff, write_spaces_models,
+};
+use deepview_geometry::{Camera, PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
+use deepview_image::{ImageF32, write_atomic};
+use deepview_mpi::{Mpi, write_mpi};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+#[derive(Debug, thiserror::Error)]
+pub enum SynthError {
+    #[error(transparent)]
+    Data(#[from] DataError),
+    #[error(transparent)]
+    Mpi(#[from] deepview_mpi::MpiError),
+    #[error(transparent)]
+    Image(#[from] deepview_image::ImageError),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Which cameras to render through.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Rig {
+    /// A generated `n x n` light-field grid of `width x height` views (HCI layout on disk).
+    Grid { side: usize, width: u32, height: u32 },
+    /// The cameras of a dataset folder (Spaces `models.json`, LLFF, COLMAP or light field); the output is
+    /// written in the same format.
+    Dataset { path: PathBuf, options: LoadOptions },
+}
+
+#[derive(Clone, Debug)]
+pub struct SynthOptions {
+    pub rig: Rig,
+    pub seed: u64,
+    /// Planes of the ground-truth MPI (the scene's layers sit on some of them).
+    pub planes: usize,
+    /// Depth range; default: the rig's own bounds, else 1..10 (Spaces' models.json has none).
+    pub near_far: Option<(f64, f64)>,
+    /// Rays per pixel side for the images (1 = one ray through the pixel centre).
+    pub supersample: u32,
+}
+
+impl Default for SynthOptions {
+    fn default() -> Self {
+        Self {
+            rig: Rig::Grid { side: 4, width: 256, height: 192 },
+            seed: 1,
+            planes: 32,
+            near_far: None,
+            supersample: 1,
+        }
+    }
+}
+
+/// What [`synthesize`] made.
+#[derive(Clone, Debug)]
+pub struct SynthOutput {
+    pub format: SceneFormat,
+    pub cameras: Vec<Camera>,
+    pub ground_truth: Mpi,
+    pub scene: SynthScene,
+    pub near_far: (f64, f64),
+}
+
+#[derive(Serialize)]
+struct SynthInfo<'a> {
+    generator: &'static str,
+    seed: u64,
+    format: String,
+    near: f64,
+    far: f64,
+    planes: usize,
+    layer_depths: Vec<f64>,
+    views: usize,
+    ground_truth_mpi: &'a str,
+}
+
+/// Build a scene, render it through the rig and write `out` as a dataset of the rig's format, with
+/// `out/ground_truth_mpi/` (the exact MPI) and `out/synth.json` (how it was made).
+pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, SynthError> {
+    if options.planes < 2 {
+        return Err(SynthError::Invalid(format!("--planes must be at least 2 (got {})", options.planes)));
+    }
+    std::fs::create_dir_all(out).map_err(|e| DataError::Write { path: out.into(), source: e })?;
+    let (format, cameras, rig_bounds, source) = match &options.rig {
+        Rig::Grid { side, width, height } => {
+            if *side < 2 {
+                return Err(SynthError::Invalid("a grid rig needs at least 2 x 2 views".into()));
+            }
+            let lf = light_field_cameras(*side, *side, *width, *height);
+            // Disparities of -2..+2 px per grid step, as in the HCI benchmark scenes.
+            (SceneFormat::LightField, lf.cameras(), Some(lf.depth_bounds(-2.0, 2.0)), None)
+        }
+        Rig::Dataset { path, options } => {
+            let scene = load_scene(path, options)?;
+            (scene.format, scene.cameras(), scene.depth_bounds, Some(scene))
+        }
+    };
+    let (near, far) = options.near_far.or(rig_bounds).unwrap_or((1.0, 10.0));
+    let depths = plane_depths(near, far, options.planes, PlaneSpacing::InverseDepth)
+        .map_err(|e| SynthError::Invalid(e.to_string()))?;
+    let reference = reference_camera(
+        &cameras,
+        &ReferenceOptions { cover: Some((near, far)), max_margin: 0.5, ..Default::default() },
+    )
+    .map_err(|e| SynthError::Invalid(e.to_string()))?;
+    let scene = SynthScene::generate(reference, &depths, options.seed);
+    let images: Vec<ImageF32> = cameras.iter().map(|c| scene.render(c, options.supersample)).collect();
+
+    match format {
+        SceneFormat::LightField => {
+            let side = (cameras.len() as f64).sqrt().round() as usize;
+            write_light_field(out, side, side, &images, None)?;
+        }
+        SceneFormat::Llff => {
+            let src = source.as_ref().expect("dataset rig");
+            // Keep the source's resolution folder: factor = full size / loaded size.
+            let factor = src
+                .views
+                .first()
+                .and_then(|v| v.image_path.parent())
+                .and_then(|p| p.file_name())
+                .and_then(|n| n.to_str())
+                .and_then(|n| n.strip_prefix("images_"))
+                .and_then(|f| f.parse().ok())
+                .unwrap_or(1);
+            let bounds = vec![(near, far); cameras.len()];
+            write_llff(out, &cameras, &bounds, &images, factor)?;
+        }
+        SceneFormat::Colmap => {
+            let names: Vec<String> = (0..cameras.len()).map(|i| format!("image{i:03}.png")).collect();
+            let sparse = out.join("sparse").join("0");
+            std::fs::create_dir_all(&sparse).map_err(|e| DataError::Write { path: sparse.clone(), source: e })?;
+            write_colmap_text(&sparse, &names, &cameras, &scene.sample_points(2000))?;
+            let img_dir = out.join("images");
+            for (name, img) in names.iter().zip(&images) {
+                write_image(&img_dir.join(name), img)?;
+            }
+        }
+        SceneFormat::Spaces => {
+            let paths: Vec<String> = (0..cameras.len()).map(|i| format!("cam_{i:02}/image_000.png")).collect();
+            write_spaces_models(&out.join("models.json"), &[cameras.clone()], &[paths.clone()])?;
+            for (p, img) in paths.iter().zip(&images) {
+                write_image(&out.join(p), img)?;
+            }
+        }
+    }
+    let ground_truth = scene.ground_truth_mpi(&depths).map_err(SynthError::Invalid)?;
+    write_mpi(&out.join("ground_truth_mpi"), &ground_truth)?;
+    let info = SynthInfo {
+        generator: "deepview synth",
+        seed: options.seed,
+        format: format.to_string(),
+        near,
+        far,
+        planes: options.planes,
+        layer_depths: scene.layers.iter().map(|l| l.depth).collect(),
+        views: cameras.len(),
+        ground_truth_mpi: "ground_truth_mpi",
+    };
+    let json = serde_json::to_string_pretty(&info).expect("serialises");
+    write_atomic(&out.join("synth.json"), json.as_bytes())?;
+    Ok(SynthOutput { format, cameras, ground_truth, scene, near_far: (near, far) })
+}
+
+fn write_image(path: &Path, img: &ImageF32) -> Result<(), SynthError> {
+    if let Some(dir) = path.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| DataError::Write { path: dir.into(), source: e })?;
+    }
+    deepview_image::write_png(path, img)?;
+    Ok(())
+}
