@@ -67,7 +67,7 @@ impl Default for PsvMeanOptions {
     fn default() -> Self {
         Self {
             planes: 32,
-            temperature: 0.002,
+            temperature: 0.0005,
             single_view_variance: 0.02,
         }
     }

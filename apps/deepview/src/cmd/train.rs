@@ -3,7 +3,9 @@
 use anyhow::{Context, bail};
 use deepview_net::config::DeepViewConfig;
 use deepview_net::loss::LossKind;
-use deepview_net::train::{RunConfig, TrainConfig, Trainer, install_ctrlc, list_checkpoints, load_data};
+use deepview_net::train::{
+    RunConfig, TrainConfig, Trainer, install_ctrlc, list_checkpoints, load_data,
+};
 use std::path::PathBuf;
 
 /// Train the network (Adam, lr 1.5e-4, global gradient clipping at 8, VGG feature loss on 32x32 target
@@ -11,9 +13,11 @@ use std::path::PathBuf;
 /// checkpoints/step-NNNNNNN/ (the last 3 are kept). Ctrl-C saves a checkpoint and exits; `--resume`
 /// continues a run exactly where its last checkpoint left it.
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Examples:\n  deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000\n  \
+#[command(
+    after_help = "Examples:\n  deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000\n  \
     deepview train --name fern --resume --steps 4000\n  \
-    deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu")]
+    deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu"
+)]
 pub struct Args {
     /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
     /// built-in analytic scene. With --resume, defaults to the run's own list.
@@ -80,7 +84,11 @@ pub struct Args {
 }
 
 fn parse_views(s: &str) -> anyhow::Result<(usize, usize)> {
-    let parse = |t: &str| t.trim().parse::<usize>().with_context(|| format!("--views: {t:?} is not a number"));
+    let parse = |t: &str| {
+        t.trim()
+            .parse::<usize>()
+            .with_context(|| format!("--views: {t:?} is not a number"))
+    };
     let (a, b) = match s.split_once("..") {
         Some((a, b)) => (parse(a)?, parse(b.trim_start_matches('='))?),
         None => (parse(s)?, parse(s)?),
@@ -92,7 +100,12 @@ fn parse_views(s: &str) -> anyhow::Result<(usize, usize)> {
 }
 
 fn device_list(s: &Option<String>) -> Option<Vec<String>> {
-    s.as_ref().map(|s| s.split(',').map(|d| d.trim().to_string()).filter(|d| !d.is_empty()).collect())
+    s.as_ref().map(|s| {
+        s.split(',')
+            .map(|d| d.trim().to_string())
+            .filter(|d| !d.is_empty())
+            .collect()
+    })
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -100,12 +113,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let opts = args.scene.load_options();
     let mut trainer = if args.resume && !list_checkpoints(&run_dir)?.is_empty() {
         let cfg_path = run_dir.join("config.json");
-        let text = std::fs::read_to_string(&cfg_path).with_context(|| format!("cannot read {}", cfg_path.display()))?;
-        let cfg: RunConfig = serde_json::from_str(&text).with_context(|| format!("invalid {}", cfg_path.display()))?;
-        let paths = if args.data.is_empty() { cfg.train.data.clone() } else { args.data.clone() };
+        let text = std::fs::read_to_string(&cfg_path)
+            .with_context(|| format!("cannot read {}", cfg_path.display()))?;
+        let cfg: RunConfig = serde_json::from_str(&text)
+            .with_context(|| format!("invalid {}", cfg_path.display()))?;
+        let paths = if args.data.is_empty() {
+            cfg.train.data.clone()
+        } else {
+            args.data.clone()
+        };
         let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
         let t = Trainer::resume(&run_dir, data, args.steps, device_list(&args.devices))?;
-        eprintln!("resuming {} at step {} of {}", run_dir.display(), t.step, t.config.train.steps);
+        eprintln!(
+            "resuming {} at step {} of {}",
+            run_dir.display(),
+            t.step,
+            t.config.train.steps
+        );
         t
     } else {
         if args.data.is_empty() {
@@ -147,11 +171,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let stop = install_ctrlc()?;
     let start_step = trainer.step;
     let reports = trainer.run(&stop, !args.quiet)?;
-    let last: Vec<f64> = reports.iter().rev().take(50).filter(|r| r.skipped.is_none()).map(|r| r.loss).collect();
+    let last: Vec<f64> = reports
+        .iter()
+        .rev()
+        .take(50)
+        .filter(|r| r.skipped.is_none())
+        .map(|r| r.loss)
+        .collect();
     let skipped = reports.iter().filter(|r| r.skipped.is_some()).count();
     eprintln!(
         "{} at step {} ({} steps this session, {skipped} skipped, {:.3} steps/s); mean loss of the last {}: {:.5}",
-        if stop.load(std::sync::atomic::Ordering::SeqCst) { "stopped" } else { "done" },
+        if stop.load(std::sync::atomic::Ordering::SeqCst) {
+            "stopped"
+        } else {
+            "done"
+        },
         trainer.step,
         trainer.step - start_step,
         trainer.steps_per_second(),

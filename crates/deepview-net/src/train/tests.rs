@@ -236,12 +236,18 @@ fn bad_devices_and_configs_are_errors() {
 }
 
 /// Smoke test: on one tiny synthetic scene the loss must fall by a set factor within a bounded number of
-/// steps (cpu preset with fewer planes, L1 loss, a raised learning rate so it fits in seconds).
+/// steps (the tiny network, L1 loss, a raised learning rate 3e-3 so it fits in ~30 s; measured: the
+/// 20-step mean falls from 0.144 to 0.044 in 200 steps).
 #[test]
 fn overfits_a_tiny_scene() {
     let dir = tempfile::tempdir().unwrap();
-    let env = |k: &str, d: f64| std::env::var(k).ok().and_then(|v| v.parse().ok()).unwrap_or(d);
-    let steps = env("OVERFIT_STEPS", 120.0) as u64;
+    let env = |k: &str, d: f64| {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let steps = env("OVERFIT_STEPS", 200.0) as u64;
     let mut cfg = small_config(steps, &["cpu"], 1);
     cfg.train.learning_rate = env("OVERFIT_LR", 3e-3);
     cfg.train.sample.views_min = 3;
@@ -250,9 +256,15 @@ fn overfits_a_tiny_scene() {
     let start = Instant::now();
     let reports = t.run(&never(), false).unwrap();
     let mean = |r: &[StepReport]| r.iter().map(|x| x.loss).sum::<f64>() / r.len() as f64;
-    let curve: Vec<String> = reports.chunks(20).map(|c| format!("{:.4}", mean(c))).collect();
+    let curve: Vec<String> = reports
+        .chunks(20)
+        .map(|c| format!("{:.4}", mean(c)))
+        .collect();
     let (first, last) = (mean(&reports[..20]), mean(&reports[reports.len() - 20..]));
-    eprintln!("overfit: 20-step means {curve:?}, {:.1} s", start.elapsed().as_secs_f64());
+    eprintln!(
+        "overfit: 20-step means {curve:?}, {:.1} s",
+        start.elapsed().as_secs_f64()
+    );
     assert!(reports.iter().all(|r| r.skipped.is_none()));
     assert!(last < 0.5 * first, "loss fell from {first} to {last} only");
 }
