@@ -21,5 +21,6 @@ pub use depth::{DepthMaps, depth_maps, turbo};
 pub use io::{MpiError, MpiMeta, read_mpi, read_mpi_u8, write_mpi};
 pub use mpi::{Mpi, MpiU8};
 pub use psv::{PlaneSweepVolume, plane_sweep};
-pub use render::{Texel, render, render_rgba8_into, render_u8};
+pub use render::{Texel, render, render_rgba8_into, render_rgba8_with, render_u8};
+pub use simd::Occupancy;
 pub use warp::{Sampler, target_to_plane_homographies};

@@ -5,6 +5,7 @@
 //! texels are read once per output row, in order. No allocation happens inside the loops.
 
 use crate::mpi::{Mpi, MpiU8};
+use crate::simd::Occupancy;
 use crate::warp::{Sampler, target_to_plane_homographies};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
@@ -52,6 +53,20 @@ pub fn render_layers<T: Texel>(
     out_h: u32,
     out: &mut [f32],
 ) {
+    render_layers_with(layers, plane_w, plane_h, homs, out_w, out_h, out, None)
+}
+
+/// [`render_layers`] with an optional [`Occupancy`] of 8-bit layers (skips empty tiles).
+pub fn render_layers_with<T: Texel>(
+    layers: &[T],
+    plane_w: u32,
+    plane_h: u32,
+    homs: &[[f64; 9]],
+    out_w: u32,
+    out_h: u32,
+    out: &mut [f32],
+    occupancy: Option<&Occupancy>,
+) {
     let plane_len = plane_w as usize * plane_h as usize * 4;
     assert_eq!(layers.len(), plane_len * homs.len(), "layer data does not match the plane count");
     assert_eq!(out.len(), out_w as usize * out_h as usize * 4);
@@ -71,11 +86,13 @@ pub fn render_layers<T: Texel>(
                 for (r, row) in chunk.chunks_exact_mut(row_len).enumerate() {
                     let y = (band * rows_per_band + r) as u32;
                     acc.fill(0.0);
-                    for (d, sampler) in samplers.iter().enumerate() {
+                    // Front to back: opaque pixels stop costing anything.
+                    for (d, sampler) in samplers.iter().enumerate().rev() {
                         let layer = &bytes[d * plane_len..(d + 1) * plane_len];
                         let coeff = sampler.row(y).coefficients();
+                        let tiles = occupancy.map(|o| o.plane(d));
                         // SAFETY: `available()` checked AVX2 + FMA; the layer has plane_w * plane_h texels.
-                        unsafe { crate::simd::composite_row_u8_avx2(layer, plane_w, plane_h, coeff, acc, w) };
+                        unsafe { crate::simd::composite_row_u8_avx2(layer, plane_w, plane_h, coeff, acc, w, tiles) };
                     }
                     for x in 0..w {
                         for k in 0..4 {
@@ -138,10 +155,30 @@ pub fn render_u8(mpi: &MpiU8, target: &Camera) -> ImageF32 {
 
 /// Render an 8-bit MPI and convert to 8-bit RGBA, reusing `scratch` and `out` between frames.
 pub fn render_rgba8_into(mpi: &MpiU8, target: &Camera, scratch: &mut Vec<f32>, out: &mut Vec<u8>) {
+    render_rgba8_with(mpi, None, target, scratch, out)
+}
+
+/// [`render_rgba8_into`] with the MPI's [`Occupancy`] (computed once per MPI) to skip empty tiles.
+pub fn render_rgba8_with(
+    mpi: &MpiU8,
+    occupancy: Option<&Occupancy>,
+    target: &Camera,
+    scratch: &mut Vec<f32>,
+    out: &mut Vec<u8>,
+) {
     let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
     let n = target.width as usize * target.height as usize * 4;
     scratch.resize(n, 0.0);
-    render_layers(&mpi.layers, mpi.camera.width, mpi.camera.height, &homs, target.width, target.height, scratch);
+    render_layers_with(
+        &mpi.layers,
+        mpi.camera.width,
+        mpi.camera.height,
+        &homs,
+        target.width,
+        target.height,
+        scratch,
+        occupancy,
+    );
     out.resize(n, 0);
     out.par_chunks_mut(64 * 1024).zip(scratch.par_chunks(64 * 1024)).for_each(|(o, s)| {
         for (b, v) in o.iter_mut().zip(s) {
@@ -197,15 +234,53 @@ mod tests {
             ),
             Camera::new(19, 7, Intrinsics::centred(10.0, 19, 7), Pose::from_center(DMat3::IDENTITY, DVec3::new(-0.5, 0.0, 0.0))),
         ];
+        // The SIMD path composites front to back and stops at accumulated alpha 1 - 1/1024: equal to the
+        // scalar back-to-front result within that bound.
+        let occ = Occupancy::new(&mpi.layers, 37, 29, 4);
         for t in targets {
             let fast = render_u8(&mpi, &t);
             let slow = scalar_u8(&mpi, &t);
             let err = fast.data.iter().zip(&slow).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
-            assert!(err < 1e-5, "max difference {err}");
+            assert!(err < 1.0 / 1024.0 + 1e-5, "max difference {err}");
+            let (mut scratch, mut out) = (Vec::new(), Vec::new());
+            render_rgba8_with(&mpi, Some(&occ), &t, &mut scratch, &mut out);
+            let err = scratch.iter().zip(&slow).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(err < 1.0 / 1024.0 + 1e-5, "with occupancy: max difference {err}");
         }
         let id = render_u8(&mpi, &cam);
         let f32_render = render(&mpi.to_f32(), &cam);
         let err = id.data.iter().zip(&f32_render.data).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
-        assert!(err < 1e-5, "u8 vs f32 layers {err}");
+        assert!(err < 1.0 / 1024.0 + 1e-5, "u8 vs f32 layers {err}");
+    }
+
+    #[test]
+    fn empty_tiles_are_skipped_without_changing_the_image() {
+        // Sparse content: one small opaque square per plane; everything else transparent.
+        let cam = Camera::new(64, 48, Intrinsics::centred(60.0, 64, 48), Pose::IDENTITY);
+        let depths = vec![10.0, 4.0, 2.0];
+        let mut layers = vec![0u8; 3 * 64 * 48 * 4];
+        for d in 0..3 {
+            for y in 10 + d * 8..20 + d * 8 {
+                for x in 5 + d * 15..17 + d * 15 {
+                    let i = ((d * 48 + y) * 64 + x) * 4;
+                    layers[i..i + 4].copy_from_slice(&[200, (40 * d) as u8, 90, 255]);
+                }
+            }
+        }
+        let mpi = MpiU8 { camera: cam, depths, layers };
+        let occ = Occupancy::new(&mpi.layers, 64, 48, 3);
+        assert!(occ.fill() < 0.2, "fill {}", occ.fill());
+        let target = Camera::new(
+            64,
+            48,
+            cam.intrinsics,
+            Pose::from_center(DMat3::from_rotation_z(0.1), DVec3::new(0.2, 0.1, 0.0)),
+        );
+        let full = render_u8(&mpi, &target);
+        let (mut scratch, mut out) = (Vec::new(), Vec::new());
+        render_rgba8_with(&mpi, Some(&occ), &target, &mut scratch, &mut out);
+        let err = scratch.iter().zip(&full.data).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(err < 1e-6, "{err}");
+        assert!(full.data.iter().any(|&v| v > 0.5), "the squares are visible");
     }
 }

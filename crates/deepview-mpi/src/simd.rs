@@ -19,6 +19,54 @@ pub fn available() -> bool {
     }
 }
 
+/// Accumulated alpha above which a pixel counts as opaque: planes behind change it by < 1/1024.
+pub const SATURATED: f32 = 1.0 - 1.0 / 1024.0;
+
+/// Side of the occupancy tiles.
+pub const TILE: usize = 8;
+
+/// Which `TILE x TILE` tiles of each plane hold any non-zero texel: lets the renderer skip empty space.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Occupancy {
+    pub tiles_x: usize,
+    pub tiles_y: usize,
+    /// `[D][tiles_y][tiles_x]`, 1 where the tile has a non-zero texel.
+    pub tiles: Vec<u8>,
+}
+
+impl Occupancy {
+    /// Scan an 8-bit MPI's layers (`[D][H][W][4]`).
+    pub fn new(layers: &[u8], width: u32, height: u32, planes: usize) -> Self {
+        use rayon::prelude::*;
+        let (w, h) = (width as usize, height as usize);
+        let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
+        let mut tiles = vec![0u8; planes * tiles_x * tiles_y];
+        tiles.par_chunks_mut(tiles_x * tiles_y).enumerate().for_each(|(d, t)| {
+            let layer = &layers[d * w * h * 4..(d + 1) * w * h * 4];
+            for y in 0..h {
+                let row = &layer[y * w * 4..(y + 1) * w * 4];
+                for (tx, chunk) in row.chunks(TILE * 4).enumerate() {
+                    if chunk.iter().any(|&b| b != 0) {
+                        t[(y / TILE) * tiles_x + tx] = 1;
+                    }
+                }
+            }
+        });
+        Self { tiles_x, tiles_y, tiles }
+    }
+
+    /// Plane `d`'s tiles.
+    pub fn plane(&self, d: usize) -> &[u8] {
+        let n = self.tiles_x * self.tiles_y;
+        &self.tiles[d * n..(d + 1) * n]
+    }
+
+    /// Fraction of non-empty tiles.
+    pub fn fill(&self) -> f64 {
+        self.tiles.iter().filter(|&&t| t != 0).count() as f64 / self.tiles.len().max(1) as f64
+    }
+}
+
 /// Accumulator length per channel for a row of `width` pixels (a multiple of 8).
 pub fn padded_width(width: usize) -> usize {
     width.div_ceil(8) * 8
@@ -31,8 +79,12 @@ pub struct RowCoefficients {
     pub b: [f32; 3],
 }
 
-/// Over-composite one plane into the row accumulators `acc` (`[4][padded_width(width)]`, planar r, g, b,
-/// a; the padding lanes receive unused values).
+/// Composite one plane *under* the row accumulators `acc` (`[4][padded_width(width)]`, planar r, g, b,
+/// a; the padding lanes receive unused values): planes are visited front to back, `acc += (1 - acc_a) c`.
+///
+/// Work is skipped for groups of 8 pixels that are already opaque (`acc_a >= SATURATED`, so what lies
+/// behind changes them by less than 1/1024) and, given `tiles` (the plane's [`Occupancy`] row), for groups
+/// whose taps all fall in fully transparent tiles.
 ///
 /// # Safety
 /// The CPU must support AVX2 and FMA ([`available`]). `layer` holds `plane_w * plane_h` RGBA8 texels.
@@ -45,6 +97,7 @@ pub unsafe fn composite_row_u8_avx2(
     coeff: RowCoefficients,
     acc: &mut [f32],
     width: usize,
+    tiles: Option<&[u8]>,
 ) {
     debug_assert_eq!(layer.len(), plane_w as usize * plane_h as usize * 4);
     let wp = padded_width(width);
@@ -76,8 +129,16 @@ pub unsafe fn composite_row_u8_avx2(
     let byte = _mm256_set1_epi32(0xff);
     let seven = _mm256_set1_epi32(7);
     let lane = _mm256_setr_ps(0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5);
+    let saturated = _mm256_set1_ps(SATURATED);
+    let tiles_x = (plane_w as usize).div_ceil(TILE);
     let mut x = 0usize;
     while x < width {
+        // SAFETY: x + 8 <= wp, the padded length of each accumulator.
+        let cur_a = unsafe { _mm256_loadu_ps(aa.add(x)) };
+        if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(cur_a, saturated)) == 0 {
+            x += 8;
+            continue;
+        }
         let u = _mm256_add_ps(_mm256_set1_ps(x as f32), lane);
         let wn = _mm256_fmadd_ps(aw, u, bw);
         let inv = _mm256_div_ps(one, wn);
@@ -105,8 +166,27 @@ pub unsafe fn composite_row_u8_avx2(
             }
             let xa = clamp!(x0, wmax);
             let xb = clamp!(_mm256_add_epi32(x0, ione), wmax);
-            let ya = _mm256_mullo_epi32(clamp!(y0, hmax), stride);
-            let yb = _mm256_mullo_epi32(clamp!(_mm256_add_epi32(y0, ione), hmax), stride);
+            let yra = clamp!(y0, hmax);
+            let yrb = clamp!(_mm256_add_epi32(y0, ione), hmax);
+            if let Some(t) = tiles {
+                // Source coordinates are monotonic along an output row (a homography restricted to a
+                // line), so lanes 0 and 7 bound the taps of the group.
+                let (xa0, xa7) = (_mm256_extract_epi32::<0>(xa) as usize, _mm256_extract_epi32::<7>(xb) as usize);
+                let (ya0, ya7) = (_mm256_extract_epi32::<0>(yra) as usize, _mm256_extract_epi32::<7>(yra) as usize);
+                let (yb0, yb7) = (_mm256_extract_epi32::<0>(yrb) as usize, _mm256_extract_epi32::<7>(yrb) as usize);
+                let (tx0, tx1) = (xa0.min(xa7) / TILE, xa0.max(xa7) / TILE);
+                let (ty0, ty1) = (ya0.min(ya7).min(yb0.min(yb7)) / TILE, ya0.max(ya7).max(yb0.max(yb7)) / TILE);
+                let mut any = false;
+                for ty in ty0..=ty1 {
+                    any |= t[ty * tiles_x + tx0..=ty * tiles_x + tx1].iter().any(|&o| o != 0);
+                }
+                if !any {
+                    x += 8;
+                    continue;
+                }
+            }
+            let ya = _mm256_mullo_epi32(yra, stride);
+            let yb = _mm256_mullo_epi32(yrb, stride);
             // Fast path: when every active lane reads the same two source rows and its taps lie within
             // 8 consecutive texels (true for views near the reference camera), two contiguous loads and
             // four lane permutations replace the four gathers.
@@ -173,19 +253,20 @@ pub unsafe fn composite_row_u8_avx2(
                 }};
             }
             let a = sample!(24);
-            let keep = _mm256_sub_ps(one, a);
+            let keep = _mm256_sub_ps(one, cur_a);
             // SAFETY (the four accumulators): x + 8 <= wp, the padded length of each.
-            macro_rules! over {
+            macro_rules! under {
                 ($ptr:expr, $value:expr) => {{
                     let p = unsafe { $ptr.add(x) };
                     let cur = unsafe { _mm256_loadu_ps(p) };
-                    unsafe { _mm256_storeu_ps(p, _mm256_fmadd_ps(keep, cur, $value)) };
+                    unsafe { _mm256_storeu_ps(p, _mm256_fmadd_ps(keep, $value, cur)) };
                 }};
             }
-            over!(ar, sample!(0));
-            over!(ag, sample!(8));
-            over!(ab, sample!(16));
-            over!(aa, a);
+            under!(ar, sample!(0));
+            under!(ag, sample!(8));
+            under!(ab, sample!(16));
+            // SAFETY: as above.
+            unsafe { _mm256_storeu_ps(aa.add(x), _mm256_fmadd_ps(keep, a, cur_a)) };
         }
         x += 8;
     }

@@ -190,7 +190,7 @@ mod tests {
                 .sum(p.clone() + dir.clone() * eps, t.clone())
                 .into_scalar::<f32>() as f64;
             let lm = loss.sum(p - dir * eps, t).into_scalar::<f32>() as f64;
-            let numeric = (lp - lm) / (2.0 * eps as f64);
+            let numeric = (lp - lm) / (2.0 * eps);
             assert!(
                 (analytic - numeric).abs() < 0.05 * numeric.abs().max(1e-3),
                 "{:?}: analytic {analytic} numeric {numeric}",

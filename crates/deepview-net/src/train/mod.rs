@@ -157,7 +157,7 @@ impl TrainConfig {
                 self.learning_rate
             ));
         }
-        if !(self.clip_norm > 0.0) {
+        if self.clip_norm.is_nan() || self.clip_norm <= 0.0 {
             return bad(format!("clip norm {} must be positive", self.clip_norm));
         }
         if self.devices.is_empty() {
@@ -750,7 +750,7 @@ impl Trainer {
                 ema.unwrap_or(f64::NAN),
                 self.steps_per_second()
             ));
-            if self.step % self.config.train.checkpoint_every == 0 {
+            if self.step.is_multiple_of(self.config.train.checkpoint_every) {
                 self.save_checkpoint()?;
             }
             reports.push(r);
