@@ -66,18 +66,47 @@ pub struct Args {
     pub save_renders: Option<PathBuf>,
 }
 
-/// The learned model behind `--method deepview`.
-// -- LEAD: wire deepview-net here: build a `Box<dyn deepview_eval::Method>` from `args.checkpoint` (config +
-// weights) whose `predict` runs tiled inference and renders the MPI into the target. Until then: a clear error.
+/// The learned model behind `--method deepview`: tiled inference from the inputs, then rendering the
+/// MPI into the target. Weights from `--checkpoint`, or the shipped `weights/cpu`.
+struct LearnedMethod {
+    model: deepview_net::network::DeepViewModel,
+    config: deepview_net::config::DeepViewConfig,
+    planes: usize,
+    budget: u64,
+}
+
+impl Method for LearnedMethod {
+    fn name(&self) -> &str {
+        "deepview"
+    }
+
+    fn predict(
+        &mut self,
+        inputs: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+        target: &deepview_geometry::Camera,
+        near_far: (f64, f64),
+    ) -> Result<deepview_image::ImageF32, deepview_eval::EvalError> {
+        use deepview_eval::EvalError;
+        use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
+        let fail = |e: &dyn std::fmt::Display| EvalError::Method { method: "deepview".into(), msg: e.to_string() };
+        deepview_net::weights::check_views(&self.config, inputs.len()).map_err(|e| fail(&e))?;
+        let cams: Vec<_> = inputs.iter().map(|(_, c)| *c).collect();
+        let reference =
+            reference_camera(&cams, &ReferenceOptions { cover: Some(near_far), ..Default::default() })?;
+        let depths = plane_depths(near_far.0, near_far.1, self.planes, PlaneSpacing::InverseDepth)?;
+        let views: Vec<_> = inputs.iter().map(|(img, cam)| (img.to_rgb(), *cam)).collect();
+        let mpi = deepview_net::infer::infer_mpi(&self.model, &views, &reference, &depths, self.budget, &mut |_| {})
+            .map_err(|e| fail(&e))?;
+        Ok(deepview_mpi::render(&mpi, target).to_rgb())
+    }
+}
+
 fn deepview_method(args: &Args) -> anyhow::Result<Box<dyn Method>> {
-    let ckpt = args
-        .checkpoint
-        .as_ref()
-        .map(|p| p.display().to_string())
-        .unwrap_or_else(|| "(none given)".into());
-    anyhow::bail!(
-        "--method deepview is not available in this build yet (checkpoint {ckpt}); use nearest, psv-mean or optimize"
-    )
+    let weights = args.checkpoint.clone().unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
+    let device = deepview_net::burn::tensor::Device::flex();
+    let (model, config) = deepview_net::weights::load_model(&weights, &device)
+        .with_context(|| format!("cannot load weights from {}", weights.display()))?;
+    Ok(Box::new(LearnedMethod { model, config, planes: args.planes, budget: 2 << 30 }))
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
