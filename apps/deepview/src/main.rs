@@ -16,6 +16,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// The whole pipeline on a built-in synthetic scene (no files needed): ./deepview-demo/.
+    Demo(cmd::demo::Args),
     /// Build a synthetic scene with ground truth and render it through a camera rig.
     Synth(cmd::synth::Args),
     /// Write the plane sweep volume of one view of a scene as images.
@@ -42,6 +44,7 @@ enum Command {
 
 fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
+        Command::Demo(a) => cmd::demo::run(a),
         Command::Synth(a) => cmd::synth::run(a),
         Command::Psv(a) => cmd::psv::run(a),
         Command::Render(a) => cmd::render::run(a),

@@ -68,11 +68,53 @@ pub struct Args {
 
 /// The learned model behind `--method deepview`: tiled inference from the inputs, then rendering the
 /// MPI into the target. Weights from `--checkpoint`, or the shipped `weights/cpu`.
-struct LearnedMethod {
+pub struct LearnedMethod {
     model: deepview_net::network::DeepViewModel,
     config: deepview_net::config::DeepViewConfig,
     planes: usize,
     budget: u64,
+    /// The last MPI and the inputs it came from: targets sharing inputs reuse it.
+    cache: Option<(Vec<deepview_geometry::Camera>, (f64, f64), deepview_mpi::Mpi)>,
+}
+
+impl LearnedMethod {
+    /// Load weights (config.json + model.safetensors) from `weights`.
+    pub fn load(weights: &std::path::Path, planes: usize) -> anyhow::Result<Self> {
+        let device = deepview_net::burn::tensor::Device::flex();
+        let (model, config) = deepview_net::weights::load_model(weights, &device)
+            .with_context(|| format!("cannot load weights from {}", weights.display()))?;
+        Ok(Self { model, config, planes, budget: 2 << 30, cache: None })
+    }
+
+    /// Forget the cached MPI (so timings include inference).
+    pub fn clear_cache(&mut self) {
+        self.cache = None;
+    }
+
+    /// The MPI inferred from `inputs` (cached for repeated calls with the same inputs).
+    pub fn mpi(
+        &mut self,
+        inputs: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+        near_far: (f64, f64),
+    ) -> Result<&deepview_mpi::Mpi, deepview_eval::EvalError> {
+        use deepview_eval::EvalError;
+        use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
+        let fail = |e: &dyn std::fmt::Display| EvalError::Method { method: "deepview".into(), msg: e.to_string() };
+        let cams: Vec<_> = inputs.iter().map(|(_, c)| *c).collect();
+        let hit = matches!(&self.cache, Some((c, nf, _)) if *c == cams && *nf == near_far);
+        if !hit {
+            deepview_net::weights::check_views(&self.config, inputs.len()).map_err(|e| fail(&e))?;
+            let reference =
+                reference_camera(&cams, &ReferenceOptions { cover: Some(near_far), ..Default::default() })?;
+            let depths = plane_depths(near_far.0, near_far.1, self.planes, PlaneSpacing::InverseDepth)?;
+            let views: Vec<_> = inputs.iter().map(|(img, cam)| (img.to_rgb(), *cam)).collect();
+            let mpi =
+                deepview_net::infer::infer_mpi(&self.model, &views, &reference, &depths, self.budget, &mut |_| {})
+                    .map_err(|e| fail(&e))?;
+            self.cache = Some((cams, near_far, mpi));
+        }
+        Ok(&self.cache.as_ref().expect("just filled").2)
+    }
 }
 
 impl Method for LearnedMethod {
@@ -86,27 +128,13 @@ impl Method for LearnedMethod {
         target: &deepview_geometry::Camera,
         near_far: (f64, f64),
     ) -> Result<deepview_image::ImageF32, deepview_eval::EvalError> {
-        use deepview_eval::EvalError;
-        use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
-        let fail = |e: &dyn std::fmt::Display| EvalError::Method { method: "deepview".into(), msg: e.to_string() };
-        deepview_net::weights::check_views(&self.config, inputs.len()).map_err(|e| fail(&e))?;
-        let cams: Vec<_> = inputs.iter().map(|(_, c)| *c).collect();
-        let reference =
-            reference_camera(&cams, &ReferenceOptions { cover: Some(near_far), ..Default::default() })?;
-        let depths = plane_depths(near_far.0, near_far.1, self.planes, PlaneSpacing::InverseDepth)?;
-        let views: Vec<_> = inputs.iter().map(|(img, cam)| (img.to_rgb(), *cam)).collect();
-        let mpi = deepview_net::infer::infer_mpi(&self.model, &views, &reference, &depths, self.budget, &mut |_| {})
-            .map_err(|e| fail(&e))?;
-        Ok(deepview_mpi::render(&mpi, target).to_rgb())
+        Ok(deepview_mpi::render(self.mpi(inputs, near_far)?, target).to_rgb())
     }
 }
 
 fn deepview_method(args: &Args) -> anyhow::Result<Box<dyn Method>> {
     let weights = args.checkpoint.clone().unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
-    let device = deepview_net::burn::tensor::Device::flex();
-    let (model, config) = deepview_net::weights::load_model(&weights, &device)
-        .with_context(|| format!("cannot load weights from {}", weights.display()))?;
-    Ok(Box::new(LearnedMethod { model, config, planes: args.planes, budget: 2 << 30 }))
+    Ok(Box::new(LearnedMethod::load(&weights, args.planes)?))
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {

@@ -1,6 +1,7 @@
 //! One module per subcommand: `Args` (clap) and `run`.
 
 pub mod bench;
+pub mod demo;
 pub mod depth;
 pub mod eval;
 pub mod infer;
