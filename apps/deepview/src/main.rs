@@ -32,6 +32,14 @@ enum Command {
     /// Print what a dataset folder contains (format, views, cameras, depth bounds).
     Info(cmd::info::Args),
     // -- commands added by the other parts of the project go below this line --
+    /// Serve the WebGL2 viewer for an MPI folder on a local web server.
+    View(cmd::view::Args),
+    /// Write the web viewer and an MPI as a static folder for any web host.
+    ExportWeb(cmd::export_web::Args),
+    /// Export an MPI to another format: llff, stereo-mag or compact.
+    Export(cmd::export::Args),
+    /// Import an MPI from LLFF, stereo magnification or compact format (detected).
+    Import(cmd::import::Args),
     /// Score a method (nearest, psv-mean, optimize, deepview) on a scene under a protocol: SSIM, PSNR, JSON.
     Eval(cmd::eval::Args),
     /// Fit an MPI to input views by classical gradient descent (no learning) and write it.
@@ -52,6 +60,10 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Bench(a) => cmd::bench::run(a),
         Command::Info(a) => cmd::info::run(a),
         // -- dispatch lines of the other commands go below this line --
+        Command::View(a) => cmd::view::run(a),
+        Command::ExportWeb(a) => cmd::export_web::run(a),
+        Command::Export(a) => cmd::export::run(a),
+        Command::Import(a) => cmd::import::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Optimize(a) => cmd::optimize::run(a),
         Command::Train(a) => cmd::train::run(a),

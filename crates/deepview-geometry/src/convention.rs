@@ -115,7 +115,7 @@ mod tests {
 
     fn poses() -> Vec<Pose> {
         let mut v = vec![Pose::IDENTITY];
-        for (i, (a, b, c)) in [(0.1, -0.2, 0.3), (2.0, 0.5, -1.0), (3.1, 0.0, 0.0), (0.0, 3.14159, 0.01)]
+        for (i, (a, b, c)) in [(0.1, -0.2, 0.3), (2.0, 0.5, -1.0), (3.1, 0.0, 0.0), (0.0, 3.1, 0.01)]
             .into_iter()
             .enumerate()
         {

@@ -63,17 +63,32 @@ pub fn read_camera_path(path: &Path) -> Result<CameraPath, MediaError> {
 
 /// Parse the text of a `camera_path.json` (`path` only names it in errors).
 pub fn parse_camera_path(text: &str, path: &Path) -> Result<CameraPath, MediaError> {
-    let file: CameraPathFile = serde_json::from_str(text)
-        .map_err(|source| MediaError::Json { path: path.into(), what: "a nerfstudio camera_path.json", source })?;
+    let file: CameraPathFile = serde_json::from_str(text).map_err(|source| MediaError::Json {
+        path: path.into(),
+        what: "a nerfstudio camera_path.json",
+        source,
+    })?;
     if file.camera_type != "perspective" {
-        return Err(invalid(path, format!("camera_type {:?} is not supported (only \"perspective\")", file.camera_type)));
+        return Err(invalid(
+            path,
+            format!(
+                "camera_type {:?} is not supported (only \"perspective\")",
+                file.camera_type
+            ),
+        ));
     }
     let (w, h) = (file.render_width, file.render_height);
     if w == 0 || h == 0 {
-        return Err(invalid(path, format!("render size {w}x{h} must be positive")));
+        return Err(invalid(
+            path,
+            format!("render size {w}x{h} must be positive"),
+        ));
     }
     if !(file.seconds.is_finite() && file.seconds > 0.0) {
-        return Err(invalid(path, format!("\"seconds\" must be positive (got {})", file.seconds)));
+        return Err(invalid(
+            path,
+            format!("\"seconds\" must be positive (got {})", file.seconds),
+        ));
     }
     if file.camera_path.is_empty() {
         return Err(invalid(path, "\"camera_path\" is empty"));
@@ -81,26 +96,49 @@ pub fn parse_camera_path(text: &str, path: &Path) -> Result<CameraPath, MediaErr
     let mut cameras = Vec::with_capacity(file.camera_path.len());
     for (i, e) in file.camera_path.iter().enumerate() {
         let m: [f64; 16] = e.camera_to_world.as_slice().try_into().map_err(|_| {
-            invalid(path, format!("camera_path[{i}].camera_to_world has {} numbers, expected 16", e.camera_to_world.len()))
+            invalid(
+                path,
+                format!(
+                    "camera_path[{i}].camera_to_world has {} numbers, expected 16",
+                    e.camera_to_world.len()
+                ),
+            )
         })?;
         if m[12..] != [0.0, 0.0, 0.0, 1.0] {
-            return Err(invalid(path, format!("camera_path[{i}].camera_to_world: last row must be 0 0 0 1")));
+            return Err(invalid(
+                path,
+                format!("camera_path[{i}].camera_to_world: last row must be 0 0 0 1"),
+            ));
         }
-        let pose = opengl_c2w_to_pose(&m).map_err(|err| invalid(path, format!("camera_path[{i}].camera_to_world: {err}")))?;
+        let pose = opengl_c2w_to_pose(&m)
+            .map_err(|err| invalid(path, format!("camera_path[{i}].camera_to_world: {err}")))?;
         if !(e.fov.is_finite() && e.fov > 0.0 && e.fov < 180.0) {
-            return Err(invalid(path, format!("camera_path[{i}].fov must be in (0, 180) degrees (got {})", e.fov)));
+            return Err(invalid(
+                path,
+                format!(
+                    "camera_path[{i}].fov must be in (0, 180) degrees (got {})",
+                    e.fov
+                ),
+            ));
         }
         let f = h as f64 / (2.0 * (e.fov.to_radians() / 2.0).tan());
         cameras.push(Camera::new(w, h, Intrinsics::centred(f, w, h), pose));
     }
-    Ok(CameraPath { cameras, seconds: file.seconds })
+    Ok(CameraPath {
+        cameras,
+        seconds: file.seconds,
+    })
 }
 
 /// The file contents for `cameras` (all must share one image size) lasting `seconds`.
 pub fn camera_path_file(cameras: &[Camera], seconds: f64) -> Result<CameraPathFile, MediaError> {
-    let first = cameras.first().ok_or_else(|| MediaError::Config("cannot write an empty camera path".into()))?;
+    let first = cameras
+        .first()
+        .ok_or_else(|| MediaError::Config("cannot write an empty camera path".into()))?;
     if !(seconds.is_finite() && seconds > 0.0) {
-        return Err(MediaError::Config(format!("camera path duration must be positive (got {seconds})")));
+        return Err(MediaError::Config(format!(
+            "camera path duration must be positive (got {seconds})"
+        )));
     }
     let (w, h) = (first.width, first.height);
     let mut entries = Vec::with_capacity(cameras.len());

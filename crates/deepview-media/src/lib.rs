@@ -32,11 +32,21 @@ pub enum MediaError {
     #[error("{0}")]
     Config(String),
     #[error("cannot read {path}: {source}")]
-    Read { path: PathBuf, source: std::io::Error },
+    Read {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("cannot write {path}: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{path} is not valid JSON for {what}: {source}")]
-    Json { path: PathBuf, what: &'static str, source: serde_json::Error },
+    Json {
+        path: PathBuf,
+        what: &'static str,
+        source: serde_json::Error,
+    },
     #[error(transparent)]
     Image(#[from] deepview_image::ImageError),
     #[error(transparent)]
@@ -46,15 +56,24 @@ pub enum MediaError {
 }
 
 pub(crate) fn invalid(path: impl Into<PathBuf>, msg: impl Into<String>) -> MediaError {
-    MediaError::Invalid { path: path.into(), msg: msg.into() }
+    MediaError::Invalid {
+        path: path.into(),
+        msg: msg.into(),
+    }
 }
 
 pub(crate) fn read_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> MediaError + '_ {
-    move |source| MediaError::Read { path: path.to_path_buf(), source }
+    move |source| MediaError::Read {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 pub(crate) fn write_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -> MediaError + '_ {
-    move |source| MediaError::Write { path: path.to_path_buf(), source }
+    move |source| MediaError::Write {
+        path: path.to_path_buf(),
+        source,
+    }
 }
 
 pub use camera_path::{CameraPathFile, read_camera_path, write_camera_path};

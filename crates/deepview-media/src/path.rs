@@ -32,7 +32,9 @@ impl FromStr for PathKind {
             "spiral" => Ok(PathKind::Spiral),
             "circle" => Ok(PathKind::Circle),
             "swing" => Ok(PathKind::Swing),
-            _ => Err(MediaError::Config(format!("unknown camera path {s:?} (expected spiral, circle or swing)"))),
+            _ => Err(MediaError::Config(format!(
+                "unknown camera path {s:?} (expected spiral, circle or swing)"
+            ))),
         }
     }
 }
@@ -57,12 +59,20 @@ pub struct PathSpec {
 
 /// Cameras along `spec` around `reference` for an MPI whose plane depths are `depths` (any order).
 /// Every camera has the reference's size and intrinsics.
-pub fn camera_path(reference: &Camera, depths: &[f64], spec: &PathSpec) -> Result<Vec<Camera>, MediaError> {
+pub fn camera_path(
+    reference: &Camera,
+    depths: &[f64],
+    spec: &PathSpec,
+) -> Result<Vec<Camera>, MediaError> {
     if spec.frames == 0 {
-        return Err(MediaError::Config("a camera path needs at least one frame".into()));
+        return Err(MediaError::Config(
+            "a camera path needs at least one frame".into(),
+        ));
     }
     if depths.is_empty() || !depths.iter().all(|d| d.is_finite() && *d > 0.0) {
-        return Err(MediaError::Config("camera path: MPI depths must be finite and positive".into()));
+        return Err(MediaError::Config(
+            "camera path: MPI depths must be finite and positive".into(),
+        ));
     }
     let near = depths.iter().cloned().fold(f64::INFINITY, f64::min);
     let far = depths.iter().cloned().fold(0.0, f64::max);
@@ -71,7 +81,9 @@ pub fn camera_path(reference: &Camera, depths: &[f64], spec: &PathSpec) -> Resul
         Radius::NearFraction(f) => f * near,
     };
     if !r.is_finite() || r < 0.0 {
-        return Err(MediaError::Config(format!("camera path radius must be finite and >= 0 (got {r})")));
+        return Err(MediaError::Config(format!(
+            "camera path radius must be finite and >= 0 (got {r})"
+        )));
     }
     if r > MAX_NEAR_FRACTION * near {
         return Err(MediaError::Config(format!(
@@ -81,7 +93,9 @@ pub fn camera_path(reference: &Camera, depths: &[f64], spec: &PathSpec) -> Resul
     }
     let focus = spec.focus_depth.unwrap_or(2.0 / (1.0 / near + 1.0 / far));
     if !focus.is_finite() || focus <= r {
-        return Err(MediaError::Config(format!("focus depth {focus} must be finite and larger than the radius {r}")));
+        return Err(MediaError::Config(format!(
+            "focus depth {focus} must be finite and larger than the radius {r}"
+        )));
     }
     let n = spec.frames as f64;
     Ok((0..spec.frames)
@@ -99,20 +113,50 @@ pub fn camera_path(reference: &Camera, depths: &[f64], spec: &PathSpec) -> Resul
 }
 
 /// Spiral path (see [`PathKind::Spiral`]); `radius_fraction` of the near depth.
-pub fn spiral(reference: &Camera, depths: &[f64], radius_fraction: f64, frames: usize) -> Result<Vec<Camera>, MediaError> {
-    let spec = PathSpec { kind: PathKind::Spiral, frames, radius: Radius::NearFraction(radius_fraction), focus_depth: None };
+pub fn spiral(
+    reference: &Camera,
+    depths: &[f64],
+    radius_fraction: f64,
+    frames: usize,
+) -> Result<Vec<Camera>, MediaError> {
+    let spec = PathSpec {
+        kind: PathKind::Spiral,
+        frames,
+        radius: Radius::NearFraction(radius_fraction),
+        focus_depth: None,
+    };
     camera_path(reference, depths, &spec)
 }
 
 /// Circle path (see [`PathKind::Circle`]); `radius_fraction` of the near depth.
-pub fn circle(reference: &Camera, depths: &[f64], radius_fraction: f64, frames: usize) -> Result<Vec<Camera>, MediaError> {
-    let spec = PathSpec { kind: PathKind::Circle, frames, radius: Radius::NearFraction(radius_fraction), focus_depth: None };
+pub fn circle(
+    reference: &Camera,
+    depths: &[f64],
+    radius_fraction: f64,
+    frames: usize,
+) -> Result<Vec<Camera>, MediaError> {
+    let spec = PathSpec {
+        kind: PathKind::Circle,
+        frames,
+        radius: Radius::NearFraction(radius_fraction),
+        focus_depth: None,
+    };
     camera_path(reference, depths, &spec)
 }
 
 /// Swing path (see [`PathKind::Swing`]); `radius_fraction` of the near depth.
-pub fn swing(reference: &Camera, depths: &[f64], radius_fraction: f64, frames: usize) -> Result<Vec<Camera>, MediaError> {
-    let spec = PathSpec { kind: PathKind::Swing, frames, radius: Radius::NearFraction(radius_fraction), focus_depth: None };
+pub fn swing(
+    reference: &Camera,
+    depths: &[f64],
+    radius_fraction: f64,
+    frames: usize,
+) -> Result<Vec<Camera>, MediaError> {
+    let spec = PathSpec {
+        kind: PathKind::Swing,
+        frames,
+        radius: Radius::NearFraction(radius_fraction),
+        focus_depth: None,
+    };
     camera_path(reference, depths, &spec)
 }
 
@@ -127,7 +171,10 @@ pub fn look_at_from_reference(reference: &Camera, offset: DVec3, focus: f64) -> 
     let ref_from_world = reference.pose;
     let rotation = cam_from_ref * ref_from_world.rotation;
     let center = ref_from_world.inverse().transform_point(offset);
-    Camera { pose: Pose::from_center(rotation, center), ..*reference }
+    Camera {
+        pose: Pose::from_center(rotation, center),
+        ..*reference
+    }
 }
 
 #[cfg(test)]
@@ -136,17 +183,37 @@ mod tests {
     use deepview_geometry::Intrinsics;
 
     fn reference() -> Camera {
-        let r = DMat3::from_rotation_x(0.2) * DMat3::from_rotation_y(-0.1) * DMat3::from_rotation_z(0.05);
-        Camera::new(80, 60, Intrinsics::centred(70.0, 80, 60), Pose::from_center(r, DVec3::new(1.0, 2.0, -3.0)))
+        let r = DMat3::from_rotation_x(0.2)
+            * DMat3::from_rotation_y(-0.1)
+            * DMat3::from_rotation_z(0.05);
+        Camera::new(
+            80,
+            60,
+            Intrinsics::centred(70.0, 80, 60),
+            Pose::from_center(r, DVec3::new(1.0, 2.0, -3.0)),
+        )
     }
 
     #[test]
     fn zero_radius_reproduces_the_reference() {
         for kind in [PathKind::Spiral, PathKind::Circle, PathKind::Swing] {
-            let spec = PathSpec { kind, frames: 5, radius: Radius::Scene(0.0), focus_depth: None };
+            let spec = PathSpec {
+                kind,
+                frames: 5,
+                radius: Radius::Scene(0.0),
+                focus_depth: None,
+            };
             for c in camera_path(&reference(), &[8.0, 2.0], &spec).unwrap() {
-                assert!(c.pose.rotation.abs_diff_eq(reference().pose.rotation, 1e-12));
-                assert!(c.pose.translation.abs_diff_eq(reference().pose.translation, 1e-12));
+                assert!(
+                    c.pose
+                        .rotation
+                        .abs_diff_eq(reference().pose.rotation, 1e-12)
+                );
+                assert!(
+                    c.pose
+                        .translation
+                        .abs_diff_eq(reference().pose.translation, 1e-12)
+                );
             }
         }
     }

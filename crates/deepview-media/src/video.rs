@@ -23,7 +23,12 @@ pub enum VideoFormat {
 
 impl VideoFormat {
     pub fn from_path(path: &Path) -> VideoFormat {
-        match path.extension().and_then(|e| e.to_str()).map(|e| e.to_ascii_lowercase()).as_deref() {
+        match path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(|e| e.to_ascii_lowercase())
+            .as_deref()
+        {
             Some("gif") => VideoFormat::Gif,
             Some("mp4" | "mov" | "mkv") => VideoFormat::Mp4,
             _ => VideoFormat::PngFrames,
@@ -57,7 +62,12 @@ pub struct PngFrames {
 impl PngFrames {
     pub fn new(dir: &Path, width: u32, height: u32) -> Result<Self, MediaError> {
         std::fs::create_dir_all(dir).map_err(write_err(dir))?;
-        Ok(Self { dir: dir.into(), width, height, next: 0 })
+        Ok(Self {
+            dir: dir.into(),
+            width,
+            height,
+            next: 0,
+        })
     }
 }
 
@@ -85,14 +95,24 @@ pub struct GifSink {
 impl GifSink {
     pub fn new(path: &Path, width: u32, height: u32, fps: f64) -> Self {
         let delay_ms = (1000.0 / fps.max(1e-3)).round().clamp(10.0, 655_350.0) as u32;
-        Self { path: path.into(), width, height, delay_ms, frames: Vec::new() }
+        Self {
+            path: path.into(),
+            width,
+            height,
+            delay_ms,
+            frames: Vec::new(),
+        }
     }
 }
 
 impl FrameSink for GifSink {
     fn push(&mut self, rgb: &[u8]) -> Result<(), MediaError> {
-        let rgba: Vec<u8> = rgb.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect();
-        let buf = image::RgbaImage::from_raw(self.width, self.height, rgba).expect("frame size matches");
+        let rgba: Vec<u8> = rgb
+            .chunks_exact(3)
+            .flat_map(|p| [p[0], p[1], p[2], 255])
+            .collect();
+        let buf =
+            image::RgbaImage::from_raw(self.width, self.height, rgba).expect("frame size matches");
         let delay = image::Delay::from_numer_denom_ms(self.delay_ms, 1);
         self.frames.push(image::Frame::from_parts(buf, 0, 0, delay));
         Ok(())
@@ -102,7 +122,10 @@ impl FrameSink for GifSink {
         let mut bytes = Vec::new();
         {
             let mut enc = GifEncoder::new_with_speed(&mut bytes, 10);
-            let enc_err = |e: image::ImageError| deepview_image::ImageError::Encode { path: self.path.clone(), source: e };
+            let enc_err = |e: image::ImageError| deepview_image::ImageError::Encode {
+                path: self.path.clone(),
+                source: e,
+            };
             enc.set_repeat(Repeat::Infinite).map_err(enc_err)?;
             enc.encode_frames(self.frames).map_err(enc_err)?;
         }
@@ -124,7 +147,13 @@ pub fn ffmpeg_program() -> String {
 }
 
 impl Mp4Sink {
-    pub fn new(path: &Path, width: u32, height: u32, fps: f64, program: &str) -> Result<Self, MediaError> {
+    pub fn new(
+        path: &Path,
+        width: u32,
+        height: u32,
+        fps: f64,
+        program: &str,
+    ) -> Result<Self, MediaError> {
         if width % 2 == 1 || height % 2 == 1 {
             return Err(MediaError::Config(format!(
                 "MP4 (H.264, yuv420p) needs an even frame size, got {width}x{height}; use --size or a GIF/PNG frames"
@@ -154,18 +183,30 @@ impl Mp4Sink {
                     MediaError::Ffmpeg(format!("cannot start `{program}` for {}: {e}", path.display()))
                 }
             })?;
-        Ok(Self { path: path.into(), tmp, child })
+        Ok(Self {
+            path: path.into(),
+            tmp,
+            child,
+        })
     }
 }
 
 impl FrameSink for Mp4Sink {
     fn push(&mut self, rgb: &[u8]) -> Result<(), MediaError> {
         let stdin = self.child.stdin.as_mut().expect("stdin is piped");
-        stdin.write_all(rgb).map_err(|e| MediaError::Ffmpeg(format!("ffmpeg stopped accepting frames for {}: {e}", self.path.display())))
+        stdin.write_all(rgb).map_err(|e| {
+            MediaError::Ffmpeg(format!(
+                "ffmpeg stopped accepting frames for {}: {e}",
+                self.path.display()
+            ))
+        })
     }
     fn finish(mut self: Box<Self>) -> Result<(), MediaError> {
         drop(self.child.stdin.take());
-        let out = self.child.wait_with_output().map_err(|e| MediaError::Ffmpeg(format!("waiting for ffmpeg: {e}")))?;
+        let out = self
+            .child
+            .wait_with_output()
+            .map_err(|e| MediaError::Ffmpeg(format!("waiting for ffmpeg: {e}")))?;
         if !out.status.success() {
             let _ = std::fs::remove_file(&self.tmp);
             return Err(MediaError::Ffmpeg(format!(
@@ -180,7 +221,12 @@ impl FrameSink for Mp4Sink {
 }
 
 /// Open the sink for `out` (format from its extension).
-pub fn open_sink(out: &Path, width: u32, height: u32, fps: f64) -> Result<Box<dyn FrameSink>, MediaError> {
+pub fn open_sink(
+    out: &Path,
+    width: u32,
+    height: u32,
+    fps: f64,
+) -> Result<Box<dyn FrameSink>, MediaError> {
     Ok(match VideoFormat::from_path(out) {
         VideoFormat::PngFrames => Box::new(PngFrames::new(out, width, height)?),
         VideoFormat::Gif => Box::new(GifSink::new(out, width, height, fps)),
@@ -190,22 +236,37 @@ pub fn open_sink(out: &Path, width: u32, height: u32, fps: f64) -> Result<Box<dy
 
 /// Render `mpi` into every camera of `cameras` (all of one size) and write the video `out` at `fps`.
 /// Shows an indicatif progress bar on stderr when `progress` is true.
-pub fn render_video(mpi: &MpiU8, cameras: &[Camera], out: &Path, fps: f64, progress: bool) -> Result<VideoReport, MediaError> {
-    let first = cameras.first().ok_or_else(|| MediaError::Config("the camera path has no cameras".into()))?;
+pub fn render_video(
+    mpi: &MpiU8,
+    cameras: &[Camera],
+    out: &Path,
+    fps: f64,
+    progress: bool,
+) -> Result<VideoReport, MediaError> {
+    let first = cameras
+        .first()
+        .ok_or_else(|| MediaError::Config("the camera path has no cameras".into()))?;
     if !(fps.is_finite() && fps > 0.0) {
-        return Err(MediaError::Config(format!("fps must be positive (got {fps})")));
+        return Err(MediaError::Config(format!(
+            "fps must be positive (got {fps})"
+        )));
     }
     let (w, h) = (first.width, first.height);
     if let Some(c) = cameras.iter().find(|c| (c.width, c.height) != (w, h)) {
-        return Err(MediaError::Config(format!("all cameras of a video must share one size ({w}x{h} vs {}x{})", c.width, c.height)));
+        return Err(MediaError::Config(format!(
+            "all cameras of a video must share one size ({w}x{h} vs {}x{})",
+            c.width, c.height
+        )));
     }
     let mut sink = open_sink(out, w, h, fps)?;
     let bar = if progress {
         let b = indicatif::ProgressBar::new(cameras.len() as u64);
         b.set_style(
-            indicatif::ProgressStyle::with_template("{msg} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})")
-                .expect("valid template")
-                .progress_chars("=> "),
+            indicatif::ProgressStyle::with_template(
+                "{msg} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})",
+            )
+            .expect("valid template")
+            .progress_chars("=> "),
         );
         b.set_message(format!("rendering {}", out.display()));
         b

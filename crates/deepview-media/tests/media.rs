@@ -1,8 +1,14 @@
 //! Camera paths, camera_path.json, videos and interchange round trips on small MPIs built here.
 
-use deepview_geometry::{Camera, DMat3, DVec2, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths};
-use deepview_media::camera_path::{camera_path_file, parse_camera_path, read_camera_path, write_camera_path};
-use deepview_media::interchange::{self, ExportFormat, ImportFormat, ImportOptions, compact, read_straight};
+use deepview_geometry::{
+    Camera, DMat3, DVec2, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths,
+};
+use deepview_media::camera_path::{
+    camera_path_file, parse_camera_path, read_camera_path, write_camera_path,
+};
+use deepview_media::interchange::{
+    self, ExportFormat, ImportFormat, ImportOptions, compact, read_straight,
+};
 use deepview_media::path::{PathKind, PathSpec, Radius, camera_path, spiral};
 use deepview_media::video::{FrameSink, Mp4Sink};
 use deepview_media::{MediaError, render_video};
@@ -11,7 +17,12 @@ use std::path::Path;
 
 fn reference() -> Camera {
     let r = DMat3::from_rotation_x(0.1) * DMat3::from_rotation_y(-0.2);
-    Camera::new(70, 45, Intrinsics::new(60.0, 61.0, 35.5, 22.0), Pose::from_center(r, DVec3::new(0.5, -1.0, 2.0)))
+    Camera::new(
+        70,
+        45,
+        Intrinsics::new(60.0, 61.0, 35.5, 22.0),
+        Pose::from_center(r, DVec3::new(0.5, -1.0, 2.0)),
+    )
 }
 
 /// A test MPI: 5 planes with pseudo-random texels, the upper-left block of every plane fully transparent
@@ -30,7 +41,11 @@ fn test_mpi() -> Mpi {
                 s ^= s >> 17;
                 s ^= s << 5;
                 let transparent = (x < 33 && y < 33) || (d == 4 && !(40..50).contains(&x));
-                let a = if transparent { 0.0 } else { ((s % 251) as f32 / 250.0).max(0.05) };
+                let a = if transparent {
+                    0.0
+                } else {
+                    ((s % 251) as f32 / 250.0).max(0.05)
+                };
                 let p = &mut plane[(y * w + x) * 4..(y * w + x) * 4 + 4];
                 p[3] = a;
                 for k in 0..3 {
@@ -48,7 +63,9 @@ fn write_test_mpi(dir: &Path) {
 
 fn angle_between(a: &DMat3, b: &DMat3) -> f64 {
     let r = *a * b.transpose();
-    ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0).acos()
+    ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0)
+        .clamp(-1.0, 1.0)
+        .acos()
 }
 
 #[test]
@@ -65,8 +82,14 @@ fn spiral_is_continuous_closed_and_within_the_valid_range() {
     for i in 0..frames {
         let (a, b) = (&cams[i], &cams[(i + 1) % frames]);
         let step = (a.center() - b.center()).length();
-        assert!(step < max_step && step > 0.0, "frame {i}: step {step} (max {max_step})");
-        assert!(angle_between(&a.pose.rotation, &b.pose.rotation) < 0.01, "frame {i}");
+        assert!(
+            step < max_step && step > 0.0,
+            "frame {i}: step {step} (max {max_step})"
+        );
+        assert!(
+            angle_between(&a.pose.rotation, &b.pose.rotation) < 0.01,
+            "frame {i}"
+        );
         assert!((a.center() - cam.center()).length() <= radius * 1.2);
         assert!(a.pose.validate().is_ok());
         assert_eq!(a.intrinsics, cam.intrinsics);
@@ -76,11 +99,19 @@ fn spiral_is_continuous_closed_and_within_the_valid_range() {
     let p = cam.unproject(DVec2::new(cam.intrinsics.cx, cam.intrinsics.cy), focus);
     for c in &cams {
         let q = c.project(p).unwrap();
-        assert!((q - DVec2::new(c.intrinsics.cx, c.intrinsics.cy)).length() < 1e-9, "{q}");
+        assert!(
+            (q - DVec2::new(c.intrinsics.cx, c.intrinsics.cy)).length() < 1e-9,
+            "{q}"
+        );
     }
     // Swing stays on the reference x axis; circle stays in the reference image plane.
     for (kind, axis) in [(PathKind::Swing, 0), (PathKind::Circle, 1)] {
-        let spec = PathSpec { kind, frames: 16, radius: Radius::Scene(0.1), focus_depth: Some(5.0) };
+        let spec = PathSpec {
+            kind,
+            frames: 16,
+            radius: Radius::Scene(0.1),
+            focus_depth: Some(5.0),
+        };
         for c in camera_path(&cam, &depths, &spec).unwrap() {
             let off = cam.pose.transform_point(c.center());
             assert!(off.z.abs() < 1e-12, "{off}");
@@ -112,11 +143,23 @@ fn camera_path_json_round_trip_and_axes() {
         assert!(a.pose.rotation.abs_diff_eq(b.pose.rotation, 1e-12));
         assert!(a.pose.translation.abs_diff_eq(b.pose.translation, 1e-12));
         let (ka, kb) = (a.intrinsics, b.intrinsics);
-        assert!((ka.fx - kb.fx).abs() < 1e-9 && (ka.fy - kb.fy).abs() < 1e-9 && ka.cx == kb.cx && ka.cy == kb.cy);
+        assert!(
+            (ka.fx - kb.fx).abs() < 1e-9
+                && (ka.fy - kb.fy).abs() < 1e-9
+                && ka.cx == kb.cx
+                && ka.cy == kb.cy
+        );
     }
-    let json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&p).unwrap()).unwrap();
     assert_eq!(json["render_width"], 64);
-    assert_eq!(json["camera_path"][0]["camera_to_world"].as_array().unwrap().len(), 16);
+    assert_eq!(
+        json["camera_path"][0]["camera_to_world"]
+            .as_array()
+            .unwrap()
+            .len(),
+        16
+    );
 
     // Known case written by hand: an OpenGL camera at (2, 0, 0) rotated +90 deg about y (right = -z,
     // up = +y, back = +x), so it looks along -x at the origin; vertical fov 2 atan(5/10) on a 10x10 image
@@ -131,7 +174,10 @@ fn camera_path_json_round_trip_and_axes() {
     assert!((c.intrinsics.fy - 10.0).abs() < 1e-9 && (c.intrinsics.fx - 10.0).abs() < 1e-9);
     let near = |p: DVec3, expect: DVec2| {
         let q = c.project(p).unwrap();
-        assert!((q - expect).length() < 1e-9, "{p} -> {q}, expected {expect}");
+        assert!(
+            (q - expect).length() < 1e-9,
+            "{p} -> {q}, expected {expect}"
+        );
     };
     near(DVec3::ZERO, DVec2::new(5.0, 5.0));
     near(DVec3::new(0.0, 1.0, 0.0), DVec2::new(5.0, 0.0)); // world up is image up
@@ -139,7 +185,9 @@ fn camera_path_json_round_trip_and_axes() {
     assert!(c.project(DVec3::new(4.0, 0.0, 0.0)).is_none()); // behind the camera
     // Writing it back gives the same numbers.
     let f = camera_path_file(&cp.cameras, 1.0).unwrap();
-    let expect = [0.0, 0.0, 1.0, 2.0, 0.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+    let expect = [
+        0.0, 0.0, 1.0, 2.0, 0.0, 1.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0,
+    ];
     for (a, b) in f.camera_path[0].camera_to_world.iter().zip(expect) {
         assert!((a - b).abs() < 1e-12);
     }
@@ -152,7 +200,7 @@ fn malformed_camera_path_files_give_clear_errors() {
     let cases = [
         ("{not json".to_string(), "not valid JSON"),
         (r#"{"render_width": 10, "seconds": 1, "camera_path": []}"#.to_string(), "render_height"),
-        (format!(r#"{{"render_width":10,"render_height":10,"seconds":1,"camera_path":[]}}"#), "empty"),
+        (r#"{"render_width":10,"render_height":10,"seconds":1,"camera_path":[]}"#.to_string(), "empty"),
         (r#"{"render_width":10,"render_height":10,"seconds":1,"camera_path":[{"camera_to_world":[1,0,0],"fov":50}]}"#.to_string(), "has 3 numbers"),
         (format!(r#"{{"render_width":10,"render_height":10,"seconds":1,"camera_path":[{{"camera_to_world":{good_c2w},"fov":0}}]}}"#), "fov"),
         (format!(r#"{{"render_width":10,"render_height":10,"seconds":0,"camera_path":[{{"camera_to_world":{good_c2w},"fov":50}}]}}"#), "seconds"),
@@ -161,10 +209,17 @@ fn malformed_camera_path_files_give_clear_errors() {
         (format!(r#"{{"camera_type":"fisheye","render_width":10,"render_height":10,"seconds":1,"camera_path":[{{"camera_to_world":{good_c2w},"fov":50}}]}}"#), "fisheye"),
     ];
     for (text, needle) in cases {
-        let e = parse_camera_path(&text, Path::new("bad_path.json")).unwrap_err().to_string();
-        assert!(e.contains("bad_path.json") && e.contains(needle), "{needle}: {e}");
+        let e = parse_camera_path(&text, Path::new("bad_path.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("bad_path.json") && e.contains(needle),
+            "{needle}: {e}"
+        );
     }
-    let e = read_camera_path(Path::new("/nonexistent/camera_path.json")).unwrap_err().to_string();
+    let e = read_camera_path(Path::new("/nonexistent/camera_path.json"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("/nonexistent/camera_path.json"), "{e}");
 }
 
@@ -178,7 +233,10 @@ fn gif_and_png_frames_are_written_and_decodable() {
     let rep = render_video(&u8mpi, &cams, &gif, 10.0, false).unwrap();
     assert_eq!(rep.frames, 7);
     use image::AnimationDecoder;
-    let dec = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(std::fs::File::open(&gif).unwrap())).unwrap();
+    let dec = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+        std::fs::File::open(&gif).unwrap(),
+    ))
+    .unwrap();
     let frames = dec.into_frames().collect_frames().unwrap();
     assert_eq!(frames.len(), 7);
     assert_eq!(frames[0].buffer().dimensions(), (70, 45));
@@ -191,36 +249,66 @@ fn gif_and_png_frames_are_written_and_decodable() {
             err += (g[k] as f64 / 255.0 - n[k] as f64).abs();
         }
     }
-    assert!(err / (70.0 * 45.0 * 3.0) < 0.05, "mean abs error {}", err / (70.0 * 45.0 * 3.0));
+    assert!(
+        err / (70.0 * 45.0 * 3.0) < 0.05,
+        "mean abs error {}",
+        err / (70.0 * 45.0 * 3.0)
+    );
 
     let frames_dir = dir.path().join("frames");
     render_video(&u8mpi, &cams[..3], &frames_dir, 10.0, false).unwrap();
-    let names: Vec<_> = (0..3).map(|i| frames_dir.join(format!("frame_{i:05}.png"))).collect();
+    let names: Vec<_> = (0..3)
+        .map(|i| frames_dir.join(format!("frame_{i:05}.png")))
+        .collect();
     for n in &names {
         assert_eq!(image::image_dimensions(n).unwrap(), (70, 45));
     }
-    assert_eq!(std::fs::read_dir(&frames_dir).unwrap().count(), 3, "no temporary files left");
+    assert_eq!(
+        std::fs::read_dir(&frames_dir).unwrap().count(),
+        3,
+        "no temporary files left"
+    );
 }
 
 #[test]
 fn missing_ffmpeg_is_a_clear_error() {
     let dir = tempfile::tempdir().unwrap();
-    let e = Mp4Sink::new(&dir.path().join("v.mp4"), 64, 48, 30.0, "/nonexistent/ffmpeg-for-test").err().unwrap();
+    let e = Mp4Sink::new(
+        &dir.path().join("v.mp4"),
+        64,
+        48,
+        30.0,
+        "/nonexistent/ffmpeg-for-test",
+    )
+    .err()
+    .unwrap();
     let msg = e.to_string();
-    assert!(msg.contains("not found") && msg.contains("v.mp4") && msg.contains(".gif"), "{msg}");
-    let e = Mp4Sink::new(&dir.path().join("v.mp4"), 63, 48, 30.0, "ffmpeg").err().unwrap();
+    assert!(
+        msg.contains("not found") && msg.contains("v.mp4") && msg.contains(".gif"),
+        "{msg}"
+    );
+    let e = Mp4Sink::new(&dir.path().join("v.mp4"), 63, 48, 30.0, "ffmpeg")
+        .err()
+        .unwrap();
     assert!(e.to_string().contains("even"), "{e}");
 }
 
 #[test]
 fn mp4_through_ffmpeg_when_available() {
-    if std::process::Command::new("ffmpeg").arg("-version").output().is_err() {
-        eprintln!("ffmpeg not on PATH: MP4 writing not exercised (missing_ffmpeg_is_a_clear_error covers the message)");
+    if std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+        .is_err()
+    {
+        eprintln!(
+            "ffmpeg not on PATH: MP4 writing not exercised (missing_ffmpeg_is_a_clear_error covers the message)"
+        );
         return;
     }
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("v.mp4");
-    let mut sink: Box<dyn FrameSink> = Box::new(Mp4Sink::new(&out, 64, 48, 10.0, "ffmpeg").unwrap());
+    let mut sink: Box<dyn FrameSink> =
+        Box::new(Mp4Sink::new(&out, 64, 48, 10.0, "ffmpeg").unwrap());
     for i in 0..5u8 {
         sink.push(&vec![i * 40; 64 * 48 * 3]).unwrap();
     }
@@ -234,7 +322,10 @@ fn assert_same_layers(a: &Path, b: &Path) {
     for (d, (p, q)) in x.planes.iter().zip(&y.planes).enumerate() {
         assert!(p == q, "plane {d} differs");
     }
-    assert_eq!((x.camera.width, x.camera.height), (y.camera.width, y.camera.height));
+    assert_eq!(
+        (x.camera.width, x.camera.height),
+        (y.camera.width, y.camera.height)
+    );
     for (u, v) in x.depths.iter().zip(&y.depths) {
         assert!((u - v).abs() < 1e-9 * u, "{u} vs {v}");
     }
@@ -243,7 +334,11 @@ fn assert_same_layers(a: &Path, b: &Path) {
 #[test]
 fn llff_round_trip_is_exact_on_layers() {
     let dir = tempfile::tempdir().unwrap();
-    let (src, llff, back) = (dir.path().join("mpi"), dir.path().join("llff"), dir.path().join("back"));
+    let (src, llff, back) = (
+        dir.path().join("mpi"),
+        dir.path().join("llff"),
+        dir.path().join("back"),
+    );
     // LLFF keeps one focal and a centred principal point: use such a camera so the camera round-trips too.
     let mut mpi = test_mpi();
     mpi.camera.intrinsics = Intrinsics::centred(60.0, 70, 45);
@@ -257,7 +352,10 @@ fn llff_round_trip_is_exact_on_layers() {
     assert_eq!(lines[0], "45 70 5 60");
     let far_near: Vec<f64> = lines[5].split(' ').map(|v| v.parse().unwrap()).collect();
     assert!((far_near[0] - 20.0).abs() < 1e-9 && (far_near[1] - 2.0).abs() < 1e-12);
-    assert_eq!(std::fs::metadata(llff.join("mpi.b")).unwrap().len(), 5 * 45 * 70 * 4);
+    assert_eq!(
+        std::fs::metadata(llff.join("mpi.b")).unwrap().len(),
+        5 * 45 * 70 * 4
+    );
     // The pose lines are OpenGL camera-to-world columns: line 4 is the camera centre, line 3 "back".
     let col = |i: usize| -> DVec3 {
         let v: Vec<f64> = lines[i].split(' ').map(|v| v.parse().unwrap()).collect();
@@ -266,40 +364,73 @@ fn llff_round_trip_is_exact_on_layers() {
     assert!((col(4) - mpi.camera.center()).length() < 1e-12);
     let forward_world = mpi.camera.pose.rotation.transpose() * DVec3::Z;
     assert!((col(3) + forward_world).length() < 1e-12);
-    assert_eq!(interchange::detect_format(&llff).unwrap(), ImportFormat::Llff);
+    assert_eq!(
+        interchange::detect_format(&llff).unwrap(),
+        ImportFormat::Llff
+    );
     interchange::import(&llff, &back, &ImportOptions::default()).unwrap();
     assert_same_layers(&src, &back);
-    let (a, b) = (read_straight(&src).unwrap().camera, read_straight(&back).unwrap().camera);
-    assert!(a.pose.rotation.abs_diff_eq(b.pose.rotation, 1e-12) && a.pose.translation.abs_diff_eq(b.pose.translation, 1e-12));
+    let (a, b) = (
+        read_straight(&src).unwrap().camera,
+        read_straight(&back).unwrap().camera,
+    );
+    assert!(
+        a.pose.rotation.abs_diff_eq(b.pose.rotation, 1e-12)
+            && a.pose.translation.abs_diff_eq(b.pose.translation, 1e-12)
+    );
     assert_eq!(a.intrinsics, b.intrinsics);
     // A non-centred principal point is reported.
     let src2 = dir.path().join("mpi2");
     write_test_mpi(&src2);
     let rep = interchange::export(&src2, &dir.path().join("llff2"), ExportFormat::Llff).unwrap();
-    assert!(rep.warnings.iter().any(|w| w.contains("principal point")), "{:?}", rep.warnings);
+    assert!(
+        rep.warnings.iter().any(|w| w.contains("principal point")),
+        "{:?}",
+        rep.warnings
+    );
     // Truncated mpi.b.
     let bytes = std::fs::read(llff.join("mpi.b")).unwrap();
     std::fs::write(llff.join("mpi.b"), &bytes[..1000]).unwrap();
-    let e = interchange::import(&llff, &dir.path().join("x"), &ImportOptions::default()).unwrap_err().to_string();
+    let e = interchange::import(&llff, &dir.path().join("x"), &ImportOptions::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("mpi.b") && e.contains("1000 bytes"), "{e}");
     std::fs::write(llff.join("metadata.txt"), "45 70 5\n").unwrap();
-    let e = interchange::import(&llff, &dir.path().join("x"), &ImportOptions::default()).unwrap_err().to_string();
+    let e = interchange::import(&llff, &dir.path().join("x"), &ImportOptions::default())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("metadata.txt"), "{e}");
 }
 
 #[test]
 fn stereo_mag_round_trip_is_exact_on_layers() {
     let dir = tempfile::tempdir().unwrap();
-    let (src, sm, back) = (dir.path().join("mpi"), dir.path().join("sm"), dir.path().join("back"));
+    let (src, sm, back) = (
+        dir.path().join("mpi"),
+        dir.path().join("sm"),
+        dir.path().join("back"),
+    );
     write_test_mpi(&src);
     interchange::export(&src, &sm, ExportFormat::StereoMag).unwrap();
-    for name in ["mpi_rgb_00.png", "mpi_alpha_04.png", "intrinsics.txt", "README"] {
+    for name in [
+        "mpi_rgb_00.png",
+        "mpi_alpha_04.png",
+        "intrinsics.txt",
+        "README",
+    ] {
         assert!(sm.join(name).is_file(), "{name}");
     }
     // Plane 00 is the farthest: the alpha of our layer 0 is in mpi_alpha_00.png.
     let ours = read_straight(&src).unwrap();
-    let a0 = image::open(sm.join("mpi_alpha_00.png")).unwrap().into_luma8().into_raw();
-    assert!(a0.iter().zip(ours.planes[0].chunks_exact(4)).all(|(a, p)| *a == p[3]));
+    let a0 = image::open(sm.join("mpi_alpha_00.png"))
+        .unwrap()
+        .into_luma8()
+        .into_raw();
+    assert!(
+        a0.iter()
+            .zip(ours.planes[0].chunks_exact(4))
+            .all(|(a, p)| *a == p[3])
+    );
     interchange::import(&sm, &back, &ImportOptions::default()).unwrap();
     assert_same_layers(&src, &back);
     assert_eq!(read_straight(&back).unwrap().camera, ours.camera);
@@ -308,24 +439,46 @@ fn stereo_mag_round_trip_is_exact_on_layers() {
     let back2 = dir.path().join("back2");
     interchange::import(&sm, &back2, &ImportOptions::default()).unwrap();
     assert_same_layers(&src, &back2);
-    assert_eq!(read_straight(&back2).unwrap().camera.intrinsics, ours.camera.intrinsics);
+    assert_eq!(
+        read_straight(&back2).unwrap().camera.intrinsics,
+        ours.camera.intrinsics
+    );
     // Without README either: a clear request for near/far, then explicit bounds work.
     std::fs::remove_file(sm.join("README")).unwrap();
-    let e = interchange::import(&sm, &dir.path().join("x"), &ImportOptions::default()).unwrap_err().to_string();
-    assert!(e.contains("--near"), "{e}");
-    interchange::import(&sm, &dir.path().join("x"), &ImportOptions { near_far: Some((2.0, 20.0)) }).unwrap();
-    // A missing alpha layer is named.
-    std::fs::remove_file(sm.join("mpi_alpha_02.png")).unwrap();
-    let e = interchange::import(&sm, &dir.path().join("y"), &ImportOptions { near_far: Some((2.0, 20.0)) })
+    let e = interchange::import(&sm, &dir.path().join("x"), &ImportOptions::default())
         .unwrap_err()
         .to_string();
+    assert!(e.contains("--near"), "{e}");
+    interchange::import(
+        &sm,
+        &dir.path().join("x"),
+        &ImportOptions {
+            near_far: Some((2.0, 20.0)),
+        },
+    )
+    .unwrap();
+    // A missing alpha layer is named.
+    std::fs::remove_file(sm.join("mpi_alpha_02.png")).unwrap();
+    let e = interchange::import(
+        &sm,
+        &dir.path().join("y"),
+        &ImportOptions {
+            near_far: Some((2.0, 20.0)),
+        },
+    )
+    .unwrap_err()
+    .to_string();
     assert!(e.contains("mpi_alpha_02.png"), "{e}");
 }
 
 #[test]
 fn compact_round_trip_is_exact() {
     let dir = tempfile::tempdir().unwrap();
-    let (src, cp, back) = (dir.path().join("mpi"), dir.path().join("compact"), dir.path().join("back"));
+    let (src, cp, back) = (
+        dir.path().join("mpi"),
+        dir.path().join("compact"),
+        dir.path().join("back"),
+    );
     write_test_mpi(&src);
     let rep = interchange::export(&src, &cp, ExportFormat::Compact).unwrap();
     // 70x45 with 32x32 tiles: 3x2 tiles per plane; tile (0,0) is transparent everywhere (33x33 block), and the
@@ -339,10 +492,16 @@ fn compact_round_trip_is_exact() {
     // Noise texels do not compress, so the files are about as large as the layers' (the dropped tiles are
     // all zero and cheap in PNG too); the saving is in decoded texels uploaded by the viewer: 22 of 30 tiles.
     assert!(rep.bytes > 0 && rep.source_bytes > 0);
-    assert_eq!(interchange::detect_format(&cp).unwrap(), ImportFormat::Compact);
+    assert_eq!(
+        interchange::detect_format(&cp).unwrap(),
+        ImportFormat::Compact
+    );
     interchange::import(&cp, &back, &ImportOptions::default()).unwrap();
     assert_same_layers(&src, &back);
-    assert_eq!(read_straight(&back).unwrap().camera, read_straight(&src).unwrap().camera);
+    assert_eq!(
+        read_straight(&back).unwrap().camera,
+        read_straight(&src).unwrap().camera
+    );
     // Several pages and an odd tile size also round-trip.
     let ours = read_straight(&src).unwrap();
     let cp2 = dir.path().join("compact2");
@@ -362,15 +521,23 @@ fn bad_mpi_folders_are_reported() {
     let src = dir.path().join("mpi");
     write_test_mpi(&src);
     std::fs::remove_file(src.join("layer_003.png")).unwrap();
-    for f in [ExportFormat::Llff, ExportFormat::StereoMag, ExportFormat::Compact] {
+    for f in [
+        ExportFormat::Llff,
+        ExportFormat::StereoMag,
+        ExportFormat::Compact,
+    ] {
         let e = interchange::export(&src, &dir.path().join("out"), f).unwrap_err();
         assert!(e.to_string().contains("layer_003.png"), "{e}");
     }
     write_test_mpi(&src);
     deepview_image::write_png_u8(&src.join("layer_002.png"), 4, 4, 4, &[0; 64]).unwrap();
-    let e = interchange::export(&src, &dir.path().join("out"), ExportFormat::Compact).unwrap_err().to_string();
+    let e = interchange::export(&src, &dir.path().join("out"), ExportFormat::Compact)
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("layer_002.png") && e.contains("4x4"), "{e}");
-    let e = interchange::detect_format(dir.path()).unwrap_err().to_string();
+    let e = interchange::detect_format(dir.path())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("no known MPI format"), "{e}");
     let e: MediaError = "webm".parse::<ExportFormat>().unwrap_err();
     assert!(e.to_string().contains("llff"));

@@ -144,7 +144,7 @@ pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, Syn
         }
         SceneFormat::Spaces => {
             let paths: Vec<String> = (0..cameras.len()).map(|i| format!("cam_{i:02}/image_000.png")).collect();
-            write_spaces_models(&out.join("models.json"), &[cameras.clone()], &[paths.clone()])?;
+            write_spaces_models(&out.join("models.json"), std::slice::from_ref(&cameras), std::slice::from_ref(&paths))?;
             for (p, img) in paths.iter().zip(&images) {
                 write_image(&out.join(p), img)?;
             }

@@ -40,11 +40,15 @@ pub fn mpi_files(dir: &Path) -> Result<Vec<String>, ViewerError> {
     let files = match format {
         ImportFormat::Deepview => {
             let (meta, _) = deepview_mpi::MpiMeta::read(dir)?;
-            std::iter::once("mpi.json".to_string()).chain(meta.layers).collect()
+            std::iter::once("mpi.json".to_string())
+                .chain(meta.layers)
+                .collect()
         }
         ImportFormat::Compact => {
             let (meta, _) = compact::CompactMeta::read(dir)?;
-            std::iter::once(compact::META.to_string()).chain(meta.pages).collect()
+            std::iter::once(compact::META.to_string())
+                .chain(meta.pages)
+                .collect()
         }
         other => {
             return Err(ViewerError::Invalid {
@@ -70,7 +74,7 @@ fn content_type(name: &str) -> &'static str {
     }
 }
 
-/// A running viewer server (worker threads answer requests until [`Server::stop`] or drop).
+/// A running viewer server (a worker thread answers requests until [`Server::stop`] or drop).
 pub struct Server {
     http: Arc<tiny_http::Server>,
     workers: Vec<std::thread::JoinHandle<()>>,
@@ -82,23 +86,40 @@ impl Server {
     pub fn start(dir: &Path, host: &str, port: u16) -> Result<Server, ViewerError> {
         let files = Arc::new(mpi_files(dir)?);
         let addr = format!("{host}:{port}");
-        let http = tiny_http::Server::http(&addr).map_err(|e| ViewerError::Bind { addr: addr.clone(), msg: e.to_string() })?;
-        let local = http.server_addr().to_ip().ok_or_else(|| ViewerError::Bind { addr: addr.clone(), msg: "not an IP socket".into() })?;
-        let url_host = if local.ip().is_unspecified() { "127.0.0.1".to_string() } else { local.ip().to_string() };
-        let url_host = if url_host.contains(':') { format!("[{url_host}]") } else { url_host };
+        let http = tiny_http::Server::http(&addr).map_err(|e| ViewerError::Bind {
+            addr: addr.clone(),
+            msg: e.to_string(),
+        })?;
+        let local = http
+            .server_addr()
+            .to_ip()
+            .ok_or_else(|| ViewerError::Bind {
+                addr: addr.clone(),
+                msg: "not an IP socket".into(),
+            })?;
+        let url_host = if local.ip().is_unspecified() {
+            "127.0.0.1".to_string()
+        } else {
+            local.ip().to_string()
+        };
+        let url_host = if url_host.contains(':') {
+            format!("[{url_host}]")
+        } else {
+            url_host
+        };
         let url = format!("http://{url_host}:{}/", local.port());
         let http = Arc::new(http);
+        let http_keep = http.clone();
         let dir = Arc::new(dir.to_path_buf());
-        let workers = (0..4)
-            .map(|_| {
-                let (http, files, dir) = (http.clone(), files.clone(), dir.clone());
-                std::thread::spawn(move || {
-                    for req in http.incoming_requests() {
-                        handle(req, &dir, &files);
-                    }
-                })
-            })
-            .collect();
+        // One thread answers requests in arrival order. (tiny_http writes the responses of one keep-alive
+        // connection in request order, so several workers holding later requests of a connection while its
+        // earlier one waits in the queue could all block; the files are small and local.)
+        let workers = vec![std::thread::spawn(move || {
+            for req in http.incoming_requests() {
+                handle(req, &dir, &files);
+            }
+        })];
+        let http = http_keep;
         Ok(Server { http, workers, url })
     }
 
@@ -155,7 +176,8 @@ fn handle(req: tiny_http::Request, dir: &Path, files: &[String]) {
         return;
     }
     let path = req.url().split(['?', '#']).next().unwrap_or("").to_string();
-    let header = |k: &str, v: &str| Header::from_bytes(k.as_bytes(), v.as_bytes()).expect("valid header");
+    let header =
+        |k: &str, v: &str| Header::from_bytes(k.as_bytes(), v.as_bytes()).expect("valid header");
     match route(&path, dir, files) {
         Some((ct, body)) => {
             let resp = Response::from_data(body)
@@ -173,12 +195,18 @@ fn handle(req: tiny_http::Request, dir: &Path, files: &[String]) {
 /// Write the viewer page and the MPI's files to `out` as a static site (`index.html` + the MPI files).
 pub fn export_web(mpi_dir: &Path, out: &Path) -> Result<Vec<PathBuf>, ViewerError> {
     let files = mpi_files(mpi_dir)?;
-    std::fs::create_dir_all(out).map_err(|e| ViewerError::Invalid { path: out.into(), msg: format!("cannot create: {e}") })?;
+    std::fs::create_dir_all(out).map_err(|e| ViewerError::Invalid {
+        path: out.into(),
+        msg: format!("cannot create: {e}"),
+    })?;
     let mut written = Vec::new();
     // Layers first, the JSON after them, the page last: a readable page always has its MPI.
     for name in files.iter().skip(1).chain(files.first()) {
         let src = mpi_dir.join(name);
-        let bytes = std::fs::read(&src).map_err(|e| ViewerError::Invalid { path: src.clone(), msg: format!("cannot read: {e}") })?;
+        let bytes = std::fs::read(&src).map_err(|e| ViewerError::Invalid {
+            path: src.clone(),
+            msg: format!("cannot read: {e}"),
+        })?;
         let dst = out.join(name);
         deepview_image::write_atomic(&dst, &bytes)?;
         written.push(dst);

@@ -24,7 +24,12 @@ use std::time::{Duration, Instant};
 /// transparent texels and fully transparent regions.
 fn scene() -> Mpi {
     let (w, h, d) = (504u32, 378u32, 32usize);
-    let cam = Camera::new(w, h, Intrinsics::new(400.0, 405.0, 250.3, 190.1), Pose::IDENTITY);
+    let cam = Camera::new(
+        w,
+        h,
+        Intrinsics::new(400.0, 405.0, 250.3, 190.1),
+        Pose::IDENTITY,
+    );
     let depths = plane_depths(1.5, 40.0, d, PlaneSpacing::InverseDepth).unwrap();
     let mut mpi = Mpi::transparent(cam, depths);
     for p in 0..d {
@@ -40,8 +45,16 @@ fn scene() -> Mpi {
                     let cx = 0.15 + 0.7 * ((p * 37) % 29) as f32 / 28.0;
                     let cy = 0.15 + 0.7 * ((p * 11) % 17) as f32 / 16.0;
                     let r = ((fx - cx).powi(2) + (fy - cy).powi(2)).sqrt();
-                    let a = (1.0 - r / 0.12).clamp(0.0, 1.0).powf(0.5) * if (x + y) % 3 == 0 { 0.6 } else { 0.9 };
-                    (a, [(p as f32 * 0.13).fract(), (p as f32 * 0.29 + fx).fract(), (p as f32 * 0.071 + fy).fract()])
+                    let a = (1.0 - r / 0.12).clamp(0.0, 1.0).powf(0.5)
+                        * if (x + y) % 3 == 0 { 0.6 } else { 0.9 };
+                    (
+                        a,
+                        [
+                            (p as f32 * 0.13).fract(),
+                            (p as f32 * 0.29 + fx).fract(),
+                            (p as f32 * 0.071 + fy).fract(),
+                        ],
+                    )
                 };
                 let q = &mut plane[(y * w as usize + x) * 4..(y * w as usize + x) * 4 + 4];
                 q[3] = a;
@@ -59,7 +72,12 @@ fn target_camera(reference: &Camera) -> Camera {
     // focal length than the reference so the test covers intrinsics as well.
     let rot = DMat3::from_rotation_y(0.03) * DMat3::from_rotation_x(-0.02);
     let pose = Pose::from_center(rot, DVec3::new(0.06, -0.04, 0.05));
-    Camera::new(480, 360, Intrinsics::new(380.0, 382.0, 241.0, 178.5), pose.compose(&reference.pose))
+    Camera::new(
+        480,
+        360,
+        Intrinsics::new(380.0, 382.0, 241.0, 178.5),
+        pose.compose(&reference.pose),
+    )
 }
 
 fn psnr_rgb(a: &ImageF32, b: &ImageF32) -> f64 {
@@ -69,7 +87,9 @@ fn psnr_rgb(a: &ImageF32, b: &ImageF32) -> f64 {
 // ---------------------------------------------------------------- chromium + a minimal CDP client
 
 fn chromium_path() -> PathBuf {
-    let p = PathBuf::from(std::env::var("DEEPVIEW_CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into()));
+    let p = PathBuf::from(
+        std::env::var("DEEPVIEW_CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into()),
+    );
     assert!(
         p.is_file(),
         "{} not found: the browser test needs Chromium (Debian: `apt-get update && apt-get install -y chromium`, \
@@ -130,26 +150,44 @@ impl Browser {
                 }
             }
         });
-        let browser_ws = rx.recv_timeout(Duration::from_secs(30)).expect("chromium printed no DevTools address within 30 s");
-        let port: u16 = browser_ws.trim_start_matches("ws://").split(['/', ':']).nth(1).unwrap().parse().unwrap();
+        let browser_ws = rx
+            .recv_timeout(Duration::from_secs(30))
+            .expect("chromium printed no DevTools address within 30 s");
+        let port: u16 = browser_ws
+            .trim_start_matches("ws://")
+            .split(['/', ':'])
+            .nth(1)
+            .unwrap()
+            .parse()
+            .unwrap();
         // The page target opened for about:blank.
         let deadline = Instant::now() + Duration::from_secs(20);
         let page_ws = loop {
-            let list: Value = serde_json::from_str(&http_get(port, "/json/list").1).unwrap_or(Value::Null);
-            if let Some(t) = list.as_array().and_then(|a| a.iter().find(|t| t["type"] == "page")) {
+            let list: Value =
+                serde_json::from_str(&http_get(port, "/json/list").1).unwrap_or(Value::Null);
+            if let Some(t) = list
+                .as_array()
+                .and_then(|a| a.iter().find(|t| t["type"] == "page"))
+            {
                 break t["webSocketDebuggerUrl"].as_str().unwrap().to_string();
             }
             assert!(Instant::now() < deadline, "no page target in chromium");
             std::thread::sleep(Duration::from_millis(100));
         };
         let ws = WebSocket::connect(&page_ws);
-        Browser { child, _profile: profile, ws, next_id: 1 }
+        Browser {
+            child,
+            _profile: profile,
+            ws,
+            next_id: 1,
+        }
     }
 
     fn call(&mut self, method: &str, params: Value) -> Value {
         let id = self.next_id;
         self.next_id += 1;
-        self.ws.send(&json!({"id": id, "method": method, "params": params}).to_string());
+        self.ws
+            .send(&json!({"id": id, "method": method, "params": params}).to_string());
         loop {
             let msg: Value = serde_json::from_str(&self.ws.recv()).unwrap();
             if msg["id"] == id {
@@ -160,25 +198,35 @@ impl Browser {
     }
 
     fn eval(&mut self, expr: &str) -> Value {
-        let r = self.call("Runtime.evaluate", json!({"expression": expr, "returnByValue": true}));
+        let r = self.call(
+            "Runtime.evaluate",
+            json!({"expression": expr, "returnByValue": true}),
+        );
         r["result"]["value"].clone()
     }
 
     /// Open `url` in a `w x h` viewport and wait until the viewer has drawn `frames` frames.
     fn open(&mut self, url: &str, w: u32, h: u32, frames: u64) -> Value {
-        self.call("Emulation.setDeviceMetricsOverride", json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}));
+        self.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}),
+        );
         self.call("Page.navigate", json!({"url": url}));
         let deadline = Instant::now() + Duration::from_secs(90);
         loop {
             let s = self.eval("JSON.stringify(window.deepviewStats || null)");
-            let stats: Value = serde_json::from_str(s.as_str().unwrap_or("null")).unwrap_or(Value::Null);
+            let stats: Value =
+                serde_json::from_str(s.as_str().unwrap_or("null")).unwrap_or(Value::Null);
             if let Some(e) = stats["error"].as_str() {
                 panic!("viewer error: {e}");
             }
             if stats["ready"] == true && stats["frames"].as_u64().unwrap_or(0) >= frames {
                 return stats;
             }
-            assert!(Instant::now() < deadline, "viewer not ready after 90 s: {stats}");
+            if Instant::now() > deadline {
+                let hud = self.eval("document.getElementById('hud').textContent + ' | loaded: ' + performance.getEntriesByType('resource').map((e) => e.name.split('/').pop() + ':' + e.responseStatus).join(' ')");
+                panic!("viewer not ready after 90 s: {stats}; page: {hud}");
+            }
             std::thread::sleep(Duration::from_millis(100));
         }
     }
@@ -188,19 +236,53 @@ impl Browser {
         let png = base64_decode(r["data"].as_str().unwrap());
         let img = image::load_from_memory(&png).unwrap().into_rgb8();
         let (w, h) = img.dimensions();
-        ImageF32::from_data(w, h, 3, img.into_raw().into_iter().map(|v| v as f32 / 255.0).collect()).unwrap()
+        ImageF32::from_data(
+            w,
+            h,
+            3,
+            img.into_raw()
+                .into_iter()
+                .map(|v| v as f32 / 255.0)
+                .collect(),
+        )
+        .unwrap()
     }
 }
 
 fn http_get(port: u16, path: &str) -> (u16, String) {
+    // DevTools' HTTP server may keep the connection open: read the headers, then Content-Length bytes.
     let mut s = TcpStream::connect(("127.0.0.1", port)).unwrap();
-    write!(s, "GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n").unwrap();
-    let mut buf = Vec::new();
-    s.read_to_end(&mut buf).unwrap();
-    let text = String::from_utf8_lossy(&buf).into_owned();
-    let status = text.split(' ').nth(1).and_then(|c| c.parse().ok()).unwrap_or(0);
-    let body = text.split_once("\r\n\r\n").map(|(_, b)| b.to_string()).unwrap_or_default();
-    (status, body)
+    s.set_read_timeout(Some(Duration::from_secs(10))).unwrap();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut head = Vec::new();
+    let mut b = [0u8; 1];
+    while !head.ends_with(b"\r\n\r\n") {
+        if s.read(&mut b).unwrap_or(0) == 0 {
+            break;
+        }
+        head.push(b[0]);
+    }
+    let head = String::from_utf8_lossy(&head).into_owned();
+    let status = head
+        .split(' ')
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let len = head
+        .lines()
+        .find_map(|l| {
+            l.to_ascii_lowercase()
+                .strip_prefix("content-length:")
+                .map(|v| v.trim().parse::<usize>().unwrap_or(0))
+        })
+        .unwrap_or(0);
+    let mut body = vec![0u8; len];
+    let _ = s.read_exact(&mut body);
+    (status, String::from_utf8_lossy(&body).into_owned())
 }
 
 fn base64_decode(s: &str) -> Vec<u8> {
@@ -214,7 +296,10 @@ fn base64_decode(s: &str) -> Vec<u8> {
             _ => panic!("bad base64"),
         }
     };
-    let clean: Vec<u8> = s.bytes().filter(|c| !c.is_ascii_whitespace() && *c != b'=').collect();
+    let clean: Vec<u8> = s
+        .bytes()
+        .filter(|c| !c.is_ascii_whitespace() && *c != b'=')
+        .collect();
     let mut out = Vec::with_capacity(clean.len() * 3 / 4);
     for chunk in clean.chunks(4) {
         let mut n = 0u32;
@@ -250,8 +335,13 @@ impl WebSocket {
             head.push(b[0]);
         }
         let head = String::from_utf8_lossy(&head);
-        assert!(head.starts_with("HTTP/1.1 101"), "websocket handshake failed: {head}");
-        stream.set_read_timeout(Some(Duration::from_secs(120))).unwrap();
+        assert!(
+            head.starts_with("HTTP/1.1 101"),
+            "websocket handshake failed: {head}"
+        );
+        stream
+            .set_read_timeout(Some(Duration::from_secs(120)))
+            .unwrap();
         WebSocket { stream }
     }
 
@@ -308,22 +398,41 @@ fn camera_query(c: &Camera) -> String {
     // The JSON of the camera, percent-encoded for the query string.
     let text = serde_json::to_string(&c.to_json()).unwrap();
     text.bytes()
-        .map(|b| if b.is_ascii_alphanumeric() || b"-_.".contains(&b) { (b as char).to_string() } else { format!("%{b:02X}") })
+        .map(|b| {
+            if b.is_ascii_alphanumeric() || b"-_.".contains(&b) {
+                (b as char).to_string()
+            } else {
+                format!("%{b:02X}")
+            }
+        })
         .collect()
 }
 
-fn check_fixed_camera(browser: &mut Browser, dir: &Path, native: &ImageF32, cam: &Camera, what: &str) {
+fn check_fixed_camera(
+    browser: &mut Browser,
+    dir: &Path,
+    native: &ImageF32,
+    cam: &Camera,
+    what: &str,
+) {
     let server = Server::start(dir, "127.0.0.1", 0).unwrap();
     let url = format!("{}?camera={}", server.url(), camera_query(cam));
     browser.open(&url, cam.width, cam.height, 2);
     let shot = browser.screenshot();
-    assert_eq!((shot.width, shot.height), (cam.width, cam.height), "{what}: screenshot size");
+    assert_eq!(
+        (shot.width, shot.height),
+        (cam.width, cam.height),
+        "{what}: screenshot size"
+    );
     let psnr = psnr_rgb(&shot, native);
     println!("{what}: browser vs native renderer PSNR {psnr:.2} dB");
     if psnr < 35.0 {
         let out = std::env::temp_dir().join(format!("deepview_viewer_{what}.png"));
         deepview_image::write_png(&out, &shot).unwrap();
-        panic!("{what}: PSNR {psnr:.2} dB < 35 (screenshot in {})", out.display());
+        panic!(
+            "{what}: PSNR {psnr:.2} dB < 35 (screenshot in {})",
+            out.display()
+        );
     }
     server.stop();
 }
@@ -343,14 +452,23 @@ fn browser_matches_native_renderer_and_reports_fps() {
 
     // The compact export renders the same.
     let compact = tmp.path().join("compact");
-    let rep = deepview_media::export(&dir, &compact, deepview_media::ExportFormat::Compact).unwrap();
-    println!("compact export: tiles {:?}, {} bytes vs {} bytes of layers", rep.tiles, rep.bytes, rep.source_bytes);
+    let rep =
+        deepview_media::export(&dir, &compact, deepview_media::ExportFormat::Compact).unwrap();
+    println!(
+        "compact export: tiles {:?}, {} bytes vs {} bytes of layers",
+        rep.tiles, rep.bytes, rep.source_bytes
+    );
     check_fixed_camera(&mut browser, &compact, &native, &cam, "compact");
 
     // The same camera given as base64 JSON is accepted too.
     let server = Server::start(&dir, "127.0.0.1", 0).unwrap();
     let b64 = base64_encode(serde_json::to_string(&cam.to_json()).unwrap().as_bytes());
-    browser.open(&format!("{}?camera={b64}", server.url()), cam.width, cam.height, 2);
+    browser.open(
+        &format!("{}?camera={b64}", server.url()),
+        cam.width,
+        cam.height,
+        2,
+    );
     let psnr = psnr_rgb(&browser.screenshot(), &native);
     assert!(psnr >= 35.0, "base64 camera: PSNR {psnr}");
 
@@ -358,7 +476,13 @@ fn browser_matches_native_renderer_and_reports_fps() {
     let (w, h) = (mpi.camera.width, mpi.camera.height);
     browser.open(&format!("{}?bench=1", server.url()), w, h, 1);
     std::thread::sleep(Duration::from_millis(3500));
-    let stats: Value = serde_json::from_str(browser.eval("JSON.stringify(window.deepviewStats)").as_str().unwrap()).unwrap();
+    let stats: Value = serde_json::from_str(
+        browser
+            .eval("JSON.stringify(window.deepviewStats)")
+            .as_str()
+            .unwrap(),
+    )
+    .unwrap();
     let fps = stats["fps"].as_f64().unwrap();
     println!(
         "viewer fps (headless chromium, SwiftShader, {w}x{h}, {} planes): {fps:.1} ({} frames)",
@@ -373,7 +497,9 @@ fn base64_encode(bytes: &[u8]) -> String {
     const A: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
     let mut s = String::new();
     for c in bytes.chunks(3) {
-        let n = (c[0] as u32) << 16 | (*c.get(1).unwrap_or(&0) as u32) << 8 | *c.get(2).unwrap_or(&0) as u32;
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
         for i in 0..4 {
             if i <= c.len() {
                 s.push(A[(n >> (18 - 6 * i) & 63) as usize] as char);

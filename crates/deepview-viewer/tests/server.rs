@@ -21,7 +21,11 @@ fn small_mpi(dir: &Path) {
 fn get(url: &str, path: &str) -> (u16, Vec<u8>) {
     let host = url.trim_start_matches("http://").trim_end_matches('/');
     let mut s = TcpStream::connect(host).unwrap();
-    write!(s, "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n").unwrap();
+    write!(
+        s,
+        "GET {path} HTTP/1.1\r\nHost: {host}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
     let mut buf = Vec::new();
     s.read_to_end(&mut buf).unwrap();
     let split = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
@@ -82,26 +86,48 @@ fn broken_mpi_folders_are_refused_with_the_file_named() {
     let dir = tmp.path().join("mpi");
     small_mpi(&dir);
     std::fs::remove_file(dir.join("layer_001.png")).unwrap();
-    let e = Server::start(&dir, "127.0.0.1", 0).err().unwrap().to_string();
+    let e = Server::start(&dir, "127.0.0.1", 0)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("layer_001.png"), "{e}");
     small_mpi(&dir);
     deepview_image::write_png_u8(&dir.join("layer_001.png"), 8, 8, 4, &[0; 256]).unwrap();
     let e = mpi_files(&dir).unwrap_err().to_string();
     assert!(e.contains("layer_001.png") && e.contains("8x8"), "{e}");
     std::fs::write(dir.join("mpi.json"), "{ not json").unwrap();
-    let e = export_web(&dir, &tmp.path().join("web")).unwrap_err().to_string();
+    let e = export_web(&dir, &tmp.path().join("web"))
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("mpi.json"), "{e}");
-    let e = Server::start(tmp.path(), "127.0.0.1", 0).err().unwrap().to_string();
+    let e = Server::start(tmp.path(), "127.0.0.1", 0)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("no known MPI format"), "{e}");
     // A port that cannot be bound is an error, not a panic.
-    let busy = Server::start(&{
-        let d = tmp.path().join("ok");
-        small_mpi(&d);
-        d
-    }, "127.0.0.1", 0)
+    let busy = Server::start(
+        &{
+            let d = tmp.path().join("ok");
+            small_mpi(&d);
+            d
+        },
+        "127.0.0.1",
+        0,
+    )
     .unwrap();
-    let port = busy.url().rsplit(':').next().unwrap().trim_end_matches('/').parse::<u16>().unwrap();
-    let e = Server::start(&tmp.path().join("ok"), "127.0.0.1", port).err().unwrap().to_string();
+    let port = busy
+        .url()
+        .rsplit(':')
+        .next()
+        .unwrap()
+        .trim_end_matches('/')
+        .parse::<u16>()
+        .unwrap();
+    let e = Server::start(&tmp.path().join("ok"), "127.0.0.1", port)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(e.contains("cannot serve"), "{e}");
 }
 
@@ -113,9 +139,21 @@ fn export_web_writes_a_static_site() {
     let out = tmp.path().join("site");
     let files = export_web(&dir, &out).unwrap();
     assert_eq!(files.len(), 5);
-    assert_eq!(std::fs::read_to_string(out.join("index.html")).unwrap(), INDEX_HTML);
-    for name in ["mpi.json", "layer_000.png", "layer_001.png", "layer_002.png"] {
-        assert_eq!(std::fs::read(out.join(name)).unwrap(), std::fs::read(dir.join(name)).unwrap(), "{name}");
+    assert_eq!(
+        std::fs::read_to_string(out.join("index.html")).unwrap(),
+        INDEX_HTML
+    );
+    for name in [
+        "mpi.json",
+        "layer_000.png",
+        "layer_001.png",
+        "layer_002.png",
+    ] {
+        assert_eq!(
+            std::fs::read(out.join(name)).unwrap(),
+            std::fs::read(dir.join(name)).unwrap(),
+            "{name}"
+        );
     }
     // The exported site is itself a servable MPI folder, and so is a compact export.
     assert_eq!(mpi_files(&out).unwrap().len(), 4);

@@ -91,7 +91,7 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
             let v: Vec<usize> = spec.split('x').map(|s| s.trim().parse()).collect::<Result<_, _>>().map_err(|_| {
                 anyhow::anyhow!("--synthetic takes WIDTHxHEIGHTxPLANES, e.g. 1008x756x32 (got {spec:?})")
             })?;
-            if v.len() != 3 || v.iter().any(|&x| x == 0) {
+            if v.len() != 3 || v.contains(&0) {
                 bail!("--synthetic takes WIDTHxHEIGHTxPLANES with positive numbers (got {spec:?})");
             }
             synthetic_mpi(v[0] as u32, v[1] as u32, v[2])?

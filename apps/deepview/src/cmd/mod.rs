@@ -4,6 +4,9 @@ pub mod bench;
 pub mod demo;
 pub mod depth;
 pub mod eval;
+pub mod export;
+pub mod export_web;
+pub mod import;
 pub mod infer;
 pub mod info;
 pub mod optimize;
@@ -11,6 +14,7 @@ pub mod psv;
 pub mod render;
 pub mod synth;
 pub mod train;
+pub mod view;
 
 use anyhow::{Context, bail};
 use deepview_geometry::{Camera, CameraJson};

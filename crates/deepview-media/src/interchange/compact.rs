@@ -50,41 +50,67 @@ impl CompactMeta {
     pub fn read(dir: &Path) -> Result<(CompactMeta, Camera), MediaError> {
         let path = dir.join(META);
         let text = std::fs::read_to_string(&path).map_err(read_err(&path))?;
-        let meta: CompactMeta = serde_json::from_str(&text)
-            .map_err(|source| MediaError::Json { path: path.clone(), what: "mpi_compact.json", source })?;
+        let meta: CompactMeta = serde_json::from_str(&text).map_err(|source| MediaError::Json {
+            path: path.clone(),
+            what: "mpi_compact.json",
+            source,
+        })?;
         let bad = |msg: String| invalid(&path, msg);
         if meta.format != FORMAT || meta.version != 1 {
-            return Err(bad(format!("format {:?} version {} (expected {FORMAT:?} version 1)", meta.format, meta.version)));
+            return Err(bad(format!(
+                "format {:?} version {} (expected {FORMAT:?} version 1)",
+                meta.format, meta.version
+            )));
         }
         let pose = Pose::from_row_major(&meta.camera_from_world).map_err(|e| bad(e.to_string()))?;
         let camera = Camera::new(meta.width, meta.height, meta.intrinsics, pose);
         camera.validate().map_err(|e| bad(e.to_string()))?;
         if meta.depths.is_empty() || meta.depths.len() != meta.planes.len() {
-            return Err(bad(format!("{} depths and {} planes", meta.depths.len(), meta.planes.len())));
+            return Err(bad(format!(
+                "{} depths and {} planes",
+                meta.depths.len(),
+                meta.planes.len()
+            )));
         }
-        if !meta.depths.iter().all(|d| d.is_finite() && *d > 0.0) || meta.depths.windows(2).any(|w| w[1] >= w[0]) {
-            return Err(bad("depths must be positive and decrease (far plane first)".into()));
+        if !meta.depths.iter().all(|d| d.is_finite() && *d > 0.0)
+            || meta.depths.windows(2).any(|w| w[1] >= w[0])
+        {
+            return Err(bad(
+                "depths must be positive and decrease (far plane first)".into(),
+            ));
         }
         if meta.tile == 0 || meta.page_cols == 0 || meta.page_rows == 0 {
             return Err(bad("tile, page_cols and page_rows must be positive".into()));
         }
-        if meta.tiles_x != meta.width.div_ceil(meta.tile) || meta.tiles_y != meta.height.div_ceil(meta.tile) {
-            return Err(bad("tiles_x / tiles_y do not match the size and tile".into()));
+        if meta.tiles_x != meta.width.div_ceil(meta.tile)
+            || meta.tiles_y != meta.height.div_ceil(meta.tile)
+        {
+            return Err(bad(
+                "tiles_x / tiles_y do not match the size and tile".into()
+            ));
         }
         let n_tiles = meta.tiles_x * meta.tiles_y;
         for (d, p) in meta.planes.iter().enumerate() {
             if p.iter().any(|&k| k >= n_tiles) || p.windows(2).any(|w| w[1] <= w[0]) {
-                return Err(bad(format!("plane {d}: tile indices must ascend and be below {n_tiles}")));
+                return Err(bad(format!(
+                    "plane {d}: tile indices must ascend and be below {n_tiles}"
+                )));
             }
         }
         let kept: usize = meta.planes.iter().map(Vec::len).sum();
         let per_page = (meta.page_cols * meta.page_rows) as usize;
         if meta.pages.len() != kept.div_ceil(per_page) {
-            return Err(bad(format!("{kept} tiles need {} pages, the file lists {}", kept.div_ceil(per_page), meta.pages.len())));
+            return Err(bad(format!(
+                "{kept} tiles need {} pages, the file lists {}",
+                kept.div_ceil(per_page),
+                meta.pages.len()
+            )));
         }
         for name in &meta.pages {
             if name.contains('/') || name.contains('\\') || name.starts_with('.') {
-                return Err(bad(format!("page name {name:?} must be a plain file name in the folder")));
+                return Err(bad(format!(
+                    "page name {name:?} must be a plain file name in the folder"
+                )));
             }
         }
         Ok((meta, camera))
@@ -98,7 +124,11 @@ fn tile_is_empty(px: &[u8], w: u32, h: u32, t: u32, tx: u32, ty: u32) -> bool {
 }
 
 /// Write the compact export of `mpi` in the folder `out` with `tile x tile` tiles.
-pub fn write_with_tile(out: &Path, mpi: &StraightMpi, tile: u32) -> Result<ExportReport, MediaError> {
+pub fn write_with_tile(
+    out: &Path,
+    mpi: &StraightMpi,
+    tile: u32,
+) -> Result<ExportReport, MediaError> {
     check_planes(out, mpi)?;
     if tile == 0 {
         return Err(MediaError::Config("tile size must be positive".into()));
@@ -108,7 +138,11 @@ pub fn write_with_tile(out: &Path, mpi: &StraightMpi, tile: u32) -> Result<Expor
     let planes: Vec<Vec<u32>> = mpi
         .planes
         .iter()
-        .map(|px| (0..tiles_x * tiles_y).filter(|k| !tile_is_empty(px, w, h, tile, k % tiles_x, k / tiles_x)).collect())
+        .map(|px| {
+            (0..tiles_x * tiles_y)
+                .filter(|k| !tile_is_empty(px, w, h, tile, k % tiles_x, k / tiles_x))
+                .collect()
+        })
         .collect();
     let kept: usize = planes.iter().map(Vec::len).sum();
     let cols = kept.clamp(1, MAX_PAGE_TILES);
@@ -168,7 +202,12 @@ pub fn write_with_tile(out: &Path, mpi: &StraightMpi, tile: u32) -> Result<Expor
         planes,
     };
     let path = out.join(META);
-    write_atomic(&path, serde_json::to_string(&meta).expect("compact meta serialises").as_bytes())?;
+    write_atomic(
+        &path,
+        serde_json::to_string(&meta)
+            .expect("compact meta serialises")
+            .as_bytes(),
+    )?;
     report.add(path)?;
     report.tiles = Some((kept, (tiles_x * tiles_y) as usize * mpi.planes.len()));
     Ok(report)
@@ -191,7 +230,10 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
         let path = dir.join(name);
         let (pw, ph, px) = decode_rgba8(&path)?;
         if pw != page_w || ph % t != 0 || ph > meta.page_rows * t {
-            return Err(invalid(&path, format!("page is {pw}x{ph}, expected {page_w} wide and a multiple of {t} tall")));
+            return Err(invalid(
+                &path,
+                format!("page is {pw}x{ph}, expected {page_w} wide and a multiple of {t} tall"),
+            ));
         }
         pages.push((ph, px));
     }
@@ -204,7 +246,10 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
             let local = slot % per_page;
             let (px0, py0) = ((local % cols) as u32 * t, (local / cols) as u32 * t);
             if py0 + t > *ph {
-                return Err(invalid(dir.join(&meta.pages[slot / per_page]), format!("too short for tile slot {local}")));
+                return Err(invalid(
+                    dir.join(&meta.pages[slot / per_page]),
+                    format!("too short for tile slot {local}"),
+                ));
             }
             let (x0, y0) = (tx * t, ty * t);
             let cw = (t.min(w - x0) * 4) as usize;
@@ -216,5 +261,9 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
             slot += 1;
         }
     }
-    Ok(StraightMpi { camera, depths: meta.depths, planes })
+    Ok(StraightMpi {
+        camera,
+        depths: meta.depths,
+        planes,
+    })
 }

@@ -36,7 +36,10 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> 
     let k = cam.intrinsics;
     let mut report = ExportReport::default();
     if (k.fx - k.fy).abs() > 1e-6 * k.fx {
-        report.warnings.push(format!("LLFF stores one focal length: fx {} and fy {} differ, writing fx", k.fx, k.fy));
+        report.warnings.push(format!(
+            "LLFF stores one focal length: fx {} and fy {} differ, writing fx",
+            k.fx, k.fy
+        ));
     }
     let (cx, cy) = (cam.width as f64 / 2.0, cam.height as f64 / 2.0);
     if (k.cx - cx).abs() > 1e-6 || (k.cy - cy).abs() > 1e-6 {
@@ -56,9 +59,16 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> 
     let m = pose_to_opengl_c2w(&cam.pose);
     let far = mpi.depths[0];
     let near = mpi.depths[mpi.depths.len() - 1];
-    let mut text = format!("{} {} {} {}\n", cam.height, cam.width, mpi.depths.len(), k.fx);
+    let mut text = format!(
+        "{} {} {} {}\n",
+        cam.height,
+        cam.width,
+        mpi.depths.len(),
+        k.fx
+    );
     for j in 0..4 {
-        text += &format!("{} {} {}\n", m[j], m[4 + j], m[8 + j]);
+        // `+ 0.0` turns -0 into 0 for tidier files.
+        text += &format!("{} {} {}\n", m[j] + 0.0, m[4 + j] + 0.0, m[8 + j] + 0.0);
     }
     text += &format!("{far} {near}\n");
     let bin = out.join("mpi.b");
@@ -76,17 +86,30 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
     let text = std::fs::read_to_string(&meta_path).map_err(read_err(&meta_path))?;
     let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
     if lines.len() < 6 {
-        return Err(invalid(&meta_path, format!("expected 6 lines (size, 4 pose columns, depth bounds), got {}", lines.len())));
+        return Err(invalid(
+            &meta_path,
+            format!(
+                "expected 6 lines (size, 4 pose columns, depth bounds), got {}",
+                lines.len()
+            ),
+        ));
     }
     let head = numbers(&meta_path, 0, lines[0], 4)?;
     let as_count = |v: f64, what: &str| -> Result<usize, MediaError> {
         if v >= 1.0 && v.fract() == 0.0 && v < 1e6 {
             Ok(v as usize)
         } else {
-            Err(invalid(&meta_path, format!("line 1: {what} must be a positive integer, got {v}")))
+            Err(invalid(
+                &meta_path,
+                format!("line 1: {what} must be a positive integer, got {v}"),
+            ))
         }
     };
-    let (h, w, d) = (as_count(head[0], "height")?, as_count(head[1], "width")?, as_count(head[2], "plane count")?);
+    let (h, w, d) = (
+        as_count(head[0], "height")?,
+        as_count(head[1], "width")?,
+        as_count(head[2], "plane count")?,
+    );
     let focal = head[3];
     let mut m = [0.0; 16];
     for j in 0..4 {
@@ -96,21 +119,38 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
         m[8 + j] = col[2];
     }
     m[15] = 1.0;
-    let pose = opengl_c2w_to_pose(&m).map_err(|e| invalid(&meta_path, format!("camera pose: {e}")))?;
+    let pose =
+        opengl_c2w_to_pose(&m).map_err(|e| invalid(&meta_path, format!("camera pose: {e}")))?;
     let bounds = numbers(&meta_path, 5, lines[5], 2)?;
     let (far, near) = (bounds[0], bounds[1]);
-    let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth).map_err(|e| invalid(&meta_path, format!("line 6 (far near): {e}")))?;
-    let camera = Camera::new(w as u32, h as u32, Intrinsics::centred(focal, w as u32, h as u32), pose);
-    camera.validate().map_err(|e| invalid(&meta_path, e.to_string()))?;
+    let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth)
+        .map_err(|e| invalid(&meta_path, format!("line 6 (far near): {e}")))?;
+    let camera = Camera::new(
+        w as u32,
+        h as u32,
+        Intrinsics::centred(focal, w as u32, h as u32),
+        pose,
+    );
+    camera
+        .validate()
+        .map_err(|e| invalid(&meta_path, e.to_string()))?;
     let bin_path = dir.join("mpi.b");
     let bytes = std::fs::read(&bin_path).map_err(read_err(&bin_path))?;
     let plane_len = w * h * 4;
     if bytes.len() != plane_len * d {
         return Err(invalid(
             &bin_path,
-            format!("has {} bytes, metadata.txt says {d} planes of {w}x{h}x4 = {} bytes", bytes.len(), plane_len * d),
+            format!(
+                "has {} bytes, metadata.txt says {d} planes of {w}x{h}x4 = {} bytes",
+                bytes.len(),
+                plane_len * d
+            ),
         ));
     }
     let planes = bytes.chunks_exact(plane_len).map(|c| c.to_vec()).collect();
-    Ok(StraightMpi { camera, depths, planes })
+    Ok(StraightMpi {
+        camera,
+        depths,
+        planes,
+    })
 }

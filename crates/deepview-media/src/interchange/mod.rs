@@ -39,7 +39,10 @@ pub(crate) fn decode_rgba8(path: &Path) -> Result<(u32, u32, Vec<u8>), MediaErro
         .with_guessed_format()
         .map_err(read_err(path))?
         .decode()
-        .map_err(|source| deepview_image::ImageError::Read { path: path.into(), source })?;
+        .map_err(|source| deepview_image::ImageError::Read {
+            path: path.into(),
+            source,
+        })?;
     Ok((img.width(), img.height(), img.into_rgba8().into_raw()))
 }
 
@@ -51,22 +54,45 @@ pub fn read_straight(dir: &Path) -> Result<StraightMpi, MediaError> {
         let path = dir.join(name);
         let (w, h, px) = decode_rgba8(&path)?;
         if (w, h) != (camera.width, camera.height) {
-            return Err(invalid(&path, format!("layer is {w}x{h} but mpi.json says {}x{}", camera.width, camera.height)));
+            return Err(invalid(
+                &path,
+                format!(
+                    "layer is {w}x{h} but mpi.json says {}x{}",
+                    camera.width, camera.height
+                ),
+            ));
         }
         planes.push(px);
     }
-    Ok(StraightMpi { camera, depths: meta.depths, planes })
+    Ok(StraightMpi {
+        camera,
+        depths: meta.depths,
+        planes,
+    })
 }
 
 /// Write our MPI folder from straight-alpha planes (layers first, `mpi.json` last, all atomic).
 pub fn write_straight(dir: &Path, mpi: &StraightMpi) -> Result<(), MediaError> {
     if mpi.planes.len() != mpi.depths.len() || mpi.planes.is_empty() {
-        return Err(invalid(dir, format!("{} planes but {} depths", mpi.planes.len(), mpi.depths.len())));
+        return Err(invalid(
+            dir,
+            format!(
+                "{} planes but {} depths",
+                mpi.planes.len(),
+                mpi.depths.len()
+            ),
+        ));
     }
     std::fs::create_dir_all(dir).map_err(write_err(dir))?;
     let meta = MpiMeta::new(&mpi.camera, &mpi.depths);
     for (d, px) in mpi.planes.iter().enumerate() {
-        deepview_image::write_png_u8(&dir.join(layer_name(d)), mpi.camera.width, mpi.camera.height, 4, px)?;
+        deepview_image::write_png_u8(
+            &dir.join(layer_name(d)),
+            mpi.camera.width,
+            mpi.camera.height,
+            4,
+            px,
+        )?;
     }
     let json = serde_json::to_string_pretty(&meta).expect("mpi.json serialises");
     write_atomic(&dir.join("mpi.json"), json.as_bytes())?;
@@ -90,7 +116,9 @@ impl FromStr for ExportFormat {
             "llff" => Ok(ExportFormat::Llff),
             "stereo-mag" | "stereomag" => Ok(ExportFormat::StereoMag),
             "compact" => Ok(ExportFormat::Compact),
-            _ => Err(MediaError::Config(format!("unknown export format {s:?} (expected llff, stereo-mag or compact)"))),
+            _ => Err(MediaError::Config(format!(
+                "unknown export format {s:?} (expected llff, stereo-mag or compact)"
+            ))),
         }
     }
 }
@@ -126,7 +154,11 @@ impl ExportReport {
 }
 
 /// Export the MPI folder `mpi_dir` to `out` in `format`.
-pub fn export(mpi_dir: &Path, out: &Path, format: ExportFormat) -> Result<ExportReport, MediaError> {
+pub fn export(
+    mpi_dir: &Path,
+    out: &Path,
+    format: ExportFormat,
+) -> Result<ExportReport, MediaError> {
     let mpi = read_straight(mpi_dir)?;
     let mut report = match format {
         ExportFormat::Llff => llff::write(out, &mpi)?,
@@ -175,7 +207,10 @@ pub struct ImportOptions {
 }
 
 /// Read any supported MPI folder as straight-alpha planes.
-pub fn read_any(dir: &Path, opts: &ImportOptions) -> Result<(ImportFormat, StraightMpi), MediaError> {
+pub fn read_any(
+    dir: &Path,
+    opts: &ImportOptions,
+) -> Result<(ImportFormat, StraightMpi), MediaError> {
     let format = detect_format(dir)?;
     let mpi = match format {
         ImportFormat::Deepview => read_straight(dir)?,
@@ -196,7 +231,14 @@ pub fn import(input: &Path, out: &Path, opts: &ImportOptions) -> Result<ImportFo
 /// Straight RGBA8 planes must be as many as depths and each `W x H x 4`.
 pub(crate) fn check_planes(path: &Path, mpi: &StraightMpi) -> Result<(), MediaError> {
     if mpi.planes.len() != mpi.depths.len() {
-        return Err(invalid(path, format!("{} planes but {} depths", mpi.planes.len(), mpi.depths.len())));
+        return Err(invalid(
+            path,
+            format!(
+                "{} planes but {} depths",
+                mpi.planes.len(),
+                mpi.depths.len()
+            ),
+        ));
     }
     if let Some(d) = mpi.planes.iter().position(|p| p.len() != mpi.plane_len()) {
         return Err(invalid(path, format!("plane {d} has the wrong size")));
@@ -220,11 +262,22 @@ pub(crate) fn inverse_depth_spacing_error(depths: &[f64]) -> f64 {
 }
 
 /// Parse whitespace-separated numbers of one line.
-pub(crate) fn numbers(path: &Path, line_no: usize, line: &str, expect: usize) -> Result<Vec<f64>, MediaError> {
+pub(crate) fn numbers(
+    path: &Path,
+    line_no: usize,
+    line: &str,
+    expect: usize,
+) -> Result<Vec<f64>, MediaError> {
     let v: Result<Vec<f64>, _> = line.split_whitespace().map(f64::from_str).collect();
     let v = v.map_err(|e| invalid(path, format!("line {}: {e} in {line:?}", line_no + 1)))?;
     if v.len() < expect || !v.iter().all(|x| x.is_finite()) {
-        return Err(invalid(path, format!("line {}: expected {expect} finite numbers, got {line:?}", line_no + 1)));
+        return Err(invalid(
+            path,
+            format!(
+                "line {}: expected {expect} finite numbers, got {line:?}",
+                line_no + 1
+            ),
+        ));
     }
     Ok(v)
 }

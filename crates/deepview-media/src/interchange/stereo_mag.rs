@@ -44,7 +44,10 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> 
     let (w, h) = (mpi.camera.width, mpi.camera.height);
     let mut report = ExportReport::default();
     for (i, px) in mpi.planes.iter().enumerate() {
-        let rgb: Vec<u8> = px.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect();
+        let rgb: Vec<u8> = px
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect();
         let alpha: Vec<u8> = px.chunks_exact(4).map(|p| p[3]).collect();
         let (rp, ap) = (out.join(rgb_name(i)), out.join(alpha_name(i)));
         write_png_u8(&rp, w, h, 3, &rgb)?;
@@ -54,7 +57,10 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> 
     }
     let k = mpi.camera.intrinsics;
     let intr = out.join("intrinsics.txt");
-    write_atomic(&intr, format!("{} {} {} {} ", k.fx, k.fy, k.cx, k.cy).as_bytes())?;
+    write_atomic(
+        &intr,
+        format!("{} {} {} {} ", k.fx, k.fy, k.cx, k.cy).as_bytes(),
+    )?;
     report.add(intr)?;
     let near = mpi.depths[mpi.depths.len() - 1];
     let far = mpi.depths[0];
@@ -67,8 +73,11 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> 
     write_atomic(&readme, text.as_bytes())?;
     report.add(readme)?;
     let side = out.join(SIDECAR);
-    let json = serde_json::to_string_pretty(&Sidecar { camera: mpi.camera.to_json(), depths: mpi.depths.clone() })
-        .expect("sidecar serialises");
+    let json = serde_json::to_string_pretty(&Sidecar {
+        camera: mpi.camera.to_json(),
+        depths: mpi.depths.clone(),
+    })
+    .expect("sidecar serialises");
     write_atomic(&side, json.as_bytes())?;
     report.add(side)?;
     Ok(report)
@@ -78,7 +87,13 @@ fn readme_depths(dir: &Path) -> Option<(f64, f64)> {
     let text = std::fs::read_to_string(dir.join("README")).ok()?;
     let flag = |name: &str| -> Option<f64> {
         text.split(|c: char| c.is_whitespace() || c == '\\')
-            .find_map(|t| t.trim_start_matches('-').strip_prefix(name)?.strip_prefix('=')?.parse().ok())
+            .find_map(|t| {
+                t.trim_start_matches('-')
+                    .strip_prefix(name)?
+                    .strip_prefix('=')?
+                    .parse()
+                    .ok()
+            })
     };
     Some((flag("min_depth")?, flag("max_depth")?))
 }
@@ -95,36 +110,61 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Med
         }
         let ap = dir.join(alpha_name(i));
         if !ap.is_file() {
-            return Err(invalid(&ap, format!("missing: {} has no alpha layer", rgb_name(i))));
+            return Err(invalid(
+                &ap,
+                format!("missing: {} has no alpha layer", rgb_name(i)),
+            ));
         }
         let (w, h, rgb) = decode_rgba8(&rp)?;
         let (aw, ah, alpha) = decode_rgba8(&ap)?;
         if (aw, ah) != (w, h) {
-            return Err(invalid(&ap, format!("is {aw}x{ah} but {} is {w}x{h}", rgb_name(i))));
+            return Err(invalid(
+                &ap,
+                format!("is {aw}x{ah} but {} is {w}x{h}", rgb_name(i)),
+            ));
         }
         match size {
             None => size = Some((w, h)),
             Some(s) if s != (w, h) => {
-                return Err(invalid(&rp, format!("is {w}x{h} but plane 00 is {}x{}", s.0, s.1)));
+                return Err(invalid(
+                    &rp,
+                    format!("is {w}x{h} but plane 00 is {}x{}", s.0, s.1),
+                ));
             }
             _ => {}
         }
         // `decode_rgba8` expands grayscale alpha to RGBA (gray in R, G, B).
-        let px: Vec<u8> = rgb.chunks_exact(4).zip(alpha.chunks_exact(4)).flat_map(|(c, a)| [c[0], c[1], c[2], a[0]]).collect();
+        let px: Vec<u8> = rgb
+            .chunks_exact(4)
+            .zip(alpha.chunks_exact(4))
+            .flat_map(|(c, a)| [c[0], c[1], c[2], a[0]])
+            .collect();
         planes.push(px);
     }
-    let (w, h) = size.ok_or_else(|| invalid(dir, "no mpi_rgb_00.png: not a stereo magnification MPI"))?;
+    let (w, h) =
+        size.ok_or_else(|| invalid(dir, "no mpi_rgb_00.png: not a stereo magnification MPI"))?;
     let d = planes.len();
     let side_path = dir.join(SIDECAR);
     let (camera, depths) = if side_path.is_file() {
         let text = std::fs::read_to_string(&side_path).map_err(read_err(&side_path))?;
-        let s: Sidecar = serde_json::from_str(&text)
-            .map_err(|source| MediaError::Json { path: side_path.clone(), what: "deepview_camera.json", source })?;
-        let cam = s.camera.to_camera().map_err(|e| invalid(&side_path, e.to_string()))?;
+        let s: Sidecar = serde_json::from_str(&text).map_err(|source| MediaError::Json {
+            path: side_path.clone(),
+            what: "deepview_camera.json",
+            source,
+        })?;
+        let cam = s
+            .camera
+            .to_camera()
+            .map_err(|e| invalid(&side_path, e.to_string()))?;
         if (cam.width, cam.height) != (w, h) || s.depths.len() != d {
             return Err(invalid(
                 &side_path,
-                format!("describes {} planes of {}x{}, the folder has {d} of {w}x{h}", s.depths.len(), cam.width, cam.height),
+                format!(
+                    "describes {} planes of {}x{}, the folder has {d} of {w}x{h}",
+                    s.depths.len(),
+                    cam.width,
+                    cam.height
+                ),
             ));
         }
         (cam, s.depths)
@@ -132,13 +172,23 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Med
         let ip = dir.join("intrinsics.txt");
         let text = std::fs::read_to_string(&ip).map_err(read_err(&ip))?;
         let k = numbers(&ip, 0, &text, 4)?;
-        let camera = Camera::new(w, h, Intrinsics::new(k[0], k[1], k[2], k[3]), Pose::IDENTITY);
+        let camera = Camera::new(
+            w,
+            h,
+            Intrinsics::new(k[0], k[1], k[2], k[3]),
+            Pose::IDENTITY,
+        );
         camera.validate().map_err(|e| invalid(&ip, e.to_string()))?;
         let (near, far) = near_far.or_else(|| readme_depths(dir)).ok_or_else(|| {
             invalid(dir, "stereo magnification folders do not store plane depths: give --near and --far (its defaults are 1 and 100)")
         })?;
-        let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth).map_err(|e| invalid(dir, e.to_string()))?;
+        let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth)
+            .map_err(|e| invalid(dir, e.to_string()))?;
         (camera, depths)
     };
-    Ok(StraightMpi { camera, depths, planes })
+    Ok(StraightMpi {
+        camera,
+        depths,
+        planes,
+    })
 }

@@ -1,0 +1,37 @@
+//! `deepview view MPI_DIR [--port 8080] [--host 127.0.0.1]`: serve the WebGL2 viewer for an MPI folder.
+
+use anyhow::Context;
+use std::path::PathBuf;
+
+#[derive(clap::Args)]
+pub struct Args {
+    /// MPI folder (`mpi.json` + layers, or a compact export with `mpi_compact.json`).
+    pub mpi_dir: PathBuf,
+    /// Port to listen on (0: any free port).
+    #[arg(long, default_value_t = 8080)]
+    pub port: u16,
+    /// Address to listen on; the default serves this machine only (use 0.0.0.0 to share on the network).
+    #[arg(long, default_value = "127.0.0.1")]
+    pub host: String,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let server = deepview_viewer::Server::start(&args.mpi_dir, &args.host, args.port)
+        .with_context(|| format!("cannot serve the viewer for {}", args.mpi_dir.display()))?;
+    println!(
+        "deepview viewer for {}: {}",
+        args.mpi_dir.display(),
+        server.url()
+    );
+    println!(
+        "  drag: orbit, right/shift-drag: pan, wheel: dolly, arrows: nudge, D: depth map, R: reset; Ctrl-C to stop"
+    );
+    if !matches!(args.host.as_str(), "127.0.0.1" | "localhost" | "::1") {
+        eprintln!(
+            "note: listening on {}: other machines can reach this viewer",
+            args.host
+        );
+    }
+    server.wait();
+    Ok(())
+}
