@@ -90,7 +90,7 @@ pub fn render_layers_with<T: Texel>(
                     for (d, sampler) in samplers.iter().enumerate().rev() {
                         let layer = &bytes[d * plane_len..(d + 1) * plane_len];
                         let coeff = sampler.row(y).coefficients();
-                        let tiles = occupancy.map(|o| o.plane(d));
+                        let tiles = occupancy.and_then(|o| o.sparse_plane(d));
                         // SAFETY: `available()` checked AVX2 + FMA; the layer has plane_w * plane_h texels.
                         unsafe { crate::simd::composite_row_u8_avx2(layer, plane_w, plane_h, coeff, acc, w, tiles) };
                     }

@@ -61,6 +61,12 @@ impl Occupancy {
         &self.tiles[d * n..(d + 1) * n]
     }
 
+    /// Plane `d`'s tiles if any of them is empty (a full plane gains nothing from the check).
+    pub fn sparse_plane(&self, d: usize) -> Option<&[u8]> {
+        let t = self.plane(d);
+        t.contains(&0).then_some(t)
+    }
+
     /// Fraction of non-empty tiles.
     pub fn fill(&self) -> f64 {
         self.tiles.iter().filter(|&&t| t != 0).count() as f64 / self.tiles.len().max(1) as f64

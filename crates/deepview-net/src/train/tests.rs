@@ -299,3 +299,35 @@ fn throughput() {
         );
     }
 }
+
+/// Where the time of one step goes (`-- profile_step --ignored --nocapture`; env PROFILE_PRESET).
+#[test]
+#[ignore]
+fn profile_step() {
+    let preset = std::env::var("PROFILE_PRESET").unwrap_or("cpu".into());
+    let model_cfg = DeepViewConfig::preset(&preset).unwrap();
+    let mut train = TrainConfig::defaults(&model_cfg);
+    train.sample.views_min = 4;
+    train.sample.views_max = 4;
+    if let Ok(p) = std::env::var("PROFILE_PLANES") {
+        train.sample.planes = p.parse().unwrap();
+    }
+    let data = TrainData::new(vec![two_plane_scene(4, 4, 160, 0.08)]).unwrap();
+    let mut rng = Rng::new(1);
+    let ex = data.sample(&train.sample, &model_cfg, 4, &mut rng).unwrap();
+    let sizes: Vec<_> = ex.images.iter().map(|i| (i.width, i.height)).collect();
+    println!("window {:?}, input crops {sizes:?}, margin {}", ex.window, model_cfg.margin_from(0));
+    let device = Device::flex().autodiff();
+    let model = DeepViewModel::new(&model_cfg, &device);
+    let loss = Loss::Vgg(Box::new(Vgg16::load_default(&device).unwrap()));
+    for _ in 0..2 {
+        let t0 = Instant::now();
+        let l = example_loss(&model, &loss, &ex, &device);
+        let v = l.clone().into_scalar::<f32>();
+        let t1 = Instant::now();
+        let g = l.backward();
+        let _ = GradientsParams::from_grads(g, &model);
+        let t2 = Instant::now();
+        println!("loss {v:.1}: forward+loss {:.2} s, backward {:.2} s", (t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64());
+    }
+}
