@@ -48,6 +48,8 @@ enum Command {
     Train(cmd::train::Args),
     /// Infer an MPI from a few posed views with the learned network (tiled, bounded memory).
     Infer(cmd::infer::Args),
+    /// Turn a training checkpoint into a weights folder (config.json + model.safetensors).
+    ExportWeights(cmd::export_weights::Args),
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
@@ -68,6 +70,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Optimize(a) => cmd::optimize::run(a),
         Command::Train(a) => cmd::train::run(a),
         Command::Infer(a) => cmd::infer::run(a),
+        Command::ExportWeights(a) => cmd::export_weights::run(a),
     }
 }
 

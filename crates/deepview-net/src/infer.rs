@@ -327,6 +327,7 @@ mod tests {
             features_small: 4,
             updates: 2,
             unet_nets: 1,
+            init_prior: None,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         let model = DeepViewModel::new(&cfg, &dev);
@@ -375,6 +376,67 @@ mod tests {
             assert!(max < 2e-5, "tile {tile}: max difference {max}");
         }
         assert_eq!(calls, 3 * (1 + 20 + 8 * 7));
+    }
+
+    /// With the agreement prior and zero-initialised output convs, the model's MPI is the `psv-mean`
+    /// baseline's MPI (`deepview_eval::agreement_mpi`, an independent f64 implementation on the CPU).
+    #[test]
+    fn untrained_prior_model_equals_agreement_mpi() {
+        use deepview_eval::{PsvMeanOptions, agreement_mpi};
+        use deepview_geometry::{ReferenceOptions, reference_camera};
+        let dev = Device::flex();
+        for (k, planes, smooth) in [(3, 8, true), (4, 5, false), (2, 6, true)] {
+            let cfg = DeepViewConfig {
+                features_large: 4,
+                features_small: 3,
+                updates: 2,
+                max_pool_stages: 1,
+                ..DeepViewConfig::preset("cpu").unwrap()
+            };
+            let model = DeepViewModel::new(&cfg, &dev);
+            let (mut views, _, _) = scene(k);
+            if smooth {
+                // Smooth textures, so that views agree at some depths and the weights are mixed.
+                for (img, _) in views.iter_mut() {
+                    let w = img.width as usize;
+                    for (j, v) in img.data.iter_mut().enumerate() {
+                        let (p, c) = (j / 3, j % 3);
+                        let (x, y) = ((p % w) as f32, (p / w) as f32);
+                        *v = 0.5 + 0.4 * (0.3 * x + 0.2 * y + c as f32).sin() * (0.11 * y).cos();
+                    }
+                }
+            }
+            let near_far = (1.5, 12.0);
+            let options = PsvMeanOptions {
+                planes,
+                ..Default::default()
+            };
+            let expected = agreement_mpi(&views, near_far, &options).unwrap();
+            let cams: Vec<Camera> = views.iter().map(|(_, c)| *c).collect();
+            let reference = reference_camera(
+                &cams,
+                &ReferenceOptions {
+                    cover: Some(near_far),
+                    ..Default::default()
+                },
+            )
+            .unwrap();
+            let depths = plane_depths(1.5, 12.0, planes, PlaneSpacing::InverseDepth).unwrap();
+            assert_eq!(expected.camera, reference);
+            let mpi = infer_mpi_tiled(&model, &views, &reference, &depths, 16, &mut |_| {}).unwrap();
+            assert_eq!(mpi.layers.len(), expected.layers.len());
+            let (mut max, mut mixed) = (0f32, 0usize);
+            for (a, b) in mpi.layers.chunks_exact(4).zip(expected.layers.chunks_exact(4)) {
+                for c in 0..4 {
+                    max = max.max((a[c] - b[c]).abs());
+                }
+                mixed += usize::from(b[3] > 0.05 && b[3] < 0.95);
+            }
+            assert!(max < 3e-4, "k {k}, planes {planes}: max difference {max}");
+            if smooth {
+                assert!(mixed > 100, "only {mixed} partially transparent texels");
+            }
+        }
     }
 
     #[test]

@@ -6,6 +6,7 @@
 //!
 //! ```text
 //! M_0     = N_0([PSV_k, valid_k]_k)                         (init input: 4 channels per slice)
+//!           (+ agreement_prior(PSVs) with `init_prior`, a CPU-training deviation: see config.rs)
 //! M_{n+1} = M_n + N_n([grad_{n,k}, M_n]_k),  n = 1..=updates (update input: 11 + 8 channels)
 //! RGBA    = sigmoid(M[0..4]) with colour premultiplied by alpha
 //! ```
@@ -23,7 +24,7 @@ use crate::config::DeepViewConfig;
 use crate::forward::{
     GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume,
 };
-use burn::module::Module;
+use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::tensor::activation::{elu, sigmoid};
@@ -79,6 +80,16 @@ impl CoreNet {
     }
 
     /// `x` `[K*D, C_in, h, w]` (view-major) -> `[D, out, h, w]`. Invariant to the order of the views.
+    /// Zero the last conv (weights and bias), so the net outputs 0 until trained (residual nets on a prior).
+    pub fn zero_output(mut self) -> Self {
+        let w = self.out.weight.val();
+        self.out.weight = Param::from_tensor(w.zeros_like());
+        if let Some(b) = self.out.bias.take() {
+            self.out.bias = Some(Param::from_tensor(b.val().zeros_like()));
+        }
+        self
+    }
+
     pub fn forward(&self, x: Tensor<4>, views: usize) -> Tensor<4> {
         let [kd, _, h, w] = x.dims();
         let d = kd / views;
@@ -132,6 +143,74 @@ pub fn state_to_rgba(state: Tensor<4>) -> Tensor<4> {
     Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)
 }
 
+/// Variance assumed where only one view sees a plane point (as `deepview_eval`'s `psv-mean` default).
+pub const PRIOR_SINGLE_VIEW_VARIANCE: f64 = 0.02;
+/// Probabilities are clamped to `[eps, 1 - eps]` before the logit of the prior.
+pub const PRIOR_EPS: f64 = 1e-4;
+
+/// The cross-view agreement MPI of plane sweep volumes as RGBA *logits* `[D, 4, h, w]` (see
+/// `DeepViewConfig::init_prior`), computed exactly like `deepview_eval::agreement_mpi`: per plane and
+/// pixel, colour = mean of the valid samples; variance = mean over RGB of the valid samples' variance
+/// (`PRIOR_SINGLE_VIEW_VARIANCE` where one view sees the point; no weight where none does); weights =
+/// softmax over planes of `-variance / temperature`; alpha `a_d = w_d / sum_{i<=d} w_i` (back to front).
+/// Colour and alpha are clamped to `[PRIOR_EPS, 1 - PRIOR_EPS]` and turned into logits.
+/// `per_view`: K tensors `[D, 4, h, w]` (PSV RGB, validity) as built by [`DeepViewModel::init_input`].
+pub fn agreement_prior_logits(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
+    let valid: Vec<Tensor<4>> = per_view.iter().map(|v| v.clone().narrow(1, 3, 1)).collect();
+    let rgb: Vec<Tensor<4>> = per_view
+        .iter()
+        .zip(&valid)
+        .map(|(v, m)| v.clone().narrow(1, 0, 3) * m.clone())
+        .collect();
+    let count = valid
+        .iter()
+        .cloned()
+        .reduce(|a, b| a + b)
+        .expect("at least one view");
+    let denom = count.clone().clamp_min(1.0);
+    let mean = rgb.iter().cloned().reduce(|a, b| a + b).expect("views") / denom.clone();
+    // Two-pass variance of the valid samples (population variance, mean over RGB).
+    let var = rgb
+        .iter()
+        .zip(&valid)
+        .map(|(c, m)| (c.clone() - mean.clone() * m.clone()).square())
+        .reduce(|a, b| a + b)
+        .expect("views")
+        / denom;
+    let var = var.mean_dim(1);
+    let single = count.clone().equal_elem(1.0);
+    let var = var.mask_fill(single, PRIOR_SINGLE_VIEW_VARIANCE);
+    let seen = count.greater_elem(0.5).float();
+    let logit = var.neg() / temperature;
+    // Unseen (plane, pixel) pairs get no weight; a ray no view sees at all stays transparent.
+    // `a_d = w_d / sum_{i<=d} w_i = exp(l_d - logsumexp_{i<=d} l_i)`, accumulated in the log domain (f32
+    // `exp` of the raw differences would underflow where the f64 baseline does not).
+    let d = logit.dims()[0];
+    let masked = logit.clone() * seen.clone() + (seen.clone().neg().add_scalar(1.0)) * -1e30;
+    let mut alphas = Vec::with_capacity(d);
+    let mut run: Option<(Tensor<4>, Tensor<4>)> = None; // running max m and sum of exp(l_i - m)
+    for p in 0..d {
+        let l = masked.clone().narrow(0, p, 1);
+        let (m, s) = match run {
+            None => (l.clone(), l.ones_like()),
+            Some((m0, s0)) => {
+                let m = m0.clone().max_pair(l.clone());
+                let s = s0 * (m0 - m.clone()).exp() + (l.clone() - m.clone()).exp();
+                (m, s)
+            }
+        };
+        let lse = m.clone() + s.clone().log();
+        alphas.push((l - lse).exp().clamp_max(1.0));
+        run = Some((m, s));
+    }
+    let alpha = Tensor::cat(alphas, 0) * seen;
+    let logit_of = |p: Tensor<4>| {
+        let p = p.clamp(PRIOR_EPS, 1.0 - PRIOR_EPS);
+        (p.clone() / p.neg().add_scalar(1.0)).log()
+    };
+    Tensor::cat(vec![logit_of(mean), logit_of(alpha)], 1)
+}
+
 /// What the model needs: K view images and the plane homographies from the MPI window to each view.
 #[derive(Clone, Debug)]
 pub struct ModelInputs {
@@ -175,6 +254,8 @@ pub struct DeepViewModel {
     /// Carried in the module as constants: RGBA + extra channels, views fixed by the weights (0 = any).
     pub state_channels: usize,
     pub fixed_views: usize,
+    /// Temperature of the agreement prior added to net 0's output (0 = no prior; see config.rs).
+    pub prior_temperature: f64,
 }
 
 impl DeepViewModel {
@@ -187,20 +268,26 @@ impl DeepViewModel {
                 } else {
                     GRADIENT_CHANNELS + sc
                 };
-                CoreNet::new(
+                let net = CoreNet::new(
                     cin,
                     config.features(n),
                     sc,
                     config.max_pool_stages,
                     config.unet(n),
                     device,
-                )
+                );
+                if config.init_prior.is_some() {
+                    net.zero_output()
+                } else {
+                    net
+                }
             })
             .collect();
         Self {
             nets,
             state_channels: sc,
             fixed_views: config.views.unwrap_or(0),
+            prior_temperature: config.init_prior.unwrap_or(0.0),
         }
     }
 
@@ -221,6 +308,7 @@ impl DeepViewModel {
 
     /// Run net `n` on per-view inputs (each `[D, C, h, w]`); update nets also get the state `[D, S, h, w]`
     /// concatenated. Returns the net's output `[D, S, h, w]` (the state for n = 0, the update otherwise).
+    /// With a prior (`prior_temperature > 0`), net 0's output includes the agreement prior's logits.
     pub fn run_net(
         &self,
         n: usize,
@@ -228,6 +316,17 @@ impl DeepViewModel {
         state: Option<Tensor<4>>,
     ) -> Tensor<4> {
         let k = per_view.len();
+        let prior = (n == 0 && self.prior_temperature > 0.0).then(|| {
+            let p = agreement_prior_logits(&per_view, self.prior_temperature);
+            let [d, c, h, w] = p.dims();
+            let extra = self.state_channels - c;
+            if extra == 0 {
+                p
+            } else {
+                let device = p.device();
+                Tensor::cat(vec![p, Tensor::zeros([d, extra, h, w], &device)], 1)
+            }
+        });
         let x = per_view
             .into_iter()
             .map(|v| match &state {
@@ -235,7 +334,11 @@ impl DeepViewModel {
                 None => v,
             })
             .collect();
-        self.nets[n].forward(Tensor::cat(x, 0), k)
+        let out = self.nets[n].forward(Tensor::cat(x, 0), k);
+        match prior {
+            Some(p) => p + out,
+            None => out,
+        }
     }
 
     /// The whole model on a window (see [`ModelInputs`]).
@@ -367,6 +470,7 @@ mod tests {
             features_small: 4,
             updates: 2,
             unet_nets: 1,
+            init_prior: None,
             ..DeepViewConfig::preset("cpu").unwrap()
         }
     }

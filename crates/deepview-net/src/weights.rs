@@ -7,7 +7,7 @@
 
 use crate::config::{ConfigError, DeepViewConfig};
 use crate::network::DeepViewModel;
-use burn::module::Param;
+use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::Device;
@@ -100,11 +100,69 @@ pub fn load_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
     Ok(config)
 }
 
-/// Load the model saved in `dir` onto `device`.
+/// Whether `dir` is a training checkpoint (`runs/<name>/checkpoints/step-N/model.bpk`) rather than a
+/// weights folder.
+pub fn is_checkpoint(dir: &Path) -> bool {
+    dir.join(CHECKPOINT_MODEL_FILE).is_file() && !dir.join(WEIGHTS_FILE).is_file()
+}
+
+/// The model file of a training checkpoint (burnpack, see `train`).
+pub const CHECKPOINT_MODEL_FILE: &str = "model.bpk";
+
+/// Load the model of a training checkpoint folder `runs/<name>/checkpoints/step-N` (`model.bpk`; the
+/// model configuration is the `model` entry of the run's `runs/<name>/config.json`).
+pub fn load_checkpoint(
+    dir: &Path,
+    device: &Device,
+) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    let run_config = dir
+        .parent()
+        .and_then(Path::parent)
+        .map(|run| run.join(CONFIG_FILE))
+        .unwrap_or_else(|| PathBuf::from(CONFIG_FILE));
+    let text = std::fs::read_to_string(&run_config).map_err(io(&run_config))?;
+    let config_err = |msg: String| WeightsError::Config {
+        path: run_config.clone(),
+        msg,
+    };
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| config_err(e.to_string()))?;
+    let model_value = value
+        .get("model")
+        .cloned()
+        .ok_or_else(|| config_err("no `model` entry (not a run's config.json)".into()))?;
+    let config: DeepViewConfig =
+        serde_json::from_value(model_value).map_err(|e| config_err(e.to_string()))?;
+    config.validate().map_err(|e| config_err(e.to_string()))?;
+    let path = dir.join(CHECKPOINT_MODEL_FILE);
+    let model = DeepViewModel::new(&config, device)
+        .try_load_file(&path)
+        .map_err(|e| WeightsError::Corrupt {
+            path: path.clone(),
+            msg: format!("{e:?}"),
+        })?;
+    if let Some(tensor) = first_non_finite(&model) {
+        return Err(WeightsError::NonFinite { path, tensor });
+    }
+    Ok((model, config))
+}
+
+/// Convert a training checkpoint into a weights folder (`config.json` + `model.safetensors`).
+pub fn export_checkpoint(checkpoint: &Path, out: &Path) -> Result<DeepViewConfig, WeightsError> {
+    let (model, config) = load_checkpoint(checkpoint, &Device::flex())?;
+    save_model(out, &model, &config)?;
+    Ok(config)
+}
+
+/// Load the model saved in `dir` onto `device`: a weights folder, or a training checkpoint folder
+/// ([`load_checkpoint`]).
 pub fn load_model(
     dir: &Path,
     device: &Device,
 ) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    if is_checkpoint(dir) {
+        return load_checkpoint(dir, device);
+    }
     let config = load_config(dir)?;
     let path = dir.join(WEIGHTS_FILE);
     let bytes = std::fs::read(&path).map_err(io(&path))?;

@@ -183,7 +183,8 @@ fn handle(req: tiny_http::Request, dir: &Path, files: &[String]) {
             let resp = Response::from_data(body)
                 .with_header(header("Content-Type", ct))
                 .with_header(header("Cache-Control", "no-cache"))
-                .with_header(header("X-Content-Type-Options", "nosniff"));
+                .with_header(header("X-Content-Type-Options", "nosniff"))
+                .with_header(header("Connection", "close"));
             let _ = req.respond(resp);
         }
         None => {

@@ -5,6 +5,7 @@ pub mod demo;
 pub mod depth;
 pub mod eval;
 pub mod export;
+pub mod export_weights;
 pub mod export_web;
 pub mod import;
 pub mod infer;
