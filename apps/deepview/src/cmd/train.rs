@@ -157,6 +157,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if let Some(d) = device_list(&args.devices) {
             train.devices = d;
         }
+        for d in &train.devices {
+            deepview_net::train::parse_device(d)?;
+        }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
         eprintln!(

@@ -407,6 +407,7 @@ impl Trainer {
                 "this run already has checkpoints: pass --resume to continue it, or choose another --name",
             ));
         }
+        let devices = Self::devices(&config.train.devices)?;
         std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
         let cfg_path = run_dir.join("config.json");
         write_atomic(
@@ -416,7 +417,6 @@ impl Trainer {
                 .as_bytes(),
         )?;
         let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
-        let devices = Self::devices(&config.train.devices)?;
         devices[0].seed(config.train.seed);
         let model = DeepViewModel::new(&config.model, &devices[0]);
         // Materialise lazily initialised parameters now, right after seeding.

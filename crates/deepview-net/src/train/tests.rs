@@ -323,7 +323,11 @@ fn profile_step() {
     let mut rng = Rng::new(1);
     let ex = data.sample(&train.sample, &model_cfg, 4, &mut rng).unwrap();
     let sizes: Vec<_> = ex.images.iter().map(|i| (i.width, i.height)).collect();
-    println!("window {:?}, input crops {sizes:?}, margin {}", ex.window, model_cfg.margin_from(0));
+    println!(
+        "window {:?}, input crops {sizes:?}, margin {}",
+        ex.window,
+        model_cfg.margin_from(0)
+    );
     let device = Device::flex().autodiff();
     let model = DeepViewModel::new(&model_cfg, &device);
     let loss = Loss::Vgg(Box::new(Vgg16::load_default(&device).unwrap()));
@@ -335,6 +339,10 @@ fn profile_step() {
         let g = l.backward();
         let _ = GradientsParams::from_grads(g, &model);
         let t2 = Instant::now();
-        println!("loss {v:.1}: forward+loss {:.2} s, backward {:.2} s", (t1 - t0).as_secs_f64(), (t2 - t1).as_secs_f64());
+        println!(
+            "loss {v:.1}: forward+loss {:.2} s, backward {:.2} s",
+            (t1 - t0).as_secs_f64(),
+            (t2 - t1).as_secs_f64()
+        );
     }
 }
