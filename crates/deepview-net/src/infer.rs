@@ -2,18 +2,36 @@
 //!
 //! Each net runs tile by tile over the MPI (paper supplement, "Reducing Memory Usage"): for a tile the
 //! net's input is computed on the tile grown by the net's receptive-field margin
-//! ([`DeepViewModel::margin`]), from each view's image crop covering that region and (for update nets)
-//! from the views rendered from the *whole* current MPI; only the tile's centre is kept. The full MPI state
-//! between nets is held in memory (`D x H x W x (2 * state + 4)` f32), the activations only per tile, so
-//! the result equals the untiled [`DeepViewModel::forward`] on the whole reference image (to f32 rounding
-//! of the shifted homographies), whatever the tile size.
+//! ([`DeepViewModel::margin`]) and only the tile's centre is kept. A tile needs, per view,
+//! - the view-image crop that the grown region maps to on any plane (`view_crop`), and
+//! - for update nets, the views' renders `R`, `A`, `T` on that crop, computed from the *MPI sub-window* that
+//!   can reach the crop on any plane (`mpi_window`: the crop mapped back by every plane's inverse
+//!   homography, grown by the bilinear taps, clamped to the MPI). Every MPI texel that reaches a needed
+//!   view pixel is in the sub-window, so the renders equal those of the whole MPI.
+//!
+//! The result therefore equals the untiled [`DeepViewModel::forward`] on the whole reference image (to f32
+//! rounding of the shifted homographies), whatever the tile size, and the work per tile no longer grows
+//! with the MPI (only with the tile and the parallax).
+//!
+//! Memory: the only whole-MPI data is the state between nets (the previous state and the one being
+//! written, `D x H x W x state_channels` each; the last net writes the RGBA result instead). A sub-window's
+//! RGBA is recomputed from the state when a tile needs it. When the f32 state would take more than half
+//! of the budget, it is stored as IEEE half floats (f16, [`StatePrecision::F16`]): the nets still compute
+//! in f32, but the stored logits are rounded to 11 significant bits (relative error <= 2^-11 ~ 4.9e-4,
+//! i.e. <= ~5e-3 absolute on logits of magnitude <= 10, ~1e-3 on RGBA after the sigmoid; values beyond
+//! +-65504 saturate). The final RGBA is computed from the last net's f32 output (no rounding there).
 
-use crate::forward::{Hom, crop_source, gradient_components, image_tensor};
+use crate::forward::{Hom, crop_output, crop_source, gradient_components, image_tensor, invert};
 use crate::network::{DeepViewModel, state_to_rgba};
 use burn::tensor::{Device, Tensor, TensorData};
 use deepview_geometry::{Camera, plane_homography};
 use deepview_image::ImageF32;
 use deepview_mpi::Mpi;
+use half::f16;
+use half::slice::HalfFloatSliceExt;
+
+/// A pixel rectangle `(x0, y0, w, h)`.
+type Rect = (usize, usize, usize, usize);
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum InferError {
@@ -32,8 +50,9 @@ pub enum InferError {
         ch: u32,
     },
     #[error(
-        "memory budget {budget} bytes is too small: the MPI state alone ({planes} planes of {w}x{h}) needs {fixed} \
-         bytes plus at least {min_tile} for one tile; use fewer planes, a smaller reference image or a larger budget"
+        "memory budget {budget} bytes is too small: the MPI state ({planes} planes of {w}x{h}) and the inputs \
+         need {fixed} bytes plus {min_tile} for the smallest tile; use fewer planes, a smaller reference image \
+         or a larger budget"
     )]
     BudgetTooSmall {
         budget: u64,
@@ -53,71 +72,140 @@ pub struct InferProgress {
     pub net: usize,
 }
 
+/// How the whole-MPI state is stored between nets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum StatePrecision {
+    F32,
+    /// IEEE half floats (see the module docs for the rounding).
+    F16,
+}
+
+impl StatePrecision {
+    pub fn bytes(self) -> u64 {
+        match self {
+            Self::F32 => 4,
+            Self::F16 => 2,
+        }
+    }
+}
+
+/// Tile side and state precision chosen for a memory budget, with the estimates behind the choice.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InferPlan {
+    /// Even tile side in MPI pixels.
+    pub tile: usize,
+    pub precision: StatePrecision,
+    /// Estimated bytes of the whole-MPI data, the inputs and the process itself.
+    pub fixed_bytes: u64,
+    /// Estimated peak bytes of the largest tile step.
+    pub tile_bytes: u64,
+}
+
+/// Smallest tile side [`plan_inference`] chooses (smaller tiles are dominated by their margins).
+pub const MIN_TILE: usize = 32;
+
+/// Resident bytes of the process besides the tensors (code, runtime, thread stacks, allocator slack).
+const BASE_BYTES: u64 = 64 << 20;
+
 fn model_device(model: &DeepViewModel) -> Device {
     model.nets[0].out.weight.val().device()
 }
 
-/// Bytes of the full-MPI state kept between nets (old state, new state, RGBA).
-pub fn fixed_memory(model: &DeepViewModel, planes: usize, w: u32, h: u32) -> u64 {
-    (planes as u64) * w as u64 * h as u64 * (2 * model.state_channels as u64 + 4) * 4
+/// The per-view geometry of an inference problem.
+struct Geometry {
+    w: usize,
+    h: usize,
+    d: usize,
+    /// `[view][plane]`: MPI pixels -> view pixels.
+    homs: Vec<Vec<Hom>>,
+    /// `(width, height)` of each view.
+    view_sizes: Vec<(usize, usize)>,
 }
 
-/// Rough peak bytes per (view, plane, region pixel) of one tile of net `n`: the conv activations that are
-/// alive together, the warp taps and the view renders.
-fn bytes_per_slice_pixel(model: &DeepViewModel, n: usize) -> u64 {
-    let f = model.nets[n].head.weight.val().dims()[0] as u64;
-    let cin = model.nets[n].input[0].weight.val().dims()[1] as u64;
-    4 * (2 * cin + 6 * f) + 400
+/// What one view contributes to a tile: the view-image crop, the homographies MPI -> crop pixels and
+/// the MPI sub-window rendered into the crop (update nets only; the region itself for the init net).
+struct ViewWindow {
+    crop: Rect,
+    mpi_to_crop: Vec<Hom>,
+    sub: Rect,
 }
 
-/// The largest even tile side whose memory estimate fits `tile_budget` for every net.
-pub fn tile_size(model: &DeepViewModel, views: usize, planes: usize, tile_budget: u64) -> usize {
-    (0..model.nets.len())
-        .map(|n| {
-            let per = bytes_per_slice_pixel(model, n) * (views * planes) as u64;
-            let side = ((tile_budget / per.max(1)) as f64).sqrt() as usize;
-            side.saturating_sub(2 * model.margin(n)) & !1
-        })
-        .min()
-        .unwrap_or(0)
-        .max(2)
-}
-
-/// Infer an MPI with planes at `depths` (back to front, decreasing) in front of `reference` from posed
-/// images, keeping peak memory near `max_memory_bytes` (state + one tile). Runs on the model's device;
-/// use a model on a non-autodiff device.
-pub fn infer_mpi(
-    model: &DeepViewModel,
-    views: &[(ImageF32, Camera)],
-    reference: &Camera,
-    depths: &[f64],
-    max_memory_bytes: u64,
-    progress: &mut dyn FnMut(InferProgress),
-) -> Result<Mpi, InferError> {
-    let fixed = fixed_memory(model, depths.len(), reference.width, reference.height);
-    let min_tile = bytes_per_slice_pixel(model, 0) * (views.len() * depths.len()) as u64 * 64 * 64;
-    if max_memory_bytes < fixed + min_tile {
-        return Err(InferError::BudgetTooSmall {
-            budget: max_memory_bytes,
-            fixed,
-            min_tile,
-            planes: depths.len(),
-            w: reference.width,
-            h: reference.height,
-        });
+impl Geometry {
+    fn new(views: &[(ImageF32, Camera)], reference: &Camera, depths: &[f64]) -> Self {
+        Self {
+            w: reference.width as usize,
+            h: reference.height as usize,
+            d: depths.len(),
+            homs: views
+                .iter()
+                .map(|(_, cam)| {
+                    depths
+                        .iter()
+                        .map(|&z| plane_homography(reference, cam, z).to_row_major())
+                        .collect()
+                })
+                .collect(),
+            view_sizes: views
+                .iter()
+                .map(|(img, _)| (img.width as usize, img.height as usize))
+                .collect(),
+        }
     }
-    let tile = tile_size(model, views.len(), depths.len(), max_memory_bytes - fixed);
-    infer_mpi_tiled(model, views, reference, depths, tile, progress)
+
+    fn tiles(&self, tile: usize) -> Vec<Rect> {
+        let (w, h) = (self.w, self.h);
+        (0..h)
+            .step_by(tile)
+            .flat_map(|y| {
+                (0..w)
+                    .step_by(tile)
+                    .map(move |x| (x, y, tile.min(w - x), tile.min(h - y)))
+            })
+            .collect()
+    }
+
+    /// The tile grown by `margin`, clamped to the MPI.
+    fn region(&self, tile: Rect, margin: usize) -> Rect {
+        let (tx, ty, tw, th) = tile;
+        let (x0, y0) = (tx.saturating_sub(margin), ty.saturating_sub(margin));
+        let (x1, y1) = ((tx + tw + margin).min(self.w), (ty + th + margin).min(self.h));
+        (x0, y0, x1 - x0, y1 - y0)
+    }
+
+    fn view_window(&self, k: usize, region: Rect, with_sub: bool) -> ViewWindow {
+        let (vw, vh) = self.view_sizes[k];
+        let crop = view_crop(&self.homs[k], region, vw, vh);
+        let mpi_to_crop: Vec<Hom> = self.homs[k]
+            .iter()
+            .map(|hm| crop_source(hm, crop.0 as f64, crop.1 as f64))
+            .collect();
+        let sub = if with_sub {
+            mpi_window(&mpi_to_crop, crop.2, crop.3, self.w, self.h, region)
+        } else {
+            region
+        };
+        ViewWindow {
+            crop,
+            mpi_to_crop,
+            sub,
+        }
+    }
 }
 
 /// The view-image crop `(x0, y0, w, h)` that every sample of MPI region `region` (all planes) needs.
-fn view_crop(
-    homs: &[Hom],
-    region: (usize, usize, usize, usize),
-    vw: usize,
-    vh: usize,
-) -> (usize, usize, usize, usize) {
+fn view_crop(homs: &[Hom], region: Rect, vw: usize, vh: usize) -> Rect {
     let (rx, ry, rw, rh) = region;
+    let corners = [(rx, ry), (rx + rw, ry), (rx, ry + rh), (rx + rw, ry + rh)]
+        .map(|(u, v)| (u as f64, v as f64));
+    match bounding_box(homs, &corners) {
+        None => (0, 0, vw, vh),
+        Some(b) => grown_box(b, vw, vh).unwrap_or((0, 0, vw.min(1), vh.min(1))),
+    }
+}
+
+/// The bounding box `(x0, y0, x1, y1)` of the images of `corners` under every homography, or `None` when
+/// a corner maps to infinity or behind the camera (the image of the rectangle is then unbounded).
+fn bounding_box(homs: &[Hom], corners: &[(f64, f64); 4]) -> Option<(f64, f64, f64, f64)> {
     let (mut x0, mut y0, mut x1, mut y1) = (
         f64::INFINITY,
         f64::INFINITY,
@@ -125,33 +213,241 @@ fn view_crop(
         f64::NEG_INFINITY,
     );
     for h in homs {
-        for (u, v) in [(rx, ry), (rx + rw, ry), (rx, ry + rh), (rx + rw, ry + rh)] {
-            let (u, v) = (u as f64, v as f64);
+        for &(u, v) in corners {
             let z = h[6] * u + h[7] * v + h[8];
             let x = (h[0] * u + h[1] * v + h[2]) / z;
             let y = (h[3] * u + h[4] * v + h[5]) / z;
             if !(z > 0.0 && x.is_finite() && y.is_finite()) {
-                return (0, 0, vw, vh);
+                return None;
             }
             (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x), y1.max(y));
         }
     }
-    let cx0 = ((x0.floor() - 2.0).max(0.0) as usize).min(vw.saturating_sub(1));
-    let cy0 = ((y0.floor() - 2.0).max(0.0) as usize).min(vh.saturating_sub(1));
-    let cx1 = ((x1.ceil() + 2.0).min(vw as f64).max(0.0) as usize).max(cx0 + 1);
-    let cy1 = ((y1.ceil() + 2.0).min(vh as f64).max(0.0) as usize).max(cy0 + 1);
-    (cx0, cy0, cx1 - cx0, cy1 - cy0)
+    Some((x0, y0, x1, y1))
 }
 
-/// [`infer_mpi`] with an explicit (even) tile side in MPI pixels.
-pub fn infer_mpi_tiled(
+/// The texels `[floor(x0) - 2, ceil(x1) + 2)` (and the same in y) clamped to a `w x h` image, or `None`
+/// when that is empty. A bilinear sample at continuous `s` reads texels `floor(s - 0.5)` and the next one,
+/// so for `s` in `[x0, x1]` both lie within one texel of the box; the second texel of slack covers the
+/// f32 rounding of shifted homographies.
+fn grown_box(b: (f64, f64, f64, f64), w: usize, h: usize) -> Option<Rect> {
+    let (x0, y0, x1, y1) = b;
+    let clamp = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
+    let (cx0, cx1) = (clamp(x0.floor() - 2.0, w), clamp(x1.ceil() + 2.0, w));
+    let (cy0, cy1) = (clamp(y0.floor() - 2.0, h), clamp(y1.ceil() + 2.0, h));
+    (cx1 > cx0 && cy1 > cy0).then_some((cx0, cy0, cx1 - cx0, cy1 - cy0))
+}
+
+/// The sub-window of a `w x h` MPI holding every texel that a render into a `cw x ch` view crop samples
+/// on any plane (`mpi_to_crop[d]`: MPI pixels -> crop pixels), joined with `region` (which the gradient
+/// components are computed on, relative to the sub-window). Exact: a sample inside the MPI lies in the
+/// crop's back-projected bounding box, hence inside the window with its bilinear taps; a sample outside
+/// the MPI is outside the window, which is clamped to the MPI; and the window's edge clamping only
+/// differs from the MPI's where no tap reaches it.
+fn mpi_window(mpi_to_crop: &[Hom], cw: usize, ch: usize, w: usize, h: usize, region: Rect) -> Rect {
+    let inverse: Vec<Hom> = mpi_to_crop.iter().map(invert).collect();
+    let corners = [(0, 0), (cw, 0), (0, ch), (cw, ch)].map(|(u, v)| (u as f64, v as f64));
+    let Some(b) = bounding_box(&inverse, &corners) else {
+        return (0, 0, w, h);
+    };
+    let Some((x0, y0, sw, sh)) = grown_box(b, w, h) else {
+        return region;
+    };
+    let (rx, ry, rw, rh) = region;
+    let (x1, y1) = ((x0 + sw).max(rx + rw), (y0 + sh).max(ry + rh));
+    let (x0, y0) = (x0.min(rx), y0.min(ry));
+    (x0, y0, x1 - x0, y1 - y0)
+}
+
+/// Storage of a `[D][C][H][W]` state between nets.
+enum Values {
+    F32(Vec<f32>),
+    F16(Vec<f16>),
+}
+
+struct StateStore {
+    d: usize,
+    c: usize,
+    h: usize,
+    w: usize,
+    values: Values,
+}
+
+impl StateStore {
+    fn new(d: usize, c: usize, h: usize, w: usize, precision: StatePrecision) -> Self {
+        let n = d * c * h * w;
+        let values = match precision {
+            StatePrecision::F32 => Values::F32(vec![0.0; n]),
+            StatePrecision::F16 => Values::F16(vec![f16::ZERO; n]),
+        };
+        Self { d, c, h, w, values }
+    }
+
+    /// Channels `c0..c0 + nc` of window `r`, as f32 `[D][nc][r.h][r.w]`.
+    fn read(&self, c0: usize, nc: usize, r: Rect) -> Vec<f32> {
+        let (x, y, rw, rh) = r;
+        let mut out = vec![0f32; self.d * nc * rw * rh];
+        for p in 0..self.d {
+            for c in 0..nc {
+                for row in 0..rh {
+                    let src = ((p * self.c + c0 + c) * self.h + y + row) * self.w + x;
+                    let dst = ((p * nc + c) * rh + row) * rw;
+                    let out = &mut out[dst..dst + rw];
+                    match &self.values {
+                        Values::F32(v) => out.copy_from_slice(&v[src..src + rw]),
+                        Values::F16(v) => v[src..src + rw].convert_to_f32_slice(out),
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Write `vals` `[D][C][r.h][r.w]` (all channels) into window `r`.
+    fn write(&mut self, vals: &[f32], r: Rect) {
+        let (x, y, rw, rh) = r;
+        let mut row_buf = vec![0f32; rw];
+        for p in 0..self.d {
+            for c in 0..self.c {
+                for row in 0..rh {
+                    let src = &vals[((p * self.c + c) * rh + row) * rw..][..rw];
+                    let dst = ((p * self.c + c) * self.h + y + row) * self.w + x;
+                    match &mut self.values {
+                        Values::F32(v) => v[dst..dst + rw].copy_from_slice(src),
+                        Values::F16(v) => {
+                            for (b, &s) in row_buf.iter_mut().zip(src) {
+                                *b = s.clamp(-65504.0, 65504.0);
+                            }
+                            v[dst..dst + rw].convert_from_f32_slice(&row_buf);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn tensor(&self, c0: usize, nc: usize, r: Rect, device: &Device) -> Tensor<4> {
+        Tensor::from_data(
+            TensorData::new(self.read(c0, nc, r), [self.d, nc, r.3, r.2]),
+            device,
+        )
+    }
+}
+
+/// Estimated bytes of the whole-MPI data (states, result), the inputs and the process.
+fn fixed_bytes(model: &DeepViewModel, geom: &Geometry, precision: StatePrecision) -> u64 {
+    let px = (geom.d * geom.w * geom.h) as u64;
+    let store = px * model.state_channels as u64 * precision.bytes();
+    let layers = px * 4 * 4;
+    let nets = model.nets.len();
+    let states = (0..nets)
+        .map(|n| if n > 0 { store } else { 0 } + if n + 1 < nets { store } else { layers })
+        .max()
+        .unwrap_or(0);
+    // The caller's images and their tensors.
+    let images: u64 = geom
+        .view_sizes
+        .iter()
+        .map(|&(w, h)| 2 * (w * h * 3 * 4) as u64)
+        .sum();
+    states + images + BASE_BYTES
+}
+
+/// Estimated peak bytes of one tile step of net `n` on `region`, given each view's crop and sub-window.
+///
+/// Per (view, plane, region pixel) "slice pixel", the net holds its input (per view and concatenated)
+/// and a few feature maps at once (the conv's NHWC copy of its input, its output, the ELU, the max over
+/// views and the concatenation). Before it, the per-view inputs are computed one view at a time: the
+/// finished views' inputs are held while the current one's warps run (bilinear taps: 4 indices, 4
+/// weights and 4 gathered values per sample and channel).
+fn tile_estimate(
+    model: &DeepViewModel,
+    n: usize,
+    planes: usize,
+    region: Rect,
+    windows: &[ViewWindow],
+) -> u64 {
+    let net = &model.nets[n];
+    let f = net.head.weight.val().dims()[0] as u64;
+    let cin = net.input[0].weight.val().dims()[1] as u64;
+    let (k, d) = (windows.len() as u64, planes as u64);
+    let r = (region.2 * region.3) as u64;
+    let kdr = k * d * r;
+    // Net phase: input (3 copies: per view, per view with state, concatenated), NHWC copy, features.
+    let net_phase = kdr * 4 * (4 * cin + 8 * f);
+    // Input phase: finished views' inputs + the current view's transients.
+    let raw = cin - if n > 0 { model.state_channels as u64 } else { 0 };
+    let per_view = windows
+        .iter()
+        .map(|w| {
+            let c = (w.crop.2 * w.crop.3) as u64;
+            let s = (w.sub.2 * w.sub.3) as u64;
+            if n > 0 {
+                d * (240 * c + 80 * s + 300 * r)
+            } else {
+                d * 200 * r
+            }
+        })
+        .max()
+        .unwrap_or(0);
+    let input_phase = kdr * 4 * raw + per_view;
+    net_phase.max(input_phase) * 5 / 4
+}
+
+/// The largest tile estimate over all nets and tiles of side `tile`.
+fn max_tile_bytes(model: &DeepViewModel, geom: &Geometry, tile: usize) -> u64 {
+    let tiles = geom.tiles(tile);
+    let mut max = 0;
+    for n in 0..model.nets.len() {
+        let m = model.margin(n);
+        for &t in &tiles {
+            let region = geom.region(t, m);
+            let windows: Vec<ViewWindow> = (0..geom.homs.len())
+                .map(|k| geom.view_window(k, region, n > 0))
+                .collect();
+            max = max.max(tile_estimate(model, n, geom.d, region, &windows));
+        }
+    }
+    max
+}
+
+fn plan_for(model: &DeepViewModel, geom: &Geometry, budget: u64) -> Result<InferPlan, InferError> {
+    let precision = if 2 * fixed_bytes(model, geom, StatePrecision::F32) <= budget {
+        StatePrecision::F32
+    } else {
+        StatePrecision::F16
+    };
+    let fixed = fixed_bytes(model, geom, precision);
+    let mut tile = geom.w.max(geom.h).next_multiple_of(2);
+    loop {
+        let tile_bytes = max_tile_bytes(model, geom, tile);
+        if fixed + tile_bytes <= budget {
+            return Ok(InferPlan {
+                tile,
+                precision,
+                fixed_bytes: fixed,
+                tile_bytes,
+            });
+        }
+        if tile <= MIN_TILE {
+            return Err(InferError::BudgetTooSmall {
+                budget,
+                fixed,
+                min_tile: tile_bytes,
+                planes: geom.d,
+                w: geom.w as u32,
+                h: geom.h as u32,
+            });
+        }
+        tile = ((tile * 7 / 8) & !1).max(MIN_TILE);
+    }
+}
+
+fn validate(
     model: &DeepViewModel,
     views: &[(ImageF32, Camera)],
-    reference: &Camera,
     depths: &[f64],
-    tile: usize,
-    progress: &mut dyn FnMut(InferProgress),
-) -> Result<Mpi, InferError> {
+) -> Result<(), InferError> {
     if views.is_empty() {
         return Err(InferError::NoViews);
     }
@@ -175,13 +471,86 @@ pub fn infer_mpi_tiled(
             });
         }
     }
+    Ok(())
+}
+
+/// The tile side and state precision [`infer_mpi`] uses for `max_memory_bytes`: f32 state when it takes
+/// at most half the budget, f16 otherwise; then the largest tile (from one tile for the whole MPI down to
+/// [`MIN_TILE`]) whose estimated peak, with the fixed part, fits the budget.
+pub fn plan_inference(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    max_memory_bytes: u64,
+) -> Result<InferPlan, InferError> {
+    validate(model, views, depths)?;
+    plan_for(
+        model,
+        &Geometry::new(views, reference, depths),
+        max_memory_bytes,
+    )
+}
+
+/// Infer an MPI with planes at `depths` (back to front, decreasing) in front of `reference` from posed
+/// images, keeping peak memory within `max_memory_bytes` (see [`plan_inference`]). Runs on the model's
+/// device; use a model on a non-autodiff device.
+pub fn infer_mpi(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    max_memory_bytes: u64,
+    progress: &mut dyn FnMut(InferProgress),
+) -> Result<Mpi, InferError> {
+    let plan = plan_inference(model, views, reference, depths, max_memory_bytes)?;
+    infer_mpi_with(
+        model,
+        views,
+        reference,
+        depths,
+        plan.tile,
+        plan.precision,
+        progress,
+    )
+}
+
+/// [`infer_mpi`] with an explicit (even) tile side in MPI pixels and an f32 state.
+pub fn infer_mpi_tiled(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    tile: usize,
+    progress: &mut dyn FnMut(InferProgress),
+) -> Result<Mpi, InferError> {
+    infer_mpi_with(
+        model,
+        views,
+        reference,
+        depths,
+        tile,
+        StatePrecision::F32,
+        progress,
+    )
+}
+
+/// [`infer_mpi`] with an explicit (even) tile side and state precision.
+pub fn infer_mpi_with(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    tile: usize,
+    precision: StatePrecision,
+    progress: &mut dyn FnMut(InferProgress),
+) -> Result<Mpi, InferError> {
+    validate(model, views, depths)?;
     let device = model_device(model);
-    let (w, h, d) = (
-        reference.width as usize,
-        reference.height as usize,
-        depths.len(),
-    );
+    let geom = Geometry::new(views, reference, depths);
+    let (w, h, d) = (geom.w, geom.h, geom.d);
     let s = model.state_channels;
+    let nets = model.nets.len();
     let tile = tile.max(2).next_multiple_of(2);
     let images: Vec<Tensor<3>> = views
         .iter()
@@ -195,63 +564,70 @@ pub fn infer_mpi_tiled(
             )
         })
         .collect();
-    let homs: Vec<Vec<Hom>> = views
-        .iter()
-        .map(|(_, cam)| {
-            depths
-                .iter()
-                .map(|&z| plane_homography(reference, cam, z).to_row_major())
-                .collect()
-        })
-        .collect();
-    let tiles: Vec<(usize, usize, usize, usize)> = (0..h)
-        .step_by(tile)
-        .flat_map(|y| {
-            (0..w)
-                .step_by(tile)
-                .map(move |x| (x, y, tile.min(w - x), tile.min(h - y)))
-        })
-        .collect();
-    let total = tiles.len() * model.nets.len();
-    let mut state: Option<Tensor<4>> = None;
-    for n in 0..model.nets.len() {
+    let tiles = geom.tiles(tile);
+    let total = tiles.len() * nets;
+    // Premultiplied RGBA result `[D][H][W][4]`, written by the last net.
+    let mut layers = Vec::new();
+    let mut state: Option<StateStore> = None;
+    for n in 0..nets {
+        let last = n + 1 == nets;
         let m = model.margin(n);
-        let rgba = state.clone().map(state_to_rgba);
-        let mut next = vec![0f32; d * s * h * w];
+        let mut next = (!last).then(|| StateStore::new(d, s, h, w, precision));
+        if last {
+            layers = vec![0f32; d * h * w * 4];
+        }
         for (t, &(tx, ty, tw, th)) in tiles.iter().enumerate() {
-            let (rx0, ry0) = (tx.saturating_sub(m), ty.saturating_sub(m));
-            let (rx1, ry1) = ((tx + tw + m).min(w), (ty + th + m).min(h));
-            let region = (rx0, ry0, rx1 - rx0, ry1 - ry0);
+            let region = geom.region((tx, ty, tw, th), m);
+            let (rx0, ry0, rw, rh) = region;
             let per_view: Vec<Tensor<4>> = (0..views.len())
                 .map(|k| {
-                    let (vw, vh) = (views[k].0.width as usize, views[k].0.height as usize);
-                    let (cx, cy, cw, ch) = view_crop(&homs[k], region, vw, vh);
+                    let win = geom.view_window(k, region, state.is_some());
+                    let (cx, cy, cw, ch) = win.crop;
                     let crop = images[k].clone().narrow(1, cy, ch).narrow(2, cx, cw);
-                    let hk: Vec<Hom> = homs[k]
-                        .iter()
-                        .map(|hm| crop_source(hm, cx as f64, cy as f64))
-                        .collect();
-                    match &rgba {
-                        None => DeepViewModel::init_input(crop, &hk, region),
-                        Some(rgba) => gradient_components(rgba.clone(), crop, &hk, region),
+                    match &state {
+                        None => DeepViewModel::init_input(crop, &win.mpi_to_crop, region),
+                        Some(st) => {
+                            let (sx, sy, _, _) = win.sub;
+                            let rgba = state_to_rgba(st.tensor(0, 4, win.sub, &device));
+                            let homs: Vec<Hom> = win
+                                .mpi_to_crop
+                                .iter()
+                                .map(|hm| crop_output(hm, sx as f64, sy as f64))
+                                .collect();
+                            gradient_components(rgba, crop, &homs, (rx0 - sx, ry0 - sy, rw, rh))
+                        }
                     }
                 })
                 .collect();
-            let region_state = state
-                .as_ref()
-                .map(|st| st.clone().narrow(2, ry0, region.3).narrow(3, rx0, region.2));
+            let region_state = state.as_ref().map(|st| st.tensor(0, s, region, &device));
             let out = model.run_net(n, per_view, region_state.clone());
             let out = match region_state {
                 Some(rs) => rs + out,
                 None => out,
             };
             let out = out.narrow(2, ty - ry0, th).narrow(3, tx - rx0, tw);
-            let vals: Vec<f32> = out.into_data().try_to_vec().expect("f32 tensor");
-            for p in 0..d * s {
-                for y in 0..th {
-                    let src = &vals[(p * th + y) * tw..(p * th + y + 1) * tw];
-                    let o = (p * h + ty + y) * w + tx;
-                    next[o..o + tw].copy_from_slice(src);
+            match next.as_mut() {
+                Some(next) => {
+                    let vals: Vec<f32> = out.into_data().try_to_vec().expect("f32 tensor");
+                    next.write(&vals, (tx, ty, tw, th));
+                }
+                None => {
+                    let vals: Vec<f32> = state_to_rgba(out)
+                        .into_data()
+                        .try_to_vec()
+                        .expect("f32 tensor");
+                    // [D][4][th][tw] -> [D][H][W][4]
+                    for p in 0..d {
+                        for c in 0..4 {
+                            for y in 0..th {
+                                let src = &vals[((p * 4 + c) * th + y) * tw..][..tw];
+                                let row = (p * h + ty + y) * w + tx;
+                                for (x, &v) in src.iter().enumerate() {
+                                    layers[(row + x) * 4 + c] = v;
+                                }
+                            }
+                        }
+                    }
                 }
             }
             progress(InferProgress {
@@ -260,24 +636,7 @@ pub fn infer_mpi_tiled(
                 net: n,
             });
         }
-        drop(rgba);
-        state = Some(Tensor::from_data(
-            TensorData::new(next, [d, s, h, w]),
-            &device,
-        ));
-    }
-    let rgba: Vec<f32> = state_to_rgba(state.expect("at least one net"))
-        .into_data()
-        .try_to_vec()
-        .expect("f32");
-    // [D][4][H][W] -> [D][H][W][4]
-    let mut layers = vec![0f32; d * h * w * 4];
-    for p in 0..d {
-        for c in 0..4 {
-            for i in 0..h * w {
-                layers[(p * h * w + i) * 4 + c] = rgba[(p * 4 + c) * h * w + i];
-            }
-        }
+        state = next;
     }
     Ok(Mpi {
         camera: *reference,
