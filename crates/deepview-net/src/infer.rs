@@ -824,7 +824,207 @@ mod tests {
             steps = p.total
         })
         .unwrap();
-        assert_eq!(steps, 3);
+        assert_eq!(steps, model.nets.len());
         assert_eq!(mpi.layers.len(), 4 * 38 * 46 * 4);
+    }
+
+    fn small_model(dev: &Device, unet_nets: usize) -> DeepViewModel {
+        let cfg = DeepViewConfig {
+            features_large: 6,
+            features_small: 4,
+            updates: 2,
+            unet_nets,
+            init_prior: None,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        DeepViewModel::new(&cfg, dev)
+    }
+
+    /// The untiled model on the whole reference image, as `[D][4][H][W]`.
+    fn untiled(
+        model: &DeepViewModel,
+        views: &[(ImageF32, Camera)],
+        reference: &Camera,
+        depths: &[f64],
+        dev: &Device,
+    ) -> Vec<f32> {
+        let geom = Geometry::new(views, reference, depths);
+        let inputs = ModelInputs {
+            images: views
+                .iter()
+                .map(|(i, _)| image_tensor(&i.data, i.width as usize, i.height as usize, 3, dev))
+                .collect(),
+            mpi_to_view: geom.homs.clone(),
+            height: geom.h,
+            width: geom.w,
+            shrink: false,
+        };
+        model
+            .forward(&inputs)
+            .rgba
+            .into_data()
+            .try_to_vec()
+            .unwrap()
+    }
+
+    /// Max |a - b| between `[D][4][H][W]` and an MPI's `[D][H][W][4]` layers.
+    fn max_layer_diff(full: &[f32], layers: &[f32], px: usize) -> f32 {
+        let mut max = 0f32;
+        for (i, &b) in layers.iter().enumerate() {
+            let (c, q) = (i % 4, i / 4);
+            let (p, j) = (q / px, q % px);
+            max = max.max((full[(p * 4 + c) * px + j] - b).abs());
+        }
+        max
+    }
+
+    /// Three views far apart relative to the depth range: 24 px of disparity between the nearest and the
+    /// farthest plane horizontally, 10 px vertically, on a 240x64 MPI.
+    fn parallax_scene() -> (Vec<(ImageF32, Camera)>, Camera, Vec<f64>) {
+        let (w, h) = (240u32, 64u32);
+        let intr = Intrinsics::centred(40.0, w, h);
+        let reference = Camera::new(w, h, intr, Pose::IDENTITY);
+        let depths = plane_depths(1.0, 20.0, 5, PlaneSpacing::InverseDepth).unwrap();
+        let centres = [(-0.6, 0.0), (0.6, 0.05), (0.0, 0.25)];
+        let views = centres
+            .iter()
+            .enumerate()
+            .map(|(i, &(x, y))| {
+                let cam = Camera::new(
+                    w,
+                    h,
+                    intr,
+                    Pose::from_center(DMat3::from_rotation_y(0.01), DVec3::new(x, y, 0.0)),
+                );
+                let mut img = ImageF32::new(w, h, 3);
+                for (j, v) in img.data.iter_mut().enumerate() {
+                    let (p, c) = (j / 3, j % 3);
+                    let (px, py) = ((p % w as usize) as f32, (p / w as usize) as f32);
+                    let noise = ((j * 7919 + i * 104729) % 1000) as f32 / 1000.0;
+                    *v = 0.5 * noise + 0.25 * (1.0 + (0.2 * px + 0.3 * py + c as f32).sin());
+                }
+                (img, cam)
+            })
+            .collect();
+        (views, reference, depths)
+    }
+
+    #[test]
+    fn strong_parallax_sub_windows_are_exact_and_small() {
+        use burn::tensor::Distribution;
+        let dev = Device::flex();
+        let (views, reference, depths) = parallax_scene();
+        let geom = Geometry::new(&views, &reference, &depths);
+        let (w, h, d) = (geom.w, geom.h, geom.d);
+        // A random MPI (not the model's): the views' gradient components on a region from the sub-window
+        // equal those from the whole MPI.
+        let alpha = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(0.05, 0.95), &dev);
+        let col = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(0.0, 1.0), &dev);
+        let rgba = Tensor::cat(vec![col * alpha.clone(), alpha], 1);
+        let images: Vec<Tensor<3>> = views
+            .iter()
+            .map(|(i, _)| image_tensor(&i.data, i.width as usize, i.height as usize, 3, &dev))
+            .collect();
+        let (mut area, mut count, mut max_diff) = (0usize, 0usize, 0f32);
+        for t in geom.tiles(8) {
+            let region = geom.region(t, 8);
+            for k in 0..views.len() {
+                let win = geom.view_window(k, region, true);
+                let (cx, cy, cw, ch) = win.crop;
+                let (sx, sy, sw, sh) = win.sub;
+                if t == (112, 24, 8, 8) && k < 2 {
+                    // The parallax is strong: the crop spans the region plus the disparity range.
+                    assert!(cw >= region.2 + 22, "crop {cw} for region {}", region.2);
+                }
+                let crop = images[k].clone().narrow(1, cy, ch).narrow(2, cx, cw);
+                let full = gradient_components(rgba.clone(), crop.clone(), &win.mpi_to_crop, region);
+                let homs: Vec<Hom> = win
+                    .mpi_to_crop
+                    .iter()
+                    .map(|hm| crop_output(hm, sx as f64, sy as f64))
+                    .collect();
+                let sub_rgba = rgba.clone().narrow(2, sy, sh).narrow(3, sx, sw);
+                let rel = (region.0 - sx, region.1 - sy, region.2, region.3);
+                let sub = gradient_components(sub_rgba, crop, &homs, rel);
+                let diff: f32 = (full - sub).abs().max().into_scalar();
+                max_diff = max_diff.max(diff);
+                area += sw * sh;
+                count += 1;
+            }
+        }
+        assert!(max_diff < 2e-5, "sub-window components differ by {max_diff}");
+        let mean = area as f64 / count as f64 / (w * h) as f64;
+        assert!(mean < 0.35, "sub-windows cover {mean:.2} of the MPI on average");
+        // And the whole tiled inference equals the untiled model.
+        let model = small_model(&dev, 0);
+        let full = untiled(&model, &views, &reference, &depths, &dev);
+        let mpi = infer_mpi_tiled(&model, &views, &reference, &depths, 8, &mut |_| {}).unwrap();
+        let diff = max_layer_diff(&full, &mpi.layers, w * h);
+        assert!(diff < 2e-5, "tiled vs untiled: {diff}");
+    }
+
+    #[test]
+    fn f16_state_agrees_with_f32_state() {
+        let dev = Device::flex();
+        let model = small_model(&dev, 1);
+        let (views, reference, depths) = scene(3);
+        let run = |precision| {
+            infer_mpi_with(&model, &views, &reference, &depths, 16, precision, &mut |_| {})
+                .unwrap()
+                .layers
+        };
+        let (a, b) = (run(StatePrecision::F32), run(StatePrecision::F16));
+        let max = a
+            .iter()
+            .zip(&b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0f32, f32::max);
+        assert!(max < 1e-2, "f16 state differs by {max}");
+        assert!(max > 0.0, "the f16 state should round something");
+    }
+
+    #[test]
+    fn f16_store_rounds_to_11_bits_and_saturates() {
+        let mut st = StateStore::new(2, 3, 4, 5, StatePrecision::F16);
+        let vals: Vec<f32> = (0..2 * 3 * 2 * 3)
+            .map(|i| ((i * 37) % 101) as f32 / 5.0 - 10.0 + 1e-3 * i as f32)
+            .collect();
+        st.write(&vals, (1, 2, 3, 2));
+        let back = st.read(0, 3, (1, 2, 3, 2));
+        for (v, b) in vals.iter().zip(&back) {
+            assert!((v - b).abs() <= v.abs() * 2f32.powi(-11), "{v} -> {b}");
+        }
+        // Outside the written window the store is still zero; a window of one channel reads that channel.
+        assert!(st.read(0, 3, (0, 0, 5, 2)).iter().all(|&v| v == 0.0));
+        assert_eq!(st.read(1, 1, (1, 2, 3, 2)), back[6..12].to_vec());
+        st.write(&[1e6; 2 * 3], (0, 0, 1, 1));
+        assert_eq!(st.read(0, 3, (0, 0, 1, 1)), vec![65504.0; 6]);
+    }
+
+    #[test]
+    fn plan_picks_precision_and_tile_within_budget() {
+        let dev = Device::flex();
+        let model = DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev);
+        let (views, reference, depths) = parallax_scene();
+        let geom = Geometry::new(&views, &reference, &depths);
+        let plan = plan_inference(&model, &views, &reference, &depths, 1 << 34).unwrap();
+        assert_eq!(plan.precision, StatePrecision::F32);
+        assert_eq!(plan.tile, 240);
+        let f32_fixed = fixed_bytes(&model, &geom, StatePrecision::F32);
+        let f16_fixed = fixed_bytes(&model, &geom, StatePrecision::F16);
+        assert!(f16_fixed < f32_fixed);
+        // Below twice the f32 state the state is stored as f16, and tiles shrink with the budget.
+        let mut last = usize::MAX;
+        for extra in [64u64 << 20, 16 << 20, 4 << 20] {
+            let budget = f16_fixed + extra;
+            let plan = plan_inference(&model, &views, &reference, &depths, budget).unwrap();
+            assert_eq!(plan.precision, StatePrecision::F16);
+            assert!(plan.fixed_bytes + plan.tile_bytes <= budget);
+            assert!(plan.tile <= last && plan.tile >= MIN_TILE);
+            last = plan.tile;
+        }
+        assert!(last < 240);
+        let e = plan_inference(&model, &views, &reference, &depths, f16_fixed + 1000).unwrap_err();
+        assert!(matches!(e, InferError::BudgetTooSmall { .. }));
     }
 }

@@ -79,6 +79,14 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Recompute each net's activations during the backward pass (the paper's gradient checkpointing:
+    /// memory independent of the number of update nets, ~1 extra forward pass per step). Default: on for
+    /// presets with more than 2 nets (all paper-* presets). Kept in the run's config.json.
+    #[arg(long, conflicts_with = "no_recompute")]
+    pub recompute: bool,
+    /// Keep all activations for the backward pass (faster, more memory).
+    #[arg(long)]
+    pub no_recompute: bool,
     #[command(flatten)]
     pub scene: deepview_data::SceneArgs,
 }
@@ -154,6 +162,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         train.checkpoint_every = args.checkpoint_every;
         train.seed = args.seed;
         train.holdout_every = args.holdout_every;
+        if args.recompute || args.no_recompute {
+            train.recompute = args.recompute;
+        }
         if let Some(d) = device_list(&args.devices) {
             train.devices = d;
         }

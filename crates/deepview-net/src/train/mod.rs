@@ -17,11 +17,15 @@
 //! untouched, message printed, `skipped` in the metrics); otherwise the global norm is clipped and Adam
 //! steps. With one device the replicas run in turn; with several, one thread per device.
 //!
-//! Not done (see `config.rs`): the paper's per-iteration activation recomputation (gradient checkpointing);
-//! all activations of a tuple are kept until its backward pass.
+//! Per-iteration activation recompute ([`recompute`], `TrainConfig::recompute`, CLI `--recompute` /
+//! `--no-recompute`): the forward pass keeps only the small MPI states between nets and each net's
+//! activations are recomputed during the backward pass, so memory does not grow with the number of update
+//! nets; the gradients equal those of the ordinary backward (up to float rounding). On by default for
+//! models with more than 2 nets (every `paper-*` preset).
 
 pub mod clip;
 pub mod data;
+pub mod recompute;
 pub mod synthetic;
 
 pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
@@ -99,6 +103,11 @@ pub struct TrainConfig {
     pub devices: Vec<String>,
     /// Hold out every n-th view of LLFF/COLMAP/light-field scenes (0 or 1: none).
     pub holdout_every: usize,
+    /// Recompute each net's activations during the backward pass instead of keeping them (the paper's
+    /// gradient checkpointing; see [`recompute`]). Default: on for models with more than 2 nets. Absent
+    /// in older `config.json` files: off (their behaviour then).
+    #[serde(default)]
+    pub recompute: bool,
 }
 
 impl TrainConfig {
@@ -128,6 +137,7 @@ impl TrainConfig {
             seed: 0,
             devices: vec!["cpu".into()],
             holdout_every: 8,
+            recompute: model.nets() > 2,
         }
     }
 
@@ -240,14 +250,8 @@ pub fn parse_device(name: &str) -> Result<Device, TrainError> {
     }
 }
 
-/// The loss of one tuple, shape `[1]`: run the model on the tuple's window, render the output MPI into
-/// the target crop and compare.
-pub fn example_loss(
-    model: &DeepViewModel,
-    loss: &Loss,
-    ex: &Example,
-    device: &Device,
-) -> Tensor<1> {
+/// The model inputs of a tuple on `device` (its training window, shrinking by the nets' margins).
+pub fn example_inputs(ex: &Example, device: &Device) -> ModelInputs {
     let images = ex
         .images
         .iter()
@@ -262,15 +266,37 @@ pub fn example_loss(
         })
         .collect();
     let (_, _, ww, wh) = ex.window;
-    let inputs = ModelInputs {
+    ModelInputs {
         images,
         mpi_to_view: ex.mpi_to_view.clone(),
         height: wh,
         width: ww,
         shrink: true,
-    };
-    let out = model.forward(&inputs);
-    let (ox, oy) = out.offset;
+    }
+}
+
+/// The loss of one tuple, shape `[1]`: run the model on the tuple's window, render the output MPI into
+/// the target crop and compare.
+pub fn example_loss(
+    model: &DeepViewModel,
+    loss: &Loss,
+    ex: &Example,
+    device: &Device,
+) -> Tensor<1> {
+    let out = model.forward(&example_inputs(ex, device));
+    loss_tail(out.rgba, out.offset, ex, loss, device)
+}
+
+/// Render the model's output MPI `rgba` (at `offset` in the tuple's window) into the target crop and
+/// compare: the loss `[1]`.
+pub fn loss_tail(
+    rgba: Tensor<4>,
+    offset: (usize, usize),
+    ex: &Example,
+    loss: &Loss,
+    device: &Device,
+) -> Tensor<1> {
+    let (ox, oy) = offset;
     let view_to_mpi: Vec<Hom> = ex
         .window_to_target
         .iter()
@@ -280,7 +306,7 @@ pub fn example_loss(
         ex.target_crop.width as usize,
         ex.target_crop.height as usize,
     );
-    let pred = render_view(out.rgba, &view_to_mpi, r, c)
+    let pred = render_view(rgba, &view_to_mpi, r, c)
         .render
         .reshape([1, 3, r, c]);
     let target = image_tensor(&ex.target_crop.data, c, r, ex.target_crop.channels, device)
@@ -302,6 +328,29 @@ pub fn parameter_values<M: Module>(module: &M) -> Vec<f32> {
     c.0
 }
 
+/// Loss of one tuple and the parameter gradients of `loss / batch` with the ordinary backward pass
+/// (all activations kept); `None` gradients when the loss is not finite.
+pub fn loss_and_grads_full(
+    model: &DeepViewModel,
+    loss: &Loss,
+    ex: &Example,
+    device: &Device,
+    batch: usize,
+) -> (f32, Option<GradientsParams>) {
+    let l = example_loss(model, loss, ex, device);
+    let v = l.clone().into_scalar::<f32>();
+    if !v.is_finite() {
+        return (v, None);
+    }
+    (
+        v,
+        Some(GradientsParams::from_grads(
+            (l / batch as f32).backward(),
+            model,
+        )),
+    )
+}
+
 /// One replica's work: per-example forward/backward, gradients summed on the replica's device.
 fn run_replica(
     model: &DeepViewModel,
@@ -309,18 +358,21 @@ fn run_replica(
     examples: &[Example],
     device: &Device,
     batch: usize,
+    recompute: bool,
 ) -> (Option<GradientsParams>, Vec<f32>) {
     let inner = device.clone().inner();
     let mut acc: Option<GradientsParams> = None;
     let mut losses = Vec::with_capacity(examples.len());
     for ex in examples {
-        let l = example_loss(model, loss, ex, device);
-        let v = l.clone().into_scalar::<f32>();
+        let (v, g) = if recompute {
+            recompute::loss_and_grads(model, loss, ex, device, batch)
+        } else {
+            loss_and_grads_full(model, loss, ex, device, batch)
+        };
         losses.push(v);
-        if !v.is_finite() {
+        let Some(g) = g else {
             return (None, losses);
-        }
-        let g = GradientsParams::from_grads((l / batch as f32).backward(), model);
+        };
         acc = Some(match acc {
             None => g,
             Some(a) => clip::sum_on_device(model, vec![a, g], &inner),
@@ -551,6 +603,7 @@ impl Trainer {
         let n = batch.len();
         let views = batch.first().map_or(0, |e| e.inputs.len());
         let nd = self.devices.len().min(n.max(1));
+        let recompute = self.config.train.recompute;
         let chunks: Vec<&[Example]> = (0..nd)
             .map(|i| &batch[i * n / nd..(i + 1) * n / nd])
             .collect();
@@ -561,6 +614,7 @@ impl Trainer {
                 chunks[0],
                 &self.devices[0],
                 n,
+                recompute,
             )]
         } else {
             std::thread::scope(|scope| {
@@ -575,7 +629,7 @@ impl Trainer {
                             self.model.clone().fork(&device)
                         };
                         let loss = self.losses[i].clone();
-                        scope.spawn(move || run_replica(&model, &loss, chunk, &device, n))
+                        scope.spawn(move || run_replica(&model, &loss, chunk, &device, n, recompute))
                     })
                     .collect();
                 handles

@@ -346,3 +346,150 @@ fn profile_step() {
         );
     }
 }
+
+/// Gradients of every parameter of `model` in visiting order (zeros where `grads` has none).
+fn gradient_values(model: &DeepViewModel, grads: &GradientsParams) -> Vec<Vec<f32>> {
+    struct Collect<'a>(&'a GradientsParams, Vec<Vec<f32>>);
+    impl ModuleVisitor for Collect<'_> {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let n = param.val().shape().num_elements();
+            self.1.push(match self.0.get::<D>(param.id) {
+                Some(g) => g.into_data().convert::<f32>().iter::<f32>().collect(),
+                None => vec![0.0; n],
+            });
+        }
+    }
+    let mut c = Collect(grads, Vec::new());
+    model.visit(&mut c);
+    c.1
+}
+
+fn norm(v: &[f32]) -> f64 {
+    v.iter().map(|&x| (x as f64).powi(2)).sum::<f64>().sqrt()
+}
+
+/// The tiny network with `updates` update nets, `unet` U-Net nets and an optional init prior.
+fn chain_model(updates: usize, unet: usize, prior: Option<f64>) -> DeepViewConfig {
+    DeepViewConfig {
+        updates,
+        unet_nets: unet,
+        large_nets: 1,
+        features_small: 6,
+        init_prior: prior,
+        ..tiny_model()
+    }
+}
+
+/// Segment-wise recompute gives the ordinary backward's loss (bit for bit: same forward ops) and
+/// parameter gradients (to float rounding), on fixed tuples, for chains of 1, 2 and 4 nets, with a U-Net
+/// net, the init prior and both losses (VGG when its weights are present).
+#[test]
+fn recompute_gradients_match_full_backward() {
+    let device = Device::flex().autodiff();
+    let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.12)]).unwrap();
+    let mut losses = vec![Loss::L1];
+    if let Ok(vgg) = Vgg16::load_default(&device) {
+        losses.push(Loss::Vgg(Box::new(vgg)));
+    }
+    let cases = [
+        chain_model(0, 0, None),
+        chain_model(1, 0, Some(0.0005)),
+        chain_model(3, 1, None),
+    ];
+    let mut rng = Rng::new(3);
+    for cfg in &cases {
+        let model = DeepViewModel::new(cfg, &device);
+        let mut sample = TrainConfig::defaults(cfg).sample;
+        sample.crop = 12;
+        sample.planes = 3;
+        let ex = data.sample(&sample, cfg, 3, &mut rng).unwrap();
+        for loss in &losses {
+            let (va, ga) = loss_and_grads_full(&model, loss, &ex, &device, 2);
+            let (vb, gb) = recompute::loss_and_grads(&model, loss, &ex, &device, 2);
+            assert_eq!(va.to_bits(), vb.to_bits(), "loss {va} vs {vb}");
+            let (ga, gb) = (
+                gradient_values(&model, &ga.unwrap()),
+                gradient_values(&model, &gb.unwrap()),
+            );
+            let total = norm(&ga.concat());
+            assert!(total > 0.0);
+            let mut worst = 0f64;
+            for (a, b) in ga.iter().zip(&gb) {
+                let diff: Vec<f32> = a.iter().zip(b).map(|(x, y)| x - y).collect();
+                // Relative to the tensor's own norm (to the global one for tensors with ~0 gradient, such
+                // as the nets behind a zero-initialised output conv).
+                worst = worst.max(norm(&diff) / norm(a).max(1e-3 * total));
+            }
+            eprintln!(
+                "{} nets, {:?} loss: |grad| {total:.3e}, worst relative difference {worst:.2e}",
+                cfg.nets(),
+                loss.kind()
+            );
+            assert!(worst < 1e-5, "gradients differ by {worst:.2e} (relative)");
+            // Every net gets a gradient (the chain is really followed back to net 0).
+            if cfg.init_prior.is_none() {
+                let per_net = gradient_values(&model, &recompute_grads(&model, loss, &ex, &device));
+                assert!(per_net.iter().all(|g| norm(g) > 0.0));
+            }
+        }
+    }
+}
+
+fn recompute_grads(m: &DeepViewModel, l: &Loss, ex: &Example, d: &Device) -> GradientsParams {
+    recompute::loss_and_grads(m, l, ex, d, 1).1.unwrap()
+}
+
+/// The recompute path keeps exact resume, the non-finite skip and the replica sum working (a 3-net
+/// chain, so `TrainConfig::defaults` turns recompute on).
+#[test]
+fn recompute_training_resumes_skips_and_splits() {
+    let config = |steps, devices: &[&str], batch| {
+        let mut c = small_config(steps, devices, batch);
+        c.model = chain_model(2, 0, None);
+        c.train = TrainConfig {
+            recompute: TrainConfig::defaults(&c.model).recompute,
+            ..c.train
+        };
+        assert!(c.train.recompute);
+        c
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let mut a = Trainer::create(&dir.path().join("a"), config(3, &["cpu"], 2), small_data()).unwrap();
+    let init = a.model.clone();
+    a.run(&never(), false).unwrap();
+    let split = dir.path().join("b");
+    let mut b = Trainer::create(&split, config(2, &["cpu"], 2), small_data()).unwrap();
+    same_start(&init, &mut b);
+    b.run(&never(), false).unwrap();
+    drop(b);
+    let mut b = Trainer::resume(&split, small_data(), Some(3), None).unwrap();
+    assert!(b.config.train.recompute);
+    b.run(&never(), false).unwrap();
+    let (wa, wb) = (parameter_values(&a.model), parameter_values(&b.model));
+    assert!(wa.iter().zip(&wb).all(|(x, y)| x.to_bits() == y.to_bits()));
+    assert_ne!(wa, parameter_values(&init));
+
+    // Two replicas vs one device on the same batch, and a NaN target skipping the step.
+    let mut one = Trainer::create(&dir.path().join("one"), config(9, &["cpu"], 2), small_data()).unwrap();
+    let mut two =
+        Trainer::create(&dir.path().join("two"), config(9, &["cpu", "cpu"], 2), small_data()).unwrap();
+    same_start(&init, &mut one);
+    same_start(&init, &mut two);
+    let mut batch = one.draw_batch().unwrap();
+    let good = batch[1].target_crop.data[5];
+    batch[1].target_crop.data[5] = f32::NAN;
+    let r = one.step_on(batch.clone());
+    assert!(r.skipped.expect("skipped").contains("tuple 1"));
+    assert_eq!(parameter_values(&one.model), parameter_values(&init));
+    batch[1].target_crop.data[5] = good;
+    let (ra, rb) = (one.step_on(batch.clone()), two.step_on(batch));
+    assert!(ra.skipped.is_none() && rb.skipped.is_none());
+    assert!((ra.loss - rb.loss).abs() <= 1e-6 * ra.loss.abs());
+    assert!((ra.grad_norm - rb.grad_norm).abs() <= 1e-5 * ra.grad_norm);
+    let max = parameter_values(&one.model)
+        .iter()
+        .zip(&parameter_values(&two.model))
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max);
+    assert!(max < 1e-6, "replicas diverge from one device by {max}");
+}
