@@ -26,6 +26,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let config = deepview_net::weights::export_checkpoint(&ck, &args.out)
         .with_context(|| format!("cannot export {}", ck.display()))?;
-    eprintln!("exported {} ({} preset) to {}", ck.display(), config.name, args.out.display());
+    eprintln!(
+        "exported {} ({} preset) to {}",
+        ck.display(),
+        config.name,
+        args.out.display()
+    );
     Ok(())
 }

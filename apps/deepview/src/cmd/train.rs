@@ -80,7 +80,7 @@ pub struct Args {
     #[arg(long)]
     pub quiet: bool,
     /// Recompute each net's activations during the backward pass (the paper's gradient checkpointing:
-    /// memory independent of the number of update nets, ~1 extra forward pass per step). Default: on for
+    /// peak memory of one net instead of all nets, one extra forward pass per step). Default: on for
     /// presets with more than 2 nets (all paper-* presets). Kept in the run's config.json.
     #[arg(long, conflicts_with = "no_recompute")]
     pub recompute: bool,

@@ -19,9 +19,10 @@
 //!
 //! Per-iteration activation recompute ([`recompute`], `TrainConfig::recompute`, CLI `--recompute` /
 //! `--no-recompute`): the forward pass keeps only the small MPI states between nets and each net's
-//! activations are recomputed during the backward pass, so memory does not grow with the number of update
-//! nets; the gradients equal those of the ordinary backward (up to float rounding). On by default for
-//! models with more than 2 nets (every `paper-*` preset).
+//! activations are recomputed during the backward pass, so the peak holds one net's activations (the
+//! largest: net 0 on the widest window) instead of all nets'; the gradients equal those of the ordinary
+//! backward (bit for bit in the tests). On by default for models with more than 2 nets (every `paper-*`
+//! preset).
 
 pub mod clip;
 pub mod data;
@@ -629,7 +630,8 @@ impl Trainer {
                             self.model.clone().fork(&device)
                         };
                         let loss = self.losses[i].clone();
-                        scope.spawn(move || run_replica(&model, &loss, chunk, &device, n, recompute))
+                        scope
+                            .spawn(move || run_replica(&model, &loss, chunk, &device, n, recompute))
                     })
                     .collect();
                 handles

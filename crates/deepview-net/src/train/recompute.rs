@@ -1,5 +1,5 @@
-//! Per-iteration activation recompute (the paper's gradient checkpointing, supplement): training memory
-//! no longer grows with the number of update nets.
+//! Per-iteration activation recompute (the paper's gradient checkpointing, supplement): the peak training
+//! memory holds one net's activations instead of all nets'.
 //!
 //! The model is a chain of segments, one per net, on the shrinking training windows of
 //! [`DeepViewModel::forward`]:
@@ -156,14 +156,7 @@ pub fn loss_and_grads(
     // 2. Last segment with the real loss.
     let last = nets - 1;
     let s_in = leaf(last);
-    let out = segment(
-        model,
-        last,
-        &images,
-        &wins[last],
-        &wins[nets],
-        s_in.clone(),
-    );
+    let out = segment(model, last, &images, &wins[last], &wins[nets], s_in.clone());
     let l = loss_tail(state_to_rgba(out), wins[nets].offset, ex, loss, device);
     let value = l.clone().into_scalar::<f32>();
     if !value.is_finite() {

@@ -454,7 +454,8 @@ fn recompute_training_resumes_skips_and_splits() {
         c
     };
     let dir = tempfile::tempdir().unwrap();
-    let mut a = Trainer::create(&dir.path().join("a"), config(3, &["cpu"], 2), small_data()).unwrap();
+    let mut a =
+        Trainer::create(&dir.path().join("a"), config(3, &["cpu"], 2), small_data()).unwrap();
     let init = a.model.clone();
     a.run(&never(), false).unwrap();
     let split = dir.path().join("b");
@@ -470,9 +471,18 @@ fn recompute_training_resumes_skips_and_splits() {
     assert_ne!(wa, parameter_values(&init));
 
     // Two replicas vs one device on the same batch, and a NaN target skipping the step.
-    let mut one = Trainer::create(&dir.path().join("one"), config(9, &["cpu"], 2), small_data()).unwrap();
-    let mut two =
-        Trainer::create(&dir.path().join("two"), config(9, &["cpu", "cpu"], 2), small_data()).unwrap();
+    let mut one = Trainer::create(
+        &dir.path().join("one"),
+        config(9, &["cpu"], 2),
+        small_data(),
+    )
+    .unwrap();
+    let mut two = Trainer::create(
+        &dir.path().join("two"),
+        config(9, &["cpu", "cpu"], 2),
+        small_data(),
+    )
+    .unwrap();
     same_start(&init, &mut one);
     same_start(&init, &mut two);
     let mut batch = one.draw_batch().unwrap();
@@ -492,4 +502,56 @@ fn recompute_training_resumes_skips_and_splits() {
         .map(|(x, y)| (x - y).abs())
         .fold(0f32, f32::max);
     assert!(max < 1e-6, "replicas diverge from one device by {max}");
+}
+
+/// Memory and time of one tuple's forward + backward with and without recompute on a chain of
+/// `RC_UPDATES` (default 3) update nets (paper-kalantari architecture, `RC_FEATURES` (64) / 16 features,
+/// `RC_PLANES` (4) planes, 4 views, 16x16 crops, VGG loss). `RC_MODE`: `full`, `recompute` or `both`
+/// (alternating, for timing); peak RSS per mode from separate processes, e.g.
+/// `RC_MODE=full /usr/bin/time -v cargo test --release -p deepview-net recompute_bench -- --ignored --nocapture`
+/// (subtract the same command's RSS with `RC_REPS=0` for the baseline).
+#[test]
+#[ignore]
+fn recompute_bench() {
+    let env = |k: &str, d: usize| {
+        std::env::var(k)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(d)
+    };
+    let mode = std::env::var("RC_MODE").unwrap_or("both".into());
+    let mut cfg = DeepViewConfig::preset("paper-kalantari").unwrap();
+    cfg.updates = env("RC_UPDATES", 3);
+    cfg.features_large = env("RC_FEATURES", 64);
+    let mut sample = TrainConfig::defaults(&cfg).sample;
+    sample.crop = 16;
+    sample.planes = env("RC_PLANES", 4);
+    let data = TrainData::new(vec![two_plane_scene(4, 4, 96, 0.08)]).unwrap();
+    let ex = data.sample(&sample, &cfg, 4, &mut Rng::new(1)).unwrap();
+    let device = Device::flex().autodiff();
+    let model = DeepViewModel::new(&cfg, &device);
+    parameter_values(&model);
+    let loss = Loss::Vgg(Box::new(Vgg16::load_default(&device).unwrap()));
+    let modes: Vec<bool> = match mode.as_str() {
+        "full" => vec![false],
+        "recompute" => vec![true],
+        _ => vec![false, true],
+    };
+    for rep in 0..env("RC_REPS", 2) {
+        for &rc in &modes {
+            let t = Instant::now();
+            let (v, g) = if rc {
+                recompute::loss_and_grads(&model, &loss, &ex, &device, 1)
+            } else {
+                loss_and_grads_full(&model, &loss, &ex, &device, 1)
+            };
+            let n = clip::global_norm(&model, &g.unwrap());
+            println!(
+                "{} nets, window {:?}, rep {rep}, recompute {rc}: loss {v:.1}, |grad| {n:.1}, {:.2} s",
+                cfg.nets(),
+                ex.window,
+                t.elapsed().as_secs_f64()
+            );
+        }
+    }
 }
