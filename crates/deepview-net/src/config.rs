@@ -88,7 +88,7 @@ impl DeepViewConfig {
             "cpu" => DeepViewConfig {
                 name: name.to_string(),
                 views: None,
-                train_planes: 8,
+                train_planes: 32,
                 infer_planes: 32,
                 updates: 1,
                 features_large: 8,
@@ -96,7 +96,7 @@ impl DeepViewConfig {
                 large_nets: 2,
                 unet_nets: 0,
                 extra_channels: 4,
-                max_pool_stages: 2,
+                max_pool_stages: 1,
                 init_prior: Some(CPU_PRIOR_TEMPERATURE),
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
