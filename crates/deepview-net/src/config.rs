@@ -84,7 +84,12 @@ impl DeepViewConfig {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
             "paper-spaces-4view" => paper(name, 4, 64, 80, 2),
             "paper-spaces-12view" => paper(name, 12, 64, 80, 2),
-            // Small enough to train usefully on 2 CPU cores; any number of views.
+            // Small enough to train usefully on 2 CPU cores; any number of views. 2 nets, 8 features,
+            // 1 max-pool stage (receptive-field margin 6 px per net) and the agreement prior (see
+            // `init_prior`). Trained with as many planes as inference uses (32): residuals learned on 8
+            // planes transferred badly to 32 (docs/TRAINING.md). A step (VGG loss, 16x16 crop, 2..4
+            // views, 32 planes) takes ~1.4 s on 2 free cores; inference of a 560x433 32-plane MPI from
+            // 4 views ~1 min of CPU.
             "cpu" => DeepViewConfig {
                 name: name.to_string(),
                 views: None,
@@ -204,5 +209,26 @@ mod tests {
         assert_eq!(s.net_margin(0), 24);
         assert_eq!(s.net_margin(2), 10);
         assert!(DeepViewConfig::preset("nope").is_err());
+    }
+
+    #[test]
+    fn prior_is_optional_in_json_and_validated() {
+        // A config written before `init_prior` existed loads with the paper's behaviour.
+        let mut v = serde_json::to_value(DeepViewConfig::preset("cpu").unwrap()).unwrap();
+        v.as_object_mut().unwrap().remove("init_prior");
+        let c: DeepViewConfig = serde_json::from_value(v).unwrap();
+        assert_eq!(c.init_prior, None);
+        assert_eq!(
+            DeepViewConfig::preset("cpu").unwrap().init_prior,
+            Some(CPU_PRIOR_TEMPERATURE)
+        );
+        for name in ["paper-kalantari", "paper-spaces-4view", "paper-spaces-12view"] {
+            assert_eq!(DeepViewConfig::preset(name).unwrap().init_prior, None);
+        }
+        let bad = DeepViewConfig {
+            init_prior: Some(0.0),
+            ..c
+        };
+        assert!(bad.validate().is_err());
     }
 }

@@ -4,22 +4,25 @@
 //! net's input is computed on the tile grown by the net's receptive-field margin
 //! ([`DeepViewModel::margin`]) and only the tile's centre is kept. A tile needs, per view,
 //! - the view-image crop that the grown region maps to on any plane (`view_crop`), and
-//! - for update nets, the views' renders `R`, `A`, `T` on that crop, computed from the *MPI sub-window* that
-//!   can reach the crop on any plane (`mpi_window`: the crop mapped back by every plane's inverse
+//! - for update nets, the view's renders `R`, `A`, `T` on that crop, computed from the *MPI sub-window*
+//!   that can reach the crop on any plane (`mpi_window`: the crop mapped back by every plane's inverse
 //!   homography, grown by the bilinear taps, clamped to the MPI). Every MPI texel that reaches a needed
 //!   view pixel is in the sub-window, so the renders equal those of the whole MPI.
 //!
 //! The result therefore equals the untiled [`DeepViewModel::forward`] on the whole reference image (to f32
-//! rounding of the shifted homographies), whatever the tile size, and the work per tile no longer grows
-//! with the MPI (only with the tile and the parallax).
+//! rounding of the shifted homographies) whatever the tiling, and the work per tile depends on the tile
+//! and the parallax, not on the MPI's size. The nets treat planes independently (except net 0's
+//! agreement prior), so a tile's net can also run a chunk of planes at a time ([`NetPlan::plane_chunk`]).
 //!
 //! Memory: the only whole-MPI data is the state between nets (the previous state and the one being
 //! written, `D x H x W x state_channels` each; the last net writes the RGBA result instead). A sub-window's
 //! RGBA is recomputed from the state when a tile needs it. When the f32 state would take more than half
-//! of the budget, it is stored as IEEE half floats (f16, [`StatePrecision::F16`]): the nets still compute
-//! in f32, but the stored logits are rounded to 11 significant bits (relative error <= 2^-11 ~ 4.9e-4,
-//! i.e. <= ~5e-3 absolute on logits of magnitude <= 10, ~1e-3 on RGBA after the sigmoid; values beyond
-//! +-65504 saturate). The final RGBA is computed from the last net's f32 output (no rounding there).
+//! of the budget it is stored as IEEE half floats ([`StatePrecision::F16`]): the nets still compute in
+//! f32, but the stored state is rounded to 11 significant bits (relative error <= 2^-11 ~ 4.9e-4, so
+//! <= 5e-3 on logits of magnitude <= 10 and, through the sigmoid (slope <= 1/4), ~1e-3 on RGBA; values
+//! beyond +-65504 saturate). The final RGBA comes from the last net's f32 output (no rounding there).
+//! [`plan_inference`] picks the precision and, per net, the tile and plane chunk from calibrated
+//! estimates of the peak resident memory.
 
 use crate::forward::{Hom, crop_output, crop_source, gradient_components, image_tensor, invert};
 use crate::network::{DeepViewModel, state_to_rgba};
@@ -41,6 +44,8 @@ pub enum InferError {
     NoPlanes,
     #[error("these weights take exactly {expected} input views, got {got}")]
     WrongViews { expected: usize, got: usize },
+    #[error("the inference plan has {plan} nets but the model has {model}")]
+    PlanMismatch { plan: usize, model: usize },
     #[error("input view {view}: image is {iw}x{ih} but its camera is {cw}x{ch}")]
     SizeMismatch {
         view: usize,
@@ -623,7 +628,12 @@ pub fn infer_mpi_planned(
     progress: &mut dyn FnMut(InferProgress),
 ) -> Result<Mpi, InferError> {
     validate(model, views, depths)?;
-    assert_eq!(plan.nets.len(), model.nets.len(), "one NetPlan per net");
+    if plan.nets.len() != model.nets.len() {
+        return Err(InferError::PlanMismatch {
+            plan: plan.nets.len(),
+            model: model.nets.len(),
+        });
+    }
     let device = model_device(model);
     let geom = Geometry::new(views, reference, depths);
     let (w, h, d) = (geom.w, geom.h, geom.d);
@@ -948,6 +958,14 @@ mod tests {
         .unwrap();
         assert_eq!(steps, model.nets.len());
         assert_eq!(mpi.layers.len(), 4 * 38 * 46 * 4);
+        let plan = InferPlan::uniform(1, 16, 4, StatePrecision::F32);
+        assert_eq!(
+            infer_mpi_planned(&model, &views, &reference, &depths, &plan, &mut |_| {}).unwrap_err(),
+            InferError::PlanMismatch {
+                plan: 1,
+                model: model.nets.len()
+            }
+        );
     }
 
     fn small_model(dev: &Device, unet_nets: usize) -> DeepViewModel {
@@ -1190,7 +1208,8 @@ mod tests {
     /// Calibration of the memory estimate: peak RSS of a real inference against the estimate.
     /// `DEEPVIEW_MEASURE=images_8,32,TILE,f32|f16,CHUNK cargo test --release -p deepview-net -- --ignored \
     ///  measure_fern_peak --nocapture` (fern, views 1-4, the untrained `cpu` preset), or
-    /// `DEEPVIEW_MEASURE=images_4,64,0,BUDGET_MIB` for the plan of a budget.
+    /// `DEEPVIEW_MEASURE=images_4,64,0,BUDGET_MIB` for the plan of a budget (`DEEPVIEW_MEASURE_PLAN_ONLY=1`:
+    /// print the plan without running it).
     #[test]
     #[ignore]
     fn measure_fern_peak() {
@@ -1249,30 +1268,18 @@ mod tests {
             plan
         };
         println!("{plan:?}");
+        // The largest view crop and MPI sub-window of the last net's tiles.
+        let n = model.nets.len() - 1;
+        let (mut crop, mut sub) = ((0, 0), (0, 0));
+        for t in geom.tiles(plan.nets[n].tile) {
+            for k in 0..views.len() {
+                let win = geom.view_window(k, geom.region(t, model.margin(n)), n > 0);
+                crop = crop.max((win.crop.2 * win.crop.3, win.crop.2));
+                sub = sub.max((win.sub.2 * win.sub.3, win.sub.2));
+            }
+        }
+        println!("largest view crop {} px, MPI sub-window {} px", crop.0, sub.0);
         if std::env::var_os("DEEPVIEW_MEASURE_PLAN_ONLY").is_some() {
-            let (mut mc, mut ms) = ((0, (0, 0, 0, 0)), (0, (0, 0, 0, 0)));
-            for t in geom.tiles(98) {
-                let region = geom.region(t, model.margin(1));
-                for k in 0..4 {
-                    let win = geom.view_window(k, region, true);
-                    mc = mc.max((win.crop.2 * win.crop.3, win.crop));
-                    ms = ms.max((win.sub.2 * win.sub.3, win.sub));
-                    if win.sub.2 * win.sub.3 > 200000 {
-                        println!("tile {t:?} region {region:?} view {k}: crop {:?} sub {:?}", win.crop, win.sub);
-                    }
-                }
-            }
-            println!("max crop {mc:?} max sub {ms:?}");
-            for c in [64, 32, 16, 1] {
-                println!("tile 98 chunk {c}: {}", max_tile_bytes(&model, &geom, 1, 98, c));
-            }
-            for t in [(0, 0, 96, 96), (geom.w / 2, geom.h / 2, 96, 96)] {
-                let region = geom.region(t, model.margin(1));
-                for k in 0..4 {
-                    let win = geom.view_window(k, region, true);
-                    println!("tile {t:?} region {region:?} view {k}: crop {:?} sub {:?}", win.crop, win.sub);
-                }
-            }
             return;
         }
         let hwm = || {
