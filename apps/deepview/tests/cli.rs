@@ -265,7 +265,11 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
     fails_with(&deepview(&["info", s(&colmap)]), &["cameras.txt"]);
 
     // Out-of-range view.
-    deepview_image::write_png(&scene.join("input_Cam002.png"), &deepview_image::ImageF32::new(96, 64, 3)).unwrap();
+    deepview_image::write_png(
+        &scene.join("input_Cam002.png"),
+        &deepview_image::ImageF32::new(96, 64, 3),
+    )
+    .unwrap();
     fails_with(
         &deepview(&[
             "psv",

@@ -69,7 +69,10 @@ impl Intrinsics {
     }
 
     pub fn validate(&self) -> Result<(), GeometryError> {
-        if ![self.fx, self.fy, self.cx, self.cy].iter().all(|v| v.is_finite()) {
+        if ![self.fx, self.fy, self.cx, self.cy]
+            .iter()
+            .all(|v| v.is_finite())
+        {
             return Err(GeometryError::NonFinite("intrinsics"));
         }
         if self.fx <= 0.0 || self.fy <= 0.0 {
@@ -96,15 +99,24 @@ impl Default for Pose {
 }
 
 impl Pose {
-    pub const IDENTITY: Pose = Pose { rotation: DMat3::IDENTITY, translation: DVec3::ZERO };
+    pub const IDENTITY: Pose = Pose {
+        rotation: DMat3::IDENTITY,
+        translation: DVec3::ZERO,
+    };
 
     pub fn new(rotation: DMat3, translation: DVec3) -> Self {
-        Self { rotation, translation }
+        Self {
+            rotation,
+            translation,
+        }
     }
 
     /// The pose of a camera at world position `center` with camera-from-world rotation `rotation`.
     pub fn from_center(rotation: DMat3, center: DVec3) -> Self {
-        Self { rotation, translation: -(rotation * center) }
+        Self {
+            rotation,
+            translation: -(rotation * center),
+        }
     }
 
     /// Camera centre in world coordinates, `-R^T t`.
@@ -119,7 +131,10 @@ impl Pose {
     /// The inverse transform (world-from-camera as a `Pose`).
     pub fn inverse(&self) -> Pose {
         let rt = self.rotation.transpose();
-        Pose { rotation: rt, translation: -(rt * self.translation) }
+        Pose {
+            rotation: rt,
+            translation: -(rt * self.translation),
+        }
     }
 
     /// `self * other`: first `other`, then `self`.
@@ -136,7 +151,12 @@ impl Pose {
             r.x_axis.extend(0.0),
             r.y_axis.extend(0.0),
             r.z_axis.extend(0.0),
-            DVec4::new(self.translation.x, self.translation.y, self.translation.z, 1.0),
+            DVec4::new(
+                self.translation.x,
+                self.translation.y,
+                self.translation.z,
+                1.0,
+            ),
         )
     }
 
@@ -165,7 +185,10 @@ impl Pose {
             DVec3::new(m[1], m[5], m[9]),
             DVec3::new(m[2], m[6], m[10]),
         );
-        let pose = Pose { rotation, translation: DVec3::new(m[3], m[7], m[11]) };
+        let pose = Pose {
+            rotation,
+            translation: DVec3::new(m[3], m[7], m[11]),
+        };
         pose.validate()?;
         Ok(pose)
     }
@@ -179,14 +202,19 @@ impl Pose {
         let e = (r.transpose() * r - DMat3::IDENTITY).to_cols_array();
         let dev = e.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         if dev > 1e-4 || r.determinant() < 0.0 {
-            return Err(GeometryError::NotRigid(dev.max((r.determinant() - 1.0).abs())));
+            return Err(GeometryError::NotRigid(
+                dev.max((r.determinant() - 1.0).abs()),
+            ));
         }
         Ok(())
     }
 
     /// Re-orthonormalise the rotation (polar decomposition by Newton iterations).
     pub fn orthonormalized(&self) -> Pose {
-        Pose { rotation: orthonormalize(self.rotation), translation: self.translation }
+        Pose {
+            rotation: orthonormalize(self.rotation),
+            translation: self.translation,
+        }
     }
 }
 
@@ -195,7 +223,10 @@ pub fn orthonormalize(m: DMat3) -> DMat3 {
     let mut x = m;
     for _ in 0..30 {
         let next = (x + x.inverse().transpose()) * 0.5;
-        let diff = (next - x).to_cols_array().iter().fold(0.0f64, |a, v| a.max(v.abs()));
+        let diff = (next - x)
+            .to_cols_array()
+            .iter()
+            .fold(0.0f64, |a, v| a.max(v.abs()));
         x = next;
         if diff < 1e-15 {
             break;
@@ -215,7 +246,12 @@ pub struct Camera {
 
 impl Camera {
     pub fn new(width: u32, height: u32, intrinsics: Intrinsics, pose: Pose) -> Self {
-        Self { width, height, intrinsics, pose }
+        Self {
+            width,
+            height,
+            intrinsics,
+            pose,
+        }
     }
 
     pub fn center(&self) -> DVec3 {
@@ -243,7 +279,12 @@ impl Camera {
     pub fn resized(&self, width: u32, height: u32) -> Camera {
         let sx = width as f64 / self.width as f64;
         let sy = height as f64 / self.height as f64;
-        Camera { width, height, intrinsics: self.intrinsics.scaled(sx, sy), pose: self.pose }
+        Camera {
+            width,
+            height,
+            intrinsics: self.intrinsics.scaled(sx, sy),
+            pose: self.pose,
+        }
     }
 
     /// Same camera restricted to the pixel window `[x0, x0+w) x [y0, y0+h)`.
@@ -337,13 +378,22 @@ mod tests {
     fn bad_poses_are_refused() {
         let mut m = Pose::IDENTITY.to_row_major();
         m[5] = f64::NAN;
-        assert_eq!(Pose::from_row_major(&m), Err(GeometryError::NonFinite("camera_from_world")));
+        assert_eq!(
+            Pose::from_row_major(&m),
+            Err(GeometryError::NonFinite("camera_from_world"))
+        );
         let mut m = Pose::IDENTITY.to_row_major();
         m[0] = 2.0;
-        assert!(matches!(Pose::from_row_major(&m), Err(GeometryError::NotRigid(_))));
+        assert!(matches!(
+            Pose::from_row_major(&m),
+            Err(GeometryError::NotRigid(_))
+        ));
         let mut m = Pose::IDENTITY.to_row_major();
         m[0] = -1.0; // reflection
-        assert!(matches!(Pose::from_row_major(&m), Err(GeometryError::NotRigid(_))));
+        assert!(matches!(
+            Pose::from_row_major(&m),
+            Err(GeometryError::NotRigid(_))
+        ));
         assert!(Pose::from_row_major(&[0.0; 12]).is_err());
     }
 

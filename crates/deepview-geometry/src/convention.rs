@@ -11,7 +11,11 @@ use crate::camera::{GeometryError, Pose};
 use glam::{DMat3, DQuat, DVec3};
 
 fn check_finite(values: &[f64], what: &'static str) -> Result<(), GeometryError> {
-    if values.iter().all(|v| v.is_finite()) { Ok(()) } else { Err(GeometryError::NonFinite(what)) }
+    if values.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(GeometryError::NonFinite(what))
+    }
 }
 
 /// LLFF: `c2w` rows of a 3x4 matrix (rotation columns [down, right, back], then the camera centre).
@@ -69,8 +73,11 @@ pub fn spaces_to_pose(orientation: [f64; 3], position: [f64; 3]) -> Result<Pose,
     check_finite(&position, "Spaces position")?;
     let aa = DVec3::from_array(orientation);
     let angle = aa.length();
-    let rotation =
-        if angle < 1e-300 { DMat3::IDENTITY } else { DMat3::from_axis_angle(aa / angle, angle) };
+    let rotation = if angle < 1e-300 {
+        DMat3::IDENTITY
+    } else {
+        DMat3::from_axis_angle(aa / angle, angle)
+    };
     Ok(Pose::from_center(rotation, DVec3::from_array(position)))
 }
 
@@ -115,12 +122,20 @@ mod tests {
 
     fn poses() -> Vec<Pose> {
         let mut v = vec![Pose::IDENTITY];
-        for (i, (a, b, c)) in [(0.1, -0.2, 0.3), (2.0, 0.5, -1.0), (3.1, 0.0, 0.0), (0.0, 3.1, 0.01)]
-            .into_iter()
-            .enumerate()
+        for (i, (a, b, c)) in [
+            (0.1, -0.2, 0.3),
+            (2.0, 0.5, -1.0),
+            (3.1, 0.0, 0.0),
+            (0.0, 3.1, 0.01),
+        ]
+        .into_iter()
+        .enumerate()
         {
             let r = DMat3::from_euler(glam::EulerRot::ZYX, a, b, c);
-            v.push(Pose::from_center(r, DVec3::new(i as f64, -0.5, 2.0 * i as f64)));
+            v.push(Pose::from_center(
+                r,
+                DVec3::new(i as f64, -0.5, 2.0 * i as f64),
+            ));
         }
         v
     }
@@ -135,8 +150,17 @@ mod tests {
             assert!(close(&p, &llff_c2w_to_pose(pose_to_llff_c2w(&p)).unwrap()));
         }
         // A camera at the origin looking down world -z (LLFF "back" = +z), image down = world -y.
-        let c2w = [[0.0, 1.0, 0.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]];
-        let cam = Camera::new(10, 10, Intrinsics::centred(10.0, 10, 10), llff_c2w_to_pose(c2w).unwrap());
+        let c2w = [
+            [0.0, 1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ];
+        let cam = Camera::new(
+            10,
+            10,
+            Intrinsics::centred(10.0, 10, 10),
+            llff_c2w_to_pose(c2w).unwrap(),
+        );
         // A point in front (world -z) and up (world +y) projects above the image centre.
         let p = cam.project(DVec3::new(0.0, 1.0, -5.0)).unwrap();
         assert!((p - DVec2::new(5.0, 3.0)).length() < 1e-12, "{p}");
@@ -145,7 +169,10 @@ mod tests {
     #[test]
     fn opengl_round_trip_and_axes() {
         for p in poses() {
-            assert!(close(&p, &opengl_c2w_to_pose(&pose_to_opengl_c2w(&p)).unwrap()));
+            assert!(close(
+                &p,
+                &opengl_c2w_to_pose(&pose_to_opengl_c2w(&p)).unwrap()
+            ));
         }
         // Identity OpenGL camera looks down world -z with +y up.
         let mut m = [0.0; 16];
@@ -153,7 +180,12 @@ mod tests {
         m[5] = 1.0;
         m[10] = 1.0;
         m[15] = 1.0;
-        let cam = Camera::new(10, 10, Intrinsics::centred(10.0, 10, 10), opengl_c2w_to_pose(&m).unwrap());
+        let cam = Camera::new(
+            10,
+            10,
+            Intrinsics::centred(10.0, 10, 10),
+            opengl_c2w_to_pose(&m).unwrap(),
+        );
         let p = cam.project(DVec3::new(1.0, 1.0, -10.0)).unwrap();
         assert!((p - DVec2::new(6.0, 4.0)).length() < 1e-12, "{p}");
     }

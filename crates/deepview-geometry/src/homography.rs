@@ -67,10 +67,17 @@ mod tests {
         );
         for depth in [1.0, 2.5, 10.0, 100.0] {
             let h = plane_homography(&reference, &target, depth);
-            for p in [DVec2::new(0.0, 0.0), DVec2::new(40.5, 30.5), DVec2::new(79.9, 12.25)] {
+            for p in [
+                DVec2::new(0.0, 0.0),
+                DVec2::new(40.5, 30.5),
+                DVec2::new(79.9, 12.25),
+            ] {
                 let x = reference.unproject(p, depth);
                 let expected = target.project(x).unwrap();
-                assert!((h.apply(p) - expected).length() < 1e-9, "depth {depth} p {p}");
+                assert!(
+                    (h.apply(p) - expected).length() < 1e-9,
+                    "depth {depth} p {p}"
+                );
                 assert!((h.inverse().apply(expected) - p).length() < 1e-9);
             }
         }

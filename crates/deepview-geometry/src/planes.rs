@@ -23,7 +23,9 @@ pub fn plane_depths(
     spacing: PlaneSpacing,
 ) -> Result<Vec<f64>, GeometryError> {
     if count == 0 {
-        return Err(GeometryError::Invalid("an MPI needs at least one plane (got 0)".into()));
+        return Err(GeometryError::Invalid(
+            "an MPI needs at least one plane (got 0)".into(),
+        ));
     }
     if !near.is_finite() || !far.is_finite() {
         return Err(GeometryError::NonFinite("near/far depth bounds"));
@@ -73,6 +75,9 @@ mod tests {
         assert!(plane_depths(2.0, 1.0, 4, PlaneSpacing::InverseDepth).is_err());
         assert!(plane_depths(0.0, 1.0, 4, PlaneSpacing::InverseDepth).is_err());
         assert!(plane_depths(1.0, f64::INFINITY, 4, PlaneSpacing::InverseDepth).is_err());
-        assert_eq!(plane_depths(1.0, 3.0, 1, PlaneSpacing::InverseDepth).unwrap(), vec![1.5]);
+        assert_eq!(
+            plane_depths(1.0, 3.0, 1, PlaneSpacing::InverseDepth).unwrap(),
+            vec![1.5]
+        );
     }
 }

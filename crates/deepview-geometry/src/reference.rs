@@ -24,20 +24,38 @@ pub struct ReferenceOptions {
 
 impl Default for ReferenceOptions {
     fn default() -> Self {
-        Self { view: None, at_view_center: false, cover: None, max_margin: 0.25, size_multiple: 1 }
+        Self {
+            view: None,
+            at_view_center: false,
+            cover: None,
+            max_margin: 0.25,
+            size_multiple: 1,
+        }
     }
 }
 
 /// Choose the reference camera for a set of input cameras (see [`ReferenceOptions`]).
-pub fn reference_camera(inputs: &[Camera], options: &ReferenceOptions) -> Result<Camera, GeometryError> {
+pub fn reference_camera(
+    inputs: &[Camera],
+    options: &ReferenceOptions,
+) -> Result<Camera, GeometryError> {
     if inputs.is_empty() {
-        return Err(GeometryError::Invalid("no input cameras to place a reference camera".into()));
+        return Err(GeometryError::Invalid(
+            "no input cameras to place a reference camera".into(),
+        ));
     }
     let n = inputs.len() as f64;
-    let centroid = inputs.iter().map(|c| c.center()).fold(DVec3::ZERO, |a, b| a + b) / n;
+    let centroid = inputs
+        .iter()
+        .map(|c| c.center())
+        .fold(DVec3::ZERO, |a, b| a + b)
+        / n;
     let mut base = match options.view {
         Some(i) => *inputs.get(i).ok_or_else(|| {
-            GeometryError::Invalid(format!("reference view {i} out of range ({} inputs)", inputs.len()))
+            GeometryError::Invalid(format!(
+                "reference view {i} out of range ({} inputs)",
+                inputs.len()
+            ))
         })?,
         None => {
             // Average rotation: mean of the rotation matrices projected back to SO(3).
@@ -45,11 +63,21 @@ pub fn reference_camera(inputs: &[Camera], options: &ReferenceOptions) -> Result
             let rotation = orthonormalize(sum * (1.0 / n));
             let k = inputs.iter().fold([0.0; 4], |a, c| {
                 let i = c.intrinsics;
-                [a[0] + i.fx, a[1] + i.fy, a[2] + i.cx - c.width as f64 / 2.0, a[3] + i.cy - c.height as f64 / 2.0]
+                [
+                    a[0] + i.fx,
+                    a[1] + i.fy,
+                    a[2] + i.cx - c.width as f64 / 2.0,
+                    a[3] + i.cy - c.height as f64 / 2.0,
+                ]
             });
             let w = (inputs.iter().map(|c| c.width as f64).sum::<f64>() / n).round() as u32;
             let h = (inputs.iter().map(|c| c.height as f64).sum::<f64>() / n).round() as u32;
-            let intr = Intrinsics::new(k[0] / n, k[1] / n, w as f64 / 2.0 + k[2] / n, h as f64 / 2.0 + k[3] / n);
+            let intr = Intrinsics::new(
+                k[0] / n,
+                k[1] / n,
+                w as f64 / 2.0 + k[2] / n,
+                h as f64 / 2.0 + k[3] / n,
+            );
             Camera::new(w, h, intr, Pose::from_center(rotation, centroid))
         }
     };
@@ -63,7 +91,10 @@ pub fn reference_camera(inputs: &[Camera], options: &ReferenceOptions) -> Result
     if m > 1 {
         let w = base.width.div_ceil(m) * m;
         let h = base.height.div_ceil(m) * m;
-        let (dx, dy) = ((w - base.width) as f64 / 2.0, (h - base.height) as f64 / 2.0);
+        let (dx, dy) = (
+            (w - base.width) as f64 / 2.0,
+            (h - base.height) as f64 / 2.0,
+        );
         base.intrinsics.cx += dx;
         base.intrinsics.cy += dy;
         base.width = w;
@@ -75,7 +106,13 @@ pub fn reference_camera(inputs: &[Camera], options: &ReferenceOptions) -> Result
 
 /// Grow the image of `base` (same focal length, shifted principal point) so every input image's
 /// footprint on the planes at `near` and `far` lies inside it, by at most `max_margin` per side.
-fn enlarge_to_cover(base: &Camera, inputs: &[Camera], near: f64, far: f64, max_margin: f64) -> Camera {
+fn enlarge_to_cover(
+    base: &Camera,
+    inputs: &[Camera],
+    near: f64,
+    far: f64,
+    max_margin: f64,
+) -> Camera {
     let (w, h) = (base.width as f64, base.height as f64);
     let (mut x0, mut y0, mut x1, mut y1) = (0.0f64, 0.0f64, w, h);
     for cam in inputs {
@@ -83,7 +120,12 @@ fn enlarge_to_cover(base: &Camera, inputs: &[Camera], near: f64, far: f64, max_m
             // Input pixels -> reference pixels through the plane: inverse of ref -> input.
             let hinv = plane_homography(base, cam, depth).inverse();
             let (cw, ch) = (cam.width as f64, cam.height as f64);
-            for p in [DVec2::new(0.0, 0.0), DVec2::new(cw, 0.0), DVec2::new(0.0, ch), DVec2::new(cw, ch)] {
+            for p in [
+                DVec2::new(0.0, 0.0),
+                DVec2::new(cw, 0.0),
+                DVec2::new(0.0, ch),
+                DVec2::new(cw, ch),
+            ] {
                 let q = hinv.apply(p);
                 if q.is_finite() {
                     x0 = x0.min(q.x);
@@ -95,7 +137,12 @@ fn enlarge_to_cover(base: &Camera, inputs: &[Camera], near: f64, far: f64, max_m
         }
     }
     let clamp = |v: f64, size: f64| (v - 1e-6).clamp(0.0, max_margin * size).ceil();
-    let (left, top, right, bottom) = (clamp(-x0, w), clamp(-y0, h), clamp(x1 - w, w), clamp(y1 - h, h));
+    let (left, top, right, bottom) = (
+        clamp(-x0, w),
+        clamp(-y0, h),
+        clamp(x1 - w, w),
+        clamp(y1 - h, h),
+    );
     let mut out = *base;
     out.width = (w + left + right) as u32;
     out.height = (h + top + bottom) as u32;
@@ -114,7 +161,12 @@ mod tests {
                 let x = if i % 2 == 0 { -0.1 } else { 0.1 };
                 let y = if i / 2 == 0 { -0.1 } else { 0.1 };
                 let r = DMat3::IDENTITY;
-                Camera::new(64, 48, Intrinsics::centred(60.0, 64, 48), Pose::from_center(r, DVec3::new(x, y, 0.0)))
+                Camera::new(
+                    64,
+                    48,
+                    Intrinsics::centred(60.0, 64, 48),
+                    Pose::from_center(r, DVec3::new(x, y, 0.0)),
+                )
             })
             .collect()
     }
@@ -129,7 +181,10 @@ mod tests {
 
     #[test]
     fn cover_enlarges_to_see_all_inputs() {
-        let opts = ReferenceOptions { cover: Some((1.0, 10.0)), ..Default::default() };
+        let opts = ReferenceOptions {
+            cover: Some((1.0, 10.0)),
+            ..Default::default()
+        };
         let r = reference_camera(&rig(), &opts).unwrap();
         // At depth 1 the inputs are shifted by 0.1 * 60 = 6 px on each side.
         assert_eq!((r.width, r.height), (76, 60));
@@ -147,9 +202,16 @@ mod tests {
     #[test]
     fn chosen_view() {
         let cams = rig();
-        let opts = ReferenceOptions { view: Some(3), at_view_center: true, ..Default::default() };
+        let opts = ReferenceOptions {
+            view: Some(3),
+            at_view_center: true,
+            ..Default::default()
+        };
         assert_eq!(reference_camera(&cams, &opts).unwrap(), cams[3]);
-        let bad = ReferenceOptions { view: Some(9), ..Default::default() };
+        let bad = ReferenceOptions {
+            view: Some(9),
+            ..Default::default()
+        };
         assert!(reference_camera(&cams, &bad).is_err());
     }
 }

@@ -8,11 +8,20 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 pub enum ImageError {
     #[error("cannot read image {path}: {source}")]
-    Read { path: PathBuf, source: image::ImageError },
+    Read {
+        path: PathBuf,
+        source: image::ImageError,
+    },
     #[error("cannot write {path}: {source}")]
-    Write { path: PathBuf, source: std::io::Error },
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("cannot encode {path}: {source}")]
-    Encode { path: PathBuf, source: image::ImageError },
+    Encode {
+        path: PathBuf,
+        source: image::ImageError,
+    },
     #[error("{0}")]
     Invalid(String),
 }
@@ -28,10 +37,20 @@ pub struct ImageF32 {
 
 impl ImageF32 {
     pub fn new(width: u32, height: u32, channels: usize) -> Self {
-        Self { width, height, channels, data: vec![0.0; width as usize * height as usize * channels] }
+        Self {
+            width,
+            height,
+            channels,
+            data: vec![0.0; width as usize * height as usize * channels],
+        }
     }
 
-    pub fn from_data(width: u32, height: u32, channels: usize, data: Vec<f32>) -> Result<Self, ImageError> {
+    pub fn from_data(
+        width: u32,
+        height: u32,
+        channels: usize,
+        data: Vec<f32>,
+    ) -> Result<Self, ImageError> {
         if data.len() != width as usize * height as usize * channels {
             return Err(ImageError::Invalid(format!(
                 "image data has {} values, expected {}x{}x{}",
@@ -41,7 +60,12 @@ impl ImageF32 {
                 channels
             )));
         }
-        Ok(Self { width, height, channels, data })
+        Ok(Self {
+            width,
+            height,
+            channels,
+            data,
+        })
     }
 
     pub fn pixel(&self, x: u32, y: u32) -> &[f32] {
@@ -60,7 +84,11 @@ impl ImageF32 {
             return self.clone();
         }
         let mut out = ImageF32::new(self.width, self.height, 3);
-        for (o, i) in out.data.chunks_exact_mut(3).zip(self.data.chunks_exact(self.channels)) {
+        for (o, i) in out
+            .data
+            .chunks_exact_mut(3)
+            .zip(self.data.chunks_exact(self.channels))
+        {
             for c in 0..3 {
                 o[c] = i[c.min(self.channels - 1)];
             }
@@ -70,12 +98,16 @@ impl ImageF32 {
 
     /// Crop `[x0, x0+w) x [y0, y0+h)` (must lie inside the image).
     pub fn crop(&self, x0: u32, y0: u32, w: u32, h: u32) -> ImageF32 {
-        assert!(x0 + w <= self.width && y0 + h <= self.height, "crop outside the image");
+        assert!(
+            x0 + w <= self.width && y0 + h <= self.height,
+            "crop outside the image"
+        );
         let mut out = ImageF32::new(w, h, self.channels);
         let c = self.channels;
         for y in 0..h as usize {
             let src = ((y0 as usize + y) * self.width as usize + x0 as usize) * c;
-            out.data[y * w as usize * c..(y + 1) * w as usize * c].copy_from_slice(&self.data[src..src + w as usize * c]);
+            out.data[y * w as usize * c..(y + 1) * w as usize * c]
+                .copy_from_slice(&self.data[src..src + w as usize * c]);
         }
         out
     }
@@ -121,29 +153,53 @@ pub fn to_u8(v: f32) -> u8 {
 /// Read a PNG or JPEG (8 or 16 bit) as RGB (`channels = 3`) or RGBA (`channels = 4`, straight alpha).
 pub fn read_image(path: &Path, channels: usize) -> Result<ImageF32, ImageError> {
     let img = image::ImageReader::open(path)
-        .map_err(|e| ImageError::Read { path: path.into(), source: image::ImageError::IoError(e) })?
+        .map_err(|e| ImageError::Read {
+            path: path.into(),
+            source: image::ImageError::IoError(e),
+        })?
         .with_guessed_format()
-        .map_err(|e| ImageError::Read { path: path.into(), source: image::ImageError::IoError(e) })?
+        .map_err(|e| ImageError::Read {
+            path: path.into(),
+            source: image::ImageError::IoError(e),
+        })?
         .decode()
-        .map_err(|e| ImageError::Read { path: path.into(), source: e })?;
+        .map_err(|e| ImageError::Read {
+            path: path.into(),
+            source: e,
+        })?;
     let (w, h) = (img.width(), img.height());
     let data: Vec<f32> = match channels {
         3 => img.into_rgb32f().into_raw(),
         4 => img.into_rgba32f().into_raw(),
-        1 => img.into_luma16().into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
-        _ => return Err(ImageError::Invalid(format!("cannot read {channels} channels"))),
+        1 => img
+            .into_luma16()
+            .into_raw()
+            .into_iter()
+            .map(|v| v as f32 / 65535.0)
+            .collect(),
+        _ => {
+            return Err(ImageError::Invalid(format!(
+                "cannot read {channels} channels"
+            )));
+        }
     };
     ImageF32::from_data(w, h, channels, data)
 }
 
 /// Image size without decoding the pixels.
 pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
-    image::image_dimensions(path).map_err(|e| ImageError::Read { path: path.into(), source: e })
+    image::image_dimensions(path).map_err(|e| ImageError::Read {
+        path: path.into(),
+        source: e,
+    })
 }
 
 /// Write `bytes` to `path` atomically: a temporary file in the same folder, then a rename.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
-    let err = |source| ImageError::Write { path: path.into(), source };
+    let err = |source| ImageError::Write {
+        path: path.into(),
+        source,
+    };
     let tmp = temp_path(path);
     std::fs::write(&tmp, bytes).map_err(err)?;
     std::fs::rename(&tmp, path).map_err(|e| {
@@ -154,11 +210,20 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
 
 /// The temporary name used for an atomic write of `path`.
 pub fn temp_path(path: &Path) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
-fn encode_png(path: &Path, width: u32, height: u32, color: image::ExtendedColorType, bytes: &[u8]) -> Result<Vec<u8>, ImageError> {
+fn encode_png(
+    path: &Path,
+    width: u32,
+    height: u32,
+    color: image::ExtendedColorType,
+    bytes: &[u8],
+) -> Result<Vec<u8>, ImageError> {
     use image::ImageEncoder;
     let mut buf = Vec::new();
     image::codecs::png::PngEncoder::new_with_quality(
@@ -167,17 +232,30 @@ fn encode_png(path: &Path, width: u32, height: u32, color: image::ExtendedColorT
         image::codecs::png::FilterType::Adaptive,
     )
     .write_image(bytes, width, height, color)
-    .map_err(|e| ImageError::Encode { path: path.into(), source: e })?;
+    .map_err(|e| ImageError::Encode {
+        path: path.into(),
+        source: e,
+    })?;
     Ok(buf)
 }
 
 /// Write 8-bit interleaved bytes (1, 3 or 4 channels) as PNG, atomically.
-pub fn write_png_u8(path: &Path, width: u32, height: u32, channels: usize, bytes: &[u8]) -> Result<(), ImageError> {
+pub fn write_png_u8(
+    path: &Path,
+    width: u32,
+    height: u32,
+    channels: usize,
+    bytes: &[u8],
+) -> Result<(), ImageError> {
     let color = match channels {
         1 => image::ExtendedColorType::L8,
         3 => image::ExtendedColorType::Rgb8,
         4 => image::ExtendedColorType::Rgba8,
-        _ => return Err(ImageError::Invalid(format!("cannot write {channels} channels as PNG"))),
+        _ => {
+            return Err(ImageError::Invalid(format!(
+                "cannot write {channels} channels as PNG"
+            )));
+        }
     };
     let buf = encode_png(path, width, height, color, bytes)?;
     write_atomic(path, &buf)
@@ -189,7 +267,12 @@ pub fn write_png(path: &Path, img: &ImageF32) -> Result<(), ImageError> {
 }
 
 /// Write one channel of 16-bit values as a grayscale PNG, atomically.
-pub fn write_png_u16(path: &Path, width: u32, height: u32, values: &[u16]) -> Result<(), ImageError> {
+pub fn write_png_u16(
+    path: &Path,
+    width: u32,
+    height: u32,
+    values: &[u16],
+) -> Result<(), ImageError> {
     // The encoder takes native-endian u16 samples and writes PNG's big-endian itself.
     let native: Vec<u8> = values.iter().flat_map(|v| v.to_ne_bytes()).collect();
     let buf = encode_png(path, width, height, image::ExtendedColorType::L16, &native)?;
@@ -215,7 +298,11 @@ mod tests {
         let p16 = dir.path().join("d.png");
         write_png_u16(&p16, 5, 3, &vals).unwrap();
         let back = read_image(&p16, 1).unwrap();
-        let got: Vec<u16> = back.data.iter().map(|v| (v * 65535.0).round() as u16).collect();
+        let got: Vec<u16> = back
+            .data
+            .iter()
+            .map(|v| (v * 65535.0).round() as u16)
+            .collect();
         assert_eq!(got, vals);
         // No temporary files left behind.
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 2);

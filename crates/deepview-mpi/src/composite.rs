@@ -28,7 +28,11 @@ pub struct RenderComponents {
 }
 
 /// Composite already-warped planes (`[D][n][4]`, back to front) into `(T, A, render)`.
-pub fn composite_warped(warped: &[f32], planes: usize, pixels: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+pub fn composite_warped(
+    warped: &[f32],
+    planes: usize,
+    pixels: usize,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     assert_eq!(warped.len(), planes * pixels * 4);
     let mut t = vec![0.0f32; planes * pixels];
     let mut a = vec![0.0f32; planes * pixels * 3];
@@ -37,36 +41,39 @@ pub fn composite_warped(warped: &[f32], planes: usize, pixels: usize) -> (Vec<f3
     const CHUNK: usize = 4096;
     let t_ptr = SyncPtr(t.as_mut_ptr());
     let a_ptr = SyncPtr(a.as_mut_ptr());
-    render.par_chunks_mut(CHUNK * 4).enumerate().for_each(|(ci, out)| {
-        let p0 = ci * CHUNK;
-        let n = out.len() / 4;
-        for p in p0..p0 + n {
-            // Back to front: A_0 = 0, A_{d+1} = c_d + (1 - a_d) A_d.
-            let mut acc = [0.0f32; 4];
-            for d in 0..planes {
-                let w = &warped[(d * pixels + p) * 4..(d * pixels + p) * 4 + 4];
-                // SAFETY: each pixel index p is written by exactly one task.
-                unsafe {
-                    let ap = a_ptr.get().add((d * pixels + p) * 3);
-                    for k in 0..3 {
-                        *ap.add(k) = acc[k];
+    render
+        .par_chunks_mut(CHUNK * 4)
+        .enumerate()
+        .for_each(|(ci, out)| {
+            let p0 = ci * CHUNK;
+            let n = out.len() / 4;
+            for p in p0..p0 + n {
+                // Back to front: A_0 = 0, A_{d+1} = c_d + (1 - a_d) A_d.
+                let mut acc = [0.0f32; 4];
+                for d in 0..planes {
+                    let w = &warped[(d * pixels + p) * 4..(d * pixels + p) * 4 + 4];
+                    // SAFETY: each pixel index p is written by exactly one task.
+                    unsafe {
+                        let ap = a_ptr.get().add((d * pixels + p) * 3);
+                        for k in 0..3 {
+                            *ap.add(k) = acc[k];
+                        }
+                    }
+                    let keep = 1.0 - w[3];
+                    for k in 0..4 {
+                        acc[k] = w[k] + keep * acc[k];
                     }
                 }
-                let keep = 1.0 - w[3];
-                for k in 0..4 {
-                    acc[k] = w[k] + keep * acc[k];
+                out[(p - p0) * 4..(p - p0) * 4 + 4].copy_from_slice(&acc);
+                // Front to back: T_{D-1} = 1, T_{d-1} = T_d (1 - a_d).
+                let mut trans = 1.0f32;
+                for d in (0..planes).rev() {
+                    // SAFETY: as above.
+                    unsafe { *t_ptr.get().add(d * pixels + p) = trans };
+                    trans *= 1.0 - warped[(d * pixels + p) * 4 + 3];
                 }
             }
-            out[(p - p0) * 4..(p - p0) * 4 + 4].copy_from_slice(&acc);
-            // Front to back: T_{D-1} = 1, T_{d-1} = T_d (1 - a_d).
-            let mut trans = 1.0f32;
-            for d in (0..planes).rev() {
-                // SAFETY: as above.
-                unsafe { *t_ptr.get().add(d * pixels + p) = trans };
-                trans *= 1.0 - warped[(d * pixels + p) * 4 + 3];
-            }
-        }
-    });
+        });
     (t, a, render)
 }
 
@@ -86,9 +93,22 @@ pub fn render_components(mpi: &Mpi, target: &Camera) -> RenderComponents {
     let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
     let pixels = target.width as usize * target.height as usize;
     let mut warped = vec![0.0f32; mpi.planes() * pixels * 4];
-    warped.par_chunks_mut(pixels * 4).enumerate().for_each(|(d, out)| {
-        warp_image(mpi.plane(d), mpi.camera.width, mpi.camera.height, 4, homs[d], target.width, target.height, out, None);
-    });
+    warped
+        .par_chunks_mut(pixels * 4)
+        .enumerate()
+        .for_each(|(d, out)| {
+            warp_image(
+                mpi.plane(d),
+                mpi.camera.width,
+                mpi.camera.height,
+                4,
+                homs[d],
+                target.width,
+                target.height,
+                out,
+                None,
+            );
+        });
     let (transmittance, accumulated_over, render) = composite_warped(&warped, mpi.planes(), pixels);
     RenderComponents {
         width: target.width,
@@ -96,7 +116,12 @@ pub fn render_components(mpi: &Mpi, target: &Camera) -> RenderComponents {
         warped,
         transmittance,
         accumulated_over,
-        render: ImageF32 { width: target.width, height: target.height, channels: 4, data: render },
+        render: ImageF32 {
+            width: target.width,
+            height: target.height,
+            channels: 4,
+            data: render,
+        },
     }
 }
 
@@ -112,7 +137,9 @@ mod tests {
         let mut mpi = Mpi::transparent(cam, depths);
         let mut s = seed;
         let mut rnd = || {
-            s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((s >> 33) as f64 / (1u64 << 31) as f64) as f32
         };
         for p in mpi.layers.chunks_exact_mut(4) {
@@ -154,7 +181,10 @@ mod tests {
                 for k in 0..3 {
                     let g = (r2.data[p * 4 + k] - direct.data[p * 4 + k]) / eps;
                     let expect = -comps.accumulated_over[(d * pixels + p) * 3 + k] * t;
-                    assert!((g - expect).abs() < 2e-3, "dR/da plane {d} px {p} ch {k}: {g} vs {expect}");
+                    assert!(
+                        (g - expect).abs() < 2e-3,
+                        "dR/da plane {d} px {p} ch {k}: {g} vs {expect}"
+                    );
                 }
             }
         }

@@ -53,7 +53,14 @@ pub fn depth_maps(mpi: &Mpi, target: &Camera) -> DepthMaps {
         (1.0 / mpi.depths[0]) as f32,
         (1.0 / mpi.depths[mpi.planes() - 1]) as f32,
     );
-    DepthMaps { width: target.width, height: target.height, disparity, depth, coverage, range }
+    DepthMaps {
+        width: target.width,
+        height: target.height,
+        disparity,
+        depth,
+        coverage,
+        range,
+    }
 }
 
 impl DepthMaps {
@@ -61,13 +68,27 @@ impl DepthMaps {
     pub fn normalized_disparity(&self) -> Vec<f32> {
         let (lo, hi) = self.range;
         let span = (hi - lo).max(1e-12);
-        self.disparity.iter().map(|&d| if d > 0.0 { ((d - lo) / span).clamp(0.0, 1.0) } else { 0.0 }).collect()
+        self.disparity
+            .iter()
+            .map(|&d| {
+                if d > 0.0 {
+                    ((d - lo) / span).clamp(0.0, 1.0)
+                } else {
+                    0.0
+                }
+            })
+            .collect()
     }
 
     /// False-colour image (turbo: far blue, near red), faded to black where the MPI is transparent.
     pub fn false_colour(&self) -> ImageF32 {
         let mut img = ImageF32::new(self.width, self.height, 3);
-        for ((o, v), cov) in img.data.chunks_exact_mut(3).zip(self.normalized_disparity()).zip(&self.coverage) {
+        for ((o, v), cov) in img
+            .data
+            .chunks_exact_mut(3)
+            .zip(self.normalized_disparity())
+            .zip(&self.coverage)
+        {
             let c = turbo(v);
             for k in 0..3 {
                 o[k] = c[k] * cov.clamp(0.0, 1.0);
@@ -79,10 +100,25 @@ impl DepthMaps {
     /// Write `<prefix>_color.png` (false colour) and `<prefix>_disparity16.png` (normalised disparity,
     /// 0 = far plane, 65535 = near plane; the range is in the MPI's `mpi.json` depths).
     pub fn write(&self, dir: &Path, prefix: &str) -> Result<(), ImageError> {
-        std::fs::create_dir_all(dir).map_err(|source| ImageError::Write { path: dir.into(), source })?;
-        write_png(&dir.join(format!("{prefix}_color.png")), &self.false_colour())?;
-        let d16: Vec<u16> = self.normalized_disparity().iter().map(|v| (v * 65535.0 + 0.5) as u16).collect();
-        write_png_u16(&dir.join(format!("{prefix}_disparity16.png")), self.width, self.height, &d16)
+        std::fs::create_dir_all(dir).map_err(|source| ImageError::Write {
+            path: dir.into(),
+            source,
+        })?;
+        write_png(
+            &dir.join(format!("{prefix}_color.png")),
+            &self.false_colour(),
+        )?;
+        let d16: Vec<u16> = self
+            .normalized_disparity()
+            .iter()
+            .map(|v| (v * 65535.0 + 0.5) as u16)
+            .collect();
+        write_png_u16(
+            &dir.join(format!("{prefix}_disparity16.png")),
+            self.width,
+            self.height,
+            &d16,
+        )
     }
 }
 
@@ -91,9 +127,33 @@ pub fn turbo(x: f32) -> [f32; 3] {
     let x = x.clamp(0.0, 1.0);
     let poly = |c: [f32; 6]| c[0] + x * (c[1] + x * (c[2] + x * (c[3] + x * (c[4] + x * c[5]))));
     [
-        poly([0.135_721_38, 4.615_392_6, -42.660_324, 132.131_08, -152.942_39, 59.286_38]).clamp(0.0, 1.0),
-        poly([0.091_402_61, 2.194_188_4, 4.842_966_6, -14.185_033, 4.277_298_6, 2.829_566]).clamp(0.0, 1.0),
-        poly([0.106_673_3, 12.641_946, -60.582_05, 110.362_77, -89.903_11, 27.348_25]).clamp(0.0, 1.0),
+        poly([
+            0.135_721_38,
+            4.615_392_6,
+            -42.660_324,
+            132.131_08,
+            -152.942_39,
+            59.286_38,
+        ])
+        .clamp(0.0, 1.0),
+        poly([
+            0.091_402_61,
+            2.194_188_4,
+            4.842_966_6,
+            -14.185_033,
+            4.277_298_6,
+            2.829_566,
+        ])
+        .clamp(0.0, 1.0),
+        poly([
+            0.106_673_3,
+            12.641_946,
+            -60.582_05,
+            110.362_77,
+            -89.903_11,
+            27.348_25,
+        ])
+        .clamp(0.0, 1.0),
     ]
 }
 

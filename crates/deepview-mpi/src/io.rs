@@ -22,15 +22,24 @@ pub enum MpiError {
     #[error("{path}: {msg}")]
     Invalid { path: PathBuf, msg: String },
     #[error("cannot read {path}: {source}")]
-    Io { path: PathBuf, source: std::io::Error },
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
     #[error("{path} is not valid mpi.json: {source}")]
-    Json { path: PathBuf, source: serde_json::Error },
+    Json {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
     #[error(transparent)]
     Image(#[from] ImageError),
 }
 
 fn invalid(path: &Path, msg: impl Into<String>) -> MpiError {
-    MpiError::Invalid { path: path.to_path_buf(), msg: msg.into() }
+    MpiError::Invalid {
+        path: path.to_path_buf(),
+        msg: msg.into(),
+    }
 }
 
 /// Serde mirror of `mpi.json`.
@@ -63,18 +72,33 @@ impl MpiMeta {
     /// Read and validate `dir/mpi.json` (not the layers).
     pub fn read(dir: &Path) -> Result<(MpiMeta, Camera), MpiError> {
         let path = dir.join("mpi.json");
-        let text = std::fs::read_to_string(&path).map_err(|source| MpiError::Io { path: path.clone(), source })?;
-        let meta: MpiMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json { path: path.clone(), source })?;
+        let text = std::fs::read_to_string(&path).map_err(|source| MpiError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        let meta: MpiMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json {
+            path: path.clone(),
+            source,
+        })?;
         let camera = meta.validate(&path)?;
         Ok((meta, camera))
     }
 
     fn validate(&self, path: &Path) -> Result<Camera, MpiError> {
         if self.format != FORMAT {
-            return Err(invalid(path, format!("\"format\" is {:?}, expected {FORMAT:?}", self.format)));
+            return Err(invalid(
+                path,
+                format!("\"format\" is {:?}, expected {FORMAT:?}", self.format),
+            ));
         }
         if self.version != VERSION {
-            return Err(invalid(path, format!("unsupported version {} (this build reads {VERSION})", self.version)));
+            return Err(invalid(
+                path,
+                format!(
+                    "unsupported version {} (this build reads {VERSION})",
+                    self.version
+                ),
+            ));
         }
         if self.depths.is_empty() {
             return Err(invalid(path, "the MPI has zero planes"));
@@ -82,7 +106,11 @@ impl MpiMeta {
         if self.layers.len() != self.depths.len() {
             return Err(invalid(
                 path,
-                format!("{} layers but {} depths", self.layers.len(), self.depths.len()),
+                format!(
+                    "{} layers but {} depths",
+                    self.layers.len(),
+                    self.depths.len()
+                ),
             ));
         }
         if !self.depths.iter().all(|d| d.is_finite() && *d > 0.0) {
@@ -91,12 +119,16 @@ impl MpiMeta {
         if self.depths.windows(2).any(|w| w[1] >= w[0]) {
             return Err(invalid(path, "depths must decrease (far plane first)"));
         }
-        let pose = Pose::from_row_major(&self.camera_from_world).map_err(|e| invalid(path, e.to_string()))?;
+        let pose = Pose::from_row_major(&self.camera_from_world)
+            .map_err(|e| invalid(path, e.to_string()))?;
         let cam = Camera::new(self.width, self.height, self.intrinsics, pose);
         cam.validate().map_err(|e| invalid(path, e.to_string()))?;
         for l in &self.layers {
             if l.contains('/') || l.contains('\\') || l.starts_with('.') {
-                return Err(invalid(path, format!("layer name {l:?} must be a plain file name in the folder")));
+                return Err(invalid(
+                    path,
+                    format!("layer name {l:?} must be a plain file name in the folder"),
+                ));
             }
         }
         Ok(cam)
@@ -117,15 +149,28 @@ pub fn read_mpi_u8(dir: &Path) -> Result<MpiU8, MpiError> {
         .map(|name| {
             let path = dir.join(name);
             let img = image::ImageReader::open(&path)
-                .map_err(|source| MpiError::Io { path: path.clone(), source })?
+                .map_err(|source| MpiError::Io {
+                    path: path.clone(),
+                    source,
+                })?
                 .with_guessed_format()
-                .map_err(|source| MpiError::Io { path: path.clone(), source })?
+                .map_err(|source| MpiError::Io {
+                    path: path.clone(),
+                    source,
+                })?
                 .decode()
-                .map_err(|source| ImageError::Read { path: path.clone(), source })?;
+                .map_err(|source| ImageError::Read {
+                    path: path.clone(),
+                    source,
+                })?;
             if (img.width(), img.height()) != (w, h) {
                 return Err(invalid(
                     &path,
-                    format!("layer is {}x{} but mpi.json says {w}x{h}", img.width(), img.height()),
+                    format!(
+                        "layer is {}x{} but mpi.json says {w}x{h}",
+                        img.width(),
+                        img.height()
+                    ),
                 ));
             }
             let mut px = img.into_rgba8().into_raw();
@@ -138,7 +183,11 @@ pub fn read_mpi_u8(dir: &Path) -> Result<MpiU8, MpiError> {
             Ok(px)
         })
         .collect::<Result<_, _>>()?;
-    Ok(MpiU8 { camera, depths: meta.depths, layers: planes.concat() })
+    Ok(MpiU8 {
+        camera,
+        depths: meta.depths,
+        layers: planes.concat(),
+    })
 }
 
 /// Read an MPI folder as f32 premultiplied texels (straight alpha on disk converted exactly).
@@ -152,7 +201,13 @@ pub fn read_mpi(dir: &Path) -> Result<Mpi, MpiError> {
             let path = dir.join(name);
             let img = deepview_image::read_image(&path, 4)?;
             if (img.width, img.height) != (w, h) {
-                return Err(invalid(&path, format!("layer is {}x{} but mpi.json says {w}x{h}", img.width, img.height)));
+                return Err(invalid(
+                    &path,
+                    format!(
+                        "layer is {}x{} but mpi.json says {w}x{h}",
+                        img.width, img.height
+                    ),
+                ));
             }
             let mut data = img.data;
             for p in data.chunks_exact_mut(4) {
@@ -163,7 +218,11 @@ pub fn read_mpi(dir: &Path) -> Result<Mpi, MpiError> {
             Ok(data)
         })
         .collect::<Result<_, _>>()?;
-    Ok(Mpi { camera, depths: meta.depths, layers: planes.concat() })
+    Ok(Mpi {
+        camera,
+        depths: meta.depths,
+        layers: planes.concat(),
+    })
 }
 
 /// Straight-alpha RGBA8 bytes of one premultiplied f32 plane.
@@ -188,7 +247,10 @@ pub fn write_mpi(dir: &Path, mpi: &Mpi) -> Result<(), MpiError> {
     if mpi.depths.is_empty() {
         return Err(invalid(dir, "refusing to write an MPI with zero planes"));
     }
-    std::fs::create_dir_all(dir).map_err(|source| MpiError::Io { path: dir.to_path_buf(), source })?;
+    std::fs::create_dir_all(dir).map_err(|source| MpiError::Io {
+        path: dir.to_path_buf(),
+        source,
+    })?;
     let meta = MpiMeta::new(&mpi.camera, &mpi.depths);
     let (w, h) = (mpi.camera.width, mpi.camera.height);
     (0..mpi.planes()).into_par_iter().try_for_each(|d| {
@@ -231,7 +293,12 @@ mod tests {
         // Writing what we read reproduces the files byte for byte (8-bit straight alpha is a fixed point).
         let dir2 = tempfile::tempdir().unwrap();
         write_mpi(dir2.path(), &back).unwrap();
-        for name in ["layer_000.png", "layer_001.png", "layer_002.png", "mpi.json"] {
+        for name in [
+            "layer_000.png",
+            "layer_001.png",
+            "layer_002.png",
+            "mpi.json",
+        ] {
             let a = std::fs::read(dir.path().join(name)).unwrap();
             let b = std::fs::read(dir2.path().join(name)).unwrap();
             if name.ends_with(".png") {
@@ -264,7 +331,10 @@ mod tests {
         let json_path = dir.path().join("mpi.json");
         let good = std::fs::read_to_string(&json_path).unwrap();
         let cases = [
-            (good.replace("\"depths\": [", "\"depths\": [\n    \"x\","), "mpi.json"),
+            (
+                good.replace("\"depths\": [", "\"depths\": [\n    \"x\","),
+                "mpi.json",
+            ),
             ("{not json".to_string(), "mpi.json"),
             (good.replace("deepview-mpi", "other"), "format"),
         ];
@@ -278,12 +348,22 @@ mod tests {
         meta.depths.clear();
         meta.layers.clear();
         std::fs::write(&json_path, serde_json::to_string(&meta).unwrap()).unwrap();
-        assert!(read_mpi(dir.path()).unwrap_err().to_string().contains("zero planes"));
+        assert!(
+            read_mpi(dir.path())
+                .unwrap_err()
+                .to_string()
+                .contains("zero planes")
+        );
         // Non-finite pose (JSON has no NaN literal; a huge number overflows to inf in f64 parsing).
         let mut meta: MpiMeta = serde_json::from_str(&good).unwrap();
         meta.layers.pop();
         std::fs::write(&json_path, serde_json::to_string(&meta).unwrap()).unwrap();
-        assert!(read_mpi(dir.path()).unwrap_err().to_string().contains("2 layers but 3 depths"));
+        assert!(
+            read_mpi(dir.path())
+                .unwrap_err()
+                .to_string()
+                .contains("2 layers but 3 depths")
+        );
         std::fs::write(&json_path, good.replacen("1.0", "1e999", 1)).unwrap();
         assert!(read_mpi(dir.path()).is_err());
         // Layer of the wrong size.

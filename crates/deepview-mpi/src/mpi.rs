@@ -26,7 +26,11 @@ impl Mpi {
     /// A fully transparent MPI.
     pub fn transparent(camera: Camera, depths: Vec<f64>) -> Self {
         let n = depths.len() * camera.width as usize * camera.height as usize * 4;
-        Self { camera, depths, layers: vec![0.0; n] }
+        Self {
+            camera,
+            depths,
+            layers: vec![0.0; n],
+        }
     }
 
     pub fn planes(&self) -> usize {
@@ -59,7 +63,11 @@ impl Mpi {
                 [q(p[0]), q(p[1]), q(p[2]), (a * 255.0 + 0.5) as u8]
             })
             .collect();
-        MpiU8 { camera: self.camera, depths: self.depths.clone(), layers }
+        MpiU8 {
+            camera: self.camera,
+            depths: self.depths.clone(),
+            layers,
+        }
     }
 }
 

@@ -26,28 +26,64 @@ impl PlaneSweepVolume {
     /// Plane `d` as an image (colour channels only).
     pub fn plane_image(&self, d: usize) -> ImageF32 {
         let c = self.channels - 1;
-        let data = self.plane(d).chunks_exact(self.channels).flat_map(|p| p[..c].to_vec()).collect();
-        ImageF32 { width: self.width, height: self.height, channels: c, data }
+        let data = self
+            .plane(d)
+            .chunks_exact(self.channels)
+            .flat_map(|p| p[..c].to_vec())
+            .collect();
+        ImageF32 {
+            width: self.width,
+            height: self.height,
+            channels: c,
+            data,
+        }
     }
 }
 
 /// Sweep `image` (seen by `camera`) over the planes at `depths` of the `reference` camera.
-pub fn plane_sweep(image: &ImageF32, camera: &Camera, reference: &Camera, depths: &[f64]) -> PlaneSweepVolume {
+pub fn plane_sweep(
+    image: &ImageF32,
+    camera: &Camera,
+    reference: &Camera,
+    depths: &[f64],
+) -> PlaneSweepVolume {
     let (w, h, c) = (reference.width, reference.height, image.channels);
     let pixels = w as usize * h as usize;
     let mut data = vec![0.0f32; depths.len() * pixels * (c + 1)];
-    data.par_chunks_mut(pixels * (c + 1)).zip(depths.par_iter()).for_each(|(plane, &depth)| {
-        // Reference pixel -> image pixel through the plane.
-        let hom = plane_homography(reference, camera, depth).to_row_major();
-        let mut colour = vec![0.0f32; pixels * c];
-        let mut valid = vec![0.0f32; pixels];
-        warp_image(&image.data, image.width, image.height, c, hom, w, h, &mut colour, Some(&mut valid));
-        for ((o, col), v) in plane.chunks_exact_mut(c + 1).zip(colour.chunks_exact(c)).zip(&valid) {
-            o[..c].copy_from_slice(col);
-            o[c] = *v;
-        }
-    });
-    PlaneSweepVolume { width: w, height: h, channels: c + 1, depths: depths.to_vec(), data }
+    data.par_chunks_mut(pixels * (c + 1))
+        .zip(depths.par_iter())
+        .for_each(|(plane, &depth)| {
+            // Reference pixel -> image pixel through the plane.
+            let hom = plane_homography(reference, camera, depth).to_row_major();
+            let mut colour = vec![0.0f32; pixels * c];
+            let mut valid = vec![0.0f32; pixels];
+            warp_image(
+                &image.data,
+                image.width,
+                image.height,
+                c,
+                hom,
+                w,
+                h,
+                &mut colour,
+                Some(&mut valid),
+            );
+            for ((o, col), v) in plane
+                .chunks_exact_mut(c + 1)
+                .zip(colour.chunks_exact(c))
+                .zip(&valid)
+            {
+                o[..c].copy_from_slice(col);
+                o[c] = *v;
+            }
+        });
+    PlaneSweepVolume {
+        width: w,
+        height: h,
+        channels: c + 1,
+        depths: depths.to_vec(),
+        data,
+    }
 }
 
 #[cfg(test)]

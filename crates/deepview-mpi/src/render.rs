@@ -35,7 +35,12 @@ impl Texel for u8 {
     fn rgba(layer: &[u8], i: usize) -> [f32; 4] {
         let p = &layer[i * 4..i * 4 + 4];
         const S: f32 = 1.0 / 255.0;
-        [p[0] as f32 * S, p[1] as f32 * S, p[2] as f32 * S, p[3] as f32 * S]
+        [
+            p[0] as f32 * S,
+            p[1] as f32 * S,
+            p[2] as f32 * S,
+            p[3] as f32 * S,
+        ]
     }
     fn as_bytes(layer: &[u8]) -> Option<&[u8]> {
         Some(layer)
@@ -68,9 +73,16 @@ pub fn render_layers_with<T: Texel>(
     occupancy: Option<&Occupancy>,
 ) {
     let plane_len = plane_w as usize * plane_h as usize * 4;
-    assert_eq!(layers.len(), plane_len * homs.len(), "layer data does not match the plane count");
+    assert_eq!(
+        layers.len(),
+        plane_len * homs.len(),
+        "layer data does not match the plane count"
+    );
     assert_eq!(out.len(), out_w as usize * out_h as usize * 4);
-    let samplers: Vec<Sampler> = homs.iter().map(|h| Sampler::new(*h, plane_w, plane_h)).collect();
+    let samplers: Vec<Sampler> = homs
+        .iter()
+        .map(|h| Sampler::new(*h, plane_w, plane_h))
+        .collect();
     let row_len = out_w as usize * 4;
     // Bands of a few rows: enough work per task, enough tasks to balance.
     let rows_per_band = (out_h as usize / 64).clamp(1, 16);
@@ -80,40 +92,48 @@ pub fn render_layers_with<T: Texel>(
     {
         let w = out_w as usize;
         let wp = crate::simd::padded_width(w);
-        out.par_chunks_mut(row_len * rows_per_band).enumerate().for_each_init(
-            || vec![0.0f32; 4 * wp],
-            |acc, (band, chunk)| {
-                for (r, row) in chunk.chunks_exact_mut(row_len).enumerate() {
-                    let y = (band * rows_per_band + r) as u32;
-                    acc.fill(0.0);
-                    // Front to back: opaque pixels stop costing anything.
-                    for (d, sampler) in samplers.iter().enumerate().rev() {
-                        let layer = &bytes[d * plane_len..(d + 1) * plane_len];
-                        let coeff = sampler.row(y).coefficients();
-                        let tiles = occupancy.and_then(|o| o.sparse_plane(d));
-                        // SAFETY: `available()` checked AVX2 + FMA; the layer has plane_w * plane_h texels.
-                        unsafe { crate::simd::composite_row_u8_avx2(layer, plane_w, plane_h, coeff, acc, w, tiles) };
-                    }
-                    for x in 0..w {
-                        for k in 0..4 {
-                            row[x * 4 + k] = acc[k * wp + x];
+        out.par_chunks_mut(row_len * rows_per_band)
+            .enumerate()
+            .for_each_init(
+                || vec![0.0f32; 4 * wp],
+                |acc, (band, chunk)| {
+                    for (r, row) in chunk.chunks_exact_mut(row_len).enumerate() {
+                        let y = (band * rows_per_band + r) as u32;
+                        acc.fill(0.0);
+                        // Front to back: opaque pixels stop costing anything.
+                        for (d, sampler) in samplers.iter().enumerate().rev() {
+                            let layer = &bytes[d * plane_len..(d + 1) * plane_len];
+                            let coeff = sampler.row(y).coefficients();
+                            let tiles = occupancy.and_then(|o| o.sparse_plane(d));
+                            // SAFETY: `available()` checked AVX2 + FMA; the layer has plane_w * plane_h texels.
+                            unsafe {
+                                crate::simd::composite_row_u8_avx2(
+                                    layer, plane_w, plane_h, coeff, acc, w, tiles,
+                                )
+                            };
+                        }
+                        for x in 0..w {
+                            for k in 0..4 {
+                                row[x * 4 + k] = acc[k * wp + x];
+                            }
                         }
                     }
-                }
-            },
-        );
+                },
+            );
         return;
     }
-    out.par_chunks_mut(row_len * rows_per_band).enumerate().for_each(|(band, chunk)| {
-        for (r, row) in chunk.chunks_exact_mut(row_len).enumerate() {
-            let y = (band * rows_per_band + r) as u32;
-            row.fill(0.0);
-            for (d, sampler) in samplers.iter().enumerate() {
-                let layer = &layers[d * plane_len..(d + 1) * plane_len];
-                composite_row(layer, sampler, y, row);
+    out.par_chunks_mut(row_len * rows_per_band)
+        .enumerate()
+        .for_each(|(band, chunk)| {
+            for (r, row) in chunk.chunks_exact_mut(row_len).enumerate() {
+                let y = (band * rows_per_band + r) as u32;
+                row.fill(0.0);
+                for (d, sampler) in samplers.iter().enumerate() {
+                    let layer = &layers[d * plane_len..(d + 1) * plane_len];
+                    composite_row(layer, sampler, y, row);
+                }
             }
-        }
-    });
+        });
 }
 
 #[inline(always)]
@@ -141,7 +161,15 @@ fn composite_row<T: Texel>(layer: &[T], sampler: &Sampler, y: u32, row: &mut [f3
 pub fn render(mpi: &Mpi, target: &Camera) -> ImageF32 {
     let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
     let mut out = ImageF32::new(target.width, target.height, 4);
-    render_layers(&mpi.layers, mpi.camera.width, mpi.camera.height, &homs, target.width, target.height, &mut out.data);
+    render_layers(
+        &mpi.layers,
+        mpi.camera.width,
+        mpi.camera.height,
+        &homs,
+        target.width,
+        target.height,
+        &mut out.data,
+    );
     out
 }
 
@@ -149,7 +177,15 @@ pub fn render(mpi: &Mpi, target: &Camera) -> ImageF32 {
 pub fn render_u8(mpi: &MpiU8, target: &Camera) -> ImageF32 {
     let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
     let mut out = ImageF32::new(target.width, target.height, 4);
-    render_layers(&mpi.layers, mpi.camera.width, mpi.camera.height, &homs, target.width, target.height, &mut out.data);
+    render_layers(
+        &mpi.layers,
+        mpi.camera.width,
+        mpi.camera.height,
+        &homs,
+        target.width,
+        target.height,
+        &mut out.data,
+    );
     out
 }
 
@@ -180,11 +216,13 @@ pub fn render_rgba8_with(
         occupancy,
     );
     out.resize(n, 0);
-    out.par_chunks_mut(64 * 1024).zip(scratch.par_chunks(64 * 1024)).for_each(|(o, s)| {
-        for (b, v) in o.iter_mut().zip(s) {
-            *b = deepview_image::to_u8(*v);
-        }
-    });
+    out.par_chunks_mut(64 * 1024)
+        .zip(scratch.par_chunks(64 * 1024))
+        .for_each(|(o, s)| {
+            for (b, v) in o.iter_mut().zip(s) {
+                *b = deepview_image::to_u8(*v);
+            }
+        });
 }
 
 #[cfg(test)]
@@ -199,13 +237,26 @@ mod tests {
         impl Texel for B {
             fn rgba(layer: &[B], i: usize) -> [f32; 4] {
                 let p = &layer[i * 4..i * 4 + 4];
-                [p[0].0 as f32 / 255.0, p[1].0 as f32 / 255.0, p[2].0 as f32 / 255.0, p[3].0 as f32 / 255.0]
+                [
+                    p[0].0 as f32 / 255.0,
+                    p[1].0 as f32 / 255.0,
+                    p[2].0 as f32 / 255.0,
+                    p[3].0 as f32 / 255.0,
+                ]
             }
         }
         let layers: Vec<B> = mpi.layers.iter().map(|&b| B(b)).collect();
         let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
         let mut out = vec![0.0; target.width as usize * target.height as usize * 4];
-        render_layers(&layers, mpi.camera.width, mpi.camera.height, &homs, target.width, target.height, &mut out);
+        render_layers(
+            &layers,
+            mpi.camera.width,
+            mpi.camera.height,
+            &homs,
+            target.width,
+            target.height,
+            &mut out,
+        );
         out
     }
 
@@ -221,7 +272,11 @@ mod tests {
             }
             t[3] = a as u8;
         }
-        let mpi = MpiU8 { camera: cam, depths, layers };
+        let mpi = MpiU8 {
+            camera: cam,
+            depths,
+            layers,
+        };
         // The reference camera itself (identity warps), and novel views including one that sees past
         // the planes' edges (transparent samples) and a width that is not a multiple of 8.
         let targets = [
@@ -232,7 +287,12 @@ mod tests {
                 Intrinsics::new(33.0, 31.0, 20.0, 11.0),
                 Pose::from_center(DMat3::from_rotation_y(0.05), DVec3::new(0.3, -0.1, 0.2)),
             ),
-            Camera::new(19, 7, Intrinsics::centred(10.0, 19, 7), Pose::from_center(DMat3::IDENTITY, DVec3::new(-0.5, 0.0, 0.0))),
+            Camera::new(
+                19,
+                7,
+                Intrinsics::centred(10.0, 19, 7),
+                Pose::from_center(DMat3::IDENTITY, DVec3::new(-0.5, 0.0, 0.0)),
+            ),
         ];
         // The SIMD path composites front to back and stops at accumulated alpha 1 - 1/1024: equal to the
         // scalar back-to-front result within that bound.
@@ -240,16 +300,30 @@ mod tests {
         for t in targets {
             let fast = render_u8(&mpi, &t);
             let slow = scalar_u8(&mpi, &t);
-            let err = fast.data.iter().zip(&slow).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+            let err = fast
+                .data
+                .iter()
+                .zip(&slow)
+                .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
             assert!(err < 1.0 / 1024.0 + 1e-5, "max difference {err}");
             let (mut scratch, mut out) = (Vec::new(), Vec::new());
             render_rgba8_with(&mpi, Some(&occ), &t, &mut scratch, &mut out);
-            let err = scratch.iter().zip(&slow).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
-            assert!(err < 1.0 / 1024.0 + 1e-5, "with occupancy: max difference {err}");
+            let err = scratch
+                .iter()
+                .zip(&slow)
+                .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(
+                err < 1.0 / 1024.0 + 1e-5,
+                "with occupancy: max difference {err}"
+            );
         }
         let id = render_u8(&mpi, &cam);
         let f32_render = render(&mpi.to_f32(), &cam);
-        let err = id.data.iter().zip(&f32_render.data).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        let err = id
+            .data
+            .iter()
+            .zip(&f32_render.data)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
         assert!(err < 1.0 / 1024.0 + 1e-5, "u8 vs f32 layers {err}");
     }
 
@@ -267,7 +341,11 @@ mod tests {
                 }
             }
         }
-        let mpi = MpiU8 { camera: cam, depths, layers };
+        let mpi = MpiU8 {
+            camera: cam,
+            depths,
+            layers,
+        };
         let occ = Occupancy::new(&mpi.layers, 64, 48, 3);
         assert!(occ.fill() < 0.2, "fill {}", occ.fill());
         let target = Camera::new(
@@ -279,8 +357,14 @@ mod tests {
         let full = render_u8(&mpi, &target);
         let (mut scratch, mut out) = (Vec::new(), Vec::new());
         render_rgba8_with(&mpi, Some(&occ), &target, &mut scratch, &mut out);
-        let err = scratch.iter().zip(&full.data).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        let err = scratch
+            .iter()
+            .zip(&full.data)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
         assert!(err < 1e-6, "{err}");
-        assert!(full.data.iter().any(|&v| v > 0.5), "the squares are visible");
+        assert!(
+            full.data.iter().any(|&v| v > 0.5),
+            "the squares are visible"
+        );
     }
 }

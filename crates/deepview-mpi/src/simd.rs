@@ -41,18 +41,25 @@ impl Occupancy {
         let (w, h) = (width as usize, height as usize);
         let (tiles_x, tiles_y) = (w.div_ceil(TILE), h.div_ceil(TILE));
         let mut tiles = vec![0u8; planes * tiles_x * tiles_y];
-        tiles.par_chunks_mut(tiles_x * tiles_y).enumerate().for_each(|(d, t)| {
-            let layer = &layers[d * w * h * 4..(d + 1) * w * h * 4];
-            for y in 0..h {
-                let row = &layer[y * w * 4..(y + 1) * w * 4];
-                for (tx, chunk) in row.chunks(TILE * 4).enumerate() {
-                    if chunk.iter().any(|&b| b != 0) {
-                        t[(y / TILE) * tiles_x + tx] = 1;
+        tiles
+            .par_chunks_mut(tiles_x * tiles_y)
+            .enumerate()
+            .for_each(|(d, t)| {
+                let layer = &layers[d * w * h * 4..(d + 1) * w * h * 4];
+                for y in 0..h {
+                    let row = &layer[y * w * 4..(y + 1) * w * 4];
+                    for (tx, chunk) in row.chunks(TILE * 4).enumerate() {
+                        if chunk.iter().any(|&b| b != 0) {
+                            t[(y / TILE) * tiles_x + tx] = 1;
+                        }
                     }
                 }
-            }
-        });
-        Self { tiles_x, tiles_y, tiles }
+            });
+        Self {
+            tiles_x,
+            tiles_y,
+            tiles,
+        }
     }
 
     /// Plane `d`'s tiles.
@@ -113,7 +120,12 @@ pub unsafe fn composite_row_u8_avx2(
         let (r, rest) = acc.split_at_mut(wp);
         let (g, rest) = rest.split_at_mut(wp);
         let (b, a) = rest.split_at_mut(wp);
-        (r.as_mut_ptr(), g.as_mut_ptr(), b.as_mut_ptr(), a.as_mut_ptr())
+        (
+            r.as_mut_ptr(),
+            g.as_mut_ptr(),
+            b.as_mut_ptr(),
+            a.as_mut_ptr(),
+        )
     };
     let ax = _mm256_set1_ps(coeff.a[0]);
     let ay = _mm256_set1_ps(coeff.a[1]);
@@ -151,7 +163,10 @@ pub unsafe fn composite_row_u8_avx2(
         let sx = _mm256_mul_ps(_mm256_fmadd_ps(ax, u, bx), inv);
         let sy = _mm256_mul_ps(_mm256_fmadd_ps(ay, u, by), inv);
         // Inside the plane's extent and in front (ordered comparisons are false for NaN).
-        let mut m = _mm256_and_ps(_mm256_cmp_ps::<_CMP_GT_OQ>(wn, zero), _mm256_cmp_ps::<_CMP_GE_OQ>(sx, zero));
+        let mut m = _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GT_OQ>(wn, zero),
+            _mm256_cmp_ps::<_CMP_GE_OQ>(sx, zero),
+        );
         m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(sx, wf));
         m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_GE_OQ>(sy, zero));
         m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(sy, hf));
@@ -177,14 +192,28 @@ pub unsafe fn composite_row_u8_avx2(
             if let Some(t) = tiles {
                 // Source coordinates are monotonic along an output row (a homography restricted to a
                 // line), so lanes 0 and 7 bound the taps of the group.
-                let (xa0, xa7) = (_mm256_extract_epi32::<0>(xa) as usize, _mm256_extract_epi32::<7>(xb) as usize);
-                let (ya0, ya7) = (_mm256_extract_epi32::<0>(yra) as usize, _mm256_extract_epi32::<7>(yra) as usize);
-                let (yb0, yb7) = (_mm256_extract_epi32::<0>(yrb) as usize, _mm256_extract_epi32::<7>(yrb) as usize);
+                let (xa0, xa7) = (
+                    _mm256_extract_epi32::<0>(xa) as usize,
+                    _mm256_extract_epi32::<7>(xb) as usize,
+                );
+                let (ya0, ya7) = (
+                    _mm256_extract_epi32::<0>(yra) as usize,
+                    _mm256_extract_epi32::<7>(yra) as usize,
+                );
+                let (yb0, yb7) = (
+                    _mm256_extract_epi32::<0>(yrb) as usize,
+                    _mm256_extract_epi32::<7>(yrb) as usize,
+                );
                 let (tx0, tx1) = (xa0.min(xa7) / TILE, xa0.max(xa7) / TILE);
-                let (ty0, ty1) = (ya0.min(ya7).min(yb0.min(yb7)) / TILE, ya0.max(ya7).max(yb0.max(yb7)) / TILE);
+                let (ty0, ty1) = (
+                    ya0.min(ya7).min(yb0.min(yb7)) / TILE,
+                    ya0.max(ya7).max(yb0.max(yb7)) / TILE,
+                );
                 let mut any = false;
                 for ty in ty0..=ty1 {
-                    any |= t[ty * tiles_x + tx0..=ty * tiles_x + tx1].iter().any(|&o| o != 0);
+                    any |= t[ty * tiles_x + tx0..=ty * tiles_x + tx1]
+                        .iter()
+                        .any(|&o| o != 0);
                 }
                 if !any {
                     x += 8;
@@ -197,7 +226,10 @@ pub unsafe fn composite_row_u8_avx2(
             // 8 consecutive texels (true for views near the reference camera), two contiguous loads and
             // four lane permutations replace the four gathers.
             let ya0 = _mm256_permutevar8x32_epi32(ya, izero);
-            let xs = _mm256_min_epi32(_mm256_permutevar8x32_epi32(xa, izero), _mm256_set1_epi32(plane_w as i32 - 8));
+            let xs = _mm256_min_epi32(
+                _mm256_permutevar8x32_epi32(xa, izero),
+                _mm256_set1_epi32(plane_w as i32 - 8),
+            );
             let ia = _mm256_and_si256(_mm256_sub_epi32(xa, xs), mi);
             let ib = _mm256_and_si256(_mm256_sub_epi32(xb, xs), mi);
             let same_rows = _mm256_andnot_si256(_mm256_cmpeq_epi32(ya, ya0), mi);

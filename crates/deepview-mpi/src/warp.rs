@@ -8,8 +8,19 @@
 use deepview_geometry::{Camera, plane_homography};
 
 /// Per-plane homographies mapping target pixels to the plane's (reference) pixels, as row-major f64.
-pub fn target_to_plane_homographies(reference: &Camera, target: &Camera, depths: &[f64]) -> Vec<[f64; 9]> {
-    depths.iter().map(|&d| plane_homography(reference, target, d).inverse().to_row_major()).collect()
+pub fn target_to_plane_homographies(
+    reference: &Camera,
+    target: &Camera,
+    depths: &[f64],
+) -> Vec<[f64; 9]> {
+    depths
+        .iter()
+        .map(|&d| {
+            plane_homography(reference, target, d)
+                .inverse()
+                .to_row_major()
+        })
+        .collect()
 }
 
 /// Precomputed bilinear sample: texel indices (already multiplied by the channel count) and weights.
@@ -40,7 +51,11 @@ impl Sampler {
         let h = &self.h;
         RowSampler {
             a: [h[0] as f32, h[3] as f32, h[6] as f32],
-            b: [(h[1] * v + h[2]) as f32, (h[4] * v + h[5]) as f32, (h[7] * v + h[8]) as f32],
+            b: [
+                (h[1] * v + h[2]) as f32,
+                (h[4] * v + h[5]) as f32,
+                (h[7] * v + h[8]) as f32,
+            ],
             wf: self.src_w as f32,
             hf: self.src_h as f32,
             wmax: self.src_w as i32 - 1,
@@ -65,7 +80,10 @@ pub struct RowSampler {
 impl RowSampler {
     /// The row's coefficients `src = a * u + b` for the SIMD kernels.
     pub fn coefficients(&self) -> crate::simd::RowCoefficients {
-        crate::simd::RowCoefficients { a: self.a, b: self.b }
+        crate::simd::RowCoefficients {
+            a: self.a,
+            b: self.b,
+        }
     }
 
     /// The bilinear tap of output column `x` (texel indices in texels, not channels), or `None` outside.
@@ -96,7 +114,12 @@ impl RowSampler {
         let yb = (y0 + 1).clamp(0, self.hmax) as u32 * self.stride;
         Some(Tap {
             idx: [ya + xa, ya + xb, yb + xa, yb + xb],
-            w: [(1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty],
+            w: [
+                (1.0 - tx) * (1.0 - ty),
+                tx * (1.0 - ty),
+                (1.0 - tx) * ty,
+                tx * ty,
+            ],
         })
     }
 }
@@ -169,7 +192,17 @@ mod tests {
         let src = noise(w * h * c, 7);
         let mut out = vec![0.0; src.len()];
         let mut valid = vec![0.0; w * h];
-        warp_image(&src, w as u32, h as u32, c, IDENTITY, w as u32, h as u32, &mut out, Some(&mut valid));
+        warp_image(
+            &src,
+            w as u32,
+            h as u32,
+            c,
+            IDENTITY,
+            w as u32,
+            h as u32,
+            &mut out,
+            Some(&mut valid),
+        );
         assert_eq!(out, src);
         assert!(valid.iter().all(|&v| v == 1.0));
     }

@@ -24,9 +24,10 @@ pub const CPU_PRIOR_TEMPERATURE: f64 = 0.0005;
 /// conv to `4 + extra_channels` outputs. Nets `0..large_nets` use `features_large` features, the others
 /// `features_small` ("64/16"); nets `0..unet_nets` run the core at half resolution (one-level U-Net).
 ///
-/// TODO (memory): the paper discards activations inside each per-iteration net and recomputes them on
-/// the backward pass. burn's `.gradient_checkpointing()` does not drop conv activations and no manual
-/// recompute is implemented yet, so training memory grows with the number of nets.
+/// Memory: the paper discards activations inside each per-iteration net and recomputes them on the
+/// backward pass. burn's `.gradient_checkpointing()` does not drop conv activations, so `deepview train
+/// --recompute` does it by hand (`train/recompute.rs`: segment-wise VJPs, one net's activations live at
+/// a time; gradients equal the full backward).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct DeepViewConfig {
     /// Preset name (informational).
@@ -222,7 +223,11 @@ mod tests {
             DeepViewConfig::preset("cpu").unwrap().init_prior,
             Some(CPU_PRIOR_TEMPERATURE)
         );
-        for name in ["paper-kalantari", "paper-spaces-4view", "paper-spaces-12view"] {
+        for name in [
+            "paper-kalantari",
+            "paper-spaces-4view",
+            "paper-spaces-12view",
+        ] {
             assert_eq!(DeepViewConfig::preset(name).unwrap().init_prior, None);
         }
         let bad = DeepViewConfig {

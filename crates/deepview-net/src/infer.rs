@@ -1173,7 +1173,11 @@ mod tests {
         let nets = model.nets.len();
         let plan = plan_inference(&model, &views, &reference, &depths, 1 << 34).unwrap();
         assert_eq!(plan.precision, StatePrecision::F32);
-        assert!(plan.nets.iter().all(|p| p.tile == 240 && p.plane_chunk == 5));
+        assert!(
+            plan.nets
+                .iter()
+                .all(|p| p.tile == 240 && p.plane_chunk == 5)
+        );
         let fixed = |p| {
             (0..nets)
                 .map(|n| fixed_bytes(&model, &geom, n, p))
@@ -1194,11 +1198,18 @@ mod tests {
             assert!(plan.peak_bytes() <= budget);
             for (p, l) in plan.nets.iter().zip(last.iter_mut()) {
                 assert!(p.tile >= MIN_TILE && p.tile % 2 == 0);
-                assert!((p.tile, p.plane_chunk) <= *l, "{:?} after {l:?}", (p.tile, p.plane_chunk));
+                assert!(
+                    (p.tile, p.plane_chunk) <= *l,
+                    "{:?} after {l:?}",
+                    (p.tile, p.plane_chunk)
+                );
                 *l = (p.tile, p.plane_chunk);
             }
         }
-        assert!(last[1].0 < 240 || last[1].1 < 5, "the budget never constrained net 1");
+        assert!(
+            last[1].0 < 240 || last[1].1 < 5,
+            "the budget never constrained net 1"
+        );
         // Net 0 has the agreement prior: always all planes.
         assert_eq!(last[0].1, 5);
         let e = plan_inference(&model, &views, &reference, &depths, f16_fixed + 1000).unwrap_err();
@@ -1278,7 +1289,10 @@ mod tests {
                 sub = sub.max((win.sub.2 * win.sub.3, win.sub.2));
             }
         }
-        println!("largest view crop {} px, MPI sub-window {} px", crop.0, sub.0);
+        println!(
+            "largest view crop {} px, MPI sub-window {} px",
+            crop.0, sub.0
+        );
         if std::env::var_os("DEEPVIEW_MEASURE_PLAN_ONLY").is_some() {
             return;
         }

@@ -266,6 +266,8 @@ mod tests {
             features_large: 4,
             features_small: 3,
             updates: 1,
+            // Random output convs (with the prior they start at zero and outputs would not depend on them).
+            init_prior: None,
             ..DeepViewConfig::preset("cpu").unwrap()
         }
     }
@@ -283,6 +285,39 @@ mod tests {
         let b = loaded.forward(&inputs).rgba;
         let d: f32 = (a - b).abs().max().into_scalar();
         assert_eq!(d, 0.0);
+    }
+
+    #[test]
+    fn checkpoint_loads_and_exports_with_identical_outputs() {
+        let dev = Device::flex();
+        let run = tempfile::tempdir().unwrap();
+        let ck = run.path().join("checkpoints").join("step-0000001");
+        std::fs::create_dir_all(&ck).unwrap();
+        let model = DeepViewModel::new(&cfg(), &dev);
+        model
+            .clone()
+            .save_file(ck.join(CHECKPOINT_MODEL_FILE))
+            .unwrap();
+        // No run config yet: the error names the file.
+        let e = load_model(&ck, &dev).unwrap_err().to_string();
+        assert!(e.contains(CONFIG_FILE), "{e}");
+        let run_cfg = serde_json::json!({ "model": cfg(), "train": {} });
+        std::fs::write(run.path().join(CONFIG_FILE), run_cfg.to_string()).unwrap();
+        assert!(is_checkpoint(&ck));
+        let (loaded, c) = load_model(&ck, &dev).unwrap();
+        assert_eq!(c, cfg());
+        let out = run.path().join("exported");
+        export_checkpoint(&ck, &out).unwrap();
+        let (exported, _) = load_model(&out, &dev).unwrap();
+        let inputs = crate::network::synthetic_inputs(2, 3, 12, 14, &dev);
+        let a = model.forward(&inputs).rgba;
+        for m in [loaded, exported] {
+            let d: f32 = (a.clone() - m.forward(&inputs).rgba)
+                .abs()
+                .max()
+                .into_scalar();
+            assert_eq!(d, 0.0);
+        }
     }
 
     #[test]

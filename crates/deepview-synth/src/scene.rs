@@ -38,11 +38,21 @@ enum Shape {
     /// Everywhere (a background).
     Full,
     /// A rounded rectangle `[x0, x1] x [y0, y1]` (reference pixels) with corner radius.
-    RoundedRect { min: [f32; 2], max: [f32; 2], radius: f32 },
+    RoundedRect {
+        min: [f32; 2],
+        max: [f32; 2],
+        radius: f32,
+    },
     /// A disc.
     Disc { centre: [f32; 2], radius: f32 },
     /// Thin bars: lines `n . (u, v) = offset + k * spacing`, `width` pixels wide, within a band.
-    Bars { normal: [f32; 2], spacing: f32, offset: f32, width: f32, band: Option<([f32; 2], [f32; 2])> },
+    Bars {
+        normal: [f32; 2],
+        spacing: f32,
+        offset: f32,
+        width: f32,
+        band: Option<([f32; 2], [f32; 2])>,
+    },
 }
 
 impl Shape {
@@ -60,8 +70,16 @@ impl Shape {
                 let outside = (qx.max(0.0).powi(2) + qy.max(0.0).powi(2)).sqrt();
                 outside + qx.max(qy).min(0.0) - radius
             }
-            Shape::Disc { centre, radius } => ((u - centre[0]).powi(2) + (v - centre[1]).powi(2)).sqrt() - radius,
-            Shape::Bars { normal, spacing, offset, width, band } => {
+            Shape::Disc { centre, radius } => {
+                ((u - centre[0]).powi(2) + (v - centre[1]).powi(2)).sqrt() - radius
+            }
+            Shape::Bars {
+                normal,
+                spacing,
+                offset,
+                width,
+                band,
+            } => {
                 let t = normal[0] * u + normal[1] * v - offset;
                 let r = t - spacing * (t / spacing).round();
                 let d = r.abs() - 0.5 * width;
@@ -116,14 +134,21 @@ pub struct SynthScene {
 struct Rng(u64);
 impl Rng {
     fn next(&mut self) -> f32 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((self.0 >> 40) as f32) / (1u64 << 24) as f32
     }
     fn range(&mut self, lo: f32, hi: f32) -> f32 {
         lo + (hi - lo) * self.next()
     }
     fn colour(&mut self) -> [f32; 3] {
-        [self.range(0.15, 0.85), self.range(0.15, 0.85), self.range(0.15, 0.85)]
+        [
+            self.range(0.15, 0.85),
+            self.range(0.15, 0.85),
+            self.range(0.15, 0.85),
+        ]
     }
 }
 
@@ -133,11 +158,22 @@ fn texture(rng: &mut Rng, min_period: f32, amplitude: f32) -> Texture {
             let period = rng.range(min_period, min_period * 6.0);
             let angle = rng.range(0.0, std::f32::consts::TAU);
             let k = std::f32::consts::TAU / period;
-            let amp = [rng.range(0.0, amplitude), rng.range(0.0, amplitude), rng.range(0.0, amplitude)];
-            ([k * angle.cos(), k * angle.sin()], rng.range(0.0, std::f32::consts::TAU), amp)
+            let amp = [
+                rng.range(0.0, amplitude),
+                rng.range(0.0, amplitude),
+                rng.range(0.0, amplitude),
+            ];
+            (
+                [k * angle.cos(), k * angle.sin()],
+                rng.range(0.0, std::f32::consts::TAU),
+                amp,
+            )
         })
         .collect();
-    Texture { base: rng.colour(), waves }
+    Texture {
+        base: rng.colour(),
+        waves,
+    }
 }
 
 impl SynthScene {
@@ -177,7 +213,10 @@ impl SynthScene {
             layers.push(Layer {
                 depth: at(0.55),
                 texture: texture(&mut rng, s / 16.0, 0.15),
-                shape: Shape::Disc { centre: [rng.range(0.55, 0.75) * w, rng.range(0.3, 0.7) * h], radius: 0.18 * s },
+                shape: Shape::Disc {
+                    centre: [rng.range(0.55, 0.75) * w, rng.range(0.3, 0.7) * h],
+                    radius: 0.18 * s,
+                },
                 opacity: 1.0,
                 softness: 1.5,
             });
@@ -222,48 +261,60 @@ impl SynthScene {
     /// regular grid of rays per pixel (a box-filtered camera).
     pub fn render(&self, camera: &Camera, supersample: u32) -> ImageF32 {
         // Camera pixel -> reference pixel through each layer's plane.
-        let homs: Vec<Homography> =
-            self.layers.iter().map(|l| plane_homography(&self.reference, camera, l.depth).inverse()).collect();
+        let homs: Vec<Homography> = self
+            .layers
+            .iter()
+            .map(|l| plane_homography(&self.reference, camera, l.depth).inverse())
+            .collect();
         // A layer is only visible if it is in front of the camera.
         let visible: Vec<bool> = self
             .layers
             .iter()
-            .map(|l| camera.pose.transform_point(self.reference.unproject(DVec2::ZERO, l.depth)).z > 0.0)
+            .map(|l| {
+                camera
+                    .pose
+                    .transform_point(self.reference.unproject(DVec2::ZERO, l.depth))
+                    .z
+                    > 0.0
+            })
             .collect();
         let w = camera.width as usize;
         let ss = supersample.max(1);
         let mut img = ImageF32::new(camera.width, camera.height, 3);
-        img.data.par_chunks_mut(w * 3).enumerate().for_each(|(y, row)| {
-            for x in 0..w {
-                let mut sum = [0.0f32; 3];
-                for sy in 0..ss {
-                    for sx in 0..ss {
-                        let p = DVec2::new(
-                            x as f64 + (sx as f64 + 0.5) / ss as f64,
-                            y as f64 + (sy as f64 + 0.5) / ss as f64,
-                        );
-                        let mut acc = [0.0f32; 4];
-                        for (l, layer) in self.layers.iter().enumerate() {
-                            if !visible[l] {
-                                continue;
+        img.data
+            .par_chunks_mut(w * 3)
+            .enumerate()
+            .for_each(|(y, row)| {
+                for x in 0..w {
+                    let mut sum = [0.0f32; 3];
+                    for sy in 0..ss {
+                        for sx in 0..ss {
+                            let p = DVec2::new(
+                                x as f64 + (sx as f64 + 0.5) / ss as f64,
+                                y as f64 + (sy as f64 + 0.5) / ss as f64,
+                            );
+                            let mut acc = [0.0f32; 4];
+                            for (l, layer) in self.layers.iter().enumerate() {
+                                if !visible[l] {
+                                    continue;
+                                }
+                                let q = homs[l].apply(p);
+                                let c = layer.rgba(q.x as f32, q.y as f32);
+                                for k in 0..4 {
+                                    acc[k] = c[k] + (1.0 - c[3]) * acc[k];
+                                }
                             }
-                            let q = homs[l].apply(p);
-                            let c = layer.rgba(q.x as f32, q.y as f32);
-                            for k in 0..4 {
-                                acc[k] = c[k] + (1.0 - c[3]) * acc[k];
+                            for k in 0..3 {
+                                sum[k] += acc[k];
                             }
-                        }
-                        for k in 0..3 {
-                            sum[k] += acc[k];
                         }
                     }
+                    let n = (ss * ss) as f32;
+                    for k in 0..3 {
+                        row[x * 3 + k] = sum[k] / n;
+                    }
                 }
-                let n = (ss * ss) as f32;
-                for k in 0..3 {
-                    row[x * 3 + k] = sum[k] / n;
-                }
-            }
-        });
+            });
         img
     }
 
@@ -278,16 +329,19 @@ impl SynthScene {
                 .iter()
                 .position(|&z| (z - layer.depth).abs() <= 1e-9 * z.abs())
                 .ok_or_else(|| format!("layer at depth {} is not on an MPI plane", layer.depth))?;
-            mpi.plane_mut(d).par_chunks_mut(w * 4).enumerate().for_each(|(y, row)| {
-                for x in 0..w {
-                    let c = layer.rgba(x as f32 + 0.5, y as f32 + 0.5);
-                    let o = &mut row[x * 4..x * 4 + 4];
-                    // Two layers on one plane are composited onto it.
-                    for k in 0..4 {
-                        o[k] = c[k] + (1.0 - c[3]) * o[k];
+            mpi.plane_mut(d)
+                .par_chunks_mut(w * 4)
+                .enumerate()
+                .for_each(|(y, row)| {
+                    for x in 0..w {
+                        let c = layer.rgba(x as f32 + 0.5, y as f32 + 0.5);
+                        let o = &mut row[x * 4..x * 4 + 4];
+                        // Two layers on one plane are composited onto it.
+                        for k in 0..4 {
+                            o[k] = c[k] + (1.0 - c[3]) * o[k];
+                        }
                     }
-                }
-            });
+                });
         }
         Ok(mpi)
     }
@@ -309,7 +363,8 @@ impl SynthScene {
         (0..count)
             .map(|_| {
                 let (u, v) = (rng.range(0.0, w), rng.range(0.0, h));
-                self.reference.unproject(DVec2::new(u as f64, v as f64), self.depth_at(u, v))
+                self.reference
+                    .unproject(DVec2::new(u as f64, v as f64), self.depth_at(u, v))
             })
             .collect()
     }

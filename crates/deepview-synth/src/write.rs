@@ -27,7 +27,11 @@ pub enum SynthError {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Rig {
     /// A generated `n x n` light-field grid of `width x height` views (HCI layout on disk).
-    Grid { side: usize, width: u32, height: u32 },
+    Grid {
+        side: usize,
+        width: u32,
+        height: u32,
+    },
     /// The cameras of a dataset folder (Spaces `models.json`, LLFF, COLMAP or light field); the output is
     /// written in the same format.
     Dataset { path: PathBuf, options: LoadOptions },
@@ -48,7 +52,11 @@ pub struct SynthOptions {
 impl Default for SynthOptions {
     fn default() -> Self {
         Self {
-            rig: Rig::Grid { side: 4, width: 256, height: 192 },
+            rig: Rig::Grid {
+                side: 4,
+                width: 256,
+                height: 192,
+            },
             seed: 1,
             planes: 32,
             near_far: None,
@@ -84,21 +92,43 @@ struct SynthInfo<'a> {
 /// `out/ground_truth_mpi/` (the exact MPI) and `out/synth.json` (how it was made).
 pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, SynthError> {
     if options.planes < 2 {
-        return Err(SynthError::Invalid(format!("--planes must be at least 2 (got {})", options.planes)));
+        return Err(SynthError::Invalid(format!(
+            "--planes must be at least 2 (got {})",
+            options.planes
+        )));
     }
-    std::fs::create_dir_all(out).map_err(|e| DataError::Write { path: out.into(), source: e })?;
+    std::fs::create_dir_all(out).map_err(|e| DataError::Write {
+        path: out.into(),
+        source: e,
+    })?;
     let (format, cameras, rig_bounds, source) = match &options.rig {
-        Rig::Grid { side, width, height } => {
+        Rig::Grid {
+            side,
+            width,
+            height,
+        } => {
             if *side < 2 {
-                return Err(SynthError::Invalid("a grid rig needs at least 2 x 2 views".into()));
+                return Err(SynthError::Invalid(
+                    "a grid rig needs at least 2 x 2 views".into(),
+                ));
             }
             let lf = light_field_cameras(*side, *side, *width, *height);
             // Disparities of -2..+2 px per grid step, as in the HCI benchmark scenes.
-            (SceneFormat::LightField, lf.cameras(), Some(lf.depth_bounds(-2.0, 2.0)), None)
+            (
+                SceneFormat::LightField,
+                lf.cameras(),
+                Some(lf.depth_bounds(-2.0, 2.0)),
+                None,
+            )
         }
         Rig::Dataset { path, options } => {
             let scene = load_scene(path, options)?;
-            (scene.format, scene.cameras(), scene.depth_bounds, Some(scene))
+            (
+                scene.format,
+                scene.cameras(),
+                scene.depth_bounds,
+                Some(scene),
+            )
         }
     };
     let (near, far) = options.near_far.or(rig_bounds).unwrap_or((1.0, 10.0));
@@ -106,11 +136,18 @@ pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, Syn
         .map_err(|e| SynthError::Invalid(e.to_string()))?;
     let reference = reference_camera(
         &cameras,
-        &ReferenceOptions { cover: Some((near, far)), max_margin: 0.5, ..Default::default() },
+        &ReferenceOptions {
+            cover: Some((near, far)),
+            max_margin: 0.5,
+            ..Default::default()
+        },
     )
     .map_err(|e| SynthError::Invalid(e.to_string()))?;
     let scene = SynthScene::generate(reference, &depths, options.seed);
-    let images: Vec<ImageF32> = cameras.iter().map(|c| scene.render(c, options.supersample)).collect();
+    let images: Vec<ImageF32> = cameras
+        .iter()
+        .map(|c| scene.render(c, options.supersample))
+        .collect();
 
     match format {
         SceneFormat::LightField => {
@@ -133,9 +170,14 @@ pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, Syn
             write_llff(out, &cameras, &bounds, &images, factor)?;
         }
         SceneFormat::Colmap => {
-            let names: Vec<String> = (0..cameras.len()).map(|i| format!("image{i:03}.png")).collect();
+            let names: Vec<String> = (0..cameras.len())
+                .map(|i| format!("image{i:03}.png"))
+                .collect();
             let sparse = out.join("sparse").join("0");
-            std::fs::create_dir_all(&sparse).map_err(|e| DataError::Write { path: sparse.clone(), source: e })?;
+            std::fs::create_dir_all(&sparse).map_err(|e| DataError::Write {
+                path: sparse.clone(),
+                source: e,
+            })?;
             write_colmap_text(&sparse, &names, &cameras, &scene.sample_points(2000))?;
             let img_dir = out.join("images");
             for (name, img) in names.iter().zip(&images) {
@@ -143,14 +185,22 @@ pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, Syn
             }
         }
         SceneFormat::Spaces => {
-            let paths: Vec<String> = (0..cameras.len()).map(|i| format!("cam_{i:02}/image_000.png")).collect();
-            write_spaces_models(&out.join("models.json"), std::slice::from_ref(&cameras), std::slice::from_ref(&paths))?;
+            let paths: Vec<String> = (0..cameras.len())
+                .map(|i| format!("cam_{i:02}/image_000.png"))
+                .collect();
+            write_spaces_models(
+                &out.join("models.json"),
+                std::slice::from_ref(&cameras),
+                std::slice::from_ref(&paths),
+            )?;
             for (p, img) in paths.iter().zip(&images) {
                 write_image(&out.join(p), img)?;
             }
         }
     }
-    let ground_truth = scene.ground_truth_mpi(&depths).map_err(SynthError::Invalid)?;
+    let ground_truth = scene
+        .ground_truth_mpi(&depths)
+        .map_err(SynthError::Invalid)?;
     write_mpi(&out.join("ground_truth_mpi"), &ground_truth)?;
     let info = SynthInfo {
         generator: "deepview synth",
@@ -165,12 +215,21 @@ pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, Syn
     };
     let json = serde_json::to_string_pretty(&info).expect("serialises");
     write_atomic(&out.join("synth.json"), json.as_bytes())?;
-    Ok(SynthOutput { format, cameras, ground_truth, scene, near_far: (near, far) })
+    Ok(SynthOutput {
+        format,
+        cameras,
+        ground_truth,
+        scene,
+        near_far: (near, far),
+    })
 }
 
 fn write_image(path: &Path, img: &ImageF32) -> Result<(), SynthError> {
     if let Some(dir) = path.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| DataError::Write { path: dir.into(), source: e })?;
+        std::fs::create_dir_all(dir).map_err(|e| DataError::Write {
+            path: dir.into(),
+            source: e,
+        })?;
     }
     deepview_image::write_png(path, img)?;
     Ok(())

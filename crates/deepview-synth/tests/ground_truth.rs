@@ -1,7 +1,9 @@
 //! The synthetic scene's ground-truth MPI against exact renders, and rigs written in their own formats.
 
-use deepview_data::{LoadOptions, SceneFormat, data_dir, load_scene, light_field_cameras};
-use deepview_geometry::{Camera, DMat3, DVec3, Pose, PlaneSpacing, plane_depths, reference_camera, ReferenceOptions};
+use deepview_data::{LoadOptions, SceneFormat, data_dir, light_field_cameras, load_scene};
+use deepview_geometry::{
+    Camera, DMat3, DVec3, PlaneSpacing, Pose, ReferenceOptions, plane_depths, reference_camera,
+};
 use deepview_image::ImageF32;
 use deepview_mpi::{read_mpi, render};
 use deepview_synth::{Rig, SynthOptions, SynthScene, synthesize};
@@ -32,15 +34,27 @@ fn ground_truth_mpi_renders_unseen_views_like_the_scene() {
     let depths = plane_depths(near, far, 32, PlaneSpacing::InverseDepth).unwrap();
     let reference = reference_camera(
         &cams,
-        &ReferenceOptions { cover: Some((near, far)), max_margin: 0.5, ..Default::default() },
+        &ReferenceOptions {
+            cover: Some((near, far)),
+            max_margin: 0.5,
+            ..Default::default()
+        },
     )
     .unwrap();
     let scene = SynthScene::generate(reference, &depths, 7);
-    assert!(scene.layers.len() >= 5, "background, cards, disc, bars, pane");
+    assert!(
+        scene.layers.len() >= 5,
+        "background, cards, disc, bars, pane"
+    );
     let mpi = scene.ground_truth_mpi(&depths).unwrap();
     // Unseen cameras: between grid positions, slightly rotated, different intrinsics and size.
     let novel = [
-        Camera::new(300, 220, cams[5].intrinsics, Pose::from_center(DMat3::from_rotation_y(0.01), DVec3::new(0.3, -0.2, 0.1))),
+        Camera::new(
+            300,
+            220,
+            cams[5].intrinsics,
+            Pose::from_center(DMat3::from_rotation_y(0.01), DVec3::new(0.3, -0.2, 0.1)),
+        ),
         Camera::new(
             320,
             240,
@@ -65,18 +79,35 @@ fn ground_truth_mpi_renders_unseen_views_like_the_scene() {
 #[test]
 fn grid_rig_round_trip_as_light_field() {
     let dir = tempfile::tempdir().unwrap();
-    let opts = SynthOptions { rig: Rig::Grid { side: 3, width: 64, height: 48 }, planes: 8, ..Default::default() };
+    let opts = SynthOptions {
+        rig: Rig::Grid {
+            side: 3,
+            width: 64,
+            height: 48,
+        },
+        planes: 8,
+        ..Default::default()
+    };
     let out = synthesize(dir.path(), &opts).unwrap();
     let scene = load_scene(dir.path(), &LoadOptions::default()).unwrap();
     assert_eq!(scene.format, SceneFormat::LightField);
     assert_eq!(scene.views.len(), 9);
     for (v, c) in scene.views.iter().zip(&out.cameras) {
-        assert!(v.camera.pose.translation.abs_diff_eq(c.pose.translation, 1e-9));
+        assert!(
+            v.camera
+                .pose
+                .translation
+                .abs_diff_eq(c.pose.translation, 1e-9)
+        );
         assert!((v.camera.intrinsics.cx - c.intrinsics.cx).abs() < 1e-9);
     }
     let img = scene.load_image(4).unwrap();
     let direct = out.scene.render(&out.cameras[4], 1);
-    let err = img.data.iter().zip(&direct.data).fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+    let err = img
+        .data
+        .iter()
+        .zip(&direct.data)
+        .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
     assert!(err <= 0.5 / 255.0 + 1e-6, "8-bit quantisation only: {err}");
     let gt = read_mpi(&dir.path().join("ground_truth_mpi")).unwrap();
     assert_eq!(gt.planes(), 8);
@@ -86,10 +117,17 @@ fn grid_rig_round_trip_as_light_field() {
 #[test]
 fn real_spaces_rig_round_trip() {
     let rig = data_dir().join("spaces/scene_000");
-    assert!(rig.join("models.json").is_file(), "data missing: {} (set DEEPVIEW_DATA)", rig.display());
+    assert!(
+        rig.join("models.json").is_file(),
+        "data missing: {} (set DEEPVIEW_DATA)",
+        rig.display()
+    );
     let dir = tempfile::tempdir().unwrap();
     let opts = SynthOptions {
-        rig: Rig::Dataset { path: rig.clone(), options: LoadOptions::default() },
+        rig: Rig::Dataset {
+            path: rig.clone(),
+            options: LoadOptions::default(),
+        },
         planes: 16,
         ..Default::default()
     };
@@ -99,8 +137,16 @@ fn real_spaces_rig_round_trip() {
     let written = load_scene(dir.path(), &LoadOptions::default()).unwrap();
     assert_eq!(written.views.len(), 16);
     for (a, b) in original.views.iter().zip(&written.views) {
-        assert_eq!((a.camera.width, a.camera.height), (b.camera.width, b.camera.height));
-        assert!(a.camera.pose.rotation.abs_diff_eq(b.camera.pose.rotation, 1e-9));
+        assert_eq!(
+            (a.camera.width, a.camera.height),
+            (b.camera.width, b.camera.height)
+        );
+        assert!(
+            a.camera
+                .pose
+                .rotation
+                .abs_diff_eq(b.camera.pose.rotation, 1e-9)
+        );
         assert!(a.camera.center().abs_diff_eq(b.camera.center(), 1e-9));
         assert!((a.camera.intrinsics.fy - b.camera.intrinsics.fy).abs() < 1e-9);
     }
@@ -114,17 +160,36 @@ fn real_spaces_rig_round_trip() {
 #[test]
 fn llff_rig_round_trip() {
     let rig = data_dir().join("llff/fern");
-    assert!(rig.join("poses_bounds.npy").is_file(), "data missing: {}", rig.display());
+    assert!(
+        rig.join("poses_bounds.npy").is_file(),
+        "data missing: {}",
+        rig.display()
+    );
     let dir = tempfile::tempdir().unwrap();
-    let load = LoadOptions { images: Some("images_8".into()), ..Default::default() };
-    let opts = SynthOptions { rig: Rig::Dataset { path: rig.clone(), options: load.clone() }, planes: 8, ..Default::default() };
+    let load = LoadOptions {
+        images: Some("images_8".into()),
+        ..Default::default()
+    };
+    let opts = SynthOptions {
+        rig: Rig::Dataset {
+            path: rig.clone(),
+            options: load.clone(),
+        },
+        planes: 8,
+        ..Default::default()
+    };
     synthesize(dir.path(), &opts).unwrap();
     let original = load_scene(&rig, &load).unwrap();
     let written = load_scene(dir.path(), &load).unwrap();
     assert_eq!(written.format, SceneFormat::Llff);
     assert_eq!(original.views.len(), written.views.len());
     for (a, b) in original.views.iter().zip(&written.views) {
-        assert!(a.camera.pose.rotation.abs_diff_eq(b.camera.pose.rotation, 1e-9));
+        assert!(
+            a.camera
+                .pose
+                .rotation
+                .abs_diff_eq(b.camera.pose.rotation, 1e-9)
+        );
         assert!(a.camera.center().abs_diff_eq(b.camera.center(), 1e-9));
         assert!((a.camera.intrinsics.fx - b.camera.intrinsics.fx).abs() < 1e-6);
     }
@@ -141,14 +206,33 @@ fn colmap_rig_round_trip() {
     std::fs::create_dir_all(&sparse).unwrap();
     deepview_data::write_colmap_text(&sparse, &names, &cams, &[]).unwrap();
     for n in &names {
-        deepview_image::write_png(&rig_dir.path().join("images").join(n), &ImageF32::new(48, 32, 3)).unwrap_or_else(|_| {
+        deepview_image::write_png(
+            &rig_dir.path().join("images").join(n),
+            &ImageF32::new(48, 32, 3),
+        )
+        .unwrap_or_else(|_| {
             std::fs::create_dir_all(rig_dir.path().join("images")).unwrap();
-            deepview_image::write_png(&rig_dir.path().join("images").join(n), &ImageF32::new(48, 32, 3)).unwrap();
+            deepview_image::write_png(
+                &rig_dir.path().join("images").join(n),
+                &ImageF32::new(48, 32, 3),
+            )
+            .unwrap();
         });
     }
     let dir = tempfile::tempdir().unwrap();
-    let load = LoadOptions { near: Some(2.0), far: Some(20.0), ..Default::default() };
-    let opts = SynthOptions { rig: Rig::Dataset { path: rig_dir.path().into(), options: load }, planes: 8, ..Default::default() };
+    let load = LoadOptions {
+        near: Some(2.0),
+        far: Some(20.0),
+        ..Default::default()
+    };
+    let opts = SynthOptions {
+        rig: Rig::Dataset {
+            path: rig_dir.path().into(),
+            options: load,
+        },
+        planes: 8,
+        ..Default::default()
+    };
     let out = synthesize(dir.path(), &opts).unwrap();
     assert_eq!(out.near_far, (2.0, 20.0));
     // The written COLMAP model has 3D points, so it carries its own depth bounds.
@@ -157,7 +241,11 @@ fn colmap_rig_round_trip() {
     let (n, f) = written.near_far().unwrap();
     assert!(n > 1.0 && n < 3.0 && f > 15.0 && f < 25.0, "{n} {f}");
     for (a, b) in cams.iter().zip(&written.views) {
-        assert!(a.pose.translation.abs_diff_eq(b.camera.pose.translation, 1e-9));
+        assert!(
+            a.pose
+                .translation
+                .abs_diff_eq(b.camera.pose.translation, 1e-9)
+        );
     }
     written.load_image(5).unwrap();
 }

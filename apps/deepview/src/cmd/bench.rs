@@ -1,7 +1,7 @@
 //! `deepview bench`: timings printed as one JSON line.
 
 use anyhow::bail;
-use deepview_geometry::{Camera, DMat3, DVec3, Intrinsics, Pose, PlaneSpacing, plane_depths};
+use deepview_geometry::{Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths};
 use deepview_mpi::{MpiU8, Occupancy, read_mpi_u8, render_rgba8_with};
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -14,8 +14,10 @@ pub enum BenchCommand {
 }
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Examples:\n  deepview bench render --synthetic 1008x756x32\n  \
-    deepview bench render --mpi mpi/ --camera cam.json --repeats 50")]
+#[command(
+    after_help = "Examples:\n  deepview bench render --synthetic 1008x756x32\n  \
+    deepview bench render --mpi mpi/ --camera cam.json --repeats 50"
+)]
 pub struct RenderArgs {
     /// MPI folder.
     #[arg(long, required_unless_present = "synthetic")]
@@ -40,7 +42,12 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
 
 /// A dense MPI: every plane textured, alpha varying between 0 and 0.5 (like a network's output).
 pub fn synthetic_mpi(w: u32, h: u32, d: usize) -> anyhow::Result<MpiU8> {
-    let camera = Camera::new(w, h, Intrinsics::centred(0.8 * w as f64, w, h), Pose::IDENTITY);
+    let camera = Camera::new(
+        w,
+        h,
+        Intrinsics::centred(0.8 * w as f64, w, h),
+        Pose::IDENTITY,
+    );
     let depths = plane_depths(1.0, 100.0, d, PlaneSpacing::InverseDepth)?;
     let plane = w as usize * h as usize * 4;
     let mut layers = vec![0u8; plane * d];
@@ -52,14 +59,22 @@ pub fn synthetic_mpi(w: u32, h: u32, d: usize) -> anyhow::Result<MpiU8> {
             t.copy_from_slice(&[c(3), c(5), c(7), a]);
         }
     });
-    Ok(MpiU8 { camera, depths, layers })
+    Ok(MpiU8 {
+        camera,
+        depths,
+        layers,
+    })
 }
 
 /// The default novel view: 2% of the near depth to the side, 1% up, 0.5 degrees of rotation.
 pub fn novel_view(reference: &Camera, near: f64) -> Camera {
     let r = DMat3::from_rotation_y(0.5f64.to_radians()) * reference.pose.rotation;
-    let centre = reference.center() + reference.pose.rotation.transpose() * DVec3::new(0.02 * near, -0.01 * near, 0.0);
-    Camera { pose: Pose::from_center(r, centre), ..*reference }
+    let centre = reference.center()
+        + reference.pose.rotation.transpose() * DVec3::new(0.02 * near, -0.01 * near, 0.0);
+    Camera {
+        pose: Pose::from_center(r, centre),
+        ..*reference
+    }
 }
 
 /// Read bandwidth of this machine with all threads: GB/s for summing a 512 MiB buffer.
@@ -68,7 +83,10 @@ fn read_bandwidth() -> f64 {
     let mut best = f64::INFINITY;
     for _ in 0..3 {
         let t = Instant::now();
-        let s: u64 = buf.par_chunks(1 << 16).map(|c| c.iter().fold(0u64, |a, &b| a.wrapping_add(b))).sum();
+        let s: u64 = buf
+            .par_chunks(1 << 16)
+            .map(|c| c.iter().fold(0u64, |a, &b| a.wrapping_add(b)))
+            .sum();
         std::hint::black_box(s);
         best = best.min(t.elapsed().as_secs_f64());
     }
@@ -88,9 +106,15 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
     let mpi = match (&args.mpi, &args.synthetic) {
         (Some(dir), _) => read_mpi_u8(dir)?,
         (None, Some(spec)) => {
-            let v: Vec<usize> = spec.split('x').map(|s| s.trim().parse()).collect::<Result<_, _>>().map_err(|_| {
-                anyhow::anyhow!("--synthetic takes WIDTHxHEIGHTxPLANES, e.g. 1008x756x32 (got {spec:?})")
-            })?;
+            let v: Vec<usize> = spec
+                .split('x')
+                .map(|s| s.trim().parse())
+                .collect::<Result<_, _>>()
+                .map_err(|_| {
+                    anyhow::anyhow!(
+                        "--synthetic takes WIDTHxHEIGHTxPLANES, e.g. 1008x756x32 (got {spec:?})"
+                    )
+                })?;
             if v.len() != 3 || v.contains(&0) {
                 bail!("--synthetic takes WIDTHxHEIGHTxPLANES with positive numbers (got {spec:?})");
             }
@@ -104,7 +128,12 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
         None => novel_view(&mpi.camera, near),
     };
     // The occupancy of the planes' tiles is computed once per MPI (as a viewer does), not per frame.
-    let occupancy = Occupancy::new(&mpi.layers, mpi.camera.width, mpi.camera.height, mpi.planes());
+    let occupancy = Occupancy::new(
+        &mpi.layers,
+        mpi.camera.width,
+        mpi.camera.height,
+        mpi.planes(),
+    );
     let (mut scratch, mut out) = (Vec::new(), Vec::new());
     for _ in 0..3 {
         render_rgba8_with(&mpi, Some(&occupancy), &camera, &mut scratch, &mut out);
@@ -117,7 +146,9 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
-    let cpu_ms = process_cpu_seconds().zip(cpu0).map(|(b, a)| (b - a) * 1e3 / times.len() as f64);
+    let cpu_ms = process_cpu_seconds()
+        .zip(cpu0)
+        .map(|(b, a)| (b - a) * 1e3 / times.len() as f64);
     times.sort_by(f64::total_cmp);
     let median = times[times.len() / 2];
     let bytes = mpi.layers.len() as f64;

@@ -4,8 +4,8 @@ use super::eval::LearnedMethod;
 use anyhow::Context;
 use deepview_data::{LoadOptions, load_scene};
 use deepview_eval::{
-    Baseline, EvalOptions, EvalReport, InputRule, Method, OptimizeOptions, Protocol, PsvMeanOptions, TargetRule,
-    baseline_method, evaluate,
+    Baseline, EvalOptions, EvalReport, InputRule, Method, OptimizeOptions, Protocol,
+    PsvMeanOptions, TargetRule, baseline_method, evaluate,
 };
 use deepview_synth::{Rig, SynthOptions, synthesize};
 use std::path::PathBuf;
@@ -32,17 +32,28 @@ const TARGETS: &str = "5,10";
 pub fn run(args: Args) -> anyhow::Result<()> {
     let out = &args.out;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let weights = args.weights.clone().unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
-    let mut learned = LearnedMethod::load(&weights, 32)
-        .with_context(|| "the demo needs the shipped weights (weights/cpu in the repository) or --weights DIR")?;
+    let weights = args
+        .weights
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
+    let mut learned = LearnedMethod::load(&weights, 32).with_context(
+        || "the demo needs the shipped weights (weights/cpu in the repository) or --weights DIR",
+    )?;
 
     // 1. A synthetic scene through a 4 x 4 light-field rig, with its exact ground truth.
     let scene_dir = out.join("scene");
-    eprintln!("[1/5] synthesising a scene with ground truth in {}", scene_dir.display());
+    eprintln!(
+        "[1/5] synthesising a scene with ground truth in {}",
+        scene_dir.display()
+    );
     let synth = synthesize(
         &scene_dir,
         &SynthOptions {
-            rig: Rig::Grid { side: 4, width: 256, height: 192 },
+            rig: Rig::Grid {
+                side: 4,
+                width: 256,
+                height: 192,
+            },
             seed: args.seed,
             planes: 32,
             near_far: None,
@@ -51,11 +62,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     let scene = load_scene(&scene_dir, &LoadOptions::default())?;
     let near_far = synth.near_far;
-    let inputs: Vec<usize> = INPUTS.split(',').map(|s| s.parse().expect("constant")).collect();
-    let targets: Vec<usize> = TARGETS.split(',').map(|s| s.parse().expect("constant")).collect();
+    let inputs: Vec<usize> = INPUTS
+        .split(',')
+        .map(|s| s.parse().expect("constant"))
+        .collect();
+    let targets: Vec<usize> = TARGETS
+        .split(',')
+        .map(|s| s.parse().expect("constant"))
+        .collect();
 
     // 2. The MPI from the four corner views with the learned model.
-    eprintln!("[2/5] inferring a 32-plane MPI from the corner views {INPUTS} with {}", weights.display());
+    eprintln!(
+        "[2/5] inferring a 32-plane MPI from the corner views {INPUTS} with {}",
+        weights.display()
+    );
     let views = inputs
         .iter()
         .map(|&i| Ok((scene.load_image(i)?, scene.views[i].camera)))
@@ -75,7 +95,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let pred = deepview_mpi::render(&mpi, &cam).to_rgb();
         let truth = scene.load_image(t)?;
         deepview_image::write_png(&novel_dir.join(format!("view_{t:02}.png")), &pred)?;
-        deepview_image::write_png(&novel_dir.join(format!("view_{t:02}_ground_truth.png")), &truth)?;
+        deepview_image::write_png(
+            &novel_dir.join(format!("view_{t:02}_ground_truth.png")),
+            &truth,
+        )?;
     }
     let depth_dir = out.join("depth");
     deepview_mpi::depth_maps(&mpi, &mpi.camera).write(&depth_dir, "depth")?;
@@ -102,14 +125,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     let mut reports: Vec<EvalReport> = Vec::new();
     let mut methods: Vec<Box<dyn Method>> = vec![
-        baseline_method(Baseline::Nearest, PsvMeanOptions::default(), OptimizeOptions::default()),
-        baseline_method(Baseline::PsvMean, PsvMeanOptions::default(), OptimizeOptions::default()),
+        baseline_method(
+            Baseline::Nearest,
+            PsvMeanOptions::default(),
+            OptimizeOptions::default(),
+        ),
+        baseline_method(
+            Baseline::PsvMean,
+            PsvMeanOptions::default(),
+            OptimizeOptions::default(),
+        ),
     ];
     if !args.no_optimize {
-        let opt = OptimizeOptions { steps: 150, ..OptimizeOptions::default() };
-        methods.push(baseline_method(Baseline::Optimize, PsvMeanOptions::default(), opt));
+        let opt = OptimizeOptions {
+            steps: 150,
+            ..OptimizeOptions::default()
+        };
+        methods.push(baseline_method(
+            Baseline::Optimize,
+            PsvMeanOptions::default(),
+            opt,
+        ));
     }
-    let options = EvalOptions { near_far: Some(near_far), ..EvalOptions::default() };
+    let options = EvalOptions {
+        near_far: Some(near_far),
+        ..EvalOptions::default()
+    };
     for method in methods.iter_mut() {
         eprintln!("      {}", method.name());
         reports.push(evaluate(&scene, &protocol, method.as_mut(), &options)?);
@@ -124,30 +165,37 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     reports.push(evaluate(&scene, &protocol, &mut learned, &learned_options)?);
 
     // 5. Write the table and say what was made.
-    let mut table = String::from("| method | SSIM | PSNR (dB) | seconds per view |\n|---|---|---|---|\n");
+    let mut table =
+        String::from("| method | SSIM | PSNR (dB) | seconds per view |\n|---|---|---|---|\n");
     for r in &reports {
         table.push_str(&format!(
             "| {} | {:.4} | {:.2} | {:.2} |\n",
-            r.method,
-            r.results.ssim,
-            r.results.psnr,
-            r.results.seconds_per_view
+            r.method, r.results.ssim, r.results.psnr, r.results.seconds_per_view
         ));
     }
     let json = serde_json::to_string_pretty(&reports)?;
     deepview_image::write_atomic(&out.join("eval.json"), json.as_bytes())?;
     deepview_image::write_atomic(&out.join("eval.md"), table.as_bytes())?;
     eprintln!("[5/5] done");
-    println!("\nHeld-out views {TARGETS} of the synthetic scene, inputs {INPUTS} (SSIM and PSNR against ground truth):\n");
+    println!(
+        "\nHeld-out views {TARGETS} of the synthetic scene, inputs {INPUTS} (SSIM and PSNR against ground truth):\n"
+    );
     println!("{table}");
     println!("Made in {}:", out.display());
     println!("  scene/            the synthetic scene (4x4 light field) and its ground_truth_mpi/");
-    println!("  mpi/              the inferred MPI ({} planes, {:.1} s)", mpi.planes(), infer_seconds);
+    println!(
+        "  mpi/              the inferred MPI ({} planes, {:.1} s)",
+        mpi.planes(),
+        infer_seconds
+    );
     println!("  novel_views/      renders of the held-out views beside their ground truth");
     println!("  renders/          prediction | ground truth | error, per held-out view");
     println!("  depth/            depth_color.png (turbo), depth_disparity16.png");
     println!("  spiral.gif        a camera path through the MPI");
     println!("  eval.json, eval.md  the table above");
-    println!("\nLook at it in the browser:  cargo run --release -- view {}", mpi_dir.display());
+    println!(
+        "\nLook at it in the browser:  cargo run --release -- view {}",
+        mpi_dir.display()
+    );
     Ok(())
 }

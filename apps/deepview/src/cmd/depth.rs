@@ -5,7 +5,9 @@ use deepview_mpi::{depth_maps, read_mpi};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Example:\n  deepview depth --mpi mpi/ --out depth/   (writes depth_color.png, depth_disparity16.png)")]
+#[command(
+    after_help = "Example:\n  deepview depth --mpi mpi/ --out depth/   (writes depth_color.png, depth_disparity16.png)"
+)]
 pub struct Args {
     /// MPI folder.
     #[arg(long)]

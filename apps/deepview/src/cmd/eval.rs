@@ -74,7 +74,11 @@ pub struct LearnedMethod {
     planes: usize,
     budget: u64,
     /// The last MPI and the inputs it came from: targets sharing inputs reuse it.
-    cache: Option<(Vec<deepview_geometry::Camera>, (f64, f64), deepview_mpi::Mpi)>,
+    cache: Option<(
+        Vec<deepview_geometry::Camera>,
+        (f64, f64),
+        deepview_mpi::Mpi,
+    )>,
 }
 
 impl LearnedMethod {
@@ -83,7 +87,13 @@ impl LearnedMethod {
         let device = deepview_net::burn::tensor::Device::flex();
         let (model, config) = deepview_net::weights::load_model(weights, &device)
             .with_context(|| format!("cannot load weights from {}", weights.display()))?;
-        Ok(Self { model, config, planes, budget: 2 << 30, cache: None })
+        Ok(Self {
+            model,
+            config,
+            planes,
+            budget: 2 << 30,
+            cache: None,
+        })
     }
 
     /// Forget the cached MPI (so timings include inference).
@@ -99,18 +109,40 @@ impl LearnedMethod {
     ) -> Result<&deepview_mpi::Mpi, deepview_eval::EvalError> {
         use deepview_eval::EvalError;
         use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
-        let fail = |e: &dyn std::fmt::Display| EvalError::Method { method: "deepview".into(), msg: e.to_string() };
+        let fail = |e: &dyn std::fmt::Display| EvalError::Method {
+            method: "deepview".into(),
+            msg: e.to_string(),
+        };
         let cams: Vec<_> = inputs.iter().map(|(_, c)| *c).collect();
         let hit = matches!(&self.cache, Some((c, nf, _)) if *c == cams && *nf == near_far);
         if !hit {
             deepview_net::weights::check_views(&self.config, inputs.len()).map_err(|e| fail(&e))?;
-            let reference =
-                reference_camera(&cams, &ReferenceOptions { cover: Some(near_far), ..Default::default() })?;
-            let depths = plane_depths(near_far.0, near_far.1, self.planes, PlaneSpacing::InverseDepth)?;
-            let views: Vec<_> = inputs.iter().map(|(img, cam)| (img.to_rgb(), *cam)).collect();
-            let mpi =
-                deepview_net::infer::infer_mpi(&self.model, &views, &reference, &depths, self.budget, &mut |_| {})
-                    .map_err(|e| fail(&e))?;
+            let reference = reference_camera(
+                &cams,
+                &ReferenceOptions {
+                    cover: Some(near_far),
+                    ..Default::default()
+                },
+            )?;
+            let depths = plane_depths(
+                near_far.0,
+                near_far.1,
+                self.planes,
+                PlaneSpacing::InverseDepth,
+            )?;
+            let views: Vec<_> = inputs
+                .iter()
+                .map(|(img, cam)| (img.to_rgb(), *cam))
+                .collect();
+            let mpi = deepview_net::infer::infer_mpi(
+                &self.model,
+                &views,
+                &reference,
+                &depths,
+                self.budget,
+                &mut |_| {},
+            )
+            .map_err(|e| fail(&e))?;
             self.cache = Some((cams, near_far, mpi));
         }
         Ok(&self.cache.as_ref().expect("just filled").2)
@@ -133,7 +165,10 @@ impl Method for LearnedMethod {
 }
 
 fn deepview_method(args: &Args) -> anyhow::Result<Box<dyn Method>> {
-    let weights = args.checkpoint.clone().unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
+    let weights = args
+        .checkpoint
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
     Ok(Box::new(LearnedMethod::load(&weights, args.planes)?))
 }
 

@@ -5,8 +5,8 @@ pub mod demo;
 pub mod depth;
 pub mod eval;
 pub mod export;
-pub mod export_weights;
 pub mod export_web;
+pub mod export_weights;
 pub mod import;
 pub mod infer;
 pub mod info;
@@ -23,19 +23,26 @@ use std::path::Path;
 
 /// Read a camera JSON file (`{"width","height","fx","fy","cx","cy","camera_from_world":[16]}`).
 pub fn read_camera_json(path: &Path) -> anyhow::Result<Camera> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read camera file {}", path.display()))?;
-    let json: CameraJson =
-        serde_json::from_str(&text).with_context(|| format!("{} is not a valid camera JSON", path.display()))?;
-    json.to_camera().with_context(|| format!("invalid camera in {}", path.display()))
+    let text = std::fs::read_to_string(path)
+        .with_context(|| format!("cannot read camera file {}", path.display()))?;
+    let json: CameraJson = serde_json::from_str(&text)
+        .with_context(|| format!("{} is not a valid camera JSON", path.display()))?;
+    json.to_camera()
+        .with_context(|| format!("invalid camera in {}", path.display()))
 }
 
 /// Parse a comma-separated list of view indices, checking them against the view count.
 pub fn parse_indices(text: &str, views: usize) -> anyhow::Result<Vec<usize>> {
     let mut out = Vec::new();
     for part in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-        let i: usize = part.parse().with_context(|| format!("{part:?} is not a view index"))?;
+        let i: usize = part
+            .parse()
+            .with_context(|| format!("{part:?} is not a view index"))?;
         if i >= views {
-            bail!("view index {i} out of range: the scene has {views} views (0..{})", views.saturating_sub(1));
+            bail!(
+                "view index {i} out of range: the scene has {views} views (0..{})",
+                views.saturating_sub(1)
+            );
         }
         out.push(i);
     }

@@ -7,7 +7,9 @@ use deepview_mpi::plane_sweep;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Example:\n  deepview psv ../shared/data/llff/fern --view 1 --reference 0 --planes 16 --out psv/")]
+#[command(
+    after_help = "Example:\n  deepview psv ../shared/data/llff/fern --view 1 --reference 0 --planes 16 --out psv/"
+)]
 pub struct Args {
     /// Dataset folder.
     pub scene_dir: PathBuf,
@@ -45,14 +47,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let depths = plane_depths(near, far, args.planes, PlaneSpacing::InverseDepth)?;
     let image = scene.load_image(args.view)?;
     let psv = plane_sweep(&image, &scene.views[args.view].camera, &reference, &depths);
-    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create {}", args.out.display()))?;
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("cannot create {}", args.out.display()))?;
     for d in 0..depths.len() {
         let plane = psv.plane(d);
-        let img = deepview_image::ImageF32 { width: psv.width, height: psv.height, channels: 4, data: plane.to_vec() };
+        let img = deepview_image::ImageF32 {
+            width: psv.width,
+            height: psv.height,
+            channels: 4,
+            data: plane.to_vec(),
+        };
         deepview_image::write_png(&args.out.join(format!("psv_{d:03}.png")), &img)?;
     }
     let meta = serde_json::json!({ "view": args.view, "depths": depths, "width": psv.width, "height": psv.height });
-    deepview_image::write_atomic(&args.out.join("psv.json"), serde_json::to_string_pretty(&meta)?.as_bytes())?;
-    println!("wrote {} planes ({}x{}) to {}", depths.len(), psv.width, psv.height, args.out.display());
+    deepview_image::write_atomic(
+        &args.out.join("psv.json"),
+        serde_json::to_string_pretty(&meta)?.as_bytes(),
+    )?;
+    println!(
+        "wrote {} planes ({}x{}) to {}",
+        depths.len(),
+        psv.width,
+        psv.height,
+        args.out.display()
+    );
     Ok(())
 }

@@ -7,11 +7,13 @@ use deepview_mpi::{read_mpi, render};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Examples:\n  deepview render --mpi mpi/ --camera cam.json --out view.png\n  \
+#[command(
+    after_help = "Examples:\n  deepview render --mpi mpi/ --camera cam.json --out view.png\n  \
     deepview render --mpi mpi/ --scene ../shared/data/llff/fern --view 3 --out view3.png\n  \
     deepview render --mpi mpi/ --path spiral --frames 90 --out spiral.gif\n  \
     deepview render --mpi mpi/ --camera-path camera_path.json --out path.mp4\n  \
-    deepview render --mpi mpi/ --path swing --out frames/   (PNG frames)")]
+    deepview render --mpi mpi/ --path swing --out frames/   (PNG frames)"
+)]
 pub struct Args {
     /// MPI folder (mpi.json + layer_NNN.png).
     #[arg(long)]
@@ -72,7 +74,10 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
             radius: deepview_media::Radius::NearFraction(args.radius),
             focus_depth: None,
         };
-        (deepview_media::make_camera_path(&mpi.camera, &mpi.depths, &spec)?, args.fps)
+        (
+            deepview_media::make_camera_path(&mpi.camera, &mpi.depths, &spec)?,
+            args.fps,
+        )
     };
     let report = deepview_media::render_video(&mpi, &cameras, &args.out, fps, true)?;
     println!(
@@ -95,6 +100,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     }
     write_png(&args.out, &to_output(&img, args.alpha))?;
-    println!("wrote {} ({}x{}, {} planes)", args.out.display(), camera.width, camera.height, mpi.planes());
+    println!(
+        "wrote {} ({}x{}, {} planes)",
+        args.out.display(),
+        camera.width,
+        camera.height,
+        mpi.planes()
+    );
     Ok(())
 }

@@ -41,17 +41,31 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let rig = if args.cameras == "grid" {
-        Rig::Grid { side: args.grid, width: args.width, height: args.height }
+        Rig::Grid {
+            side: args.grid,
+            width: args.width,
+            height: args.height,
+        }
     } else {
-        Rig::Dataset { path: PathBuf::from(&args.cameras), options: args.scene.load_options() }
+        Rig::Dataset {
+            path: PathBuf::from(&args.cameras),
+            options: args.scene.load_options(),
+        }
     };
     let near_far = match (args.scene.near, args.scene.far) {
         (Some(n), Some(f)) => Some((n, f)),
         (None, None) => None,
         _ => anyhow::bail!("give both --near and --far, or neither"),
     };
-    let opts = SynthOptions { rig, seed: args.seed, planes: args.planes, near_far, supersample: args.supersample };
-    let out = synthesize(&args.out, &opts).with_context(|| format!("cannot synthesise into {}", args.out.display()))?;
+    let opts = SynthOptions {
+        rig,
+        seed: args.seed,
+        planes: args.planes,
+        near_far,
+        supersample: args.supersample,
+    };
+    let out = synthesize(&args.out, &opts)
+        .with_context(|| format!("cannot synthesise into {}", args.out.display()))?;
     println!(
         "wrote a {} scene with {} views, {} layers between depth {:.3} and {:.3}, to {}",
         out.format,
@@ -61,6 +75,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         out.near_far.1,
         args.out.display()
     );
-    println!("ground-truth MPI ({} planes): {}", out.ground_truth.planes(), args.out.join("ground_truth_mpi").display());
+    println!(
+        "ground-truth MPI ({} planes): {}",
+        out.ground_truth.planes(),
+        args.out.join("ground_truth_mpi").display()
+    );
     Ok(())
 }

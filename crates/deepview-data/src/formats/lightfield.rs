@@ -123,7 +123,10 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
     }
     // A gap followed by more views means a missing file, not a smaller grid.
     if n > 0 && (n + 1..n + 1024).any(|i| root.join(light_field_image_name(i)).is_file()) {
-        return Err(DataError::MissingImage { path: root.join(light_field_image_name(n)), view: n.to_string() });
+        return Err(DataError::MissingImage {
+            path: root.join(light_field_image_name(n)),
+            view: n.to_string(),
+        });
     }
     let side = (n as f64).sqrt().round() as usize;
     if n == 0 || side * side != n {
