@@ -116,6 +116,30 @@ fn synth_then_render_ground_truth_into_a_view() {
     let o = deepview(&["bench", "render", "--mpi", s(&gt), "--repeats", "2"]);
     let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(line["fps"].as_f64().unwrap() > 0.0 && line["planes"] == 8);
+    // `info --camera N` writes view N's camera JSON: rendering into it equals `--scene S --view N`.
+    let o = deepview(&["info", s(&scene), "--camera", "4"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cam4 = tmp.path().join("cam4.json");
+    std::fs::write(&cam4, &o.stdout).unwrap();
+    let via_json = tmp.path().join("v4_json.png");
+    let o = deepview(&[
+        "render",
+        "--mpi",
+        s(&gt),
+        "--camera",
+        s(&cam4),
+        "--out",
+        s(&via_json),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        std::fs::read(&via_json).unwrap(),
+        std::fs::read(&view).unwrap()
+    );
+    fails_with(
+        &deepview(&["info", s(&scene), "--camera", "99"]),
+        &["view 99 is out of range", "9 views"],
+    );
 }
 
 #[test]

@@ -32,10 +32,10 @@ const TARGETS: &str = "5,10";
 pub fn run(args: Args) -> anyhow::Result<()> {
     let out = &args.out;
     std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
-    let weights = args
-        .weights
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
+    let weights = match &args.weights {
+        Some(w) => w.clone(),
+        None => super::infer::default_weights()?,
+    };
     let mut learned = LearnedMethod::load(&weights, 32).with_context(
         || "the demo needs the shipped weights (weights/cpu in the repository) or --weights DIR",
     )?;

@@ -165,10 +165,10 @@ impl Method for LearnedMethod {
 }
 
 fn deepview_method(args: &Args) -> anyhow::Result<Box<dyn Method>> {
-    let weights = args
-        .checkpoint
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(super::infer::DEFAULT_WEIGHTS));
+    let weights = match &args.checkpoint {
+        Some(w) => w.clone(),
+        None => super::infer::default_weights()?,
+    };
     Ok(Box::new(LearnedMethod::load(&weights, args.planes)?))
 }
 

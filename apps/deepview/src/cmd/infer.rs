@@ -10,6 +10,63 @@ use std::path::PathBuf;
 /// The weights shipped with the repository (trained `cpu` preset).
 pub const DEFAULT_WEIGHTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../weights/cpu");
 
+/// The shipped weights, also compiled into the binary (37 KB) so an installed or copied `deepview` works
+/// without the repository.
+const EMBEDDED_CONFIG: &[u8] = include_bytes!("../../../../weights/cpu/config.json");
+const EMBEDDED_MODEL: &[u8] = include_bytes!("../../../../weights/cpu/model.safetensors");
+
+/// The folder of the default weights: the repository's `weights/cpu` when it is there, otherwise the copy
+/// compiled into the binary, unpacked once into the temporary folder (atomically: a half-written copy is
+/// never used).
+pub fn default_weights() -> anyhow::Result<PathBuf> {
+    let repo = PathBuf::from(DEFAULT_WEIGHTS);
+    if repo.join(deepview_net::weights::CONFIG_FILE).is_file()
+        && repo.join(deepview_net::weights::WEIGHTS_FILE).is_file()
+    {
+        return Ok(repo);
+    }
+    unpack_embedded_weights()
+}
+
+/// Unpack the weights compiled into the binary (see [`default_weights`]).
+fn unpack_embedded_weights() -> anyhow::Result<PathBuf> {
+    // FNV-1a over both files names the unpacked copy, so different builds never share a folder.
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in EMBEDDED_CONFIG.iter().chain(EMBEDDED_MODEL) {
+        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+    }
+    let dir = std::env::temp_dir().join(format!("deepview-weights-cpu-{h:016x}"));
+    if dir.join(deepview_net::weights::CONFIG_FILE).is_file() {
+        return Ok(dir);
+    }
+    let tmp = std::env::temp_dir().join(format!(
+        "deepview-weights-cpu-{h:016x}.{}.tmp",
+        std::process::id()
+    ));
+    let write = || -> std::io::Result<()> {
+        std::fs::create_dir_all(&tmp)?;
+        std::fs::write(
+            tmp.join(deepview_net::weights::WEIGHTS_FILE),
+            EMBEDDED_MODEL,
+        )?;
+        std::fs::write(
+            tmp.join(deepview_net::weights::CONFIG_FILE),
+            EMBEDDED_CONFIG,
+        )?;
+        std::fs::rename(&tmp, &dir)
+    };
+    if let Err(e) = write() {
+        let _ = std::fs::remove_dir_all(&tmp);
+        // Another process may have unpacked the same weights meanwhile.
+        if !dir.join(deepview_net::weights::CONFIG_FILE).is_file() {
+            return Err(e).with_context(|| {
+                format!("cannot unpack the built-in weights into {}", dir.display())
+            });
+        }
+    }
+    Ok(dir)
+}
+
 #[derive(clap::Args, Debug)]
 #[command(
     after_help = "Example:\n  deepview infer ../shared/data/llff/fern --images images_8 --planes 32 --out fern_mpi/"
@@ -62,10 +119,10 @@ pub fn parse_bytes(text: &str) -> anyhow::Result<u64> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let weights = args
-        .weights
-        .clone()
-        .unwrap_or_else(|| PathBuf::from(DEFAULT_WEIGHTS));
+    let weights = match &args.weights {
+        Some(w) => w.clone(),
+        None => default_weights()?,
+    };
     if !weights.join(deepview_net::weights::CONFIG_FILE).is_file() {
         bail!(
             "no weights in {} (expected {} and {}); train some with `deepview train` or pass --weights",
@@ -151,7 +208,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
 #[cfg(test)]
 mod tests {
-    use super::parse_bytes;
+    use super::{DEFAULT_WEIGHTS, parse_bytes, unpack_embedded_weights};
+    use deepview_net::weights::{CONFIG_FILE, WEIGHTS_FILE};
+    use std::path::Path;
+
+    #[test]
+    fn embedded_weights_unpack_to_the_repository_files() {
+        // Twice: the second call reuses the unpacked folder.
+        for _ in 0..2 {
+            let dir = unpack_embedded_weights().unwrap();
+            for f in [CONFIG_FILE, WEIGHTS_FILE] {
+                let a = std::fs::read(dir.join(f)).unwrap();
+                let b = std::fs::read(Path::new(DEFAULT_WEIGHTS).join(f)).unwrap();
+                assert!(a == b, "{f} differs from the repository's copy");
+            }
+        }
+        let dev = deepview_net::burn::tensor::Device::flex();
+        deepview_net::weights::load_model(&unpack_embedded_weights().unwrap(), &dev).unwrap();
+    }
 
     #[test]
     fn memory_sizes() {

@@ -18,6 +18,10 @@ pub struct Args {
     /// Number of camera centres to print in the text summary.
     #[arg(long, default_value_t = 5)]
     pub show: usize,
+    /// Print only view N's camera as a camera JSON (the format `render --camera`, `depth` and `bench`
+    /// read), e.g. `deepview info fern --images images_4 --camera 0 > cam.json`.
+    #[arg(long, value_name = "N")]
+    pub camera: Option<usize>,
 }
 
 /// `(min, max)` of image widths and heights over the views.
@@ -41,6 +45,18 @@ fn range_text((lo, hi): (u32, u32)) -> String {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let scene = load_scene(&args.scene, &args.scene_args.load_options())
         .with_context(|| format!("cannot load scene {}", args.scene.display()))?;
+    if let Some(n) = args.camera {
+        let Some(view) = scene.views.get(n) else {
+            anyhow::bail!(
+                "view {n} is out of range: {} has {} views (0..{})",
+                args.scene.display(),
+                scene.views.len(),
+                scene.views.len().saturating_sub(1)
+            );
+        };
+        println!("{}", serde_json::to_string_pretty(&view.camera.to_json())?);
+        return Ok(());
+    }
     let (wr, hr) = size_range(&scene);
     // Image problems (missing files, wrong sizes) are reported, not fatal: cameras alone are useful.
     let image_problem = scene.check_images().err().map(|e| e.to_string());
