@@ -88,7 +88,7 @@ pub fn render_layers_with<T: Texel>(
     let rows_per_band = (out_h as usize / 64).clamp(1, 16);
     #[cfg(target_arch = "x86_64")]
     if let Some(bytes) = T::as_bytes(layers)
-        && crate::simd::available()
+        && let Some(kernel) = crate::simd::kernel()
     {
         let w = out_w as usize;
         let wp = crate::simd::padded_width(w);
@@ -105,12 +105,8 @@ pub fn render_layers_with<T: Texel>(
                             let layer = &bytes[d * plane_len..(d + 1) * plane_len];
                             let coeff = sampler.row(y).coefficients();
                             let tiles = occupancy.and_then(|o| o.sparse_plane(d));
-                            // SAFETY: `available()` checked AVX2 + FMA; the layer has plane_w * plane_h texels.
-                            unsafe {
-                                crate::simd::composite_row_u8_avx2(
-                                    layer, plane_w, plane_h, coeff, acc, w, tiles,
-                                )
-                            };
+                            // SAFETY: `kernel()` checked the CPU features; the layer has plane_w * plane_h texels.
+                            unsafe { kernel(layer, plane_w, plane_h, coeff, acc, w, tiles) };
                         }
                         for x in 0..w {
                             for k in 0..4 {
@@ -293,6 +289,20 @@ mod tests {
                 Intrinsics::centred(10.0, 19, 7),
                 Pose::from_center(DMat3::IDENTITY, DVec3::new(-0.5, 0.0, 0.0)),
             ),
+            // Small sideways moves (pure shifts of every plane, the SIMD kernel's contiguous-load path),
+            // both directions, reaching past the left and right edges.
+            Camera::new(
+                37,
+                29,
+                Intrinsics::centred(30.0, 37, 29),
+                Pose::from_center(DMat3::IDENTITY, DVec3::new(0.07, 0.03, 0.0)),
+            ),
+            Camera::new(
+                37,
+                29,
+                Intrinsics::centred(30.0, 37, 29),
+                Pose::from_center(DMat3::from_rotation_z(0.01), DVec3::new(-0.09, 0.0, 0.0)),
+            ),
         ];
         // The SIMD path composites front to back and stops at accumulated alpha 1 - 1/1024: equal to the
         // scalar back-to-front result within that bound.
@@ -305,7 +315,7 @@ mod tests {
                 .iter()
                 .zip(&slow)
                 .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
-            assert!(err < 1.0 / 1024.0 + 1e-5, "max difference {err}");
+            assert!(err < 1.0 / 1024.0 + 1e-5, "max difference {err} for {t:?}");
             let (mut scratch, mut out) = (Vec::new(), Vec::new());
             render_rgba8_with(&mpi, Some(&occ), &t, &mut scratch, &mut out);
             let err = scratch
