@@ -32,6 +32,8 @@ pub struct Occupancy {
     pub tiles_y: usize,
     /// `[D][tiles_y][tiles_x]`, 1 where the tile has a non-zero texel.
     pub tiles: Vec<u8>,
+    /// `[D]`: whether the plane has an empty tile (decided once here, not per rendered row).
+    sparse: Vec<bool>,
 }
 
 impl Occupancy {
@@ -55,10 +57,15 @@ impl Occupancy {
                     }
                 }
             });
+        let sparse = tiles
+            .chunks(tiles_x * tiles_y)
+            .map(|t| t.contains(&0))
+            .collect();
         Self {
             tiles_x,
             tiles_y,
             tiles,
+            sparse,
         }
     }
 
@@ -70,8 +77,7 @@ impl Occupancy {
 
     /// Plane `d`'s tiles if any of them is empty (a full plane gains nothing from the check).
     pub fn sparse_plane(&self, d: usize) -> Option<&[u8]> {
-        let t = self.plane(d);
-        t.contains(&0).then_some(t)
+        self.sparse[d].then(|| self.plane(d))
     }
 
     /// Fraction of non-empty tiles.

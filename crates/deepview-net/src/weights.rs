@@ -109,12 +109,9 @@ pub fn is_checkpoint(dir: &Path) -> bool {
 /// The model file of a training checkpoint (burnpack, see `train`).
 pub const CHECKPOINT_MODEL_FILE: &str = "model.bpk";
 
-/// Load the model of a training checkpoint folder `runs/<name>/checkpoints/step-N` (`model.bpk`; the
-/// model configuration is the `model` entry of the run's `runs/<name>/config.json`).
-pub fn load_checkpoint(
-    dir: &Path,
-    device: &Device,
-) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+/// The model configuration of a training checkpoint folder: the `model` entry of the run's
+/// `runs/<name>/config.json`.
+pub fn checkpoint_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
     let run_config = dir
         .parent()
         .and_then(Path::parent)
@@ -134,6 +131,25 @@ pub fn load_checkpoint(
     let config: DeepViewConfig =
         serde_json::from_value(model_value).map_err(|e| config_err(e.to_string()))?;
     config.validate().map_err(|e| config_err(e.to_string()))?;
+    Ok(config)
+}
+
+/// The model configuration saved with a weights folder or a training checkpoint folder.
+pub fn load_config_any(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
+    if is_checkpoint(dir) {
+        checkpoint_config(dir)
+    } else {
+        load_config(dir)
+    }
+}
+
+/// Load the model of a training checkpoint folder `runs/<name>/checkpoints/step-N` (`model.bpk`; the
+/// model configuration is the `model` entry of the run's `runs/<name>/config.json`).
+pub fn load_checkpoint(
+    dir: &Path,
+    device: &Device,
+) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    let config = checkpoint_config(dir)?;
     let path = dir.join(CHECKPOINT_MODEL_FILE);
     let model = DeepViewModel::new(&config, device)
         .try_load_file(&path)

@@ -78,10 +78,12 @@ pub struct Args {
     /// (as many as the weights need; 4 for weights that take any number).
     #[arg(long)]
     pub inputs: Option<String>,
-    /// Number of MPI planes (equally spaced in inverse depth between near and far).
-    #[arg(long, default_value_t = 32)]
-    pub planes: usize,
-    /// Weights folder (config.json + model.safetensors). Default: the shipped weights/cpu.
+    /// Number of MPI planes (equally spaced in inverse depth between near and far). Default: the weights'
+    /// inference plane count (32 for the shipped weights; 80 for the paper's Spaces presets).
+    #[arg(long)]
+    pub planes: Option<usize>,
+    /// Weights folder (config.json + model.safetensors) or a training checkpoint folder
+    /// (runs/<name>/checkpoints/step-N). Default: the shipped weights/cpu.
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Memory budget, e.g. 2GiB, 512MiB, 1500000000.
@@ -123,9 +125,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(w) => w.clone(),
         None => default_weights()?,
     };
-    if !weights.join(deepview_net::weights::CONFIG_FILE).is_file() {
+    if !weights.join(deepview_net::weights::CONFIG_FILE).is_file()
+        && !deepview_net::weights::is_checkpoint(&weights)
+    {
         bail!(
-            "no weights in {} (expected {} and {}); train some with `deepview train` or pass --weights",
+            "no weights in {} (expected {} and {}, or a training checkpoint); train some with `deepview train` or pass --weights",
             weights.display(),
             deepview_net::weights::CONFIG_FILE,
             deepview_net::weights::WEIGHTS_FILE
@@ -159,7 +163,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     check_views(&config, inputs.len())?;
     let (near, far) = scene.near_far()?;
-    let depths = plane_depths(near, far, args.planes, PlaneSpacing::InverseDepth)?;
+    let planes = args.planes.unwrap_or(config.infer_planes);
+    let depths = plane_depths(near, far, planes, PlaneSpacing::InverseDepth)?;
     let cams: Vec<_> = inputs.iter().map(|&i| scene.views[i].camera).collect();
     let reference = reference_camera(
         &cams,

@@ -16,6 +16,7 @@ use std::path::PathBuf;
 #[command(
     after_help = "Examples:\n  deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000\n  \
     deepview train --name fern --resume --steps 4000\n  \
+    deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
     deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu"
 )]
 pub struct Args {
@@ -24,8 +25,13 @@ pub struct Args {
     #[arg(long = "data")]
     pub data: Vec<PathBuf>,
     /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view.
-    #[arg(long, default_value = "cpu")]
+    #[arg(long, default_value = "cpu", conflicts_with = "init")]
     pub preset: String,
+    /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
+    /// (config.json + model.safetensors, e.g. weights/cpu) or a checkpoint folder. The network
+    /// configuration is the one saved with them. The optimizer starts afresh.
+    #[arg(long, value_name = "WEIGHTS_DIR")]
+    pub init: Option<PathBuf>,
     /// Run name: the run lives in <runs>/<name>/.
     #[arg(long)]
     pub name: String,
@@ -143,8 +149,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         if args.data.is_empty() {
             bail!("no training data: pass --data DIR (repeatable)");
         }
-        let model = DeepViewConfig::preset(&args.preset)?;
+        let model = match &args.init {
+            Some(dir) => deepview_net::weights::load_config_any(dir)
+                .with_context(|| format!("--init {}", dir.display()))?,
+            None => DeepViewConfig::preset(&args.preset)?,
+        };
         let mut train = TrainConfig::defaults(&model);
+        train.init = args.init.clone();
         train.data = args.data.clone();
         train.steps = args.steps.unwrap_or(train.steps);
         train.batch = args.batch;

@@ -109,6 +109,10 @@ pub struct TrainConfig {
     /// in older `config.json` files: off (their behaviour then).
     #[serde(default)]
     pub recompute: bool,
+    /// Weights folder (or checkpoint) the run started from instead of a random initialisation
+    /// (fine-tuning); the model configuration is then the one saved with those weights.
+    #[serde(default)]
+    pub init: Option<PathBuf>,
 }
 
 impl TrainConfig {
@@ -139,6 +143,7 @@ impl TrainConfig {
             devices: vec!["cpu".into()],
             holdout_every: 8,
             recompute: model.nets() > 2,
+            init: None,
         }
     }
 
@@ -471,7 +476,20 @@ impl Trainer {
         )?;
         let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
         devices[0].seed(config.train.seed);
-        let model = DeepViewModel::new(&config.model, &devices[0]);
+        let model = match &config.train.init {
+            Some(init) => {
+                let (model, init_config) =
+                    crate::weights::load_model(init, &devices[0]).map_err(|e| run_err(init, e))?;
+                if init_config != config.model {
+                    return Err(run_err(
+                        init,
+                        "the run's model configuration differs from the one saved with these weights",
+                    ));
+                }
+                model
+            }
+            None => DeepViewModel::new(&config.model, &devices[0]),
+        };
         // Materialise lazily initialised parameters now, right after seeding.
         parameter_values(&model);
         let losses = make_losses(config.train.loss, &devices)?;
