@@ -74,7 +74,22 @@ fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// glibc returns every freed block above 128 KiB-32 MiB to the kernel at once, so the network's
+/// short-lived tensors (tens of MB each) are page-faulted in afresh at every op: measured on `deepview
+/// infer` (fern, images_8, 4 views, 32 planes), 33 s of the 100 s went to the kernel. Keeping blocks up
+/// to 32 MiB in the heap and trimming only above 512 MiB of free top memory cut the system time to 8 s.
+fn tune_allocator() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: mallopt only changes glibc's thresholds; called once, before any other thread starts.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 32 << 20);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, 512 << 20);
+        libc::mallopt(libc::M_TOP_PAD, 64 << 20);
+    }
+}
+
 fn main() -> ExitCode {
+    tune_allocator();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
