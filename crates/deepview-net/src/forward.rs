@@ -507,6 +507,53 @@ mod tests {
         Tensor::cat(vec![col * alpha.clone(), alpha], 1)
     }
 
+    /// The CPU crate's MPI of `rgba` `[D, 4, H, W]`: layers `[D][H][W][4]`.
+    fn mpi_from_tensor(
+        rgba: Tensor<4>,
+        camera: deepview_geometry::Camera,
+        depths: &[f64],
+    ) -> deepview_mpi::Mpi {
+        let [d, c, h, w] = rgba.dims();
+        assert_eq!((c, d), (4, depths.len()));
+        let vals = to_vec(rgba);
+        let mut layers = vec![0f32; vals.len()];
+        for p in 0..d {
+            for c in 0..4 {
+                for i in 0..h * w {
+                    layers[(p * h * w + i) * 4 + c] = vals[(p * 4 + c) * h * w + i];
+                }
+            }
+        }
+        deepview_mpi::Mpi {
+            camera,
+            depths: depths.to_vec(),
+            layers,
+        }
+    }
+
+    /// Planar `[C, H, W]` -> interleaved image.
+    fn image_from_tensor(t: Tensor<3>) -> deepview_image::ImageF32 {
+        let [c, h, w] = t.dims();
+        image_from_planar(&to_vec(t), c, h, w)
+    }
+
+    /// Planar `[C][H][W]` values -> interleaved image.
+    fn image_from_planar(v: &[f32], c: usize, h: usize, w: usize) -> deepview_image::ImageF32 {
+        let px = h * w;
+        let mut data = vec![0f32; c * px];
+        for ch in 0..c {
+            for i in 0..px {
+                data[i * c + ch] = v[ch * px + i];
+            }
+        }
+        deepview_image::ImageF32 {
+            width: w as u32,
+            height: h as u32,
+            channels: c,
+            data,
+        }
+    }
+
     #[test]
     fn composite_matches_scalar_over_and_autodiff_identities() {
         let device = dev().autodiff();
@@ -595,21 +642,7 @@ mod tests {
         let depths = plane_depths(1.0, 8.0, 5, PlaneSpacing::InverseDepth).unwrap();
         let (d, h, w) = (5, 24, 30);
         let rgba = random_rgba(d, h, w, &dev());
-        let vals = to_vec(rgba.clone());
-        // [D][4][H][W] -> Mpi layers [D][H][W][4]
-        let mut layers = vec![0f32; vals.len()];
-        for p in 0..d {
-            for c in 0..4 {
-                for i in 0..h * w {
-                    layers[(p * h * w + i) * 4 + c] = vals[(p * 4 + c) * h * w + i];
-                }
-            }
-        }
-        let mpi = deepview_mpi::Mpi {
-            camera: reference,
-            depths: depths.clone(),
-            layers,
-        };
+        let mpi = mpi_from_tensor(rgba.clone(), reference, &depths);
         let cpu = deepview_mpi::render_components(&mpi, &target);
         let homs = deepview_mpi::target_to_plane_homographies(&reference, &target, &depths);
         let comp = render_view(rgba, &homs, 22, 27);
@@ -636,19 +669,7 @@ mod tests {
         }
         // Plane sweep of a target image onto the reference planes.
         let img = Tensor::<3>::random([3, 22, 27], Distribution::Uniform(0.0, 1.0), &dev());
-        let iv = to_vec(img.clone());
-        let mut data = vec![0f32; 3 * px];
-        for c in 0..3 {
-            for i in 0..px {
-                data[i * 3 + c] = iv[c * px + i];
-            }
-        }
-        let image = deepview_image::ImageF32 {
-            width: 27,
-            height: 22,
-            channels: 3,
-            data,
-        };
+        let image = image_from_tensor(img.clone());
         let cpu_psv = deepview_mpi::plane_sweep(&image, &target, &reference, &depths);
         let m2v: Vec<Hom> = depths
             .iter()
@@ -666,5 +687,174 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// `gradient_components` (the per-view gradient components `[I_k, R_k, A_k, T_k, validity]` in MPI
+    /// space) against the CPU crate, for two views with general poses (rotation about all three axes plus
+    /// translation, other intrinsics and image sizes than the MPI): `R_k` is `deepview_mpi::render` into
+    /// view k, `A_k`/`T_k` come from `deepview_mpi::render_components` (plane d of each, an image in view
+    /// k), and every one of them is inverse-warped onto the planes with `deepview_mpi::plane_sweep` (`I_k`
+    /// and `R_k` onto every plane; `A_k`, `T_k` of plane d onto plane d only). Also a sub-region of the
+    /// MPI, which must equal the same window of the full result.
+    ///
+    /// Tolerance 1e-4, though the two agree bit for bit here: both use the same f32 sampling rule and the
+    /// same operation order, but the burn side inverts the MPI->view homographies itself (`invert`) where
+    /// the CPU renderer inverts its own `Homography`, so in general f32 taps may differ in the last bits.
+    #[test]
+    fn gradient_components_match_the_cpu_crate() {
+        use deepview_geometry::{
+            Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths, plane_homography,
+        };
+        let (d, h, w) = (4, 24, 30);
+        let reference = Camera::new(
+            w as u32,
+            h as u32,
+            Intrinsics::centred(28.0, 30, 24),
+            Pose::IDENTITY,
+        );
+        let views = [
+            Camera::new(
+                27,
+                22,
+                Intrinsics::new(26.0, 27.0, 13.1, 11.4),
+                Pose::from_center(
+                    DMat3::from_rotation_y(0.04)
+                        * DMat3::from_rotation_x(-0.03)
+                        * DMat3::from_rotation_z(0.05),
+                    DVec3::new(0.15, -0.08, 0.05),
+                ),
+            ),
+            Camera::new(
+                25,
+                20,
+                Intrinsics::new(23.0, 22.5, 12.7, 9.6),
+                Pose::from_center(
+                    DMat3::from_rotation_x(0.035)
+                        * DMat3::from_rotation_z(-0.04)
+                        * DMat3::from_rotation_y(-0.03),
+                    DVec3::new(-0.12, 0.07, -0.06),
+                ),
+            ),
+        ];
+        let depths = plane_depths(1.0, 8.0, d, PlaneSpacing::InverseDepth).unwrap();
+        let rgba = random_rgba(d, h, w, &dev());
+        let mpi = mpi_from_tensor(rgba.clone(), reference, &depths);
+        let (mpx, region) = (h * w, (3usize, 2usize, 20usize, 17usize));
+        let names = ["I", "I", "I", "R", "R", "R", "A", "A", "A", "T", "valid"];
+        let mut worst = [0f32; GRADIENT_CHANNELS];
+        for view in &views {
+            let (vw, vh) = (view.width as usize, view.height as usize);
+            let vpx = vw * vh;
+            let img = Tensor::<3>::random([3, vh, vw], Distribution::Uniform(0.0, 1.0), &dev());
+            // CPU: R_k, A_k, T_k in view k, then the inverse warps.
+            let image = image_from_tensor(img.clone());
+            let render = deepview_mpi::render(&mpi, view);
+            let r_img = deepview_image::ImageF32 {
+                width: view.width,
+                height: view.height,
+                channels: 3,
+                data: render
+                    .data
+                    .chunks_exact(4)
+                    .flat_map(|p| [p[0], p[1], p[2]])
+                    .collect(),
+            };
+            let comps = deepview_mpi::render_components(&mpi, view);
+            let psv_i = deepview_mpi::plane_sweep(&image, view, &reference, &depths);
+            let psv_r = deepview_mpi::plane_sweep(&r_img, view, &reference, &depths);
+            let mut expect = vec![0f32; d * GRADIENT_CHANNELS * mpx];
+            for p in 0..d {
+                let a_img = deepview_image::ImageF32 {
+                    width: view.width,
+                    height: view.height,
+                    channels: 3,
+                    data: comps.accumulated_over[p * vpx * 3..(p + 1) * vpx * 3].to_vec(),
+                };
+                let t_img =
+                    image_from_planar(&comps.transmittance[p * vpx..(p + 1) * vpx], 1, vh, vw);
+                let one = [depths[p]];
+                let psv_a = deepview_mpi::plane_sweep(&a_img, view, &reference, &one);
+                let psv_t = deepview_mpi::plane_sweep(&t_img, view, &reference, &one);
+                let (i4, r4) = (psv_i.plane(p), psv_r.plane(p));
+                let (a4, t2) = (psv_a.plane(0), psv_t.plane(0));
+                for i in 0..mpx {
+                    let valid = i4[i * 4 + 3];
+                    assert_eq!(
+                        [r4[i * 4 + 3], a4[i * 4 + 3], t2[i * 2 + 1]],
+                        [valid; 3],
+                        "one homography per plane: one validity"
+                    );
+                    let mut ch = [0f32; GRADIENT_CHANNELS];
+                    ch[0..3].copy_from_slice(&i4[i * 4..i * 4 + 3]);
+                    ch[3..6].copy_from_slice(&r4[i * 4..i * 4 + 3]);
+                    ch[6..9].copy_from_slice(&a4[i * 4..i * 4 + 3]);
+                    ch[9] = t2[i * 2];
+                    ch[10] = valid;
+                    for (c, v) in ch.into_iter().enumerate() {
+                        expect[(p * GRADIENT_CHANNELS + c) * mpx + i] = v;
+                    }
+                }
+            }
+            // The test is not vacuous: mostly valid, some invalid, A and T far from trivial.
+            let valid: Vec<f32> = (0..d)
+                .flat_map(|p| expect[(p * GRADIENT_CHANNELS + 10) * mpx..][..mpx].to_vec())
+                .collect();
+            let n_valid = valid.iter().filter(|&&v| v == 1.0).count();
+            assert!(
+                n_valid > d * mpx / 2 && n_valid < d * mpx,
+                "{n_valid} valid"
+            );
+            assert!((0..mpx).any(|i| expect[(GRADIENT_CHANNELS + 9) * mpx + i] < 0.5));
+            assert!((0..mpx).any(|i| expect[((d - 1) * GRADIENT_CHANNELS + 6) * mpx + i] > 0.1));
+
+            // burn.
+            let m2v: Vec<Hom> = depths
+                .iter()
+                .map(|&z| plane_homography(&reference, view, z).to_row_major())
+                .collect();
+            let got = to_vec(gradient_components(
+                rgba.clone(),
+                img.clone(),
+                &m2v,
+                (0, 0, w, h),
+            ));
+            assert_eq!(got.len(), expect.len());
+            for p in 0..d {
+                for c in 0..GRADIENT_CHANNELS {
+                    for i in 0..mpx {
+                        let o = (p * GRADIENT_CHANNELS + c) * mpx + i;
+                        let err = (got[o] - expect[o]).abs();
+                        worst[c] = worst[c].max(err);
+                        assert!(
+                            err < 1e-4,
+                            "plane {p} channel {c} ({}) pixel {i}: burn {} vs cpu {}",
+                            names[c],
+                            got[o],
+                            expect[o]
+                        );
+                    }
+                }
+            }
+            // A sub-region is the same window of the full result.
+            let (x0, y0, rw, rh) = region;
+            let sub = to_vec(gradient_components(rgba.clone(), img, &m2v, region));
+            for p in 0..d {
+                for c in 0..GRADIENT_CHANNELS {
+                    for y in 0..rh {
+                        for x in 0..rw {
+                            let g = sub[((p * GRADIENT_CHANNELS + c) * rh + y) * rw + x];
+                            let e =
+                                expect[(p * GRADIENT_CHANNELS + c) * mpx + (y0 + y) * w + x0 + x];
+                            assert!(
+                                (g - e).abs() < 1e-4,
+                                "region: plane {p} channel {c} ({}) at ({x}, {y}): {g} vs {e}",
+                                names[c]
+                            );
+                        }
+                    }
+                }
+            }
+        }
+        eprintln!("max |burn - cpu| per channel: {worst:?}");
     }
 }

@@ -81,6 +81,18 @@ pub fn feature_loss_padding(h: usize, w: usize) -> (usize, usize) {
     (h / 8, w / 8)
 }
 
+/// A crop `[n, c, h, w]` as the feature loss feeds it to VGG: reflect-padded by
+/// [`feature_loss_padding`] per side (`[n, c, 40, 40]` for a 32x32 crop).
+pub(crate) fn pad_for_feature_loss(t: Tensor<4>) -> Tensor<4> {
+    let [_, _, h, w] = t.dims();
+    let (ph, pw) = feature_loss_padding(h, w);
+    if ph + pw > 0 {
+        t.pad([(ph, ph), (pw, pw)], PadMode::Reflect)
+    } else {
+        t
+    }
+}
+
 fn vgg_feature_loss(
     vgg: &Vgg16,
     pred: Tensor<4>,
@@ -89,16 +101,11 @@ fn vgg_feature_loss(
     w: usize,
 ) -> Tensor<1> {
     let n = pred.dims()[0];
-    let (ph, pw) = feature_loss_padding(h, w);
-    let pad = |t: Tensor<4>| {
-        if ph + pw > 0 {
-            t.pad([(ph, ph), (pw, pw)], PadMode::Reflect)
-        } else {
-            t
-        }
-    };
     // One VGG pass over prediction and target together.
-    let both = Tensor::cat(vec![pad(pred), pad(target)], 0);
+    let both = Tensor::cat(
+        vec![pad_for_feature_loss(pred), pad_for_feature_loss(target)],
+        0,
+    );
     let f = vgg.features(both);
     let l1 = |t: Tensor<4>| {
         let d = t.dims()[0] / 2;
@@ -157,6 +164,98 @@ mod tests {
                 loss.kind()
             );
         }
+    }
+
+    /// Reflect padding by hand (the edge texel is not repeated: index `-1` reads `1`, index `n` reads
+    /// `n - 2`), `[n, c, h, w]` -> `[n, c, h + 2 p, w + 2 q]`.
+    fn reflect_pad_by_hand(v: &[f32], dims: [usize; 4], p: usize, q: usize) -> Vec<f32> {
+        let [n, c, h, w] = dims;
+        let reflect = |i: i64, len: usize| -> usize {
+            let len = len as i64;
+            let j = if i < 0 {
+                -i
+            } else if i >= len {
+                2 * (len - 1) - i
+            } else {
+                i
+            };
+            assert!((0..len).contains(&j));
+            j as usize
+        };
+        let (hp, wp) = (h + 2 * p, w + 2 * q);
+        let mut out = vec![0f32; n * c * hp * wp];
+        for b in 0..n * c {
+            for y in 0..hp {
+                let sy = reflect(y as i64 - p as i64, h);
+                for x in 0..wp {
+                    let sx = reflect(x as i64 - q as i64, w);
+                    out[(b * hp + y) * wp + x] = v[(b * h + sy) * w + sx];
+                }
+            }
+        }
+        out
+    }
+
+    /// The paper's rule (supplement): a 32x32 crop is reflect-padded to 40x40 before VGG, and the loss is
+    /// `sum_l w_l |phi_l(pred) - phi_l(target)|_1 / (32 * 32)` with weights 11.17, 35.04, 29.09 for
+    /// conv1_2, conv2_2, conv3_3. Both the padding and the loss are recomputed here independently: the
+    /// padding by index arithmetic, the loss from VGG features of the hand-padded crops (one crop per
+    /// VGG call, sums in f64). Tolerance: relative 1e-4 for the f32 sums over ~1.5e5 feature values
+    /// (observed ~2e-8).
+    #[test]
+    fn vgg_loss_pads_32_to_40_and_divides_by_the_crop_area() {
+        let device = Device::flex();
+        // The padding the loss feeds to VGG: 4 px per side for 32x32, and size / 8 per axis otherwise
+        // (a non-square crop pins the axis order).
+        for (dims, p, q) in [([1, 3, 32, 32], 4, 4), ([2, 3, 16, 40], 2, 5)] {
+            let x = Tensor::<4>::random(dims, Distribution::Uniform(0.0, 1.0), &device);
+            let v = x.clone().into_data().try_to_vec::<f32>().unwrap();
+            let padded = pad_for_feature_loss(x);
+            let [n, c, h, w] = dims;
+            assert_eq!(padded.dims(), [n, c, h + 2 * p, w + 2 * q]);
+            let got = padded.into_data().try_to_vec::<f32>().unwrap();
+            assert_eq!(got, reflect_pad_by_hand(&v, dims, p, q), "{dims:?}");
+        }
+        assert_eq!(feature_loss_padding(32, 32), (4, 4));
+
+        let vgg = match Vgg16::load_default(&device) {
+            Ok(vgg) => vgg,
+            Err(e) => {
+                eprintln!("SKIP vgg padding rule: {e}");
+                return;
+            }
+        };
+        let dims = [1, 3, 32, 32];
+        let pred = Tensor::<4>::random(dims, Distribution::Uniform(0.0, 1.0), &device);
+        let target = Tensor::<4>::random(dims, Distribution::Uniform(0.0, 1.0), &device);
+        let features = |t: &Tensor<4>| {
+            let v = t.clone().into_data().try_to_vec::<f32>().unwrap();
+            let padded = Tensor::<4>::from_data(
+                burn::tensor::TensorData::new(reflect_pad_by_hand(&v, dims, 4, 4), [1, 3, 40, 40]),
+                &device,
+            );
+            let f = vgg.features(padded);
+            assert_eq!(f.conv3_3.dims(), [1, 256, 10, 10]);
+            [f.conv1_2, f.conv2_2, f.conv3_3].map(|t| t.into_data().try_to_vec::<f32>().unwrap())
+        };
+        let (fp, ft) = (features(&pred), features(&target));
+        let weights = [11.17f64, 35.04, 29.09];
+        let mut expect = 0.0f64;
+        for l in 0..3 {
+            let l1: f64 = fp[l]
+                .iter()
+                .zip(&ft[l])
+                .map(|(a, b)| (*a as f64 - *b as f64).abs())
+                .sum();
+            expect += weights[l] * l1;
+        }
+        let expect = expect / (32.0 * 32.0);
+        let loss = Loss::Vgg(Box::new(vgg));
+        let got = loss.per_example(pred, target).into_scalar::<f32>() as f64;
+        assert!(
+            (got - expect).abs() <= 1e-4 * expect,
+            "loss {got} vs independent {expect}"
+        );
     }
 
     /// Deterministic `[2, 3, 16, 16]` test data: `f(i)` for flat index `i`.
