@@ -50,6 +50,8 @@ enum Command {
     Infer(cmd::infer::Args),
     /// Turn a training checkpoint into a weights folder (config.json + model.safetensors).
     ExportWeights(cmd::export_weights::Args),
+    /// Write the MPI of a classical baseline (psv-mean or nearest; no weights needed).
+    Baseline(cmd::baseline::Args),
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
@@ -71,6 +73,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => cmd::train::run(a),
         Command::Infer(a) => cmd::infer::run(a),
         Command::ExportWeights(a) => cmd::export_weights::run(a),
+        Command::Baseline(a) => cmd::baseline::run(a),
     }
 }
 

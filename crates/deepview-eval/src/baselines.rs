@@ -27,7 +27,7 @@ impl Method for NearestView {
     ) -> Result<ImageF32, EvalError> {
         check_inputs(self.name(), inputs, near_far)?;
         let ct = target.center();
-        let (img, cam) = inputs
+        let nearest = inputs
             .iter()
             .min_by(|a, b| {
                 a.1.center()
@@ -35,19 +35,30 @@ impl Method for NearestView {
                     .total_cmp(&b.1.center().distance(ct))
             })
             .expect("checked non-empty");
-        let depths = plane_depths(near_far.0, near_far.1, 1, PlaneSpacing::InverseDepth)?;
-        let layers = img
-            .data
-            .chunks_exact(img.channels)
-            .flat_map(|p| [p[0], p[1], p[2], 1.0])
-            .collect();
-        let mpi = Mpi {
-            camera: *cam,
-            depths,
-            layers,
-        };
+        let mpi = nearest_view_mpi(nearest, near_far)?;
         Ok(render(&mpi, target).to_rgb())
     }
+}
+
+/// The MPI that [`NearestView`] reprojects: one opaque plane in `input`'s own camera holding its image, at the
+/// inverse-depth midpoint of `near_far` (rendered into that camera, it is the image itself).
+pub fn nearest_view_mpi(
+    input: &(ImageF32, Camera),
+    near_far: (f64, f64),
+) -> Result<Mpi, EvalError> {
+    check_inputs("nearest", std::slice::from_ref(input), near_far)?;
+    let (img, cam) = input;
+    let depths = plane_depths(near_far.0, near_far.1, 1, PlaneSpacing::InverseDepth)?;
+    let layers = img
+        .data
+        .chunks_exact(img.channels)
+        .flat_map(|p| [p[0], p[1], p[2], 1.0])
+        .collect();
+    Ok(Mpi {
+        camera: *cam,
+        depths,
+        layers,
+    })
 }
 
 /// Settings of the `psv-mean` baseline.

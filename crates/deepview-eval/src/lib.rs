@@ -12,7 +12,7 @@ pub mod optimize;
 pub mod protocol;
 pub mod runner;
 
-pub use baselines::{NearestView, PsvMean, PsvMeanOptions, agreement_mpi};
+pub use baselines::{NearestView, PsvMean, PsvMeanOptions, agreement_mpi, nearest_view_mpi};
 pub use error::EvalError;
 pub use method::{Baseline, Method, baseline_method};
 pub use optimize::{OptimizeMethod, OptimizeOptions, optimize_mpi, optimize_mpi_with_history};

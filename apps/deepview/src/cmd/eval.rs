@@ -55,8 +55,9 @@ pub struct Args {
     /// Working width of the optimisation (optimize).
     #[arg(long, default_value_t = 160)]
     pub max_width: u32,
-    /// Trained weights for --method deepview.
-    #[arg(long)]
+    /// Trained weights for --method deepview: a weights folder or a training checkpoint folder
+    /// (default: the shipped weights/cpu).
+    #[arg(long, visible_alias = "weights")]
     pub checkpoint: Option<PathBuf>,
     /// Write the report here (JSON: method, checkpoint, protocol, results, views).
     #[arg(long)]
@@ -165,11 +166,18 @@ impl Method for LearnedMethod {
 }
 
 fn deepview_method(args: &Args) -> anyhow::Result<Box<dyn Method>> {
-    let weights = match &args.checkpoint {
-        Some(w) => w.clone(),
-        None => super::infer::default_weights()?,
-    };
-    Ok(Box::new(LearnedMethod::load(&weights, args.planes)?))
+    Ok(Box::new(LearnedMethod::load(
+        &weights_of(args)?,
+        args.planes,
+    )?))
+}
+
+/// The weights `--method deepview` uses: `--checkpoint`, else the shipped ones.
+fn weights_of(args: &Args) -> anyhow::Result<PathBuf> {
+    match &args.checkpoint {
+        Some(w) => Ok(w.clone()),
+        None => super::infer::default_weights(),
+    }
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -209,7 +217,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         crop: args.crop,
         quantize: !args.no_quantize,
         save_renders: args.save_renders.clone(),
-        checkpoint: args.checkpoint.as_ref().map(|p| p.display().to_string()),
+        // The report names the weights the learned method used (the shipped ones when none was given).
+        checkpoint: if args.method.trim().eq_ignore_ascii_case("deepview") {
+            Some(weights_of(&args)?.display().to_string())
+        } else {
+            None
+        },
         verbose: true,
     };
     let report = evaluate(&scene, &protocol, method.as_mut(), &options)?;

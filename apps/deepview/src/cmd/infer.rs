@@ -143,23 +143,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let n = scene.views.len();
     let inputs = match &args.inputs {
         Some(text) => super::parse_indices(text, n)?,
-        None => {
-            let want = config.views.unwrap_or(4).min(n);
-            let centres: Vec<_> = scene.views.iter().map(|v| v.camera.center()).collect();
-            let centroid = centres
-                .iter()
-                .fold(deepview_geometry::DVec3::ZERO, |a, &c| a + c)
-                / n as f64;
-            let mut order: Vec<usize> = (0..n).collect();
-            order.sort_by(|&a, &b| {
-                centres[a]
-                    .distance(centroid)
-                    .total_cmp(&centres[b].distance(centroid))
-            });
-            order.truncate(want);
-            order.sort_unstable();
-            order
-        }
+        None => super::views_nearest_centroid(&scene.cameras(), config.views.unwrap_or(4)),
     };
     check_views(&config, inputs.len())?;
     let (near, far) = scene.near_far()?;

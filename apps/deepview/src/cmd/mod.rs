@@ -1,5 +1,6 @@
 //! One module per subcommand: `Args` (clap) and `run`.
 
+pub mod baseline;
 pub mod bench;
 pub mod demo;
 pub mod depth;
@@ -50,6 +51,28 @@ pub fn parse_indices(text: &str, views: usize) -> anyhow::Result<Vec<usize>> {
         bail!("no view indices given");
     }
     Ok(out)
+}
+
+/// The indices (ascending) of the `count` cameras whose centres are nearest the centroid of all the cameras'
+/// centres (all of them when there are fewer); ties keep the lower index.
+pub fn views_nearest_centroid(cameras: &[Camera], count: usize) -> Vec<usize> {
+    if cameras.is_empty() {
+        return Vec::new();
+    }
+    let centres: Vec<_> = cameras.iter().map(|c| c.center()).collect();
+    let centroid = centres
+        .iter()
+        .fold(deepview_geometry::DVec3::ZERO, |a, &c| a + c)
+        / cameras.len() as f64;
+    let mut order: Vec<usize> = (0..cameras.len()).collect();
+    order.sort_by(|&a, &b| {
+        centres[a]
+            .distance(centroid)
+            .total_cmp(&centres[b].distance(centroid))
+    });
+    order.truncate(count);
+    order.sort_unstable();
+    order
 }
 
 /// Where a camera comes from: a camera JSON file, or a view of a dataset.

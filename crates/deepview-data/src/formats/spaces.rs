@@ -96,6 +96,12 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         rig: opts.rig,
         count: rigs.len(),
     })?;
+    if rig.is_empty() {
+        return Err(DataError::invalid(
+            &path,
+            format!("rig position {} has no cameras", opts.rig),
+        ));
+    }
     let mut views = Vec::with_capacity(rig.len());
     for (i, c) in rig.iter().enumerate() {
         let camera = c.to_camera(&path, &format!("rig {} camera {i}", opts.rig))?;
