@@ -360,6 +360,14 @@ mod tests {
                 Intrinsics::centred(30.0, 37, 29),
                 Pose::from_center(DMat3::from_rotation_z(0.01), DVec3::new(-0.09, 0.0, 0.0)),
             ),
+            // A wider field of view than the planes' (1.5 texels per pixel: the taps of 8 pixels span
+            // more than 8 texels, the kernel's 16-texel window).
+            Camera::new(
+                37,
+                29,
+                Intrinsics::centred(20.0, 37, 29),
+                Pose::from_center(DMat3::IDENTITY, DVec3::new(0.05, 0.02, 0.0)),
+            ),
         ];
         // The SIMD path composites front to back and stops at accumulated alpha 1 - 1/1024: equal to the
         // scalar back-to-front result within that bound.

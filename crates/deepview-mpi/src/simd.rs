@@ -176,6 +176,7 @@ macro_rules! row_kernel {
             let stride = _mm256_set1_epi32(plane_w as i32);
             let byte = _mm256_set1_epi32(0xff);
             let seven = _mm256_set1_epi32(7);
+            let fifteen = _mm256_set1_epi32(15);
             let lane = _mm256_setr_ps(0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5);
             let saturated = _mm256_set1_ps(SATURATED);
             let tiles_x = (plane_w as usize).div_ceil(TILE);
@@ -253,13 +254,14 @@ macro_rules! row_kernel {
                     let ya = _mm256_mullo_epi32(yra, stride);
                     let yb = _mm256_mullo_epi32(yrb, stride);
                     // Fast path: when every active lane reads the same two source rows, its left taps lie within
-                    // 8 consecutive texels and its right taps are the next texels (no edge clamping; true for
-                    // views near the reference camera, translations included), four contiguous loads (two rows,
-                    // offsets 0 and 1) and four lane permutations replace the four gathers.
+                    // 16 consecutive texels and its right taps are the next texels (no edge clamping; true for
+                    // views near the reference camera, translations and zooms up to 2x included), contiguous
+                    // loads (two rows, offsets 0 and 1; and 8 texels further when the taps span more than 8)
+                    // and lane permutations replace the four gathers.
                     let ya0 = _mm256_permutevar8x32_epi32(ya, izero);
                     let xs = _mm256_min_epi32(
                         _mm256_permutevar8x32_epi32(xa, izero),
-                        _mm256_set1_epi32(plane_w as i32 - 9),
+                        _mm256_set1_epi32(plane_w as i32 - 17),
                     );
                     let ia = _mm256_and_si256(_mm256_sub_epi32(xa, xs), mi);
                     // Both rows: near the top edge, row b is clamped onto row a for some lanes only.
@@ -271,9 +273,9 @@ macro_rules! row_kernel {
                     let not_next =
                         _mm256_andnot_si256(_mm256_cmpeq_epi32(xb, _mm256_add_epi32(xa, ione)), mi);
                     let out_of_window =
-                        _mm256_or_si256(_mm256_cmpgt_epi32(izero, ia), _mm256_cmpgt_epi32(ia, seven));
+                        _mm256_or_si256(_mm256_cmpgt_epi32(izero, ia), _mm256_cmpgt_epi32(ia, fifteen));
                     let lane0_active = _mm256_extract_epi32::<0>(mi) != 0;
-                    let permutable = plane_w >= 9
+                    let permutable = plane_w >= 17
                         && lane0_active
                         && _mm256_testz_si256(
                             _mm256_or_si256(_mm256_or_si256(same_rows, not_next), out_of_window),
@@ -287,21 +289,34 @@ macro_rules! row_kernel {
                         _mm_prefetch::<_MM_HINT_T0>(
                             base.wrapping_add(off + 2 * plane_w as usize) as *const i8
                         );
-                        // SAFETY: 0 <= xs and xs + 9 <= plane_w, and both rows are inside the plane.
-                        let (ra, ra1, rb, rb1) = unsafe {
-                            (
-                                _mm256_loadu_si256(base.add(off) as *const __m256i),
-                                _mm256_loadu_si256(base.add(off + 1) as *const __m256i),
-                                _mm256_loadu_si256(base.add(off + dy) as *const __m256i),
-                                _mm256_loadu_si256(base.add(off + dy + 1) as *const __m256i),
-                            )
-                        };
-                        (
-                            _mm256_and_si256(_mm256_permutevar8x32_epi32(ra, ia), mi),
-                            _mm256_and_si256(_mm256_permutevar8x32_epi32(ra1, ia), mi),
-                            _mm256_and_si256(_mm256_permutevar8x32_epi32(rb, ia), mi),
-                            _mm256_and_si256(_mm256_permutevar8x32_epi32(rb1, ia), mi),
-                        )
+                        // Lanes whose left tap lies 8..15 texels to the right of the window start.
+                        let upper = _mm256_and_si256(_mm256_cmpgt_epi32(ia, seven), mi);
+                        // Eight texels from `at`, permuted into the lanes (`permutevar` uses the low 3 bits of
+                        // `ia`); when some lane reaches past them, blended with the eight that follow.
+                        // SAFETY (the loads): 0 <= xs and xs + 17 <= plane_w, and both rows are inside the plane.
+                        let wide = _mm256_testz_si256(upper, upper) == 0;
+                        macro_rules! taps {
+                            ($at:expr) => {{
+                                let at: usize = $at;
+                                let lo = _mm256_permutevar8x32_epi32(
+                                    unsafe { _mm256_loadu_si256(base.add(at) as *const __m256i) },
+                                    ia,
+                                );
+                                let t = if wide {
+                                    let hi = _mm256_permutevar8x32_epi32(
+                                        unsafe {
+                                            _mm256_loadu_si256(base.add(at + 8) as *const __m256i)
+                                        },
+                                        ia,
+                                    );
+                                    _mm256_blendv_epi8(lo, hi, upper)
+                                } else {
+                                    lo
+                                };
+                                _mm256_and_si256(t, mi)
+                            }};
+                        }
+                        (taps!(off), taps!(off + 1), taps!(off + dy), taps!(off + dy + 1))
                     } else {
                         // SAFETY: indices are clamped into the plane, so every lane (masked or not) is in bounds.
                         unsafe {
@@ -398,6 +413,7 @@ mod tests {
             ([1.0, 0.0, 0.0], [2.3, 7.6, 1.0]),
             ([1.0, 0.0, 0.0], [-3.7, 0.2, 1.0]),
             ([1.3, 0.02, 0.0], [0.4, 12.1, 1.0]),
+            ([1.9, 0.0, 0.0], [-2.2, 4.4, 1.0]),
             ([0.97, 0.05, 0.0], [5.0, 3.0, 1.0]),
             ([0.9, 0.1, 0.004], [1.0, 2.0, 0.95]),
         ];
