@@ -689,3 +689,47 @@ fn bad_mpi_files_and_flags_give_clear_errors_and_exit_code_2() {
         fails_with(&o, &["--planes", "at least 2", &format!("got {planes}")]);
     }
 }
+
+/// The README's first command: the whole pipeline on the built-in scene (the slow `optimize` baseline
+/// skipped). Everything it announces is there, and the learned model beats both simple baselines on the
+/// held-out views.
+#[test]
+fn demo_makes_everything_it_announces() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("demo");
+    let stdout = succeeds(&deepview(&["demo", "--out", s(&out), "--no-optimize"]));
+    for f in [
+        "mpi/mpi.json",
+        "mpi/layer_031.png",
+        "scene/ground_truth_mpi/mpi.json",
+        "novel_views/view_05.png",
+        "novel_views/view_10_ground_truth.png",
+        "depth/depth_color.png",
+        "depth/depth_disparity16.png",
+        "spiral.gif",
+        "eval.json",
+        "eval.md",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing; stdout: {stdout}");
+    }
+    let mpi = deepview_mpi::read_mpi(&out.join("mpi")).unwrap();
+    assert_eq!(mpi.planes(), 32);
+    let reports: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
+    let ssim = |method: &str| {
+        reports
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["method"] == method)
+            .unwrap_or_else(|| panic!("no {method} in eval.json"))["results"]["ssim"]
+            .as_f64()
+            .unwrap()
+    };
+    let (nearest, psv, learned) = (ssim("nearest"), ssim("psv-mean"), ssim("deepview"));
+    assert!(
+        learned > nearest && learned > psv,
+        "deepview {learned} vs nearest {nearest}, psv-mean {psv}"
+    );
+    assert!(stdout.contains("deepview view"), "{stdout}");
+}

@@ -311,7 +311,19 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
         (Some(n), None, Some((_, f))) => Some((n, f)),
         (None, Some(f), Some((n, _))) => Some((n, f)),
         (None, None, b) => b,
-        _ => None,
+        (n, f, None) => {
+            let (given, missing) = if n.is_some() {
+                ("--near", "--far")
+            } else {
+                ("--far", "--near")
+            };
+            return Err(DataError::invalid(
+                path,
+                format!(
+                    "this scene has no depth bounds of its own, so {given} needs {missing} too"
+                ),
+            ));
+        }
     };
     if let Some((n, f)) = scene.depth_bounds
         && !(n.is_finite() && f.is_finite() && n > 0.0 && f > n)

@@ -303,6 +303,20 @@ mod tests {
         )
         .unwrap();
         assert_eq!(s.near_far().unwrap(), (1.0, 100.0));
+        // Half a pair of bounds on a scene without bounds is refused, not dropped.
+        let e = load_scene(
+            dir.path(),
+            &LoadOptions {
+                near: Some(1.0),
+                ..Default::default()
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains(&dir.path().display().to_string()) && e.contains("--near needs --far"),
+            "{e}"
+        );
         // A wrongly sized image is refused with both file names.
         let img = deepview_image::ImageF32::new(80, 61, 3);
         crate::write_image(&dir.path().join("cam_00/image_000.JPG"), &img).unwrap();
