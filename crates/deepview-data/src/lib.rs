@@ -311,7 +311,7 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
         (Some(n), None, Some((_, f))) => Some((n, f)),
         (None, Some(f), Some((n, _))) => Some((n, f)),
         (None, None, b) => b,
-        (n, f, None) => {
+        (n, _, None) => {
             let (given, missing) = if n.is_some() {
                 ("--near", "--far")
             } else {

@@ -215,6 +215,34 @@ pub struct StepReport {
     pub skipped: Option<String>,
 }
 
+/// A wgpu device, initialised once per name (burn refuses a second initialisation of the same runtime)
+/// through the options API, which reports a missing adapter as an error instead of panicking at the
+/// first tensor operation. `wgpu` is the default adapter (a GPU, or a CPU Vulkan driver such as Mesa's
+/// lavapipe), `wgpu:N` the N-th discrete GPU.
+#[cfg(feature = "wgpu")]
+fn wgpu_device(name: &str, index: Option<usize>) -> Result<Device, String> {
+    use burn::tensor::DeviceKind;
+    use std::sync::{Mutex, OnceLock};
+    static DEVICES: OnceLock<Mutex<Vec<(String, Device)>>> = OnceLock::new();
+    let mut cache = DEVICES
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    if let Some((_, d)) = cache.iter().find(|(n, _)| n == name) {
+        return Ok(d.clone());
+    }
+    let kind = match index {
+        Some(i) => DeviceKind::DiscreteGpu(i),
+        None => DeviceKind::DefaultDevice,
+    };
+    let device = Device::wgpu_options()
+        .device_kind(kind)
+        .init()
+        .map_err(|e| format!("cannot initialise the wgpu device: {e}"))?;
+    cache.push((name.to_string(), device.clone()));
+    Ok(device)
+}
+
 /// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N` (feature `wgpu`), `cuda`/`cuda:N`
 /// (feature `cuda`).
 pub fn parse_device(name: &str) -> Result<Device, TrainError> {
@@ -235,10 +263,7 @@ pub fn parse_device(name: &str) -> Result<Device, TrainError> {
     match kind {
         "cpu" | "flex" => Ok(Device::flex()),
         #[cfg(feature = "wgpu")]
-        "wgpu" => Ok(match index {
-            Some(i) => Device::wgpu(burn::tensor::DeviceKind::DiscreteGpu(i)),
-            None => Device::wgpu(burn::tensor::DeviceKind::DefaultDevice),
-        }),
+        "wgpu" => wgpu_device(name, index).map_err(|m| err(&m)),
         #[cfg(not(feature = "wgpu"))]
         "wgpu" => {
             let _ = index;

@@ -219,6 +219,77 @@ fn two_cpu_replicas_match_one_device() {
     assert!(max < 1e-6, "replicas diverge from one device by {max}");
 }
 
+/// Data parallelism over "CPU + one wgpu device" (`--features wgpu`; on a machine without a GPU, Mesa's
+/// lavapipe Vulkan driver serves): the same steps as on the CPU alone, up to the other backend's float
+/// arithmetic. The device is initialised first with the fallible `wgpu_options().init()` (the same
+/// runtime `parse_device("wgpu")` selects), so a machine with no adapter fails here with wgpu's reason.
+///
+/// Tolerance: the wgpu kernels sum in another order (workgroup reductions, fused multiply-adds), so the
+/// second example's loss and gradients differ from the CPU's in the last f32 bits (measured on lavapipe:
+/// losses and gradient norms to ~1e-7 relative, weights after 2 Adam steps to 7.5e-8 absolute). Adam
+/// divides each gradient by its own running magnitude, so that relative error reaches the weights scaled
+/// by the learning rate (1.5e-4): 1e-5 absolute (and 1e-5 relative for loss and gradient norm) leaves a
+/// margin of ~100x, yet a replica whose gradients were dropped or mis-summed changes the gradient norm
+/// (and, through Adam's update direction, the weights) far beyond it.
+#[cfg(feature = "wgpu")]
+#[test]
+fn cpu_and_wgpu_replicas_match_one_device() {
+    // Through the trainer's own device parser (initialised once; an error names a missing adapter).
+    parse_device("wgpu").unwrap_or_else(|e| {
+        panic!("no wgpu device on this machine (needs a GPU or Mesa's lavapipe Vulkan driver): {e}")
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let mut one = Trainer::create(
+        &dir.path().join("one"),
+        small_config(2, &["cpu"], 2),
+        small_data(),
+    )
+    .unwrap();
+    let mut two = Trainer::create(
+        &dir.path().join("two"),
+        small_config(2, &["cpu", "wgpu"], 2),
+        small_data(),
+    )
+    .unwrap();
+    same_start(&one.model, &mut two);
+    let w0 = parameter_values(&one.model);
+    let ra = one.run(&never(), false).unwrap();
+    let rb = two.run(&never(), false).unwrap();
+    for (a, b) in ra.iter().zip(&rb) {
+        eprintln!(
+            "loss {} vs {}, grad norm {} vs {}",
+            a.loss, b.loss, a.grad_norm, b.grad_norm
+        );
+        assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
+        assert!(
+            (a.loss - b.loss).abs() <= 1e-5 * a.loss.abs(),
+            "{a:?} vs {b:?}"
+        );
+        assert!(
+            (a.grad_norm - b.grad_norm).abs() <= 1e-5 * a.grad_norm.abs(),
+            "{a:?} vs {b:?}"
+        );
+    }
+    let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
+    assert_eq!(wa.len(), wb.len());
+    let max = wa
+        .iter()
+        .zip(&wb)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max);
+    let moved = wa
+        .iter()
+        .zip(&w0)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max);
+    eprintln!("max |w_cpu - w_cpu+wgpu| = {max:e}; max move = {moved:e}");
+    assert!(moved > 1e-4, "the weights hardly moved ({moved})");
+    assert!(
+        max < 1e-5,
+        "cpu+wgpu replicas diverge from one device by {max}"
+    );
+}
+
 #[test]
 fn bad_devices_and_configs_are_errors() {
     assert!(parse_device("tpu").is_err());
