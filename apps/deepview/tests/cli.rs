@@ -732,5 +732,7 @@ fn demo_makes_everything_it_announces() {
         learned > nearest && psv > nearest,
         "deepview {learned} vs nearest {nearest}, psv-mean {psv}"
     );
-    assert!(stdout.contains("deepview view"), "{stdout}");
+    // It says how to look at the MPI in the browser.
+    let view_hint = format!("-- view {}", out.join("mpi").display());
+    assert!(stdout.contains(&view_hint), "{view_hint:?} not in {stdout}");
 }
