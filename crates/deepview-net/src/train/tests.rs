@@ -187,21 +187,26 @@ fn non_finite_loss_skips_the_step() {
     assert_eq!(parameter_values(&t.model), parameter_values(&twin.model));
 }
 
+/// Two runs of the same small configuration, on one CPU and on `devices`, in `dir`.
+fn one_and_replicated(dir: &std::path::Path, devices: &[&str]) -> (Trainer, Trainer) {
+    let create = |name: &str, devices: &[&str]| {
+        Trainer::create(&dir.join(name), small_config(2, devices, 2), small_data()).unwrap()
+    };
+    (create("one", &["cpu"]), create("two", devices))
+}
+
+/// Largest absolute difference between two parameter lists.
+fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max)
+}
+
 #[test]
 fn two_cpu_replicas_match_one_device() {
     let dir = tempfile::tempdir().unwrap();
-    let mut one = Trainer::create(
-        &dir.path().join("one"),
-        small_config(2, &["cpu"], 2),
-        small_data(),
-    )
-    .unwrap();
-    let mut two = Trainer::create(
-        &dir.path().join("two"),
-        small_config(2, &["cpu", "cpu"], 2),
-        small_data(),
-    )
-    .unwrap();
+    let (mut one, mut two) = one_and_replicated(dir.path(), &["cpu", "cpu"]);
     let ra = one.run(&never(), false).unwrap();
     let rb = two.run(&never(), false).unwrap();
     for (a, b) in ra.iter().zip(&rb) {
@@ -211,18 +216,14 @@ fn two_cpu_replicas_match_one_device() {
         );
     }
     let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
-    let max = wa
-        .iter()
-        .zip(&wb)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0f32, f32::max);
+    let max = max_abs_diff(&wa, &wb);
     assert!(max < 1e-6, "replicas diverge from one device by {max}");
 }
 
 /// Data parallelism over "CPU + one wgpu device" (`--features wgpu`; on a machine without a GPU, Mesa's
 /// lavapipe Vulkan driver serves): the same steps as on the CPU alone, up to the other backend's float
-/// arithmetic. The device is initialised first with the fallible `wgpu_options().init()` (the same
-/// runtime `parse_device("wgpu")` selects), so a machine with no adapter fails here with wgpu's reason.
+/// arithmetic. The device comes from `parse_device("wgpu")` first (burn's fallible options API), so a
+/// machine with no adapter fails here with wgpu's reason.
 ///
 /// Tolerance: the wgpu kernels sum in another order (workgroup reductions, fused multiply-adds), so the
 /// second example's loss and gradients differ from the CPU's in the last f32 bits (measured on lavapipe:
@@ -239,18 +240,7 @@ fn cpu_and_wgpu_replicas_match_one_device() {
         panic!("no wgpu device on this machine (needs a GPU or Mesa's lavapipe Vulkan driver): {e}")
     });
     let dir = tempfile::tempdir().unwrap();
-    let mut one = Trainer::create(
-        &dir.path().join("one"),
-        small_config(2, &["cpu"], 2),
-        small_data(),
-    )
-    .unwrap();
-    let mut two = Trainer::create(
-        &dir.path().join("two"),
-        small_config(2, &["cpu", "wgpu"], 2),
-        small_data(),
-    )
-    .unwrap();
+    let (mut one, mut two) = one_and_replicated(dir.path(), &["cpu", "wgpu"]);
     same_start(&one.model, &mut two);
     let w0 = parameter_values(&one.model);
     let ra = one.run(&never(), false).unwrap();
@@ -272,16 +262,8 @@ fn cpu_and_wgpu_replicas_match_one_device() {
     }
     let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
     assert_eq!(wa.len(), wb.len());
-    let max = wa
-        .iter()
-        .zip(&wb)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0f32, f32::max);
-    let moved = wa
-        .iter()
-        .zip(&w0)
-        .map(|(x, y)| (x - y).abs())
-        .fold(0f32, f32::max);
+    let max = max_abs_diff(&wa, &wb);
+    let moved = max_abs_diff(&wa, &w0);
     eprintln!("max |w_cpu - w_cpu+wgpu| = {max:e}; max move = {moved:e}");
     assert!(moved > 1e-4, "the weights hardly moved ({moved})");
     assert!(
