@@ -5,6 +5,7 @@
 pub mod config;
 pub mod forward;
 pub mod infer;
+pub mod kernels;
 pub mod network;
 pub mod weights;
 

@@ -24,10 +24,11 @@ use crate::config::DeepViewConfig;
 use crate::forward::{
     GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume,
 };
+use crate::kernels::conv3x3_act;
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
-use burn::tensor::activation::{elu, sigmoid};
+use burn::tensor::activation::sigmoid;
 use burn::tensor::module::{avg_pool2d, interpolate};
 use burn::tensor::ops::{AvgPoolOptions, InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
@@ -101,7 +102,7 @@ impl CoreNet {
         };
         let mut f = x;
         for c in &self.input {
-            f = elu(c.forward(f), 1.0);
+            f = conv3x3_act(f, c, true);
         }
         for pair in self.stages.chunks(2) {
             let [_, fc, hh, ww] = f.dims();
@@ -110,11 +111,11 @@ impl CoreNet {
                 .repeat_dim(0, views);
             f = Tensor::cat(vec![f, m.reshape([kd, fc, hh, ww])], 1);
             for c in pair {
-                f = elu(c.forward(f), 1.0);
+                f = conv3x3_act(f, c, true);
             }
         }
         let m = max_over_views(f, views);
-        let o = self.out.forward(elu(self.head.forward(m), 1.0));
+        let o = conv3x3_act(conv3x3_act(m, &self.head, true), &self.out, false);
         if self.unet {
             let [_, _, hh, ww] = o.dims();
             let opts = InterpolateOptions::new(InterpolateMode::Bilinear)

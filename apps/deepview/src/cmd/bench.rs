@@ -11,6 +11,62 @@ use std::time::Instant;
 pub enum BenchCommand {
     /// Render an MPI repeatedly into a novel view (8-bit layers, image I/O excluded).
     Render(RenderArgs),
+    /// The learned model's whole forward pass as `infer` computes it (plane sweeps, gradient
+    /// components, every net; tiled within --max-memory) on synthetic views; no image I/O.
+    Net(NetArgs),
+    /// Median time of a whole training step (VGG loss, backward, clipping, Adam) after warm-up.
+    Train(TrainArgs),
+}
+
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Examples:\n  deepview bench net --preset cpu --views 4 --planes 32 --size 575x412\n  \
+    deepview bench net --weights weights/cpu --views 4 --planes 32 --size 504x378\n  \
+    DEEPVIEW_ENGINE=burn deepview bench net --preset cpu   # burn's own conv2d instead of the kernels"
+)]
+pub struct NetArgs {
+    /// Weights folder or checkpoint; default: `--preset` with random weights.
+    #[arg(long, conflicts_with = "preset")]
+    pub weights: Option<PathBuf>,
+    /// Architecture preset (random weights): cpu, paper-kalantari, paper-spaces-4view, ...
+    #[arg(long, default_value = "cpu")]
+    pub preset: String,
+    #[arg(long, default_value_t = 4)]
+    pub views: usize,
+    #[arg(long, default_value_t = 32)]
+    pub planes: usize,
+    /// MPI size WIDTHxHEIGHT (the input views have the same size).
+    #[arg(long, default_value = "575x412")]
+    pub size: String,
+    /// Memory budget of the tiled inference.
+    #[arg(long, default_value = "8GiB")]
+    pub max_memory: String,
+    /// Timed forward passes (after one warm-up pass).
+    #[arg(long, default_value_t = 1)]
+    pub repeats: usize,
+}
+
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Examples:\n  deepview bench train --preset cpu --views 4 --planes 32 --crop 16\n  \
+    deepview bench train --preset paper-spaces-4view --views 4 --planes 8 --crop 16 --steps 3"
+)]
+pub struct TrainArgs {
+    #[arg(long, default_value = "cpu")]
+    pub preset: String,
+    #[arg(long, default_value_t = 4)]
+    pub views: usize,
+    #[arg(long, default_value_t = 32)]
+    pub planes: usize,
+    /// Target crop side in pixels.
+    #[arg(long, default_value_t = 16)]
+    pub crop: usize,
+    /// Timed steps (after 2 warm-up steps).
+    #[arg(long, default_value_t = 5)]
+    pub steps: usize,
+    /// Recompute each net's activations in the backward pass (default: the preset's training default).
+    #[arg(long)]
+    pub recompute: Option<bool>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -37,6 +93,8 @@ pub struct RenderArgs {
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Render(a) => bench_render(a),
+        BenchCommand::Net(a) => bench_net(a),
+        BenchCommand::Train(a) => bench_train(a),
     }
 }
 
@@ -167,6 +225,126 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
         "occupied_tiles": (occupancy.fill() * 1000.0).round() / 1000.0,
         "read_bandwidth_gbs": (bw * 100.0).round() / 100.0,
         "bandwidth_limit_fps": (bw * 1e9 / bytes * 10.0).round() / 10.0,
+    });
+    println!("{line}");
+    Ok(())
+}
+
+/// Peak resident memory of this process in MB (`VmHWM`), if known.
+fn peak_rss_mb() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some((kb / 1024.0).round())
+}
+
+fn parse_size(spec: &str) -> anyhow::Result<(usize, usize)> {
+    let v: Vec<usize> = spec
+        .split('x')
+        .map(|s| s.trim().parse())
+        .collect::<Result<_, _>>()
+        .map_err(|_| anyhow::anyhow!("--size takes WIDTHxHEIGHT, e.g. 575x412 (got {spec:?})"))?;
+    if v.len() != 2 || v.contains(&0) {
+        bail!("--size takes WIDTHxHEIGHT with positive numbers (got {spec:?})");
+    }
+    Ok((v[0], v[1]))
+}
+
+fn bench_net(args: NetArgs) -> anyhow::Result<()> {
+    use deepview_net::burn::tensor::Device;
+    use deepview_net::config::DeepViewConfig;
+    use deepview_net::infer::{infer_mpi, synthetic_views};
+    use deepview_net::network::DeepViewModel;
+    let (w, h) = parse_size(&args.size)?;
+    if args.views == 0 || args.planes == 0 {
+        bail!("--views and --planes must be positive");
+    }
+    let device = Device::flex();
+    let (model, name) = match &args.weights {
+        Some(dir) => {
+            let (m, c) = deepview_net::weights::load_model(dir, &device)?;
+            (m, c.name)
+        }
+        None => {
+            let cfg = DeepViewConfig::preset(&args.preset)?;
+            (DeepViewModel::new(&cfg, &device), cfg.name)
+        }
+    };
+    let budget = super::infer::parse_bytes(&args.max_memory)?;
+    let (views, reference, depths) = synthetic_views(args.views, args.planes, w, h);
+    let mut times = Vec::new();
+    for i in 0..=args.repeats.max(1) {
+        let t = Instant::now();
+        let mpi = infer_mpi(&model, &views, &reference, &depths, budget, &mut |_| {})?;
+        std::hint::black_box(&mpi.layers);
+        if i > 0 {
+            times.push(t.elapsed().as_secs_f64());
+        }
+    }
+    times.sort_by(f64::total_cmp);
+    let line = serde_json::json!({
+        "forward_s": (times[times.len() / 2] * 1000.0).round() / 1000.0,
+        "nets": model.nets.len(),
+        "views": args.views,
+        "planes": args.planes,
+        "width": w,
+        "height": h,
+        "peak_rss_mb": peak_rss_mb(),
+        "model": name,
+        "engine": if deepview_net::kernels::fast_device(&device) { "kernels" } else { "burn" },
+        "threads": rayon::current_num_threads(),
+    });
+    println!("{line}");
+    Ok(())
+}
+
+fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
+    use deepview_net::config::DeepViewConfig;
+    use deepview_net::train::{RunConfig, TrainConfig, Trainer, load_data};
+    let model = DeepViewConfig::preset(&args.preset)?;
+    let mut train = TrainConfig::defaults(&model);
+    train.data = vec![PathBuf::from("synthetic:two-planes")];
+    train.sample.views_min = args.views;
+    train.sample.views_max = args.views;
+    train.sample.planes = args.planes;
+    train.sample.crop = args.crop;
+    if let Some(r) = args.recompute {
+        train.recompute = r;
+    }
+    let recompute = train.recompute;
+    let data = load_data(&train.data, &Default::default(), train.holdout_every)?;
+    let dir = std::env::temp_dir().join(format!("deepview-bench-train-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let result = (|| -> anyhow::Result<Vec<f64>> {
+        let mut trainer = Trainer::create(&dir, RunConfig { model, train }, data)?;
+        let mut times = Vec::new();
+        for i in 0..args.steps.max(1) + 2 {
+            let batch = trainer.draw_batch()?;
+            let t = Instant::now();
+            let r = trainer.step_on(batch);
+            if let Some(why) = r.skipped {
+                bail!("{why}");
+            }
+            if i >= 2 {
+                times.push(t.elapsed().as_secs_f64());
+            }
+        }
+        Ok(times)
+    })();
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut times = result?;
+    times.sort_by(f64::total_cmp);
+    let line = serde_json::json!({
+        "step_s": (times[times.len() / 2] * 1000.0).round() / 1000.0,
+        "min_s": (times[0] * 1000.0).round() / 1000.0,
+        "preset": args.preset,
+        "views": args.views,
+        "planes": args.planes,
+        "crop": args.crop,
+        "recompute": recompute,
+        "steps": times.len(),
+        "peak_rss_mb": peak_rss_mb(),
+        "engine": if deepview_net::kernels::fast_device(&deepview_net::burn::tensor::Device::flex()) { "kernels" } else { "burn" },
     });
     println!("{line}");
     Ok(())

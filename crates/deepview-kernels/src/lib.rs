@@ -1,0 +1,139 @@
+//! CPU kernels of the DeepView network: 3x3 "same" convolutions with fused bias and ELU (forward), and
+//! their input and weight gradients, on zero-padded planar `f32` planes.
+//!
+//! Layout ([`Plane`]): one channel of one slice is a flat buffer holding the `h x w` image inside a
+//! one-texel zero border (rows of `w + 2`), with a little slack before and after. A 3x3 tap is then a
+//! constant offset in the flat index, so a kernel walks the whole plane as one vector loop (24 outputs
+//! per step in three AVX2 registers) with no per-row edge cases; the border columns it computes are
+//! discarded (zeroed) afterwards, so every buffer keeps zeros outside its interior and the output of one
+//! layer is the padded input of the next. Channels are passed as lists of planes, so concatenating
+//! channels (the network's `concat(features, max over views)`) costs nothing.
+//!
+//! The kernels run on one slice at a time on the calling thread; callers parallelise over slices. The
+//! AVX2 + FMA path is chosen at run time; a portable path gives the same results (to rounding) elsewhere.
+
+pub mod conv;
+mod elu;
+mod scalar;
+#[cfg(target_arch = "x86_64")]
+mod x86;
+
+pub use conv::{Act, PackedConv, conv3x3, conv3x3_input_grad, conv3x3_weight_grad, elu_backward};
+
+/// Floats before the padded image in a plane buffer (so the top-left tap of the first output is in
+/// bounds).
+pub const FRONT: usize = 16;
+/// Slack for a kernel's overrun past the last interior row (at least one step).
+pub const BLOCK: usize = 32;
+
+/// The geometry of one zero-padded plane of an `h x w` image.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Plane {
+    pub h: usize,
+    pub w: usize,
+}
+
+impl Plane {
+    pub fn new(h: usize, w: usize) -> Self {
+        Self { h, w }
+    }
+    /// Row pitch: the image row and its two border texels.
+    pub fn pitch(self) -> usize {
+        self.w + 2
+    }
+    /// First flat index a kernel computes (row 1, the left border column).
+    pub fn start(self) -> usize {
+        FRONT + self.pitch()
+    }
+    /// One past the last flat index of the interior rows.
+    pub fn end(self) -> usize {
+        FRONT + (self.h + 1) * self.pitch()
+    }
+    /// Length of a plane buffer: the padded image plus slack for a kernel's overrun (one step) and its
+    /// taps (one row and one texel).
+    pub fn len(self) -> usize {
+        (FRONT + (self.h + 2) * self.pitch() + BLOCK + 16).next_multiple_of(16)
+    }
+    pub fn is_empty(self) -> bool {
+        self.h == 0 || self.w == 0
+    }
+    /// Flat index of image texel `(x, y)`.
+    pub fn index(self, y: usize, x: usize) -> usize {
+        FRONT + (y + 1) * self.pitch() + x + 1
+    }
+    /// Tap offsets of a 3x3 kernel, row-major (`t = 3 * ky + kx`, offset `(ky - 1, kx - 1)`).
+    pub fn taps(self) -> [isize; 9] {
+        let p = self.pitch() as isize;
+        let mut t = [0isize; 9];
+        for ky in 0..3 {
+            for kx in 0..3 {
+                t[ky * 3 + kx] = (ky as isize - 1) * p + kx as isize - 1;
+            }
+        }
+        t
+    }
+    /// A zeroed plane buffer.
+    pub fn zeroed(self) -> Vec<f32> {
+        vec![0.0; self.len()]
+    }
+    /// Copy an unpadded `h x w` image (row-major) into the interior of `dst`, whose border is zero.
+    pub fn pad_into(self, src: &[f32], dst: &mut [f32]) {
+        debug_assert_eq!(src.len(), self.h * self.w);
+        for (y, row) in src.chunks_exact(self.w).enumerate() {
+            let i = self.index(y, 0);
+            dst[i..i + self.w].copy_from_slice(row);
+        }
+    }
+    /// Copy the interior of `src` into an unpadded `h x w` image.
+    pub fn unpad_into(self, src: &[f32], dst: &mut [f32]) {
+        debug_assert_eq!(dst.len(), self.h * self.w);
+        for (y, row) in dst.chunks_exact_mut(self.w).enumerate() {
+            let i = self.index(y, 0);
+            row.copy_from_slice(&src[i..i + self.w]);
+        }
+    }
+    /// Zero what a kernel wrote outside the interior: the border columns and everything after the last
+    /// interior row.
+    pub fn clear_border(self, buf: &mut [f32]) {
+        let p = self.pitch();
+        for r in 1..=self.h {
+            buf[FRONT + r * p] = 0.0;
+            buf[FRONT + r * p + p - 1] = 0.0;
+        }
+        buf[self.end()..].fill(0.0);
+    }
+}
+
+thread_local! {
+    static PORTABLE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// Run `f` with the portable kernels on this thread (tests compare both paths; also
+/// `DEEPVIEW_PORTABLE_KERNELS=1` for a whole process).
+pub fn with_portable<R>(f: impl FnOnce() -> R) -> R {
+    let old = PORTABLE.with(|p| p.replace(true));
+    let r = f();
+    PORTABLE.with(|p| p.set(old));
+    r
+}
+
+/// Whether the AVX2 kernels run (on this machine and thread).
+pub fn simd() -> bool {
+    if PORTABLE.with(|p| p.get()) {
+        return false;
+    }
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::sync::OnceLock;
+        static HAS: OnceLock<bool> = OnceLock::new();
+        *HAS.get_or_init(|| {
+            std::env::var_os("DEEPVIEW_PORTABLE_KERNELS").is_none()
+                && is_x86_feature_detected!("avx2")
+                && is_x86_feature_detected!("fma")
+        })
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}

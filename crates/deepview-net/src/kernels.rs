@@ -1,0 +1,368 @@
+//! The network's 3x3 convolutions on the CPU through [`deepview_kernels`], hooked into burn with its
+//! backend extension mechanism: a `conv3x3_act` operation (convolution, bias and optional ELU in one
+//! kernel) with its own backward pass (input gradient as a convolution with the transposed, flipped
+//! weights; weight and bias gradients as correlations), for the `flex` CPU backend and autodiff on top
+//! of it. Other devices (wgpu, cuda) keep burn's `conv2d` + `elu`: [`conv3x3_act`] picks the path from
+//! the tensor's device, so the architecture and the weights are defined once ([`crate::network`]).
+//!
+//! burn's own ops are the reference: `tests` compare outputs and gradients with `conv2d` + `elu` under
+//! burn's autodiff.
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, Flex, backend_extension};
+use burn::nn::conv::Conv2d;
+use burn::tensor::activation::elu;
+use burn::tensor::{Device, Shape, Tensor, TensorData};
+use deepview_kernels::{
+    Act, PackedConv, Plane, conv3x3, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
+};
+use rayon::prelude::*;
+
+/// Custom CPU operations of the network.
+#[backend_extension(Flex, Autodiff)]
+pub trait KernelOps: Backend {
+    /// `x` `[N, Cin, H, W]`, `w` `[Co, Cin, 3, 3]`, `b` `[Co]` -> `[N, Co, H, W]`: a 3x3 convolution with
+    /// zero padding 1 and stride 1, plus bias, then ELU when `elu`.
+    fn conv3x3_act(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+        elu: bool,
+    ) -> FloatTensor<Self>;
+
+    /// Gradients `(x, w, b)` of [`KernelOps::conv3x3_act`] given its inputs, its output `out` and the
+    /// gradient at the output; the input gradient only when `input_grad` (else an empty tensor).
+    fn conv3x3_act_backward(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        out: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        elu: bool,
+        input_grad: bool,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+}
+
+/// Whether tensors on `device` take the custom kernels (the `flex` CPU backend, with or without
+/// autodiff). `DEEPVIEW_ENGINE=burn` turns them off (for A/B benchmarks against burn's own ops).
+pub fn fast_device(device: &Device) -> bool {
+    if std::env::var("DEEPVIEW_ENGINE").is_ok_and(|v| v == "burn") {
+        return false;
+    }
+    matches!(
+        device.clone().inner().as_dispatch(),
+        DispatchDevice::Flex(_)
+    )
+}
+
+/// `act(conv(x))` with `conv` a 3x3, stride 1, "same" padding convolution (as every conv of the
+/// network): through the custom kernels on the CPU, through burn's ops elsewhere.
+pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act_elu: bool) -> Tensor<4> {
+    if !fast_device(&x.device()) {
+        let y = conv.forward(x);
+        return if act_elu { elu(y, 1.0) } else { y };
+    }
+    debug_assert_eq!(conv.weight.dims()[2..], [3, 3]);
+    let w = conv.weight.val();
+    let b = match &conv.bias {
+        Some(b) => b.val(),
+        None => Tensor::zeros([w.dims()[0]], &w.device()),
+    };
+    Tensor::from_dispatch(<Dispatch as KernelOps>::conv3x3_act(
+        x.into_dispatch(),
+        w.into_dispatch(),
+        b.into_dispatch(),
+        act_elu,
+    ))
+}
+
+fn f32_vec(t: FloatTensor<Flex>) -> (Vec<f32>, Vec<usize>) {
+    let data = t.into_data();
+    let shape = data.shape().clone();
+    (
+        data.try_into_vec::<f32>().expect("f32 tensor"),
+        shape.to_vec(),
+    )
+}
+
+fn flex(v: Vec<f32>, shape: Vec<usize>) -> FloatTensor<Flex> {
+    FloatTensor::<Flex>::from_data(TensorData::new(v, Shape::from(shape)))
+}
+
+/// Scratch planes of one thread.
+struct Planes {
+    plane: Plane,
+    bufs: Vec<Vec<f32>>,
+}
+
+impl Planes {
+    fn new(plane: Plane, n: usize) -> Self {
+        Self {
+            plane,
+            bufs: (0..n).map(|_| plane.zeroed()).collect(),
+        }
+    }
+    /// Pad `c` channels of an unpadded `[c][h][w]` block into planes `from..from + c`.
+    fn load(&mut self, from: usize, src: &[f32]) {
+        let hw = self.plane.h * self.plane.w;
+        for (k, img) in src.chunks_exact(hw).enumerate() {
+            self.plane.pad_into(img, &mut self.bufs[from + k]);
+        }
+    }
+    fn split(&mut self, at: usize) -> (Vec<&[f32]>, Vec<&mut [f32]>) {
+        let (a, b) = self.bufs.split_at_mut(at);
+        (
+            a.iter().map(|v| v.as_slice()).collect(),
+            b.iter_mut().map(|v| v.as_mut_slice()).collect(),
+        )
+    }
+}
+
+impl KernelOps for Flex {
+    fn conv3x3_act(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+        act_elu: bool,
+    ) -> FloatTensor<Self> {
+        let (x, xs) = f32_vec(x);
+        let (w, ws) = f32_vec(w);
+        let (b, _) = f32_vec(b);
+        let [n, cin, h, wd] = [xs[0], xs[1], xs[2], xs[3]];
+        let cout = ws[0];
+        assert_eq!(
+            ws,
+            [cout, cin, 3, 3],
+            "conv3x3_act: weights for {cin} inputs"
+        );
+        let conv = PackedConv::new(&w, Some(&b), cout, cin);
+        let act = if act_elu { Act::Elu } else { Act::Linear };
+        let plane = Plane::new(h, wd);
+        let hw = h * wd;
+        let mut out = vec![0f32; n * cout * hw];
+        if hw > 0 {
+            out.par_chunks_mut(cout * hw)
+                .zip(x.par_chunks(cin * hw))
+                .for_each_init(
+                    || Planes::new(plane, cin + cout),
+                    |s, (o, xi)| {
+                        s.load(0, xi);
+                        let (ins, mut outs) = s.split(cin);
+                        conv3x3(plane, &ins, &conv, act, &mut outs);
+                        for (k, dst) in o.chunks_exact_mut(hw).enumerate() {
+                            plane.unpad_into(&s.bufs[cin + k], dst);
+                        }
+                    },
+                );
+        }
+        flex(out, vec![n, cout, h, wd])
+    }
+
+    fn conv3x3_act_backward(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        out: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        act_elu: bool,
+        input_grad: bool,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        let (x, xs) = f32_vec(x);
+        let (w, ws) = f32_vec(w);
+        let (out, _) = f32_vec(out);
+        let (mut g, _) = f32_vec(grad);
+        let [n, cin, h, wd] = [xs[0], xs[1], xs[2], xs[3]];
+        let cout = ws[0];
+        if act_elu {
+            g.par_chunks_mut(1 << 14)
+                .zip(out.par_chunks(1 << 14))
+                .for_each(|(g, o)| elu_backward(o, g));
+        }
+        drop(out);
+        let transposed = PackedConv::transposed(&w, cout, cin);
+        let plane = Plane::new(h, wd);
+        let hw = h * wd;
+        let mut gx = vec![0f32; if input_grad { n * cin * hw } else { 0 }];
+        let zero = || (vec![0f32; cout * cin * 9], vec![0f32; cout]);
+        let slice =
+            |s: &mut Planes, i: usize, gw: &mut [f32], gb: &mut [f32], gxi: Option<&mut [f32]>| {
+                // Planes: x (cin), g_pre (cout), gx (cin).
+                s.load(0, &x[i * cin * hw..][..cin * hw]);
+                s.load(cin, &g[i * cout * hw..][..cout * hw]);
+                {
+                    let (xg, _) = s.split(cin + cout);
+                    conv3x3_weight_grad(plane, &xg[..cin], &xg[cin..], gw, gb);
+                }
+                if let Some(gxi) = gxi {
+                    let (gin, mut gout) = s.split(cin + cout);
+                    conv3x3_input_grad(plane, &gin[cin..], &transposed, &mut gout);
+                    for (k, dst) in gxi.chunks_exact_mut(hw).enumerate() {
+                        plane.unpad_into(&s.bufs[cin + cout + k], dst);
+                    }
+                }
+            };
+        let (gw, gb) = if hw == 0 || n == 0 {
+            zero()
+        } else if input_grad {
+            gx.par_chunks_mut(cin * hw)
+                .enumerate()
+                .fold(
+                    || (zero(), Planes::new(plane, 2 * cin + cout)),
+                    |((mut gw, mut gb), mut s), (i, gxi)| {
+                        slice(&mut s, i, &mut gw, &mut gb, Some(gxi));
+                        ((gw, gb), s)
+                    },
+                )
+                .map(|(acc, _)| acc)
+                .reduce(zero, add_pair)
+        } else {
+            (0..n)
+                .into_par_iter()
+                .fold(
+                    || (zero(), Planes::new(plane, cin + cout)),
+                    |((mut gw, mut gb), mut s), i| {
+                        slice(&mut s, i, &mut gw, &mut gb, None);
+                        ((gw, gb), s)
+                    },
+                )
+                .map(|(acc, _)| acc)
+                .reduce(zero, add_pair)
+        };
+        let gx_shape = if input_grad {
+            vec![n, cin, h, wd]
+        } else {
+            vec![0]
+        };
+        (
+            flex(gx, gx_shape),
+            flex(gw, vec![cout, cin, 3, 3]),
+            flex(gb, vec![cout]),
+        )
+    }
+}
+
+fn add_pair(
+    (mut a, mut b): (Vec<f32>, Vec<f32>),
+    (c, d): (Vec<f32>, Vec<f32>),
+) -> (Vec<f32>, Vec<f32>) {
+    a.iter_mut().zip(c).for_each(|(x, y)| *x += y);
+    b.iter_mut().zip(d).for_each(|(x, y)| *x += y);
+    (a, b)
+}
+
+#[derive(Debug)]
+struct Conv3x3ActBackward;
+
+impl<B: Backend + KernelOps> Backward<B, 3> for Conv3x3ActBackward {
+    /// Input, weights, output, ELU.
+    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, bool);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node_x, node_w, node_b] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (x, w, out, act_elu) = ops.state;
+        let (gx, gw, gb) = B::conv3x3_act_backward(x, w, out, grad, act_elu, node_x.is_some());
+        if let Some(node) = node_x {
+            grads.register::<B>(node.id, gx);
+        }
+        if let Some(node) = node_w {
+            grads.register::<B>(node.id, gw);
+        }
+        if let Some(node) = node_b {
+            grads.register::<B>(node.id, gb);
+        }
+    }
+}
+
+impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C> {
+    fn conv3x3_act(
+        x: FloatTensor<Self>,
+        w: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+        act_elu: bool,
+    ) -> FloatTensor<Self> {
+        let guards = [x.node(), w.node(), b.node()];
+        let (x, w) = (x.into_primitive(), w.into_primitive());
+        let out = B::conv3x3_act(x.clone(), w.clone(), b.into_primitive(), act_elu);
+        match Conv3x3ActBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish((x, w, out.clone(), act_elu), out),
+            OpsKind::UnTracked(prep) => prep.finish(out),
+        }
+    }
+
+    fn conv3x3_act_backward(
+        _x: FloatTensor<Self>,
+        _w: FloatTensor<Self>,
+        _out: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+        _elu: bool,
+        _input_grad: bool,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        unimplemented!("second-order gradients of conv3x3_act")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::PaddingConfig2d;
+    use burn::nn::conv::Conv2dConfig;
+    use burn::tensor::Distribution;
+
+    fn max_rel(a: Tensor<4>, b: Tensor<4>) -> f32 {
+        let scale: f32 = b.clone().abs().max().into_scalar();
+        let d: f32 = (a - b).abs().max().into_scalar();
+        d / scale.max(1e-6)
+    }
+
+    /// Outputs and gradients (input, weights, bias) of the custom op equal burn's conv2d + ELU under
+    /// burn's autodiff, on odd sizes, one and many slices, 1..64 channels.
+    #[test]
+    fn conv3x3_act_matches_burn() {
+        let dev = Device::flex().autodiff();
+        for (n, cin, cout, h, w) in [
+            (3, 4, 8, 17, 23),
+            (1, 19, 8, 9, 5),
+            (12, 16, 8, 8, 8),
+            (2, 8, 64, 11, 13),
+            (2, 64, 16, 7, 9),
+            (1, 3, 5, 1, 1),
+        ] {
+            let conv: Conv2d = Conv2dConfig::new([cin, cout], [3, 3])
+                .with_padding(PaddingConfig2d::Same)
+                .init(&dev);
+            let x = Tensor::<4>::random([n, cin, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
+            let seed = Tensor::<4>::random([n, cout, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
+            for act in [false, true] {
+                let xa = x.clone().require_grad();
+                let ours = conv3x3_act(xa.clone(), &conv, act);
+                let g_ours = (ours.clone() * seed.clone()).sum().backward();
+                let xb = x.clone().require_grad();
+                let y = conv.forward(xb.clone());
+                let theirs = if act { elu(y, 1.0) } else { y };
+                let g_theirs = (theirs.clone() * seed.clone()).sum().backward();
+                let e = max_rel(ours.inner(), theirs.inner());
+                assert!(e < 1e-5, "{n}x{cin}->{cout} {h}x{w} elu {act}: output {e}");
+                let gx = max_rel(xa.grad(&g_ours).unwrap(), xb.grad(&g_theirs).unwrap());
+                assert!(gx < 1e-4, "input gradient {gx}");
+                let gw = max_rel(
+                    conv.weight.grad(&g_ours).unwrap(),
+                    conv.weight.grad(&g_theirs).unwrap(),
+                );
+                assert!(gw < 1e-4, "weight gradient {gw}");
+                let b = conv.bias.as_ref().unwrap();
+                let gb: Tensor<1> = b.grad(&g_ours).unwrap();
+                let gb2: Tensor<1> = b.grad(&g_theirs).unwrap();
+                let e: f32 = (gb - gb2.clone()).abs().max().into_scalar();
+                let s: f32 = gb2.abs().max().into_scalar();
+                assert!(e / s.max(1e-6) < 1e-4, "bias gradient {e}");
+            }
+        }
+    }
+}
