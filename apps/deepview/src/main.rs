@@ -52,6 +52,8 @@ enum Command {
     ExportWeights(cmd::export_weights::Args),
     /// Write the MPI of a classical baseline (psv-mean or nearest; no weights needed).
     Baseline(cmd::baseline::Args),
+    /// Poses for your own photos (or a video): run COLMAP and write a scene folder every command reads.
+    Process(cmd::process::Args),
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
@@ -74,6 +76,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Infer(a) => cmd::infer::run(a),
         Command::ExportWeights(a) => cmd::export_weights::run(a),
         Command::Baseline(a) => cmd::baseline::run(a),
+        Command::Process(a) => cmd::process::run(a),
     }
 }
 

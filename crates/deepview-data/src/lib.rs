@@ -1,4 +1,5 @@
-//! Dataset readers and writers. Every format (LLFF, COLMAP, Spaces, light-field grids) loads into one
+//! Dataset readers and writers. Every format (LLFF, COLMAP, Spaces, light-field grids, nerfstudio
+//! `transforms.json`) loads into one
 //! [`Scene`]: a list of views, each an image path and a [`Camera`] in this project's conventions (OpenCV axes,
 //! camera-from-world poses, pixel centres at +0.5), plus optional depth bounds.
 //!
@@ -22,6 +23,7 @@ pub use formats::lightfield::{
 };
 pub use formats::llff::{read_poses_bounds, write_llff};
 pub use formats::spaces::{spaces_relative_path, write_spaces_models};
+pub use formats::transforms::{TRANSFORMS_JSON, write_transforms};
 
 /// Errors of dataset input and output. Every message names the file and the problem.
 #[derive(Debug, thiserror::Error)]
@@ -138,14 +140,17 @@ pub enum SceneFormat {
     Spaces,
     /// Light-field grid in the HCI layout (`input_CamNNN.png`).
     LightField,
+    /// nerfstudio / instant-ngp `transforms.json` (OpenGL camera-to-world per frame).
+    Transforms,
 }
 
 impl SceneFormat {
-    pub const ALL: [SceneFormat; 4] = [
+    pub const ALL: [SceneFormat; 5] = [
         SceneFormat::Llff,
         SceneFormat::Colmap,
         SceneFormat::Spaces,
         SceneFormat::LightField,
+        SceneFormat::Transforms,
     ];
 
     pub fn name(&self) -> &'static str {
@@ -154,6 +159,7 @@ impl SceneFormat {
             SceneFormat::Colmap => "colmap",
             SceneFormat::Spaces => "spaces",
             SceneFormat::LightField => "light-field",
+            SceneFormat::Transforms => "transforms",
         }
     }
 }
@@ -172,8 +178,11 @@ impl FromStr for SceneFormat {
             "colmap" => Ok(SceneFormat::Colmap),
             "spaces" => Ok(SceneFormat::Spaces),
             "light-field" | "lightfield" | "hci" => Ok(SceneFormat::LightField),
+            "transforms" | "transforms.json" | "nerfstudio" | "instant-ngp" => {
+                Ok(SceneFormat::Transforms)
+            }
             _ => Err(format!(
-                "unknown scene format '{s}' (expected llff, colmap, spaces or light-field)"
+                "unknown scene format '{s}' (expected llff, colmap, spaces, light-field or transforms)"
             )),
         }
     }
@@ -259,10 +268,18 @@ pub fn data_dir() -> PathBuf {
 
 /// What [`detect_format`] looks for, for error messages.
 pub const DETECTION_RULES: &str = "poses_bounds.npy (LLFF), models.json (Spaces), cameras.txt / cameras.bin / \
-     sparse/0/ (COLMAP), input_Cam000.png (light field)";
+     sparse/0/ (COLMAP), input_Cam000.png (light field), transforms.json (nerfstudio)";
 
 /// Detect the format of a dataset folder from its contents.
 pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
+    // A nerfstudio / instant-ngp JSON given as a file (e.g. Blender's transforms_train.json).
+    if path.is_file()
+        && path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"))
+    {
+        return Ok(SceneFormat::Transforms);
+    }
     if !path.is_dir() {
         return Err(DataError::invalid(
             path,
@@ -278,6 +295,8 @@ pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
         Ok(SceneFormat::Colmap)
     } else if has("input_Cam000.png") {
         Ok(SceneFormat::LightField)
+    } else if has(TRANSFORMS_JSON) {
+        Ok(SceneFormat::Transforms)
     } else {
         Err(DataError::NotDetected {
             path: path.into(),
@@ -297,6 +316,7 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
         SceneFormat::Colmap => formats::colmap::load(path, opts)?,
         SceneFormat::Spaces => formats::spaces::load(path, opts)?,
         SceneFormat::LightField => formats::lightfield::load(path, opts)?,
+        SceneFormat::Transforms => formats::transforms::load(path, opts)?,
     };
     if scene.views.is_empty() {
         return Err(DataError::invalid(path, "the scene has no views"));
@@ -359,6 +379,7 @@ impl Scene {
                 formats::colmap::model_dir(&self.root).unwrap_or(self.root.clone())
             }
             SceneFormat::LightField => self.root.clone(),
+            SceneFormat::Transforms => formats::transforms::transforms_path(&self.root),
         }
     }
 
@@ -429,6 +450,10 @@ impl Scene {
                 }
                 SceneFormat::Colmap => {
                     " (the COLMAP model has no 3D points to derive them from)".into()
+                }
+                SceneFormat::Transforms => {
+                    " (transforms.json has no \"near\"/\"far\", and no \"aabb\" in front of every camera)"
+                        .into()
                 }
                 _ => String::new(),
             },

@@ -3,7 +3,7 @@
 use crate::scene::SynthScene;
 use deepview_data::{
     DataError, LoadOptions, SceneFormat, light_field_cameras, load_scene, write_colmap_text,
-    write_light_field, write_llff, write_spaces_models,
+    write_light_field, write_llff, write_spaces_models, write_transforms,
 };
 use deepview_geometry::{Camera, PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
 use deepview_image::{ImageF32, write_atomic};
@@ -91,6 +91,16 @@ struct SynthInfo<'a> {
 /// Build a scene, render it through the rig and write `out` as a dataset of the rig's format, with
 /// `out/ground_truth_mpi/` (the exact MPI) and `out/synth.json` (how it was made).
 pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, SynthError> {
+    synthesize_as(out, options, None)
+}
+
+/// [`synthesize`], writing the dataset as `write_format` instead of the rig's own format: any rig can be
+/// written as nerfstudio `transforms.json` ([`SceneFormat::Transforms`]).
+pub fn synthesize_as(
+    out: &Path,
+    options: &SynthOptions,
+    write_format: Option<SceneFormat>,
+) -> Result<SynthOutput, SynthError> {
     if options.planes < 2 {
         return Err(SynthError::Invalid(format!(
             "--planes must be at least 2 (got {})",
@@ -131,6 +141,15 @@ pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, Syn
             )
         }
     };
+    let format = match write_format {
+        None => format,
+        Some(f) if f == format || f == SceneFormat::Transforms => f,
+        Some(f) => {
+            return Err(SynthError::Invalid(format!(
+                "a {format} rig can be written as {format} or transforms, not {f}"
+            )));
+        }
+    };
     let (near, far) = options.near_far.or(rig_bounds).unwrap_or((1.0, 10.0));
     let depths = plane_depths(near, far, options.planes, PlaneSpacing::InverseDepth)
         .map_err(|e| SynthError::Invalid(e.to_string()))?;
@@ -150,6 +169,9 @@ pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, Syn
         .collect();
 
     match format {
+        SceneFormat::Transforms => {
+            write_transforms(out, &cameras, &images, Some((near, far)))?;
+        }
         SceneFormat::LightField => {
             let side = (cameras.len() as f64).sqrt().round() as usize;
             write_light_field(out, side, side, &images, None)?;

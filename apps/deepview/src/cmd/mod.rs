@@ -12,6 +12,7 @@ pub mod import;
 pub mod infer;
 pub mod info;
 pub mod optimize;
+pub mod process;
 pub mod psv;
 pub mod render;
 pub mod synth;

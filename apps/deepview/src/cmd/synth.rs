@@ -2,13 +2,14 @@
 
 use anyhow::Context;
 use deepview_data::SceneArgs;
-use deepview_synth::{Rig, SynthOptions, synthesize};
+use deepview_synth::{Rig, SynthOptions, synthesize_as};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  deepview synth --out synth/grid\n  \
     deepview synth --cameras ../shared/data/spaces/scene_000 --out synth/spaces_000\n  \
-    deepview synth --cameras ../shared/data/llff/fern --images images_8 --out synth/fern_rig")]
+    deepview synth --cameras ../shared/data/llff/fern --images images_8 --out synth/fern_rig\n  \
+    deepview synth --out synth/grid_ns --out-format transforms")]
 pub struct Args {
     /// Output folder: a dataset in the rig's own format, plus ground_truth_mpi/ and synth.json.
     #[arg(long)]
@@ -35,6 +36,10 @@ pub struct Args {
     /// Rays per pixel side (antialiasing).
     #[arg(long, default_value_t = 1)]
     pub supersample: u32,
+    /// Write the dataset in this format instead of the rig's own: `transforms` (nerfstudio
+    /// transforms.json) works for every rig.
+    #[arg(long, value_enum)]
+    pub out_format: Option<deepview_data::SceneFormat>,
     #[command(flatten)]
     pub scene: SceneArgs,
 }
@@ -64,7 +69,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         near_far,
         supersample: args.supersample,
     };
-    let out = synthesize(&args.out, &opts)
+    let out = synthesize_as(&args.out, &opts, args.out_format)
         .with_context(|| format!("cannot synthesise into {}", args.out.display()))?;
     println!(
         "wrote a {} scene with {} views, {} layers between depth {:.3} and {:.3}, to {}",

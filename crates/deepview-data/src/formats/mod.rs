@@ -5,3 +5,4 @@ pub mod colmap;
 pub mod lightfield;
 pub mod llff;
 pub mod spaces;
+pub mod transforms;

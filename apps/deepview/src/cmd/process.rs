@@ -1,0 +1,107 @@
+//! `deepview process --data PHOTOS --out SCENE`: poses for one's own photos (or a video) with COLMAP.
+
+use deepview_process::{CameraModel, Event, Input, Matcher, ProcessOptions, process};
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Examples:\n  deepview process --data my_photos --out scenes/mine\n  \
+    deepview process --video walk.mp4 --fps 2 --max-size 1600 --out scenes/walk\n\n\
+    Needs COLMAP (Debian/Ubuntu: apt-get install colmap; ffmpeg too for --video). The output is a COLMAP \
+    scene (images/, sparse/0/, colmap.log) that every command reads with --data; depth bounds come from \
+    COLMAP's 3D points."
+)]
+pub struct Args {
+    /// Folder of photos (.jpg, .jpeg, .png) of one scene.
+    #[arg(long, required_unless_present = "video", conflicts_with = "video")]
+    pub data: Option<PathBuf>,
+    /// A video to take frames from instead (needs ffmpeg).
+    #[arg(long)]
+    pub video: Option<PathBuf>,
+    /// Frames per second taken from --video.
+    #[arg(long, default_value_t = 2.0, requires = "video")]
+    pub fps: f64,
+    /// The scene folder to write; must not exist yet (or be empty).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Image pairing: auto = exhaustive up to 50 images, else sequential (file-name order).
+    #[arg(long, value_enum, default_value_t = Matcher::Auto)]
+    pub matcher: Matcher,
+    /// The camera model shared by all photos while solving (undistorted to PINHOLE at the end).
+    #[arg(long, value_enum, default_value_t = CameraModel::SimpleRadial)]
+    pub camera_model: CameraModel,
+    /// Downscale photos whose larger side exceeds N pixels first.
+    #[arg(long, value_name = "N")]
+    pub max_size: Option<u32>,
+    /// The COLMAP program.
+    #[arg(long, default_value = "colmap")]
+    pub colmap: PathBuf,
+    /// The ffmpeg program (for --video).
+    #[arg(long, default_value = "ffmpeg")]
+    pub ffmpeg: PathBuf,
+}
+
+fn secs(d: Duration) -> String {
+    format!("{:.1} s", d.as_secs_f64())
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let input = match (&args.data, &args.video) {
+        (_, Some(v)) => Input::Video {
+            path: v.clone(),
+            fps: args.fps,
+        },
+        (Some(d), None) => Input::Photos(d.clone()),
+        (None, None) => anyhow::bail!("give --data PHOTOS_DIR or --video FILE"),
+    };
+    let mut opts = ProcessOptions::new(input, &args.out);
+    opts.matcher = args.matcher;
+    opts.camera_model = args.camera_model;
+    opts.max_size = args.max_size;
+    opts.colmap = args.colmap.clone();
+    opts.ffmpeg = args.ffmpeg.clone();
+
+    let bar = indicatif::ProgressBar::new_spinner();
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("{spinner} {msg} ({elapsed})")
+            .expect("valid template"),
+    );
+    bar.enable_steady_tick(Duration::from_millis(120));
+    let result = process(&opts, &mut |e| match e {
+        Event::Started(stage, what) => {
+            bar.suspend(|| println!("{stage}: {what}"));
+            bar.reset_elapsed();
+            bar.set_message(stage.to_string());
+        }
+        Event::Finished(stage, took) => {
+            bar.suspend(|| println!("  {stage} done in {}", secs(took)))
+        }
+        Event::Warning(w) => bar.suspend(|| eprintln!("warning: {w}")),
+    });
+    bar.finish_and_clear();
+    let r = result?;
+    let [fx, fy, cx, cy] = r.intrinsics;
+    println!(
+        "wrote {}: {} of {} images registered ({} matching), {} points, {}x{} PINHOLE fx {fx:.2} fy {fy:.2} \
+         cx {cx:.2} cy {cy:.2}, in {}",
+        r.out.display(),
+        r.registered.len(),
+        r.images,
+        r.matcher,
+        r.points,
+        r.size.0,
+        r.size.1,
+        secs(r.elapsed)
+    );
+    match r.depth_bounds {
+        Some((n, f)) => println!("depth bounds from the points: near {n:.4}, far {f:.4}"),
+        None => println!("no depth bounds (no 3D points): pass --near and --far to other commands"),
+    }
+    println!("COLMAP's log: {}", r.log.display());
+    println!(
+        "next: deepview info --data {0}; deepview infer --data {0} --out {0}/mpi",
+        r.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,297 @@
+//! `deepview process` on real photos (fern's `images_8` without their poses), run with Debian's COLMAP.
+//! COLMAP runs once for fern (shared by the tests through a `OnceLock`), and one run at a time.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::sync::{Mutex, OnceLock};
+use std::time::{Duration, Instant};
+
+fn deepview(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_deepview"))
+        .args(args)
+        .output()
+        .expect("binary runs")
+}
+
+/// Run `deepview CMD --data DIR ARGS` (the new spelling), else with the folder after `old_flag`
+/// (`""` = positional), for branches where a command does not take `--data` yet.
+fn with_data(cmd: &str, dir: &Path, old_flag: &str, args: &[&str]) -> Output {
+    let d = dir.to_str().unwrap();
+    let o = deepview(&[&[cmd, "--data", d], args].concat());
+    if o.status.success() || !String::from_utf8_lossy(&o.stderr).contains("'--data'") {
+        return o;
+    }
+    let old: Vec<&str> = if old_flag.is_empty() {
+        vec![cmd, d]
+    } else {
+        vec![cmd, old_flag, d]
+    };
+    deepview(&[&old[..], args].concat())
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+static COLMAP: Mutex<()> = Mutex::new(());
+
+fn have_colmap() -> bool {
+    Command::new("colmap").arg("help").output().is_ok()
+}
+
+/// Copy the photos only (no poses) of `src` to a new folder.
+fn bare_photos(src: &Path, dst: &Path) -> PathBuf {
+    std::fs::create_dir_all(dst).unwrap();
+    for e in std::fs::read_dir(src).unwrap() {
+        let p = e.unwrap().path();
+        let ext = p.extension().unwrap_or_default().to_ascii_lowercase();
+        if ext == "png" || ext == "jpg" || ext == "jpeg" {
+            std::fs::copy(&p, dst.join(p.file_name().unwrap())).unwrap();
+        }
+    }
+    dst.into()
+}
+
+struct Fern {
+    _tmp: tempfile::TempDir,
+    scene: PathBuf,
+    output: Output,
+    took: Duration,
+}
+
+fn fern() -> &'static Fern {
+    static FERN: OnceLock<Fern> = OnceLock::new();
+    FERN.get_or_init(|| {
+        let _one = COLMAP.lock().unwrap_or_else(|e| e.into_inner());
+        let tmp = tempfile::tempdir().unwrap();
+        let fern = deepview_data::data_dir().join("llff/fern/images_8");
+        assert!(fern.is_dir(), "shared data missing (set DEEPVIEW_DATA)");
+        let photos = bare_photos(&fern, &tmp.path().join("photos"));
+        let scene = tmp.path().join("fern_scene");
+        let t = Instant::now();
+        let output = deepview(&["process", "--data", s(&photos), "--out", s(&scene)]);
+        let took = t.elapsed();
+        eprintln!(
+            "deepview process on fern images_8 took {:.1} s:\n{}{}",
+            took.as_secs_f64(),
+            String::from_utf8_lossy(&output.stdout),
+            String::from_utf8_lossy(&output.stderr)
+        );
+        Fern {
+            _tmp: tmp,
+            scene,
+            output,
+            took,
+        }
+    })
+}
+
+fn angle_deg(r: deepview_geometry::DMat3) -> f64 {
+    let c = ((r.x_axis.x + r.y_axis.y + r.z_axis.z - 1.0) / 2.0).clamp(-1.0, 1.0);
+    c.acos().to_degrees()
+}
+
+#[test]
+fn process_fern_photos_recovers_llff_relative_rotations() {
+    assert!(
+        have_colmap(),
+        "colmap is not installed (apt-get install colmap)"
+    );
+    let f = fern();
+    assert!(
+        f.output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&f.output.stderr)
+    );
+    let stdout = String::from_utf8_lossy(&f.output.stdout);
+    assert!(stdout.contains("20 of 20 images registered"), "{stdout}");
+    for stage in ["feature extraction", "matching", "mapping", "undistortion"] {
+        assert!(stdout.contains(stage), "{stage} not in {stdout}");
+    }
+    assert!(f.scene.join("colmap.log").is_file());
+    assert!(f.scene.join("sparse/0/cameras.bin").is_file());
+    assert!(!f.scene.with_file_name("fern_scene.incomplete").exists());
+    assert!(f.took < Duration::from_secs(600), "{:?}", f.took);
+
+    let ours = deepview_data::load_scene(&f.scene, &Default::default()).unwrap();
+    assert_eq!(ours.format, deepview_data::SceneFormat::Colmap);
+    ours.check_images().unwrap();
+    let (near, far) = ours.near_far().unwrap();
+    assert!(near > 0.0 && far > near);
+    let fern = deepview_data::data_dir().join("llff/fern");
+    let llff = deepview_data::load_scene(
+        &fern,
+        &deepview_data::LoadOptions {
+            images: Some("images_8".into()),
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    // Images map by file name: COLMAP names them image000.png, LLFF views are image000.
+    let pairs: Vec<_> = ours
+        .views
+        .iter()
+        .map(|v| {
+            let stem = v.name.trim_end_matches(".png");
+            let l = llff.views.iter().find(|l| l.name == stem).unwrap();
+            (v.camera.pose.rotation, l.camera.pose.rotation)
+        })
+        .collect();
+    assert_eq!(pairs.len(), 20);
+    let (mut worst, mut sum, mut n) = (0.0f64, 0.0, 0);
+    for i in 0..pairs.len() {
+        for j in i + 1..pairs.len() {
+            let ours = pairs[i].0 * pairs[j].0.transpose();
+            let theirs = pairs[i].1 * pairs[j].1.transpose();
+            let e = angle_deg(ours * theirs.transpose());
+            worst = worst.max(e);
+            sum += e;
+            n += 1;
+        }
+    }
+    eprintln!(
+        "relative rotation error over {n} pairs: max {worst:.4} deg, mean {:.4} deg",
+        sum / n as f64
+    );
+    assert!(worst < 1.0, "max relative rotation error {worst} deg");
+}
+
+#[test]
+fn processed_fern_infers_and_renders() {
+    assert!(
+        have_colmap(),
+        "colmap is not installed (apt-get install colmap)"
+    );
+    let f = fern();
+    assert!(
+        f.output.status.success(),
+        "{}",
+        String::from_utf8_lossy(&f.output.stderr)
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let mpi = tmp.path().join("mpi");
+    let o = with_data("infer", &f.scene, "", &["--planes", "8", "--out", s(&mpi)]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let png = tmp.path().join("view3.png");
+    let o = deepview(&[
+        "render",
+        "--mpi",
+        s(&mpi),
+        "--scene",
+        s(&f.scene),
+        "--view",
+        "3",
+        "--out",
+        s(&png),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let scene = deepview_data::load_scene(&f.scene, &Default::default()).unwrap();
+    let img = deepview_image::read_image(&png, 3).unwrap();
+    let cam = scene.views[3].camera;
+    assert_eq!((img.width, img.height), (cam.width, cam.height));
+    // The render of an input-adjacent view resembles the photo (not a blank or misaligned image).
+    let truth = scene.load_image(3).unwrap();
+    let mse: f64 = img
+        .data
+        .iter()
+        .zip(&truth.data)
+        .map(|(a, b)| ((a - b) as f64).powi(2))
+        .sum::<f64>()
+        / img.data.len() as f64;
+    let psnr = -10.0 * mse.log10();
+    eprintln!("render of processed fern view 3: PSNR {psnr:.2} dB");
+    assert!(psnr > 15.0, "PSNR {psnr}");
+}
+
+fn noise_png(path: &Path, seed: u32) {
+    let (w, h) = (160u32, 120u32);
+    let mut x = seed.wrapping_mul(2_654_435_761).wrapping_add(1);
+    let mut data = Vec::with_capacity((w * h * 3) as usize);
+    for _ in 0..w * h * 3 {
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        data.push((x >> 24) as f32 / 255.0);
+    }
+    let img = deepview_image::ImageF32::from_data(w, h, 3, data).unwrap();
+    deepview_image::write_png(path, &img).unwrap();
+}
+
+#[test]
+fn unrelated_images_fail_clearly_with_exit_code_2() {
+    assert!(
+        have_colmap(),
+        "colmap is not installed (apt-get install colmap)"
+    );
+    let _one = COLMAP.lock().unwrap_or_else(|e| e.into_inner());
+    let tmp = tempfile::tempdir().unwrap();
+    let photos = tmp.path().join("noise");
+    std::fs::create_dir(&photos).unwrap();
+    for i in 0..4 {
+        noise_png(&photos.join(format!("noise{i}.png")), i + 1);
+    }
+    let out = tmp.path().join("scene");
+    let o = deepview(&["process", "--data", s(&photos), "--out", s(&out)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("registered 0 of 4 images") && err.contains("noise0.png"),
+        "{err}"
+    );
+    assert!(!out.exists(), "no scene is written");
+    // The log is kept beside, for inspection.
+    assert!(err.contains("scene.incomplete/colmap.log"), "{err}");
+    assert!(tmp.path().join("scene.incomplete/colmap.log").is_file());
+}
+
+#[test]
+fn missing_colmap_or_photos_give_clear_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let photos = tmp.path().join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    noise_png(&photos.join("a.png"), 1);
+    noise_png(&photos.join("b.png"), 2);
+    let out = tmp.path().join("scene");
+    let o = deepview(&[
+        "process",
+        "--data",
+        s(&photos),
+        "--out",
+        s(&out),
+        "--colmap",
+        "/nonexistent/colmap",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("/nonexistent/colmap") && err.contains("apt-get install colmap"),
+        "{err}"
+    );
+    // No colmap on PATH.
+    let o = Command::new(env!("CARGO_BIN_EXE_deepview"))
+        .args(["process", "--data", s(&photos), "--out", s(&out)])
+        .env("PATH", tmp.path())
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("apt-get install colmap"), "{err}");
+    assert!(!out.exists());
+    // A folder without photos, and an existing output folder.
+    let empty = tmp.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    std::fs::write(empty.join("notes.txt"), "not a photo").unwrap();
+    let o = deepview(&["process", "--data", s(&empty), "--out", s(&out)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("no images found") && err.contains("empty"),
+        "{err}"
+    );
+    let o = deepview(&["process", "--data", s(&photos), "--out", s(&empty)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("already exists"), "{err}");
+    assert!(empty.join("notes.txt").is_file());
+}
