@@ -3,8 +3,8 @@
 //!
 //! Layout ([`Plane`]): one channel of one slice is a flat buffer holding the `h x w` image inside a
 //! one-texel zero border (rows of `w + 2`), with a little slack before and after. A 3x3 tap is then a
-//! constant offset in the flat index, so a kernel walks the whole plane as one vector loop (24 outputs
-//! per step in three AVX2 registers) with no per-row edge cases; the border columns it computes are
+//! constant offset in the flat index, so a kernel walks the whole plane as one vector loop (16 outputs
+//! per step in two AVX2 registers) with no per-row edge cases; the border columns it computes are
 //! discarded (zeroed) afterwards, so every buffer keeps zeros outside its interior and the output of one
 //! layer is the padded input of the next. Channels are passed as lists of planes, so concatenating
 //! channels (the network's `concat(features, max over views)`) costs nothing.

@@ -1,14 +1,15 @@
 //! AVX2 + FMA kernels (this project's machines are AMD Zen 3: 16 ymm registers, two 256-bit FMA pipes,
-//! three loads per cycle). The forward kernel computes 24 outputs (3 registers) of 4 output channels
-//! per step in 12 accumulators, broadcasting each weight once per 3 FMAs; the weight gradient keeps the
-//! nine taps of one output and input channel in 9 accumulators.
+//! three loads per cycle). The forward kernel computes 16 outputs (2 registers) of 4 output channels
+//! per step in 8 accumulators (enough to cover the FMA latency, and with the inputs and a broadcast
+//! weight within the 16 registers: 12 accumulators spilled), broadcasting each weight once per 2 FMAs;
+//! the weight gradient keeps the nine taps of one output and input channel in 9 accumulators.
 
 use crate::conv::{Act, CO_BLOCK};
 use crate::elu::{C2, C3, C4, C5, C6, C7, LN2_HI, LN2_LO};
 use std::arch::x86_64::*;
 
 /// Outputs per step of the forward kernel.
-pub const STEP: usize = 24;
+pub const STEP: usize = 16;
 /// Output channels per pass of the forward kernel.
 const CO_PASS: usize = 4;
 
@@ -46,7 +47,7 @@ fn elu8(x: __m256) -> __m256 {
 }
 
 /// # Safety
-/// As `scalar::conv_block`, for reads up to one step (24) past `end` plus the taps and writes up to one
+/// As `scalar::conv_block`, for reads up to one step (16) past `end` plus the taps and writes up to one
 /// step past `end`; requires AVX2 and FMA.
 #[target_feature(enable = "avx2,fma")]
 pub unsafe fn conv_block(
@@ -99,7 +100,6 @@ unsafe fn conv_pass(
     while i < end {
         let mut a0 = bias;
         let mut a1 = bias;
-        let mut a2 = bias;
         for (ci, &inp) in ins.iter().enumerate() {
             // SAFETY: in bounds by the caller's contract (every tap of this step).
             unsafe {
@@ -109,27 +109,24 @@ unsafe fn conv_pass(
                     let p = base.offset(off);
                     let x0 = _mm256_loadu_ps(p);
                     let x1 = _mm256_loadu_ps(p.add(8));
-                    let x2 = _mm256_loadu_ps(p.add(16));
                     let wt = wc.add(t * CO_BLOCK);
                     for j in 0..CO_PASS {
                         let wv = _mm256_broadcast_ss(&*wt.add(j));
                         a0[j] = _mm256_fmadd_ps(x0, wv, a0[j]);
                         a1[j] = _mm256_fmadd_ps(x1, wv, a1[j]);
-                        a2[j] = _mm256_fmadd_ps(x2, wv, a2[j]);
                     }
                 }
             }
         }
         for (j, &o) in outs.iter().enumerate() {
             let v = match act {
-                Act::Linear => [a0[j], a1[j], a2[j]],
-                Act::Elu => [elu8(a0[j]), elu8(a1[j]), elu8(a2[j])],
+                Act::Linear => [a0[j], a1[j]],
+                Act::Elu => [elu8(a0[j]), elu8(a1[j])],
             };
             // SAFETY: in bounds by the caller's contract.
             unsafe {
                 _mm256_storeu_ps(o.add(i), v[0]);
                 _mm256_storeu_ps(o.add(i + 8), v[1]);
-                _mm256_storeu_ps(o.add(i + 16), v[2]);
             }
         }
         i += STEP;

@@ -24,7 +24,7 @@ use crate::config::DeepViewConfig;
 use crate::forward::{
     GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume,
 };
-use crate::kernels::conv3x3_act;
+use crate::kernels::{conv3x3_act, core_net_inference, fast_device};
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
@@ -100,6 +100,10 @@ impl CoreNet {
         } else {
             x
         };
+        if fast_device(&x.device()) && !x.is_autodiff() {
+            let o = core_net_inference(&self.input, &self.stages, &self.head, &self.out, x, views);
+            return self.upsample(o, h, w);
+        }
         let mut f = x;
         for c in &self.input {
             f = conv3x3_act(f, c, true);
@@ -116,6 +120,41 @@ impl CoreNet {
         }
         let m = max_over_views(f, views);
         let o = conv3x3_act(conv3x3_act(m, &self.head, true), &self.out, false);
+        self.upsample(o, h, w)
+    }
+
+    /// [`Self::forward`] with burn's own `conv2d` and `elu` on any device (the reference of the kernels).
+    pub fn forward_burn(&self, x: Tensor<4>, views: usize) -> Tensor<4> {
+        let [kd, _, h, w] = x.dims();
+        let d = kd / views;
+        let x = if self.unet {
+            let opts = AvgPoolOptions::new([2, 2]).with_padding_pairs([(0, h % 2), (0, w % 2)]);
+            avg_pool2d(x, opts)
+        } else {
+            x
+        };
+        let act = |c: &Conv2d, x: Tensor<4>| burn::tensor::activation::elu(c.forward(x), 1.0);
+        let mut f = x;
+        for c in &self.input {
+            f = act(c, f);
+        }
+        for pair in self.stages.chunks(2) {
+            let [_, fc, hh, ww] = f.dims();
+            let m = max_over_views(f.clone(), views)
+                .reshape([1, d, fc, hh, ww])
+                .repeat_dim(0, views);
+            f = Tensor::cat(vec![f, m.reshape([kd, fc, hh, ww])], 1);
+            for c in pair {
+                f = act(c, f);
+            }
+        }
+        let m = max_over_views(f, views);
+        let o = self.out.forward(act(&self.head, m));
+        self.upsample(o, h, w)
+    }
+
+    /// The U-Net's bilinear upsampling of the output back to `h x w` (identity without U-Net).
+    fn upsample(&self, o: Tensor<4>, h: usize, w: usize) -> Tensor<4> {
         if self.unet {
             let [_, _, hh, ww] = o.dims();
             let opts = InterpolateOptions::new(InterpolateMode::Bilinear)
@@ -478,6 +517,55 @@ mod tests {
 
     fn max_diff(a: Tensor<4>, b: Tensor<4>) -> f32 {
         (a - b).abs().max().into_scalar()
+    }
+
+    /// The kernels (fused inference on `flex`, per-layer op with its backward under autodiff) against
+    /// burn's conv2d + ELU: outputs, and gradients of the input and of every weight, on odd sizes, 1 and
+    /// 12 views, U-Net nets and 64 features.
+    #[test]
+    fn kernels_match_burn_ops() {
+        let ad = Device::flex().autodiff();
+        for (cin, f, stages, unet, k, d, h, w) in [
+            (4, 8, 1, false, 4, 3, 17, 23),
+            (19, 8, 1, false, 1, 2, 9, 12),
+            (19, 16, 3, true, 12, 2, 15, 11),
+            (4, 64, 3, true, 4, 2, 13, 18),
+            (11, 5, 2, false, 3, 1, 1, 3),
+        ] {
+            let net = CoreNet::new(cin, f, 8, stages, unet, &ad);
+            let x = Tensor::<4>::random(
+                [k * d, cin, h, w],
+                burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                &ad,
+            );
+            let rel = |a: Tensor<4>, b: Tensor<4>| {
+                let s: f32 = b.clone().abs().max().into_scalar();
+                let e: f32 = (a - b).abs().max().into_scalar();
+                e / s.max(1e-6)
+            };
+            // Inference: fused engine on the plain device.
+            let plain = net.valid();
+            let fused = plain.forward(x.clone().inner(), k);
+            let reference = plain.forward_burn(x.clone().inner(), k);
+            assert_eq!(fused.dims(), [d, 8, h, w]);
+            let e = rel(fused, reference.clone());
+            assert!(e < 1e-5, "fused {cin} {f} {unet} {k}x{d} {h}x{w}: {e}");
+            // Training: per-layer op with its own backward.
+            let seed = Tensor::<4>::random([d, 8, h, w], burn::tensor::Distribution::Uniform(-1.0, 1.0), &ad);
+            let xa = x.clone().require_grad();
+            let ya = net.forward(xa.clone(), k);
+            let e = rel(ya.clone().inner(), reference);
+            assert!(e < 1e-5, "per-layer forward: {e}");
+            let ga = (ya * seed.clone()).sum().backward();
+            let xb = x.clone().require_grad();
+            let gb = (net.forward_burn(xb.clone(), k) * seed).sum().backward();
+            let e = rel(xa.grad(&ga).unwrap(), xb.grad(&gb).unwrap());
+            assert!(e < 1e-4, "input gradient: {e}");
+            for (i, c) in net.input.iter().chain(&net.stages).chain([&net.head, &net.out]).enumerate() {
+                let e = rel(c.weight.grad(&ga).unwrap(), c.weight.grad(&gb).unwrap());
+                assert!(e < 1e-4, "conv {i} weight gradient: {e}");
+            }
+        }
     }
 
     #[test]
