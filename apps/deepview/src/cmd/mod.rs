@@ -1,5 +1,6 @@
 //! One module per subcommand: `Args` (clap) and `run`.
 
+pub mod args;
 pub mod baseline;
 pub mod bench;
 pub mod demo;
@@ -81,10 +82,10 @@ pub struct CameraSource {
     /// Camera JSON: {"width","height","fx","fy","cx","cy","camera_from_world":[16 numbers, row-major]}.
     #[arg(long, conflicts_with = "scene_dir")]
     pub camera: Option<std::path::PathBuf>,
-    /// A dataset folder whose view `--view` gives the camera.
-    #[arg(long = "scene", requires = "view")]
+    /// A dataset folder whose view `--view` gives the camera (`--scene` is the old spelling).
+    #[arg(long = "data", alias = "scene", value_name = "DIR", requires = "view")]
     pub scene_dir: Option<std::path::PathBuf>,
-    /// View index in `--scene`.
+    /// View index in `--data`.
     #[arg(long)]
     pub view: Option<usize>,
     #[command(flatten)]
@@ -92,7 +93,7 @@ pub struct CameraSource {
 }
 
 impl CameraSource {
-    /// The camera, or `None` when neither `--camera` nor `--scene` was given.
+    /// The camera, or `None` when neither `--camera` nor `--data` was given.
     pub fn camera(&self) -> anyhow::Result<Option<Camera>> {
         if let Some(p) = &self.camera {
             return Ok(Some(read_camera_json(p)?));
