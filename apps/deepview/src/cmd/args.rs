@@ -107,9 +107,10 @@ impl FromStr for PlanesArg {
         match s.trim().to_ascii_lowercase().as_str() {
             "auto" => Ok(Self::Auto),
             "weights" => Ok(Self::Weights),
-            t => t.parse::<usize>().map(Self::Count).map_err(|_| {
-                format!("{s:?} is not a plane count (use auto, weights or a number)")
-            }),
+            t => t
+                .parse::<usize>()
+                .map(Self::Count)
+                .map_err(|_| format!("{s:?} is not a plane count (use auto, weights or a number)")),
         }
     }
 }
@@ -209,10 +210,7 @@ pub fn choose_planes(
                 auto.max_disparity_px
             );
             if limited_by.is_some() {
-                message += &format!(
-                    "; the rule's {} planes do not fit --max-memory",
-                    auto.count
-                );
+                message += &format!("; the rule's {} planes do not fit --max-memory", auto.count);
             }
             message.push(')');
             Ok(PlaneChoice {
@@ -232,7 +230,7 @@ pub fn choose_planes(
 
 /// The help text of `--max-memory`.
 pub const MEMORY_HELP: &str = "Memory budget, e.g. 2GiB, 512MiB, 1500000000, or auto (default): half of the \
-    memory available now (MemAvailable in /proc/meminfo; 2 GiB when that cannot be read).";
+    memory available now (MemAvailable in /proc/meminfo), at most 3 GiB; 2 GiB when that cannot be read.";
 
 /// Bytes of `MemAvailable` in `/proc/meminfo`.
 pub fn available_memory() -> Option<u64> {
@@ -254,27 +252,40 @@ fn parse_mem_available(meminfo: &str) -> Option<u64> {
 /// The fallback budget when the available memory cannot be read.
 pub const FALLBACK_BUDGET: u64 = 2 << 30;
 
+/// The most the default budget takes. A larger budget only buys the tiled inference larger tiles, not speed
+/// (measured: fern `images_8`, 33 planes, 4 views: 3 min 37 s and 1.7 GB peak RSS with 2 GiB, 4 min 1 s and
+/// 5.6 GB with 11.5 GiB), and 3 GiB keeps `infer --images images_4 --planes 64` on fern under 4 GiB peak
+/// RSS (2.73 GB measured, BENCHMARKS.md).
+pub const MAX_DEFAULT_BUDGET: u64 = 3 << 30;
+
 fn gib(bytes: u64) -> String {
     format!("{:.1} GiB", bytes as f64 / (1u64 << 30) as f64)
 }
 
-/// The budget of `--max-memory` (`None` or `auto`: half of `MemAvailable`, else [`FALLBACK_BUDGET`]),
-/// and the line saying where it came from.
-pub fn memory_budget_of(arg: Option<&str>, available: Option<u64>) -> anyhow::Result<(u64, String)> {
+/// The budget of `--max-memory` (`None` or `auto`: half of `MemAvailable`, at most [`MAX_DEFAULT_BUDGET`];
+/// [`FALLBACK_BUDGET`] when unknown), and the line saying where it came from.
+pub fn memory_budget_of(
+    arg: Option<&str>,
+    available: Option<u64>,
+) -> anyhow::Result<(u64, String)> {
     match arg.map(str::trim) {
         Some(t) if !t.eq_ignore_ascii_case("auto") => {
             let b = super::infer::parse_bytes(t).context("--max-memory")?;
             Ok((b, format!("memory budget: {} (--max-memory {t})", gib(b))))
         }
         _ => Ok(match available {
-            Some(a) if a > 0 => (
-                a / 2,
-                format!(
-                    "memory budget: {} (half of the {} available; --max-memory to change)",
-                    gib(a / 2),
-                    gib(a)
-                ),
-            ),
+            Some(a) if a > 0 => {
+                let b = (a / 2).min(MAX_DEFAULT_BUDGET);
+                let how = if b < a / 2 { "at most 3 GiB, " } else { "" };
+                (
+                    b,
+                    format!(
+                        "memory budget: {} ({how}half of the {} available; --max-memory to change)",
+                        gib(b),
+                        gib(a)
+                    ),
+                )
+            }
             _ => (
                 FALLBACK_BUDGET,
                 format!(
@@ -374,16 +385,34 @@ mod tests {
             &mut |n| n <= 20,
         )
         .unwrap();
-        assert_eq!((c.count, c.rule.limited_by.as_deref()), (20, Some("memory budget")));
+        assert_eq!(
+            (c.count, c.rule.limited_by.as_deref()),
+            (20, Some("memory budget"))
+        );
         // Explicit counts and the weights' count win, whatever the memory.
         let explicit = |arg| {
-            choose_planes(arg, &reference, &views, &[3, 7], (2.0, 50.0), Some(32), &mut |_| false)
+            choose_planes(
+                arg,
+                &reference,
+                &views,
+                &[3, 7],
+                (2.0, 50.0),
+                Some(32),
+                &mut |_| false,
+            )
         };
         assert_eq!(explicit(PlanesArg::Count(5)).unwrap().count, 5);
         assert_eq!(explicit(PlanesArg::Weights).unwrap().count, 32);
         assert!(explicit(PlanesArg::Count(0)).is_err());
-        let no_weights =
-            choose_planes(PlanesArg::Weights, &reference, &views, &[], (2.0, 50.0), None, &mut |_| true);
+        let no_weights = choose_planes(
+            PlanesArg::Weights,
+            &reference,
+            &views,
+            &[],
+            (2.0, 50.0),
+            None,
+            &mut |_| true,
+        );
         assert!(no_weights.is_err());
     }
 
@@ -392,12 +421,20 @@ mod tests {
         let info = "MemTotal:       24000000 kB\nMemFree:  100 kB\nMemAvailable:   20971520 kB\n";
         assert_eq!(parse_mem_available(info), Some(20971520 * 1024));
         assert_eq!(parse_mem_available("MemTotal: 5 kB\n"), None);
-        let (b, line) = memory_budget_of(None, Some(20 << 30)).unwrap();
-        assert_eq!(b, 10 << 30);
-        assert!(line.contains("10.0 GiB") && line.contains("half"), "{line}");
-        assert_eq!(memory_budget_of(Some("auto"), Some(8 << 30)).unwrap().0, 4 << 30);
+        let (b, line) = memory_budget_of(None, Some(4 << 30)).unwrap();
+        assert_eq!(b, 2 << 30);
+        assert!(line.contains("2.0 GiB") && line.contains("half"), "{line}");
+        let (b, line) = memory_budget_of(Some("auto"), Some(20 << 30)).unwrap();
+        assert_eq!(b, MAX_DEFAULT_BUDGET);
+        assert!(
+            line.contains("3.0 GiB") && line.contains("at most"),
+            "{line}"
+        );
         assert_eq!(memory_budget_of(None, None).unwrap().0, FALLBACK_BUDGET);
-        assert_eq!(memory_budget_of(Some("512MiB"), Some(8 << 30)).unwrap().0, 512 << 20);
+        assert_eq!(
+            memory_budget_of(Some("512MiB"), Some(8 << 30)).unwrap().0,
+            512 << 20
+        );
         assert!(memory_budget_of(Some("lots"), None).is_err());
     }
 }

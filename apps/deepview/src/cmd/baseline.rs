@@ -5,10 +5,10 @@ use super::args::{self, DataArg, PlanesArg};
 use super::{parse_indices, views_nearest_centroid};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
+use deepview_eval::Baseline;
 use deepview_eval::{PsvMeanOptions, agreement_mpi, nearest_view_mpi};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
-use deepview_eval::Baseline;
 use deepview_mpi::write_mpi_with;
 use std::path::PathBuf;
 

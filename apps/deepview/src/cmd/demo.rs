@@ -12,7 +12,9 @@ use deepview_synth::{Rig, SynthOptions, synthesize};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Examples:\n  deepview demo\n  deepview demo --out demo/ --planes 32 --no-optimize")]
+#[command(
+    after_help = "Examples:\n  deepview demo\n  deepview demo --out demo/ --planes 32 --no-optimize"
+)]
 pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "deepview-demo")]

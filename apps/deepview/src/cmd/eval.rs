@@ -1,11 +1,11 @@
 //! `deepview eval`: score a method (a baseline or the learned model) on a scene under a protocol.
 
+use super::args::{self, PlaneChoice, PlanesArg};
 use anyhow::Context;
 use deepview_eval::{
     Baseline, EvalOptions, InputRule, Method, OptimizeOptions, Protocol, PsvMeanOptions,
     TargetRule, baseline_method, evaluate,
 };
-use super::args::{self, PlaneChoice, PlanesArg};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -148,8 +148,10 @@ impl LearnedMethod {
             let mut fits = |count: usize| {
                 plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth).is_ok_and(
                     |depths| {
-                        deepview_net::infer::plan_inference(model, &views, &reference, &depths, budget)
-                            .is_ok()
+                        deepview_net::infer::plan_inference(
+                            model, &views, &reference, &depths, budget,
+                        )
+                        .is_ok()
                     },
                 )
             };
@@ -310,7 +312,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let protocol = Protocol::from_name(&args.protocol, targets, inputs)?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;
     let mut method: Box<dyn Method> = if args.method.trim().eq_ignore_ascii_case("deepview") {
-        Box::new(LearnedMethod::load(&weights_of(&args)?, args.planes, budget)?)
+        Box::new(LearnedMethod::load(
+            &weights_of(&args)?,
+            args.planes,
+            budget,
+        )?)
     } else {
         let kind: Baseline = args.method.parse()?;
         let psv = PsvMeanOptions {

@@ -1,8 +1,8 @@
 //! `deepview export --mpi MPI_DIR --out OUT --format llff|stereo-mag|compact`: write an MPI in another tool's format.
 
+use super::args::{MpiArg, OutArg};
 use anyhow::Context;
 use deepview_media::ExportFormat;
-use super::args::{MpiArg, OutArg};
 
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
@@ -23,9 +23,8 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let format: ExportFormat = args.format.parse()?;
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
-    let report = deepview_media::export(mpi_dir, out, format).with_context(|| {
-        format!("cannot export {} as {}", mpi_dir.display(), args.format)
-    })?;
+    let report = deepview_media::export(mpi_dir, out, format)
+        .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }

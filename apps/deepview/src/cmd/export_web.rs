@@ -1,10 +1,12 @@
 //! `deepview export-web --mpi MPI_DIR --out OUT`: the viewer page and the MPI's files as a static folder.
 
-use anyhow::Context;
 use super::args::{MpiArg, OutArg};
+use anyhow::Context;
 
 #[derive(clap::Args)]
-#[command(after_help = "Example:\n  deepview export-web --mpi fern_mpi/ --out fern_web/\n  python3 -m http.server -d fern_web")]
+#[command(
+    after_help = "Example:\n  deepview export-web --mpi fern_mpi/ --out fern_web/\n  python3 -m http.server -d fern_web"
+)]
 pub struct Args {
     #[command(flatten)]
     pub mpi: MpiArg,
@@ -15,9 +17,8 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
-    let files = deepview_viewer::export_web(mpi_dir, out).with_context(|| {
-        format!("cannot export the web viewer for {}", mpi_dir.display())
-    })?;
+    let files = deepview_viewer::export_web(mpi_dir, out)
+        .with_context(|| format!("cannot export the web viewer for {}", mpi_dir.display()))?;
     let bytes: u64 = files
         .iter()
         .filter_map(|f| std::fs::metadata(f).ok())

@@ -1,8 +1,8 @@
 //! `deepview import --mpi IN --out OUT_MPI_DIR`: read an MPI in any supported format (detected) into our folder format.
 
+use super::args::{MpiArg, OutArg};
 use anyhow::Context;
 use deepview_media::interchange::ImportOptions;
-use super::args::{MpiArg, OutArg};
 
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \

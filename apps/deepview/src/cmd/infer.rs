@@ -1,8 +1,8 @@
 //! `deepview infer`: an MPI from a few posed views with the learned network (tiled, bounded memory).
 
+use super::args::{self, DataArg, PlanesArg};
 use anyhow::{Context, bail};
 use deepview_data::{SceneArgs, load_scene};
-use super::args::{self, DataArg, PlanesArg};
 use deepview_geometry::{PlaneSpacing, plane_depths};
 use deepview_net::infer::{infer_mpi, plan_inference};
 use deepview_net::weights::{check_views, load_model};
@@ -156,9 +156,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect::<anyhow::Result<Vec<_>>>()?;
     // `auto` takes the largest count up to the rule's that the inference can plan within the budget.
     let mut fits = |count: usize| {
-        plane_depths(near, far, count, PlaneSpacing::InverseDepth).is_ok_and(|depths| {
-            plan_inference(&model, &views, &reference, &depths, budget).is_ok()
-        })
+        plane_depths(near, far, count, PlaneSpacing::InverseDepth)
+            .is_ok_and(|depths| plan_inference(&model, &views, &reference, &depths, budget).is_ok())
     };
     let choice = args::choose_planes(
         args.planes,

@@ -1,10 +1,10 @@
 //! `deepview info SCENE`: what a dataset folder contains (format, views, image size, depth bounds, cameras).
 
+use super::args::DataArg;
 use anyhow::Context;
 use deepview_data::{Scene, SceneArgs, load_scene};
 use std::fmt::Write as _;
 use std::io::Write as _;
-use super::args::DataArg;
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  \

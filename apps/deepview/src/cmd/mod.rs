@@ -82,7 +82,7 @@ pub struct CameraSource {
     /// Camera JSON: {"width","height","fx","fy","cx","cy","camera_from_world":[16 numbers, row-major]}.
     #[arg(long, conflicts_with = "scene_dir")]
     pub camera: Option<std::path::PathBuf>,
-    /// A dataset folder whose view `--view` gives the camera (`--scene` is the old spelling).
+    /// A dataset folder whose view `--view` gives the camera.
     #[arg(long = "data", alias = "scene", value_name = "DIR", requires = "view")]
     pub scene_dir: Option<std::path::PathBuf>,
     /// View index in `--data`.

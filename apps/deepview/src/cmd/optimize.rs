@@ -3,9 +3,9 @@
 use super::args::{self, DataArg, PlanesArg};
 use super::parse_indices;
 use anyhow::Context;
+use deepview_eval::Baseline;
 use deepview_eval::{OptimizeOptions, optimize_mpi_with_history};
 use deepview_geometry::Camera;
-use deepview_eval::Baseline;
 use deepview_mpi::write_mpi_with;
 use std::path::PathBuf;
 

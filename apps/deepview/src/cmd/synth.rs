@@ -15,7 +15,12 @@ pub struct Args {
     pub out: PathBuf,
     /// The rig: `grid` (a generated N x N light-field grid) or a dataset folder whose cameras to use
     /// (Spaces models.json, LLFF, COLMAP, light field).
-    #[arg(long, default_value = "grid", visible_alias = "data", value_name = "grid|DIR")]
+    #[arg(
+        long,
+        default_value = "grid",
+        visible_alias = "data",
+        value_name = "grid|DIR"
+    )]
     pub cameras: String,
     /// Grid rig: views per side.
     #[arg(long, default_value_t = 4)]

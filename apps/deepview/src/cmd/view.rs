@@ -1,10 +1,12 @@
 //! `deepview view --mpi MPI_DIR [--port 8080] [--host 127.0.0.1]`: serve the WebGL2 viewer for an MPI folder.
 
-use anyhow::Context;
 use super::args::MpiArg;
+use anyhow::Context;
 
 #[derive(clap::Args)]
-#[command(after_help = "Examples:\n  deepview view --mpi fern_mpi/\n  deepview view --mpi fern_mpi/ --port 0 --host 0.0.0.0")]
+#[command(
+    after_help = "Examples:\n  deepview view --mpi fern_mpi/\n  deepview view --mpi fern_mpi/ --port 0 --host 0.0.0.0"
+)]
 pub struct Args {
     #[command(flatten)]
     pub mpi: MpiArg,
