@@ -93,13 +93,16 @@ pub struct LearnedMethod {
     budget: u64,
     last_message: Option<String>,
     /// The last MPI, the inputs it came from and its plane choice: targets sharing inputs reuse it.
-    cache: Option<(
-        Vec<deepview_geometry::Camera>,
-        (f64, f64),
-        deepview_mpi::Mpi,
-        PlaneChoice,
-    )>,
+    cache: Option<CachedMpi>,
 }
+
+/// An inferred MPI with the input cameras and bounds it came from, and its plane choice.
+type CachedMpi = (
+    Vec<deepview_geometry::Camera>,
+    (f64, f64),
+    deepview_mpi::Mpi,
+    PlaneChoice,
+);
 
 impl LearnedMethod {
     /// Load weights (config.json + model.safetensors) from `weights`; `budget` bounds inference memory.
