@@ -116,7 +116,8 @@ fn synth_then_render_ground_truth_into_a_view() {
     let o = deepview(&["bench", "render", "--mpi", s(&gt), "--repeats", "2"]);
     let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(line["fps"].as_f64().unwrap() > 0.0 && line["planes"] == 8);
-    // `info --camera N` writes view N's camera JSON: rendering into it equals `--scene S --view N`.
+    // `info --camera N` writes view N's camera JSON: rendering into it equals `--scene S --view N`. (The
+    // old spellings, a bare dataset folder and `render --scene`, still work for one release.)
     let o = deepview(&["info", s(&scene), "--camera", "4"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let cam4 = tmp.path().join("cam4.json");
@@ -137,7 +138,7 @@ fn synth_then_render_ground_truth_into_a_view() {
         std::fs::read(&view).unwrap()
     );
     fails_with(
-        &deepview(&["info", s(&scene), "--camera", "99"]),
+        &deepview(&["info", "--data", s(&scene), "--camera", "99"]),
         &["view 99 is out of range", "9 views"],
     );
 }
@@ -149,6 +150,7 @@ fn psv_of_a_fern_view_onto_its_own_camera_is_the_image() {
     let out = tmp.path().join("psv");
     let o = deepview(&[
         "psv",
+        "--data",
         s(&fern),
         "--images",
         "images_8",
@@ -201,6 +203,7 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
     fails_with(
         &deepview(&[
             "psv",
+            "--data",
             s(&scene),
             "--planes",
             "0",
@@ -248,6 +251,7 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
     fails_with(
         &deepview(&[
             "psv",
+            "--data",
             s(&scene),
             "--view",
             "2",
@@ -264,6 +268,7 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
     fails_with(
         &deepview(&[
             "psv",
+            "--data",
             s(&scene),
             "--view",
             "2",
@@ -277,7 +282,10 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
     let llff = tmp.path().join("llff");
     std::fs::create_dir_all(llff.join("images")).unwrap();
     std::fs::write(llff.join("poses_bounds.npy"), b"\x93NUMPY\x01\x00garbage").unwrap();
-    fails_with(&deepview(&["info", s(&llff)]), &["poses_bounds.npy"]);
+    fails_with(
+        &deepview(&["info", "--data", s(&llff)]),
+        &["poses_bounds.npy"],
+    );
     let colmap = tmp.path().join("colmap");
     std::fs::create_dir_all(colmap.join("sparse/0")).unwrap();
     std::fs::write(
@@ -286,7 +294,7 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
     )
     .unwrap();
     std::fs::write(colmap.join("sparse/0/images.txt"), "").unwrap();
-    fails_with(&deepview(&["info", s(&colmap)]), &["cameras.txt"]);
+    fails_with(&deepview(&["info", "--data", s(&colmap)]), &["cameras.txt"]);
 
     // Out-of-range view.
     deepview_image::write_png(
@@ -297,6 +305,7 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
     fails_with(
         &deepview(&[
             "psv",
+            "--data",
             s(&scene),
             "--view",
             "99",
@@ -314,7 +323,7 @@ fn psnr_of_render(tmp: &Path, mpi: &Path, scene: &Path, view: usize, truth: &Pat
         "render",
         "--mpi",
         s(mpi),
-        "--scene",
+        "--data",
         s(scene),
         "--view",
         &view.to_string(),
@@ -336,6 +345,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     let psv = tmp.path().join("psv_mpi");
     let o = deepview(&[
         "baseline",
+        "--data",
         s(&scene),
         "--method",
         "psv-mean",
@@ -361,6 +371,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     let corner = tmp.path().join("corner_mpi");
     let o = deepview(&[
         "baseline",
+        "--data",
         s(&scene),
         "--method",
         "nearest",
@@ -381,6 +392,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     let near = tmp.path().join("nearest_mpi");
     let o = deepview(&[
         "baseline",
+        "--data",
         s(&scene),
         "--method",
         "nearest",
@@ -402,6 +414,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     fails_with(
         &deepview(&[
             "baseline",
+            "--data",
             s(&scene),
             "--method",
             "psv-mean",
@@ -415,6 +428,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     fails_with(
         &deepview(&[
             "baseline",
+            "--data",
             s(&scene),
             "--method",
             "nearest",
@@ -505,7 +519,7 @@ fn grid_as(grid: &Path, format: &str, out: &Path) -> PathBuf {
         }
         f => panic!("unknown format {f}"),
     }
-    let info = succeeds(&deepview(&["info", s(out)]));
+    let info = succeeds(&deepview(&["info", "--data", s(out)]));
     assert!(info.contains(format) && info.contains('9'), "{info}");
     out.to_path_buf()
 }
@@ -577,7 +591,7 @@ fn bad_dataset_files_give_clear_errors_and_exit_code_2() {
     bytes[at..at + 8].copy_from_slice(&f64::NAN.to_le_bytes());
     std::fs::write(&npy, bytes).unwrap();
     fails_with(
-        &deepview(&["info", s(&bad)]),
+        &deepview(&["info", "--data", s(&bad)]),
         &["poses_bounds.npy", "non-finite", "NaN", "row 1"],
     );
 
@@ -593,7 +607,7 @@ fn bad_dataset_files_give_clear_errors_and_exit_code_2() {
     lines[first] = tok.join(" ");
     std::fs::write(&images_txt, lines.join("\n") + "\n").unwrap();
     fails_with(
-        &deepview(&["info", s(&bad)]),
+        &deepview(&["info", "--data", s(&bad)]),
         &[
             &format!("images.txt:{}", first + 1),
             "non-finite pose value",
@@ -603,16 +617,22 @@ fn bad_dataset_files_give_clear_errors_and_exit_code_2() {
     // COLMAP binary: a valid model (checked), then images.bin cut short inside its last record.
     let bad = copy_dir(&colmap, &t.join("colmap_bin"));
     colmap_text_to_bin(&bad.join("sparse/0"));
-    let info = succeeds(&deepview(&["info", s(&bad), "--json"]));
+    let info = succeeds(&deepview(&["info", "--data", s(&bad), "--json"]));
     let info: serde_json::Value = serde_json::from_str(&info).unwrap();
     assert_eq!(info["views"], 9);
     let images_bin = bad.join("sparse/0/images.bin");
     let bytes = std::fs::read(&images_bin).unwrap();
     std::fs::write(&images_bin, &bytes[..bytes.len() - 5]).unwrap();
-    fails_with(&deepview(&["info", s(&bad)]), &["images.bin", "truncated"]);
+    fails_with(
+        &deepview(&["info", "--data", s(&bad)]),
+        &["images.bin", "truncated"],
+    );
     // ... and cut short right after its image count.
     std::fs::write(&images_bin, &bytes[..12]).unwrap();
-    fails_with(&deepview(&["info", s(&bad)]), &["images.bin", "truncated"]);
+    fails_with(
+        &deepview(&["info", "--data", s(&bad)]),
+        &["images.bin", "truncated"],
+    );
 
     // Spaces: truncated models.json, a camera without focal_length, and camera / rig counts that do not fit.
     let spaces = grid_as(&grid, "spaces", &t.join("spaces"));
@@ -621,23 +641,23 @@ fn bad_dataset_files_give_clear_errors_and_exit_code_2() {
     let models = bad.join("models.json");
     std::fs::write(&models, &text[..text.len() / 2]).unwrap();
     fails_with(
-        &deepview(&["info", s(&bad)]),
+        &deepview(&["info", "--data", s(&bad)]),
         &["models.json", "malformed JSON"],
     );
     let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
     json[0][3].as_object_mut().unwrap().remove("focal_length");
     std::fs::write(&models, json.to_string()).unwrap();
     fails_with(
-        &deepview(&["info", s(&bad)]),
+        &deepview(&["info", "--data", s(&bad)]),
         &["models.json", "missing field", "focal_length"],
     );
     std::fs::write(&models, "[[]]").unwrap();
     fails_with(
-        &deepview(&["info", s(&bad)]),
+        &deepview(&["info", "--data", s(&bad)]),
         &["models.json", "no cameras"],
     );
     fails_with(
-        &deepview(&["info", s(&spaces), "--rig", "1"]),
+        &deepview(&["info", "--data", s(&spaces), "--rig", "1"]),
         &[
             "models.json",
             "rig position 1 is out of range",
@@ -701,7 +721,7 @@ fn demo_makes_everything_it_announces() {
     let stdout = succeeds(&deepview(&["demo", "--out", s(&out), "--no-optimize"]));
     for f in [
         "mpi/mpi.json",
-        "mpi/layer_031.png",
+        "mpi/layer_007.png",
         "scene/ground_truth_mpi/mpi.json",
         "novel_views/view_05.png",
         "novel_views/view_10_ground_truth.png",
@@ -713,8 +733,17 @@ fn demo_makes_everything_it_announces() {
     ] {
         assert!(out.join(f).is_file(), "{f} missing; stdout: {stdout}");
     }
+    // `--planes auto`: the count follows the grid's disparity and is recorded in mpi.json.
     let mpi = deepview_mpi::read_mpi(&out.join("mpi")).unwrap();
-    assert_eq!(mpi.planes(), 32);
+    let (meta, _) = deepview_mpi::MpiMeta::read(&out.join("mpi")).unwrap();
+    let rule = meta.planes_rule.expect("planes_rule in mpi.json");
+    assert_eq!(rule.rule, "auto");
+    let disparity = rule.max_disparity_px.unwrap();
+    assert_eq!(
+        mpi.planes(),
+        ((disparity - 1e-9).ceil() as usize + 1).clamp(8, 256),
+        "{disparity} px"
+    );
     let reports: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
     let ssim = |method: &str| {
@@ -733,6 +762,183 @@ fn demo_makes_everything_it_announces() {
         "deepview {learned} vs nearest {nearest}, psv-mean {psv}"
     );
     // It says how to look at the MPI in the browser.
-    let view_hint = format!("-- view {}", out.join("mpi").display());
+    let view_hint = format!("-- view --mpi {}", out.join("mpi").display());
     assert!(stdout.contains(&view_hint), "{view_hint:?} not in {stdout}");
+}
+
+/// Every command's `--help` ends with examples in the one scheme (`--data DIR` for a dataset, `--mpi DIR`,
+/// `--out`); the old spellings are accepted but not shown.
+#[test]
+fn every_command_help_shows_examples_in_the_one_scheme() {
+    let reads_data = [
+        "synth", "psv", "render", "depth", "info", "eval", "optimize", "train", "infer", "baseline",
+    ];
+    let commands = [
+        "demo",
+        "synth",
+        "psv",
+        "render",
+        "depth",
+        "info",
+        "view",
+        "export-web",
+        "export",
+        "import",
+        "eval",
+        "optimize",
+        "train",
+        "infer",
+        "export-weights",
+        "baseline",
+    ];
+    for cmd in commands {
+        let help = succeeds(&deepview(&[cmd, "--help"]));
+        let at = help
+            .find("Example")
+            .unwrap_or_else(|| panic!("{cmd} --help has no example: {help}"));
+        let examples = &help[at..];
+        assert!(
+            examples.contains(&format!("deepview {cmd} ")),
+            "{cmd}: {examples}"
+        );
+        if reads_data.contains(&cmd) {
+            assert!(
+                examples.contains("--data ") && help.contains("--data"),
+                "{cmd}: {help}"
+            );
+            assert!(
+                help.contains("--downscale") && help.contains("--images"),
+                "{cmd}"
+            );
+        }
+        assert!(!help.contains("--scene"), "{cmd}: {help}");
+    }
+    for cmd in ["infer", "eval", "baseline", "optimize", "demo"] {
+        let help = succeeds(&deepview(&[cmd, "--help"]));
+        assert!(
+            help.contains("[default: auto]") && help.contains("--max-memory"),
+            "{cmd}: {help}"
+        );
+    }
+}
+
+/// `--planes auto` (the default): the count from the cameras' disparity, printed and stored in mpi.json;
+/// clamped by the memory budget; an explicit count wins. Old spellings (bare folders) still work.
+#[test]
+fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = synth_grid(tmp.path());
+    let mpi = tmp.path().join("psv_auto");
+    let o = deepview(&[
+        "baseline",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--inputs",
+        "0,2,6,8",
+        "--out",
+        s(&mpi),
+    ]);
+    succeeds(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("planes: auto -> ") && err.contains("memory budget: "),
+        "{err}"
+    );
+    let (meta, _) = deepview_mpi::MpiMeta::read(&mpi).unwrap();
+    let rule = meta.planes_rule.unwrap();
+    let disparity = rule.max_disparity_px.unwrap();
+    assert!(disparity > 1.0, "{disparity}");
+    assert!([0, 2, 6, 8].contains(&rule.view.unwrap()));
+    let planes = ((disparity - 1e-9).ceil() as usize + 1).clamp(8, 256);
+    assert_eq!(meta.depths.len(), planes);
+    assert!(err.contains(&format!("auto -> {planes} ")), "{err}");
+
+    // A budget too small for the rule: the smallest count, and mpi.json says why.
+    let small = tmp.path().join("psv_small");
+    let o = deepview(&[
+        "baseline",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--max-memory",
+        "1MiB",
+        "--out",
+        s(&small),
+    ]);
+    succeeds(&o);
+    let (meta, _) = deepview_mpi::MpiMeta::read(&small).unwrap();
+    assert_eq!(meta.depths.len(), 8);
+    assert_eq!(
+        meta.planes_rule.unwrap().limited_by.as_deref(),
+        Some("memory budget")
+    );
+    fails_with(
+        &deepview(&[
+            "baseline",
+            "--data",
+            s(&scene),
+            "--method",
+            "psv-mean",
+            "--planes",
+            "weights",
+            "--out",
+            s(&small),
+        ]),
+        &["--planes weights needs a learned model"],
+    );
+
+    // The old spellings: a bare dataset folder, a bare MPI folder and output.
+    let old = tmp.path().join("psv_old");
+    succeeds(&deepview(&[
+        "baseline",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--planes",
+        "6",
+        "--out",
+        s(&old),
+    ]));
+    assert_eq!(deepview_mpi::read_mpi(&old).unwrap().planes(), 6);
+    let (meta, _) = deepview_mpi::MpiMeta::read(&old).unwrap();
+    assert_eq!(meta.planes_rule.unwrap().rule, "explicit");
+    let llff_old = tmp.path().join("llff_old");
+    let llff_new = tmp.path().join("llff_new");
+    succeeds(&deepview(&[
+        "export",
+        s(&old),
+        s(&llff_old),
+        "--format",
+        "llff",
+    ]));
+    succeeds(&deepview(&[
+        "export",
+        "--mpi",
+        s(&old),
+        "--out",
+        s(&llff_new),
+        "--format",
+        "llff",
+    ]));
+    assert_eq!(
+        std::fs::read(llff_old.join("mpi.b")).unwrap(),
+        std::fs::read(llff_new.join("mpi.b")).unwrap()
+    );
+    let back = tmp.path().join("back");
+    succeeds(&deepview(&[
+        "import",
+        "--mpi",
+        s(&llff_new),
+        "--out",
+        s(&back),
+    ]));
+    assert_eq!(deepview_mpi::read_mpi(&back).unwrap().planes(), 6);
+    // Both spellings at once is an error.
+    fails_with(
+        &deepview(&["info", s(&scene), "--data", s(&scene)]),
+        &["cannot be used with"],
+    );
 }

@@ -208,6 +208,9 @@ pub struct Scene {
     pub grid: Option<(usize, usize)>,
     /// Spaces: the number of rig positions in `models.json` (1 for other formats).
     pub rig_count: usize,
+    /// Images are box-downscaled by this integer factor on load and the cameras are scaled by exactly
+    /// `1 / downscale` (sizes rounded down); 1: as on disk. Set by [`LoadOptions::downscale`].
+    pub downscale: u32,
 }
 
 /// How to load a scene; [`SceneArgs`] builds this from command-line flags.
@@ -223,6 +226,8 @@ pub struct LoadOptions {
     pub near: Option<f64>,
     /// Override the far depth bound.
     pub far: Option<f64>,
+    /// Box-downscale every image by this integer factor (0 and 1: full size; see [`Scene::downscale`]).
+    pub downscale: u32,
 }
 
 // The scene flags every command shares. (A plain comment: clap would turn a doc comment into the
@@ -244,6 +249,9 @@ pub struct SceneArgs {
     /// Far depth bound in scene units (overrides the dataset's bounds).
     #[arg(long)]
     pub far: Option<f64>,
+    /// Box-downscale every image by this integer factor on load (cameras scaled by exactly 1/N).
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    pub downscale: u32,
 }
 
 impl SceneArgs {
@@ -254,6 +262,7 @@ impl SceneArgs {
             rig: self.rig,
             near: self.near,
             far: self.far,
+            downscale: self.downscale,
         }
     }
 }
@@ -320,6 +329,25 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
     };
     if scene.views.is_empty() {
         return Err(DataError::invalid(path, "the scene has no views"));
+    }
+    let factor = opts.downscale.max(1);
+    if factor > 1 {
+        for v in &mut scene.views {
+            let c = v.camera;
+            let (w, h) = (c.width / factor, c.height / factor);
+            if w == 0 || h == 0 {
+                return Err(DataError::invalid(
+                    path,
+                    format!(
+                        "--downscale {factor} leaves nothing of view {}'s {}x{} image",
+                        v.name, c.width, c.height
+                    ),
+                ));
+            }
+            let s = 1.0 / factor as f64;
+            v.camera = Camera::new(w, h, c.intrinsics.scaled(s, s), c.pose);
+        }
+        scene.downscale = factor;
     }
     for v in &scene.views {
         v.camera
@@ -393,12 +421,12 @@ impl Scene {
             });
         }
         let got = image_size(&v.image_path)?;
-        let expected = (v.camera.width, v.camera.height);
-        if got != expected {
+        let f = self.downscale.max(1);
+        if (got.0 / f, got.1 / f) != (v.camera.width, v.camera.height) {
             return Err(DataError::ImageSize {
                 path: v.image_path.clone(),
                 calibration: self.calibration_path(),
-                expected,
+                expected: (v.camera.width * f, v.camera.height * f),
                 got,
             });
         }
@@ -422,11 +450,11 @@ impl Scene {
         })
     }
 
-    /// View `i`'s image as RGB; an error if the file is missing or its size differs from the camera's.
+    /// View `i`'s image as RGB (box-downscaled by [`Scene::downscale`]); an error if the file is missing or its size differs from the camera's.
     pub fn load_image(&self, i: usize) -> Result<ImageF32, DataError> {
         self.check_image(i)?;
         let v = &self.views[i];
-        let img = deepview_image::read_image(&v.image_path, 3)?;
+        let img = deepview_image::read_image(&v.image_path, 3)?.downscale(self.downscale.max(1));
         if (img.width, img.height) != (v.camera.width, v.camera.height) {
             return Err(DataError::ImageSize {
                 path: v.image_path.clone(),

@@ -44,6 +44,28 @@ fn sq(a: &[f32], b: &[f32]) -> f64 {
 }
 
 #[test]
+fn downscale_on_load_scales_cameras_and_images_together() {
+    let full = load("llff/fern");
+    let half = load_scene(
+        &data("llff/fern"),
+        &LoadOptions {
+            downscale: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(half.downscale, 2);
+    let (a, b) = (full.views[3].camera, half.views[3].camera);
+    assert_eq!((b.width, b.height), (a.width / 2, a.height / 2));
+    assert_eq!(b.intrinsics, a.intrinsics.scaled(0.5, 0.5));
+    assert_eq!(b.pose, a.pose);
+    let img = half.load_image(3).unwrap();
+    assert_eq!((img.width, img.height), (b.width, b.height));
+    assert_eq!(img.data, full.load_image(3).unwrap().downscale(2).data);
+    half.check_images().unwrap();
+}
+
+#[test]
 fn every_data_folder_loads() {
     let fern = load("llff/fern");
     assert_eq!(

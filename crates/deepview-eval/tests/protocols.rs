@@ -25,6 +25,7 @@ fn scene(format: SceneFormat, cams: Vec<Camera>, grid: Option<(usize, usize)>) -
         depth_bounds: Some((1.0, 100.0)),
         grid,
         rig_count: 1,
+        downscale: 1,
     }
 }
 

@@ -15,7 +15,10 @@ pub mod reference;
 
 pub use camera::{Camera, CameraJson, GeometryError, Intrinsics, Pose};
 pub use homography::{Homography, plane_homography};
-pub use planes::{PlaneSpacing, plane_depths};
+pub use planes::{
+    AUTO_MAX_SPACING_PX, AUTO_PLANES_MAX, AUTO_PLANES_MIN, AutoPlanes, PlaneSpacing,
+    auto_plane_count, auto_planes, disparity_range, plane_depths,
+};
 pub use reference::{ReferenceOptions, reference_camera};
 
 pub use glam::{DMat3, DMat4, DVec2, DVec3};

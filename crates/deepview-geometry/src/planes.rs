@@ -1,6 +1,7 @@
 //! MPI plane depths: equally spaced in inverse depth (disparity), stored back to front.
 
-use crate::camera::GeometryError;
+use crate::camera::{Camera, GeometryError};
+use glam::DVec2;
 
 /// How planes are spaced between near and far.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -53,9 +54,164 @@ pub fn plane_depths(
         .collect())
 }
 
+/// The plane rule's default: neighbouring planes at most this many pixels of disparity apart (the LLFF
+/// sampling rule: a plane per pixel of disparity between the reference and the farthest input view).
+pub const AUTO_MAX_SPACING_PX: f64 = 1.0;
+
+/// The plane counts [`auto_plane_count`] may choose (8 keeps a scene with almost no parallax layered; 256 is
+/// the paper's largest and bounds the cost of wide baselines).
+pub const AUTO_PLANES_MIN: usize = 8;
+/// See [`AUTO_PLANES_MIN`].
+pub const AUTO_PLANES_MAX: usize = 256;
+
+/// What [`auto_planes`] measured and chose.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AutoPlanes {
+    /// The plane count: `ceil(max_disparity_px / max_spacing_px) + 1`, clamped to
+    /// [`AUTO_PLANES_MIN`]`..=`[`AUTO_PLANES_MAX`].
+    pub count: usize,
+    /// The largest disparity, in pixels of the view, between a point on the near plane and the point on the far
+    /// plane seen at the same reference pixel.
+    pub max_disparity_px: f64,
+    /// The index (into `views`) of the view with that disparity (0 when there is none).
+    pub view: usize,
+    /// The spacing the count was computed for.
+    pub max_spacing_px: f64,
+}
+
+/// The disparity range, in view `view`'s pixels, of the depth range `near..far` seen from `reference`: the
+/// largest distance between the projections into `view` of the near-plane point and the far-plane point on
+/// the same reference ray, over the reference image's four corners and its centre (rays whose points fall
+/// behind the view are skipped). For two cameras with focal `f` (pixels) and a baseline `b` parallel to the
+/// image plane this is exactly `f * b * (1/near - 1/far)`.
+pub fn disparity_range(reference: &Camera, view: &Camera, near: f64, far: f64) -> f64 {
+    let (w, h) = (reference.width as f64, reference.height as f64);
+    let samples = [
+        DVec2::new(0.0, 0.0),
+        DVec2::new(w, 0.0),
+        DVec2::new(0.0, h),
+        DVec2::new(w, h),
+        DVec2::new(0.5 * w, 0.5 * h),
+    ];
+    samples
+        .iter()
+        .filter_map(|&p| {
+            let a = view.project(reference.unproject(p, near))?;
+            let b = view.project(reference.unproject(p, far))?;
+            Some(a.distance(b))
+        })
+        .fold(0.0, f64::max)
+}
+
+/// The number of inverse-depth planes between `near` and `far` such that neighbouring planes are at most
+/// `max_spacing_px` pixels of disparity apart between `reference` and the view farthest from it in disparity
+/// (see [`disparity_range`]), clamped to [`AUTO_PLANES_MIN`]`..=`[`AUTO_PLANES_MAX`]. Planes equally spaced in
+/// inverse depth are equally spaced in disparity, so `N` planes over a disparity range `r` are `r / (N - 1)`
+/// apart: `N = ceil(r / max_spacing_px) + 1`.
+pub fn auto_plane_count(
+    reference: &Camera,
+    views: &[Camera],
+    near: f64,
+    far: f64,
+    max_spacing_px: f64,
+) -> usize {
+    auto_planes(reference, views, near, far, max_spacing_px).count
+}
+
+/// [`auto_plane_count`] with what it measured.
+pub fn auto_planes(
+    reference: &Camera,
+    views: &[Camera],
+    near: f64,
+    far: f64,
+    max_spacing_px: f64,
+) -> AutoPlanes {
+    let (view, max_disparity_px) = views
+        .iter()
+        .map(|v| disparity_range(reference, v, near, far))
+        .enumerate()
+        .fold(
+            (0, 0.0),
+            |best, (i, d)| if d > best.1 { (i, d) } else { best },
+        );
+    let spacing = if max_spacing_px.is_finite() && max_spacing_px > 0.0 {
+        max_spacing_px
+    } else {
+        AUTO_MAX_SPACING_PX
+    };
+    // A hair of tolerance: a disparity of exactly k spacings (up to rounding) needs k + 1 planes, not k + 2.
+    let wanted = (max_disparity_px / spacing - 1e-9).ceil().max(0.0);
+    let count = if wanted.is_finite() {
+        (wanted as usize).saturating_add(1)
+    } else {
+        AUTO_PLANES_MAX
+    };
+    AutoPlanes {
+        count: count.clamp(AUTO_PLANES_MIN, AUTO_PLANES_MAX),
+        max_disparity_px,
+        view,
+        max_spacing_px: spacing,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::camera::{Intrinsics, Pose};
+    use glam::{DMat3, DVec3};
+
+    fn camera_at(x: f64, f: f64) -> Camera {
+        Camera::new(
+            640,
+            480,
+            Intrinsics::new(f, f, 320.0, 240.0),
+            Pose::from_center(DMat3::IDENTITY, DVec3::new(x, 0.0, 0.0)),
+        )
+    }
+
+    #[test]
+    fn disparity_of_a_sideways_baseline_is_analytic() {
+        let (f, b, near, far) = (500.0, 0.2, 2.0, 50.0);
+        let reference = camera_at(0.0, f);
+        let view = camera_at(b, f);
+        let expected = f * b * (1.0 / near - 1.0 / far);
+        let d = disparity_range(&reference, &view, near, far);
+        assert!((d - expected).abs() < 1e-9, "{d} vs {expected}");
+        // 48 px of disparity at 1 px spacing: 49 planes; the farthest view decides.
+        let views = [camera_at(-0.05, f), view, camera_at(0.1, f)];
+        let auto = auto_planes(&reference, &views, near, far, 1.0);
+        assert_eq!(auto.view, 1);
+        assert!((auto.max_disparity_px - 48.0).abs() < 1e-9);
+        assert_eq!(auto.count, 49);
+        assert_eq!(auto_plane_count(&reference, &views, near, far, 1.5), 33);
+        // Neighbouring planes are at most the spacing apart in disparity.
+        let depths = plane_depths(near, far, auto.count, PlaneSpacing::InverseDepth).unwrap();
+        let step = f * b * (1.0 / depths[1] - 1.0 / depths[0]);
+        assert!(step <= 1.0 + 1e-9, "{step}");
+    }
+
+    #[test]
+    fn auto_plane_count_is_clamped() {
+        let reference = camera_at(0.0, 500.0);
+        // No parallax at all (the reference itself), and a tiny baseline: the minimum.
+        assert_eq!(
+            auto_plane_count(&reference, &[reference], 1.0, 10.0, 1.0),
+            AUTO_PLANES_MIN
+        );
+        assert_eq!(
+            auto_plane_count(&reference, &[camera_at(0.001, 500.0)], 1.0, 10.0, 1.0),
+            AUTO_PLANES_MIN
+        );
+        // A huge one: the maximum.
+        assert_eq!(
+            auto_plane_count(&reference, &[camera_at(5.0, 500.0)], 1.0, 10.0, 1.0),
+            AUTO_PLANES_MAX
+        );
+        assert_eq!(
+            auto_plane_count(&reference, &[], 1.0, 10.0, 1.0),
+            AUTO_PLANES_MIN
+        );
+    }
 
     #[test]
     fn inverse_depth_spacing() {

@@ -19,7 +19,8 @@ fn main() {
                 let t = Instant::now();
                 for _ in 0..reps {
                     let i: Vec<&[f32]> = ins.iter().map(|v| v.as_slice()).collect();
-                    let mut o: Vec<&mut [f32]> = outs.iter_mut().map(|v| v.as_mut_slice()).collect();
+                    let mut o: Vec<&mut [f32]> =
+                        outs.iter_mut().map(|v| v.as_mut_slice()).collect();
                     conv3x3(plane, &i, &conv, Act::Elu, &mut o);
                 }
                 best = best.min(t.elapsed().as_secs_f64() / reps as f64);

@@ -53,6 +53,29 @@ pub struct MpiMeta {
     pub camera_from_world: Vec<f64>,
     pub depths: Vec<f64>,
     pub layers: Vec<String>,
+    /// How the plane count was chosen (optional: files without it load as before).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub planes_rule: Option<PlanesRule>,
+}
+
+/// How an MPI's plane count was chosen, as stored in `mpi.json`:
+/// `"planes_rule": {"rule": "auto", "max_disparity_px": 52.3, "max_spacing_px": 1.0, "view": 7}`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct PlanesRule {
+    /// `auto` (from the cameras' disparity), `explicit` (`--planes N`) or `weights` (the weights' count).
+    pub rule: String,
+    /// `auto`: the largest disparity between the near and far planes, reference to farthest input view.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_disparity_px: Option<f64>,
+    /// `auto`: the largest disparity allowed between neighbouring planes.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_spacing_px: Option<f64>,
+    /// `auto`: the dataset's index of that farthest view.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub view: Option<usize>,
+    /// Why the count differs from the rule's (e.g. `"memory budget"`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limited_by: Option<String>,
 }
 
 impl MpiMeta {
@@ -66,6 +89,7 @@ impl MpiMeta {
             camera_from_world: camera.pose.to_row_major().to_vec(),
             depths: depths.to_vec(),
             layers: (0..depths.len()).map(layer_name).collect(),
+            planes_rule: None,
         }
     }
 
@@ -244,6 +268,15 @@ pub fn plane_to_straight_rgba8(plane: &[f32]) -> Vec<u8> {
 /// Write an MPI folder (creating it). Every file is written atomically; `mpi.json` last, so a folder with
 /// a readable `mpi.json` always has all its layers.
 pub fn write_mpi(dir: &Path, mpi: &Mpi) -> Result<(), MpiError> {
+    write_mpi_with(dir, mpi, None)
+}
+
+/// [`write_mpi`], recording how the plane count was chosen in `mpi.json`.
+pub fn write_mpi_with(
+    dir: &Path,
+    mpi: &Mpi,
+    planes_rule: Option<&PlanesRule>,
+) -> Result<(), MpiError> {
     if mpi.depths.is_empty() {
         return Err(invalid(dir, "refusing to write an MPI with zero planes"));
     }
@@ -251,7 +284,10 @@ pub fn write_mpi(dir: &Path, mpi: &Mpi) -> Result<(), MpiError> {
         path: dir.to_path_buf(),
         source,
     })?;
-    let meta = MpiMeta::new(&mpi.camera, &mpi.depths);
+    let meta = MpiMeta {
+        planes_rule: planes_rule.cloned(),
+        ..MpiMeta::new(&mpi.camera, &mpi.depths)
+    };
     let (w, h) = (mpi.camera.width, mpi.camera.height);
     (0..mpi.planes()).into_par_iter().try_for_each(|d| {
         let bytes = plane_to_straight_rgba8(mpi.plane(d));
@@ -277,6 +313,28 @@ mod tests {
             }
         }
         mpi
+    }
+
+    #[test]
+    fn planes_rule_is_optional_and_round_trips() {
+        let dir = tempfile::tempdir().unwrap();
+        let mpi = small_mpi();
+        write_mpi(dir.path(), &mpi).unwrap();
+        let (meta, _) = MpiMeta::read(dir.path()).unwrap();
+        assert_eq!(meta.planes_rule, None);
+        let text = std::fs::read_to_string(dir.path().join("mpi.json")).unwrap();
+        assert!(!text.contains("planes_rule"), "{text}");
+        let rule = PlanesRule {
+            rule: "auto".into(),
+            max_disparity_px: Some(52.3),
+            max_spacing_px: Some(1.0),
+            view: Some(7),
+            limited_by: None,
+        };
+        write_mpi_with(dir.path(), &mpi, Some(&rule)).unwrap();
+        let (meta, _) = MpiMeta::read(dir.path()).unwrap();
+        assert_eq!(meta.planes_rule, Some(rule));
+        assert_eq!(read_mpi(dir.path()).unwrap().depths, mpi.depths);
     }
 
     #[test]

@@ -18,7 +18,7 @@ pub mod warp;
 
 pub use composite::{RenderComponents, render_components};
 pub use depth::{DepthMaps, depth_maps, turbo};
-pub use io::{MpiError, MpiMeta, read_mpi, read_mpi_u8, write_mpi};
+pub use io::{MpiError, MpiMeta, PlanesRule, read_mpi, read_mpi_u8, write_mpi, write_mpi_with};
 pub use mpi::{Mpi, MpiU8};
 pub use psv::{PlaneSweepVolume, plane_sweep};
 pub use render::{Texel, render, render_rgba8_into, render_rgba8_with, render_u8};

@@ -319,7 +319,12 @@ struct PackedNet {
 fn pack(conv: &Conv2d) -> PackedConv {
     let [cout, cin, kh, kw] = conv.weight.dims();
     assert_eq!((kh, kw), (3, 3), "3x3 convolutions expected");
-    let w: Vec<f32> = conv.weight.val().into_data().try_to_vec().expect("f32 weights");
+    let w: Vec<f32> = conv
+        .weight
+        .val()
+        .into_data()
+        .try_to_vec()
+        .expect("f32 weights");
     let b: Option<Vec<f32>> = conv
         .bias
         .as_ref()
@@ -366,76 +371,79 @@ pub fn core_net_inference(
     let mut result = vec![0f32; d * so * hw];
     if hw > 0 {
         // Per thread: K x (Cin + 2F) planes for the views, F for the max, F + S for the head.
-        result
-            .par_chunks_mut(so * hw)
-            .enumerate()
-            .for_each_init(
-                || Planes::new(plane, views * (cin + 2 * f) + 2 * f + so),
-                |s, (p, res)| {
-                    let per_view = cin + 2 * f;
-                    let m0 = views * per_view;
-                    for k in 0..views {
-                        s.load(k * per_view, &x[(k * d + p) * cin * hw..][..cin * hw]);
+        result.par_chunks_mut(so * hw).enumerate().for_each_init(
+            || Planes::new(plane, views * (cin + 2 * f) + 2 * f + so),
+            |s, (p, res)| {
+                let per_view = cin + 2 * f;
+                let m0 = views * per_view;
+                for k in 0..views {
+                    s.load(k * per_view, &x[(k * d + p) * cin * hw..][..cin * hw]);
+                }
+                let bufs = &mut s.bufs;
+                // Planes of view k: [in (cin) | A (f) | B (f)].
+                let layer = |bufs: &mut Vec<Vec<f32>>,
+                             from: &[usize],
+                             to: usize,
+                             c: &PackedConv,
+                             act: Act| {
+                    let (lo, hi) = bufs.split_at_mut(to);
+                    let ins: Vec<&[f32]> = from.iter().map(|&i| lo[i].as_slice()).collect();
+                    let mut outs: Vec<&mut [f32]> =
+                        hi[..c.cout].iter_mut().map(|v| v.as_mut_slice()).collect();
+                    conv3x3(plane, &ins, c, act, &mut outs);
+                };
+                let a = |k: usize| k * per_view + cin;
+                let b = |k: usize| k * per_view + cin + f;
+                for k in 0..views {
+                    let base = k * per_view;
+                    let from: Vec<usize> = (base..base + cin).collect();
+                    layer(bufs, &from, a(k), &net.input[0], Act::Elu);
+                    let from: Vec<usize> = (a(k)..a(k) + f).collect();
+                    // B lies after A: write B from A.
+                    layer(bufs, &from, b(k), &net.input[1], Act::Elu);
+                }
+                let max_views = |bufs: &mut Vec<Vec<f32>>| {
+                    let (lo, hi) = bufs.split_at_mut(m0);
+                    for c in 0..f {
+                        let srcs: Vec<&[f32]> =
+                            (0..views).map(|k| lo[b(k) + c].as_slice()).collect();
+                        max_into(&mut hi[c], &srcs);
                     }
-                    let bufs = &mut s.bufs;
-                    // Planes of view k: [in (cin) | A (f) | B (f)].
-                    let layer = |bufs: &mut Vec<Vec<f32>>, from: &[usize], to: usize, c: &PackedConv, act: Act| {
-                        let (lo, hi) = bufs.split_at_mut(to);
-                        let ins: Vec<&[f32]> = from.iter().map(|&i| lo[i].as_slice()).collect();
-                        let mut outs: Vec<&mut [f32]> =
-                            hi[..c.cout].iter_mut().map(|v| v.as_mut_slice()).collect();
-                        conv3x3(plane, &ins, c, act, &mut outs);
-                    };
-                    let a = |k: usize| k * per_view + cin;
-                    let b = |k: usize| k * per_view + cin + f;
-                    for k in 0..views {
-                        let base = k * per_view;
-                        let from: Vec<usize> = (base..base + cin).collect();
-                        layer(bufs, &from, a(k), &net.input[0], Act::Elu);
-                        let from: Vec<usize> = (a(k)..a(k) + f).collect();
-                        // B lies after A: write B from A.
-                        layer(bufs, &from, b(k), &net.input[1], Act::Elu);
-                    }
-                    let max_views = |bufs: &mut Vec<Vec<f32>>| {
-                        let (lo, hi) = bufs.split_at_mut(m0);
-                        for c in 0..f {
-                            let srcs: Vec<&[f32]> = (0..views).map(|k| lo[b(k) + c].as_slice()).collect();
-                            max_into(&mut hi[c], &srcs);
-                        }
-                    };
-                    for pair in net.stages.chunks(2) {
-                        max_views(bufs);
-                        for k in 0..views {
-                            // [B_k | m] -> A_k: A lies before B and m, so gather the inputs by copy-free
-                            // split: take A's planes out first.
-                            let mut a_planes: Vec<Vec<f32>> =
-                                (0..f).map(|c| std::mem::take(&mut bufs[a(k) + c])).collect();
-                            {
-                                let ins: Vec<&[f32]> = (b(k)..b(k) + f)
-                                    .chain(m0..m0 + f)
-                                    .map(|i| bufs[i].as_slice())
-                                    .collect();
-                                let mut outs: Vec<&mut [f32]> =
-                                    a_planes.iter_mut().map(|v| v.as_mut_slice()).collect();
-                                conv3x3(plane, &ins, &pair[0], Act::Elu, &mut outs);
-                            }
-                            for (c, v) in a_planes.into_iter().enumerate() {
-                                bufs[a(k) + c] = v;
-                            }
-                            let from: Vec<usize> = (a(k)..a(k) + f).collect();
-                            layer(bufs, &from, b(k), &pair[1], Act::Elu);
-                        }
-                    }
+                };
+                for pair in net.stages.chunks(2) {
                     max_views(bufs);
-                    let from: Vec<usize> = (m0..m0 + f).collect();
-                    layer(bufs, &from, m0 + f, &net.head, Act::Elu);
-                    let from: Vec<usize> = (m0 + f..m0 + 2 * f).collect();
-                    layer(bufs, &from, m0 + 2 * f, &net.out, Act::Linear);
-                    for (c, dst) in res.chunks_exact_mut(hw).enumerate() {
-                        plane.unpad_into(&bufs[m0 + 2 * f + c], dst);
+                    for k in 0..views {
+                        // [B_k | m] -> A_k: A lies before B and m, so gather the inputs by copy-free
+                        // split: take A's planes out first.
+                        let mut a_planes: Vec<Vec<f32>> = (0..f)
+                            .map(|c| std::mem::take(&mut bufs[a(k) + c]))
+                            .collect();
+                        {
+                            let ins: Vec<&[f32]> = (b(k)..b(k) + f)
+                                .chain(m0..m0 + f)
+                                .map(|i| bufs[i].as_slice())
+                                .collect();
+                            let mut outs: Vec<&mut [f32]> =
+                                a_planes.iter_mut().map(|v| v.as_mut_slice()).collect();
+                            conv3x3(plane, &ins, &pair[0], Act::Elu, &mut outs);
+                        }
+                        for (c, v) in a_planes.into_iter().enumerate() {
+                            bufs[a(k) + c] = v;
+                        }
+                        let from: Vec<usize> = (a(k)..a(k) + f).collect();
+                        layer(bufs, &from, b(k), &pair[1], Act::Elu);
                     }
-                },
-            );
+                }
+                max_views(bufs);
+                let from: Vec<usize> = (m0..m0 + f).collect();
+                layer(bufs, &from, m0 + f, &net.head, Act::Elu);
+                let from: Vec<usize> = (m0 + f..m0 + 2 * f).collect();
+                layer(bufs, &from, m0 + 2 * f, &net.out, Act::Linear);
+                for (c, dst) in res.chunks_exact_mut(hw).enumerate() {
+                    plane.unpad_into(&bufs[m0 + 2 * f + c], dst);
+                }
+            },
+        );
     }
     Tensor::from_data(TensorData::new(result, [d, so, h, w]), &device)
 }

@@ -551,7 +551,11 @@ mod tests {
             let e = rel(fused, reference.clone());
             assert!(e < 1e-5, "fused {cin} {f} {unet} {k}x{d} {h}x{w}: {e}");
             // Training: per-layer op with its own backward.
-            let seed = Tensor::<4>::random([d, 8, h, w], burn::tensor::Distribution::Uniform(-1.0, 1.0), &ad);
+            let seed = Tensor::<4>::random(
+                [d, 8, h, w],
+                burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                &ad,
+            );
             let xa = x.clone().require_grad();
             let ya = net.forward(xa.clone(), k);
             let e = rel(ya.clone().inner(), reference);
@@ -561,7 +565,13 @@ mod tests {
             let gb = (net.forward_burn(xb.clone(), k) * seed).sum().backward();
             let e = rel(xa.grad(&ga).unwrap(), xb.grad(&gb).unwrap());
             assert!(e < 1e-4, "input gradient: {e}");
-            for (i, c) in net.input.iter().chain(&net.stages).chain([&net.head, &net.out]).enumerate() {
+            for (i, c) in net
+                .input
+                .iter()
+                .chain(&net.stages)
+                .chain([&net.head, &net.out])
+                .enumerate()
+            {
                 let e = rel(c.weight.grad(&ga).unwrap(), c.weight.grad(&gb).unwrap());
                 assert!(e < 1e-4, "conv {i} weight gradient: {e}");
             }

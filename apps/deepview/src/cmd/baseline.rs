@@ -1,13 +1,15 @@
 //! `deepview baseline`: the MPI of a classical baseline (no learning, no weights), written as an MPI folder
 //! that `render`, `view`, `depth` and `export` read.
 
+use super::args::{self, DataArg, PlanesArg};
 use super::{parse_indices, views_nearest_centroid};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
+use deepview_eval::Baseline;
 use deepview_eval::{PsvMeanOptions, agreement_mpi, nearest_view_mpi};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
-use deepview_mpi::write_mpi;
+use deepview_mpi::write_mpi_with;
 use std::path::PathBuf;
 
 /// Which baseline MPI to build.
@@ -23,12 +25,12 @@ pub enum BaselineKind {
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  \
-    deepview baseline ../shared/data/llff/fern --images images_8 --method psv-mean --out fern_psv/\n  \
-    deepview baseline ../shared/data/llff/fern --images images_8 --method nearest --inputs 3,4,5 --out fern_nearest/\n  \
-    deepview render --mpi fern_psv/ --scene ../shared/data/llff/fern --images images_8 --view 0 --out v0.png")]
+    deepview baseline --data ../shared/data/llff/fern --images images_8 --method psv-mean --out fern_psv/\n  \
+    deepview baseline --data ../shared/data/llff/fern --images images_8 --method nearest --inputs 3,4,5 --out fern_nearest/\n  \
+    deepview render --mpi fern_psv/ --data ../shared/data/llff/fern --images images_8 --view 0 --out v0.png")]
 pub struct Args {
-    /// Dataset folder (LLFF, COLMAP, Spaces, light-field grid).
-    pub scene_dir: PathBuf,
+    #[command(flatten)]
+    pub data: DataArg,
     /// The baseline.
     #[arg(long, value_enum)]
     pub method: BaselineKind,
@@ -38,17 +40,19 @@ pub struct Args {
     /// Input view indices, comma-separated. Default: the 4 views nearest the centroid of all camera centres.
     #[arg(long)]
     pub inputs: Option<String>,
-    /// psv-mean: number of MPI planes, equally spaced in inverse depth between near and far (nearest always
-    /// writes one plane).
-    #[arg(long, default_value_t = 32)]
-    pub planes: usize,
+    /// psv-mean's planes (nearest always writes one plane). See `deepview infer --help`.
+    #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
+    pub planes: PlanesArg,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    pub max_memory: Option<String>,
     #[command(flatten)]
     pub scene: SceneArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let scene = load_scene(&args.scene_dir, &args.scene.load_options())
-        .with_context(|| format!("cannot load scene {}", args.scene_dir.display()))?;
+    let data = args.data.path();
+    let scene = load_scene(data, &args.scene.load_options())
+        .with_context(|| format!("cannot load scene {}", data.display()))?;
     let near_far = scene.near_far()?;
     let cameras = scene.cameras();
     let indices = match &args.inputs {
@@ -57,17 +61,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let load =
         |i: usize| -> anyhow::Result<(ImageF32, Camera)> { Ok((scene.load_image(i)?, cameras[i])) };
+    let mut rule = None;
     let (mpi, what) = match args.method {
         BaselineKind::PsvMean => {
             let inputs = indices
                 .iter()
                 .map(|&i| load(i))
                 .collect::<anyhow::Result<Vec<_>>>()?;
+            let cams: Vec<Camera> = indices.iter().map(|&i| cameras[i]).collect();
+            let budget = args::memory_budget(args.max_memory.as_deref())?;
+            let c = super::eval::baseline_planes(
+                Baseline::PsvMean,
+                args.planes,
+                budget,
+                &cams,
+                &indices,
+                near_far,
+                0,
+            )?;
+            eprintln!("{}", c.message);
             let options = PsvMeanOptions {
-                planes: args.planes,
+                planes: c.count,
                 ..Default::default()
             };
             let mpi = agreement_mpi(&inputs, near_far, &options)?;
+            rule = Some(c.rule);
             (mpi, format!("psv-mean MPI of views {indices:?}"))
         }
         BaselineKind::Nearest => {
@@ -81,7 +99,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             (mpi, what)
         }
     };
-    write_mpi(&args.out, &mpi)
+    write_mpi_with(&args.out, &mpi, rule.as_ref())
         .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
     let (far, near) = (mpi.depths[0], mpi.depths[mpi.planes() - 1]);
     let planes = if mpi.planes() == 1 {

@@ -1,16 +1,20 @@
 //! `deepview demo`: the whole pipeline on a built-in synthetic scene, no files needed.
 
-use super::eval::LearnedMethod;
+use super::args::PlanesArg;
+use super::eval::{LearnedMethod, PlannedBaseline};
 use anyhow::Context;
 use deepview_data::{LoadOptions, load_scene};
 use deepview_eval::{
     Baseline, EvalOptions, EvalReport, InputRule, Method, OptimizeOptions, Protocol,
-    PsvMeanOptions, TargetRule, baseline_method, evaluate,
+    PsvMeanOptions, TargetRule, evaluate,
 };
 use deepview_synth::{Rig, SynthOptions, synthesize};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
+#[command(
+    after_help = "Examples:\n  deepview demo\n  deepview demo --out demo/ --planes 32 --no-optimize"
+)]
 pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "deepview-demo")]
@@ -24,6 +28,11 @@ pub struct Args {
     /// Skip the slow `optimize` baseline.
     #[arg(long)]
     pub no_optimize: bool,
+    /// MPI planes of every method (see `deepview infer --help`).
+    #[arg(long, default_value = "auto", help = super::args::PLANES_HELP)]
+    pub planes: PlanesArg,
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP)]
+    pub max_memory: Option<String>,
 }
 
 const INPUTS: &str = "0,3,12,15";
@@ -36,7 +45,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(w) => w.clone(),
         None => super::infer::default_weights()?,
     };
-    let mut learned = LearnedMethod::load(&weights, 32).with_context(
+    let budget = super::args::memory_budget(args.max_memory.as_deref())?;
+    let mut learned = LearnedMethod::load(&weights, args.planes, budget).with_context(
         || "the demo needs the shipped weights (weights/cpu in the repository) or --weights DIR",
     )?;
 
@@ -73,7 +83,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
 
     // 2. The MPI from the four corner views with the learned model.
     eprintln!(
-        "[2/5] inferring a 32-plane MPI from the corner views {INPUTS} with {}",
+        "[2/5] inferring an MPI from the corner views {INPUTS} with {}",
         weights.display()
     );
     let views = inputs
@@ -84,7 +94,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mpi = learned.mpi(&views, near_far)?.clone();
     let infer_seconds = started.elapsed().as_secs_f64();
     let mpi_dir = out.join("mpi");
-    deepview_mpi::write_mpi(&mpi_dir, &mpi)?;
+    deepview_mpi::write_mpi_with(&mpi_dir, &mpi, learned.last_choice().map(|c| &c.rule))?;
 
     // 3. Novel views (the inner, held-out cameras) beside their ground truth, depth, a camera path.
     eprintln!("[3/5] rendering novel views, a depth map and a spiral animation");
@@ -124,28 +134,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(INPUTS.parse::<InputRule>()?),
     )?;
     let mut reports: Vec<EvalReport> = Vec::new();
+    // The same plane rule as the learned model's, so the comparison is fair.
+    let planned = |kind, optimize| -> Box<dyn Method> {
+        Box::new(PlannedBaseline::new(
+            kind,
+            PsvMeanOptions::default(),
+            optimize,
+            args.planes,
+            budget,
+        ))
+    };
     let mut methods: Vec<Box<dyn Method>> = vec![
-        baseline_method(
-            Baseline::Nearest,
-            PsvMeanOptions::default(),
-            OptimizeOptions::default(),
-        ),
-        baseline_method(
-            Baseline::PsvMean,
-            PsvMeanOptions::default(),
-            OptimizeOptions::default(),
-        ),
+        planned(Baseline::Nearest, OptimizeOptions::default()),
+        planned(Baseline::PsvMean, OptimizeOptions::default()),
     ];
     if !args.no_optimize {
         let opt = OptimizeOptions {
             steps: 150,
             ..OptimizeOptions::default()
         };
-        methods.push(baseline_method(
-            Baseline::Optimize,
-            PsvMeanOptions::default(),
-            opt,
-        ));
+        methods.push(planned(Baseline::Optimize, opt));
     }
     let options = EvalOptions {
         near_far: Some(near_far),
@@ -194,7 +202,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("  spiral.gif        a camera path through the MPI");
     println!("  eval.json, eval.md  the table above");
     println!(
-        "\nLook at it in the browser:  cargo run --release -- view {}",
+        "\nLook at it in the browser:  cargo run --release -- view --mpi {}",
         mpi_dir.display()
     );
     Ok(())

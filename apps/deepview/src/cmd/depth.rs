@@ -6,7 +6,8 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Example:\n  deepview depth --mpi mpi/ --out depth/   (writes depth_color.png, depth_disparity16.png)"
+    after_help = "Examples:\n  deepview depth --mpi mpi/ --out depth/   (writes depth_color.png, depth_disparity16.png)\n  \
+    deepview depth --mpi mpi/ --data ../shared/data/llff/fern --images images_8 --view 3 --out depth3/"
 )]
 pub struct Args {
     /// MPI folder.

@@ -1,5 +1,6 @@
 //! `deepview eval`: score a method (a baseline or the learned model) on a scene under a protocol.
 
+use super::args::{self, PlaneChoice, PlanesArg};
 use anyhow::Context;
 use deepview_eval::{
     Baseline, EvalOptions, InputRule, Method, OptimizeOptions, Protocol, PsvMeanOptions,
@@ -9,13 +10,14 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  \
-    deepview eval --data ../shared/data/llff/fern --method psv-mean --out results.json\n  \
+    deepview eval --data ../shared/data/llff/fern --images images_8 --method psv-mean --out results.json\n  \
+    deepview eval --data ../shared/data/llff/fern --images images_8 --method deepview --inputs nearest:4 --targets every:8\n  \
     deepview eval --data scene_000 --near 0.7 --far 100 --protocol small_quad --method nearest\n  \
     deepview eval --data ../shared/data/hci/antinous --method optimize --protocol light-field --targets 40 \
     --save-renders renders/")]
 pub struct Args {
     /// Dataset folder (LLFF, COLMAP, Spaces, light-field grid).
-    #[arg(long)]
+    #[arg(long, value_name = "DIR")]
     pub data: PathBuf,
     #[command(flatten)]
     pub scene: deepview_data::SceneArgs,
@@ -31,18 +33,18 @@ pub struct Args {
     /// Inputs of the posed protocol: nearest:K (K nearest non-target views by camera centre) or a list.
     #[arg(long)]
     pub inputs: Option<String>,
-    /// Box-downscale images by this integer factor (crops scale with it).
-    #[arg(long, default_value_t = 1)]
-    pub downscale: u32,
-    /// Crop this many pixels from every side instead of the protocol's crop.
+    /// Crop this many pixels from every side instead of the protocol's crop (scaled with --downscale).
     #[arg(long)]
     pub crop: Option<u32>,
     /// Score float predictions as they are instead of rounding to 8 bits like saved PNGs.
     #[arg(long)]
     pub no_quantize: bool,
-    /// MPI planes (psv-mean, optimize).
-    #[arg(long, default_value_t = 32)]
-    pub planes: usize,
+    /// MPI planes of psv-mean, optimize and deepview (the same rule for every method; per input set for
+    /// `auto`). See `deepview infer --help`.
+    #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
+    pub planes: PlanesArg,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    pub max_memory: Option<String>,
     /// Colour variance treated as disagreement, s in exp(-variance / s) (psv-mean).
     #[arg(long, default_value_t = PsvMeanOptions::default().temperature)]
     pub temperature: f64,
@@ -57,8 +59,8 @@ pub struct Args {
     pub max_width: u32,
     /// Trained weights for --method deepview: a weights folder or a training checkpoint folder
     /// (default: the shipped weights/cpu).
-    #[arg(long, visible_alias = "weights")]
-    pub checkpoint: Option<PathBuf>,
+    #[arg(long, visible_alias = "checkpoint")]
+    pub weights: Option<PathBuf>,
     /// Write the report here (JSON: method, checkpoint, protocol, results, views).
     #[arg(long)]
     pub out: Option<PathBuf>,
@@ -67,24 +69,44 @@ pub struct Args {
     pub save_renders: Option<PathBuf>,
 }
 
+fn method_error(method: &str, e: &dyn std::fmt::Display) -> deepview_eval::EvalError {
+    deepview_eval::EvalError::Method {
+        method: method.into(),
+        msg: e.to_string(),
+    }
+}
+
+/// Print `choice`'s line unless it is the one printed last.
+fn announce(last: &mut Option<String>, choice: &PlaneChoice) {
+    if last.as_deref() != Some(choice.message.as_str()) {
+        eprintln!("{}", choice.message);
+        *last = Some(choice.message.clone());
+    }
+}
+
 /// The learned model behind `--method deepview`: tiled inference from the inputs, then rendering the
-/// MPI into the target. Weights from `--checkpoint`, or the shipped `weights/cpu`.
+/// MPI into the target. Weights from `--weights`, or the shipped `weights/cpu`.
 pub struct LearnedMethod {
     model: deepview_net::network::DeepViewModel,
     config: deepview_net::config::DeepViewConfig,
-    planes: usize,
+    planes: PlanesArg,
     budget: u64,
-    /// The last MPI and the inputs it came from: targets sharing inputs reuse it.
-    cache: Option<(
-        Vec<deepview_geometry::Camera>,
-        (f64, f64),
-        deepview_mpi::Mpi,
-    )>,
+    last_message: Option<String>,
+    /// The last MPI, the inputs it came from and its plane choice: targets sharing inputs reuse it.
+    cache: Option<CachedMpi>,
 }
 
+/// An inferred MPI with the input cameras and bounds it came from, and its plane choice.
+type CachedMpi = (
+    Vec<deepview_geometry::Camera>,
+    (f64, f64),
+    deepview_mpi::Mpi,
+    PlaneChoice,
+);
+
 impl LearnedMethod {
-    /// Load weights (config.json + model.safetensors) from `weights`.
-    pub fn load(weights: &std::path::Path, planes: usize) -> anyhow::Result<Self> {
+    /// Load weights (config.json + model.safetensors) from `weights`; `budget` bounds inference memory.
+    pub fn load(weights: &std::path::Path, planes: PlanesArg, budget: u64) -> anyhow::Result<Self> {
         let device = deepview_net::burn::tensor::Device::flex();
         let (model, config) = deepview_net::weights::load_model(weights, &device)
             .with_context(|| format!("cannot load weights from {}", weights.display()))?;
@@ -92,7 +114,8 @@ impl LearnedMethod {
             model,
             config,
             planes,
-            budget: 2 << 30,
+            budget,
+            last_message: None,
             cache: None,
         })
     }
@@ -102,39 +125,56 @@ impl LearnedMethod {
         self.cache = None;
     }
 
+    /// The plane choice of the last MPI.
+    pub fn last_choice(&self) -> Option<&PlaneChoice> {
+        self.cache.as_ref().map(|c| &c.3)
+    }
+
     /// The MPI inferred from `inputs` (cached for repeated calls with the same inputs).
     pub fn mpi(
         &mut self,
         inputs: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
         near_far: (f64, f64),
     ) -> Result<&deepview_mpi::Mpi, deepview_eval::EvalError> {
-        use deepview_eval::EvalError;
-        use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
-        let fail = |e: &dyn std::fmt::Display| EvalError::Method {
-            method: "deepview".into(),
-            msg: e.to_string(),
-        };
+        use deepview_geometry::{PlaneSpacing, plane_depths};
+        let fail = |e: &dyn std::fmt::Display| method_error("deepview", e);
         let cams: Vec<_> = inputs.iter().map(|(_, c)| *c).collect();
-        let hit = matches!(&self.cache, Some((c, nf, _)) if *c == cams && *nf == near_far);
+        let hit = matches!(&self.cache, Some((c, nf, _, _)) if *c == cams && *nf == near_far);
         if !hit {
             deepview_net::weights::check_views(&self.config, inputs.len()).map_err(|e| fail(&e))?;
-            let reference = reference_camera(
-                &cams,
-                &ReferenceOptions {
-                    cover: Some(near_far),
-                    ..Default::default()
-                },
-            )?;
-            let depths = plane_depths(
-                near_far.0,
-                near_far.1,
-                self.planes,
-                PlaneSpacing::InverseDepth,
-            )?;
+            let reference = args::mpi_reference(&cams, near_far).map_err(|e| fail(&e))?;
             let views: Vec<_> = inputs
                 .iter()
                 .map(|(img, cam)| (img.to_rgb(), *cam))
                 .collect();
+            let (model, budget) = (&self.model, self.budget);
+            let mut fits = |count: usize| {
+                plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth).is_ok_and(
+                    |depths| {
+                        deepview_net::infer::plan_inference(
+                            model, &views, &reference, &depths, budget,
+                        )
+                        .is_ok()
+                    },
+                )
+            };
+            let choice = args::choose_planes(
+                self.planes,
+                &reference,
+                &cams,
+                &[],
+                near_far,
+                Some(self.config.infer_planes),
+                &mut fits,
+            )
+            .map_err(|e| fail(&e))?;
+            announce(&mut self.last_message, &choice);
+            let depths = plane_depths(
+                near_far.0,
+                near_far.1,
+                choice.count,
+                PlaneSpacing::InverseDepth,
+            )?;
             let mpi = deepview_net::infer::infer_mpi(
                 &self.model,
                 &views,
@@ -144,9 +184,90 @@ impl LearnedMethod {
                 &mut |_| {},
             )
             .map_err(|e| fail(&e))?;
-            self.cache = Some((cams, near_far, mpi));
+            self.cache = Some((cams, near_far, mpi, choice));
         }
         Ok(&self.cache.as_ref().expect("just filled").2)
+    }
+}
+
+/// A baseline whose plane count follows `--planes` per input set, by the same rule as the learned model
+/// (memory clamp from a simple bytes estimate).
+pub struct PlannedBaseline {
+    kind: Baseline,
+    psv: PsvMeanOptions,
+    optimize: OptimizeOptions,
+    planes: PlanesArg,
+    budget: u64,
+    last_message: Option<String>,
+}
+
+impl PlannedBaseline {
+    pub fn new(
+        kind: Baseline,
+        psv: PsvMeanOptions,
+        optimize: OptimizeOptions,
+        planes: PlanesArg,
+        budget: u64,
+    ) -> Self {
+        Self {
+            kind,
+            psv,
+            optimize,
+            planes,
+            budget,
+            last_message: None,
+        }
+    }
+}
+
+/// The plane count of a classical method (`kind`) for `inputs` (dataset indices `ids`, may be empty).
+pub fn baseline_planes(
+    kind: Baseline,
+    planes: PlanesArg,
+    budget: u64,
+    cams: &[deepview_geometry::Camera],
+    ids: &[usize],
+    near_far: (f64, f64),
+    max_width: u32,
+) -> anyhow::Result<PlaneChoice> {
+    let reference = args::mpi_reference(cams, near_far)?;
+    let (fixed, per_plane) = match kind {
+        Baseline::Optimize => args::optimize_bytes(&reference, cams, max_width),
+        _ => args::psv_mean_bytes(&reference, cams),
+    };
+    let mut fits = args::fits_estimate(fixed, per_plane, budget);
+    args::choose_planes(planes, &reference, cams, ids, near_far, None, &mut fits)
+}
+
+impl Method for PlannedBaseline {
+    fn name(&self) -> &str {
+        self.kind.name()
+    }
+
+    fn predict(
+        &mut self,
+        inputs: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+        target: &deepview_geometry::Camera,
+        near_far: (f64, f64),
+    ) -> Result<deepview_image::ImageF32, deepview_eval::EvalError> {
+        let (mut psv, mut optimize) = (self.psv, self.optimize);
+        if self.kind != Baseline::Nearest {
+            let cams: Vec<_> = inputs.iter().map(|(_, c)| *c).collect();
+            let choice = baseline_planes(
+                self.kind,
+                self.planes,
+                self.budget,
+                &cams,
+                &[],
+                near_far,
+                self.optimize.max_width,
+            )
+            .map_err(|e| method_error(self.kind.name(), &e))?;
+            announce(&mut self.last_message, &choice);
+            psv.planes = choice.count;
+            optimize.planes = choice.count;
+        }
+        baseline_method(self.kind, psv, optimize).predict(inputs, target, near_far)
     }
 }
 
@@ -165,23 +286,21 @@ impl Method for LearnedMethod {
     }
 }
 
-fn deepview_method(args: &Args) -> anyhow::Result<Box<dyn Method>> {
-    Ok(Box::new(LearnedMethod::load(
-        &weights_of(args)?,
-        args.planes,
-    )?))
-}
-
-/// The weights `--method deepview` uses: `--checkpoint`, else the shipped ones.
+/// The weights `--method deepview` uses: `--weights`, else the shipped ones.
 fn weights_of(args: &Args) -> anyhow::Result<PathBuf> {
-    match &args.checkpoint {
+    match &args.weights {
         Some(w) => Ok(w.clone()),
         None => super::infer::default_weights(),
     }
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let scene = deepview_data::load_scene(&args.data, &args.scene.load_options())
+    // The runner downscales (and scales the protocol's crops with it), so the scene loads at full size.
+    let load = deepview_data::LoadOptions {
+        downscale: 1,
+        ..args.scene.load_options()
+    };
+    let scene = deepview_data::load_scene(&args.data, &load)
         .with_context(|| format!("cannot load scene {}", args.data.display()))?;
     let targets = args
         .targets
@@ -194,25 +313,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(str::parse::<InputRule>)
         .transpose()?;
     let protocol = Protocol::from_name(&args.protocol, targets, inputs)?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
     let mut method: Box<dyn Method> = if args.method.trim().eq_ignore_ascii_case("deepview") {
-        deepview_method(&args)?
+        Box::new(LearnedMethod::load(
+            &weights_of(&args)?,
+            args.planes,
+            budget,
+        )?)
     } else {
         let kind: Baseline = args.method.parse()?;
         let psv = PsvMeanOptions {
-            planes: args.planes,
             temperature: args.temperature,
             ..Default::default()
         };
         let opt = OptimizeOptions {
-            planes: args.planes,
+            planes: 0,
             steps: args.steps,
             learning_rate: args.lr,
             max_width: args.max_width,
         };
-        baseline_method(kind, psv, opt)
+        Box::new(PlannedBaseline::new(kind, psv, opt, args.planes, budget))
     };
     let options = EvalOptions {
-        downscale: args.downscale,
+        downscale: args.scene.downscale.max(1),
         near_far: None,
         crop: args.crop,
         quantize: !args.no_quantize,

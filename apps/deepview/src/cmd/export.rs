@@ -1,15 +1,19 @@
-//! `deepview export MPI_DIR OUT --format llff|stereo-mag|compact`: write an MPI in another tool's format.
+//! `deepview export --mpi MPI_DIR --out OUT --format llff|stereo-mag|compact`: write an MPI in another tool's format.
 
+use super::args::{MpiArg, OutArg};
 use anyhow::Context;
 use deepview_media::ExportFormat;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    deepview export --mpi fern_mpi/ --out fern_llff/ --format llff\n  \
+    deepview export --mpi fern_mpi/ --out fern_sm/ --format stereo-mag\n  \
+    deepview export --mpi fern_mpi/ --out fern_compact/ --format compact")]
 pub struct Args {
-    /// MPI folder (`mpi.json` + layers).
-    pub mpi_dir: PathBuf,
-    /// Output folder (created).
-    pub out: PathBuf,
+    #[command(flatten)]
+    pub mpi: MpiArg,
+    #[command(flatten)]
+    pub out: OutArg,
     /// llff (metadata.txt + mpi.b), stereo-mag (mpi_rgb_NN.png, mpi_alpha_NN.png, intrinsics.txt) or compact
     /// (32x32 tiles, fully transparent ones dropped; readable by the web viewer and `deepview import`).
     #[arg(long)]
@@ -18,13 +22,9 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let format: ExportFormat = args.format.parse()?;
-    let report = deepview_media::export(&args.mpi_dir, &args.out, format).with_context(|| {
-        format!(
-            "cannot export {} as {}",
-            args.mpi_dir.display(),
-            args.format
-        )
-    })?;
+    let (mpi_dir, out) = (args.mpi.path(), args.out.path());
+    let report = deepview_media::export(mpi_dir, out, format)
+        .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }
@@ -32,7 +32,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "wrote {} files, {} bytes, to {}",
         report.files.len(),
         report.bytes,
-        args.out.display()
+        out.display()
     );
     if let Some((kept, total)) = report.tiles {
         println!(

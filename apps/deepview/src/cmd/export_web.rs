@@ -1,23 +1,24 @@
-//! `deepview export-web MPI_DIR OUT`: the viewer page and the MPI's files as a static folder.
+//! `deepview export-web --mpi MPI_DIR --out OUT`: the viewer page and the MPI's files as a static folder.
 
+use super::args::{MpiArg, OutArg};
 use anyhow::Context;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
+#[command(
+    after_help = "Example:\n  deepview export-web --mpi fern_mpi/ --out fern_web/\n  python3 -m http.server -d fern_web"
+)]
 pub struct Args {
-    /// MPI folder (`mpi.json` + layers, or a compact export).
-    pub mpi_dir: PathBuf,
+    #[command(flatten)]
+    pub mpi: MpiArg,
     /// Output folder (created): index.html + the MPI files; upload it to any static web host.
-    pub out: PathBuf,
+    #[command(flatten)]
+    pub out: OutArg,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let files = deepview_viewer::export_web(&args.mpi_dir, &args.out).with_context(|| {
-        format!(
-            "cannot export the web viewer for {}",
-            args.mpi_dir.display()
-        )
-    })?;
+    let (mpi_dir, out) = (args.mpi.path(), args.out.path());
+    let files = deepview_viewer::export_web(mpi_dir, out)
+        .with_context(|| format!("cannot export the web viewer for {}", mpi_dir.display()))?;
     let bytes: u64 = files
         .iter()
         .filter_map(|f| std::fs::metadata(f).ok())
@@ -27,12 +28,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "wrote {} files ({:.1} MB) to {}",
         files.len(),
         bytes as f64 / 1e6,
-        args.out.display()
+        out.display()
     );
     println!(
         "serve it with any static web server (browsers do not fetch files from file:// pages), e.g. \
          `python3 -m http.server -d {}`",
-        args.out.display()
+        out.display()
     );
     Ok(())
 }

@@ -6,23 +6,38 @@ use std::path::PathBuf;
 /// Convert a training checkpoint (runs/<name>/checkpoints/step-N, or a run folder: its latest
 /// checkpoint) into a weights folder: config.json + model.safetensors.
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Example:\n  deepview export-weights runs/cpu-prior --out weights/cpu")]
+#[command(after_help = "Examples:\n  \
+    deepview export-weights --checkpoint runs/cpu-prior --out weights/cpu\n  \
+    deepview export-weights --checkpoint runs/cpu-prior/checkpoints/step-0005000 --out my_weights")]
 pub struct Args {
     /// Checkpoint folder (checkpoints/step-N) or run folder (its latest checkpoint is used).
-    pub checkpoint: PathBuf,
+    #[arg(
+        long,
+        visible_alias = "run",
+        value_name = "DIR",
+        required_unless_present = "checkpoint_positional"
+    )]
+    pub checkpoint: Option<PathBuf>,
+    /// The checkpoint as a bare argument (the old spelling; use --checkpoint).
+    #[arg(hide = true, value_name = "DIR", conflicts_with = "checkpoint")]
+    pub checkpoint_positional: Option<PathBuf>,
     /// Output weights folder.
     #[arg(long)]
     pub out: PathBuf,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let ck = if args.checkpoint.join("checkpoints").is_dir() {
-        deepview_net::train::list_checkpoints(&args.checkpoint)?
+    let given = args
+        .checkpoint
+        .or(args.checkpoint_positional)
+        .expect("clap requires --checkpoint");
+    let ck = if given.join("checkpoints").is_dir() {
+        deepview_net::train::list_checkpoints(&given)?
             .pop()
             .map(|(_, p)| p)
-            .with_context(|| format!("{}: the run has no checkpoints", args.checkpoint.display()))?
+            .with_context(|| format!("{}: the run has no checkpoints", given.display()))?
     } else {
-        args.checkpoint.clone()
+        given.clone()
     };
     let config = deepview_net::weights::export_checkpoint(&ck, &args.out)
         .with_context(|| format!("cannot export {}", ck.display()))?;

@@ -1,15 +1,21 @@
-//! `deepview import IN OUT_MPI_DIR`: read an MPI in any supported format (detected) into our folder format.
+//! `deepview import --mpi IN --out OUT_MPI_DIR`: read an MPI in any supported format (detected) into our folder format.
 
+use super::args::{MpiArg, OutArg};
 use anyhow::Context;
 use deepview_media::interchange::ImportOptions;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    deepview import --mpi fern_llff/ --out fern_back/\n  \
+    deepview import --mpi stereo_mag_mpi/ --near 1 --far 100 --out mpi/")]
 pub struct Args {
-    /// Folder in LLFF (metadata.txt + mpi.b), stereo magnification (mpi_rgb_NN.png ...), compact or deepview format.
-    pub input: PathBuf,
+    /// MPI folder in LLFF (metadata.txt + mpi.b), stereo magnification (mpi_rgb_NN.png ...), compact or
+    /// deepview format (detected).
+    #[command(flatten)]
+    pub mpi: MpiArg,
     /// Output MPI folder (created): mpi.json + layer_NNN.png.
-    pub out: PathBuf,
+    #[command(flatten)]
+    pub out: OutArg,
     /// Near plane depth, for stereo magnification folders (which do not store depths).
     #[arg(long, requires = "far")]
     pub near: Option<f64>,
@@ -22,12 +28,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let opts = ImportOptions {
         near_far: args.near.zip(args.far),
     };
-    let format = deepview_media::import(&args.input, &args.out, &opts)
-        .with_context(|| format!("cannot import {}", args.input.display()))?;
+    let (input, out) = (args.mpi.path(), args.out.path());
+    let format = deepview_media::import(input, out, &opts)
+        .with_context(|| format!("cannot import {}", input.display()))?;
     println!(
         "imported {} ({format:?}) into {}",
-        args.input.display(),
-        args.out.display()
+        input.display(),
+        out.display()
     );
     Ok(())
 }

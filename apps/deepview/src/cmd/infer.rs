@@ -1,9 +1,10 @@
 //! `deepview infer`: an MPI from a few posed views with the learned network (tiled, bounded memory).
 
+use super::args::{self, DataArg, PlanesArg};
 use anyhow::{Context, bail};
 use deepview_data::{SceneArgs, load_scene};
-use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
-use deepview_net::infer::infer_mpi;
+use deepview_geometry::{PlaneSpacing, plane_depths};
+use deepview_net::infer::{infer_mpi, plan_inference};
 use deepview_net::weights::{check_views, load_model};
 use std::path::PathBuf;
 
@@ -68,27 +69,25 @@ fn unpack_embedded_weights() -> anyhow::Result<PathBuf> {
 }
 
 #[derive(clap::Args, Debug)]
-#[command(
-    after_help = "Example:\n  deepview infer ../shared/data/llff/fern --images images_8 --planes 32 --out fern_mpi/"
-)]
+#[command(after_help = "Examples:\n  \
+    deepview infer --data ../shared/data/llff/fern --images images_8 --out fern_mpi/\n  \
+    deepview infer --data ../shared/data/llff/fern --images images_4 --inputs 1,2,3,4 --planes 64 --out fern_mpi/\n  \
+    deepview infer --data my_scene --downscale 2 --weights runs/mine/checkpoints/step-0005000 --planes weights --out mpi/")]
 pub struct Args {
-    /// Dataset folder.
-    pub scene_dir: PathBuf,
+    #[command(flatten)]
+    pub data: DataArg,
     /// Input view indices, comma-separated. Default: the views nearest the centroid of all camera centres
     /// (as many as the weights need; 4 for weights that take any number).
     #[arg(long)]
     pub inputs: Option<String>,
-    /// Number of MPI planes (equally spaced in inverse depth between near and far). Default: the weights'
-    /// inference plane count (32 for the shipped weights; 80 for the paper's Spaces presets).
-    #[arg(long)]
-    pub planes: Option<usize>,
+    #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
+    pub planes: PlanesArg,
     /// Weights folder (config.json + model.safetensors) or a training checkpoint folder
     /// (runs/<name>/checkpoints/step-N). Default: the shipped weights/cpu.
-    #[arg(long)]
+    #[arg(long, visible_alias = "checkpoint")]
     pub weights: Option<PathBuf>,
-    /// Memory budget, e.g. 2GiB, 512MiB, 1500000000.
-    #[arg(long, default_value = "2GiB")]
-    pub max_memory: String,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    pub max_memory: Option<String>,
     /// Output MPI folder.
     #[arg(long)]
     pub out: PathBuf,
@@ -135,11 +134,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             deepview_net::weights::WEIGHTS_FILE
         );
     }
-    let budget = parse_bytes(&args.max_memory)?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
     let device = deepview_net::burn::tensor::Device::flex();
     let (model, config) = load_model(&weights, &device)
         .with_context(|| format!("cannot load weights from {}", weights.display()))?;
-    let scene = load_scene(&args.scene_dir, &args.scene.load_options())?;
+    let data = args.data.path();
+    let scene = load_scene(data, &args.scene.load_options())
+        .with_context(|| format!("cannot load scene {}", data.display()))?;
     let n = scene.views.len();
     let inputs = match &args.inputs {
         Some(text) => super::parse_indices(text, n)?,
@@ -147,20 +148,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     check_views(&config, inputs.len())?;
     let (near, far) = scene.near_far()?;
-    let planes = args.planes.unwrap_or(config.infer_planes);
-    let depths = plane_depths(near, far, planes, PlaneSpacing::InverseDepth)?;
     let cams: Vec<_> = inputs.iter().map(|&i| scene.views[i].camera).collect();
-    let reference = reference_camera(
-        &cams,
-        &ReferenceOptions {
-            cover: Some((near, far)),
-            ..Default::default()
-        },
-    )?;
+    let reference = args::mpi_reference(&cams, (near, far))?;
     let views = inputs
         .iter()
         .map(|&i| Ok((scene.load_image(i)?.to_rgb(), scene.views[i].camera)))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    // `auto` takes the largest count up to the rule's that the inference can plan within the budget.
+    let mut fits = |count: usize| {
+        plane_depths(near, far, count, PlaneSpacing::InverseDepth)
+            .is_ok_and(|depths| plan_inference(&model, &views, &reference, &depths, budget).is_ok())
+    };
+    let choice = args::choose_planes(
+        args.planes,
+        &reference,
+        &cams,
+        &inputs,
+        (near, far),
+        Some(config.infer_planes),
+        &mut fits,
+    )?;
+    eprintln!("{}", choice.message);
+    let depths = plane_depths(near, far, choice.count, PlaneSpacing::InverseDepth)?;
     eprintln!(
         "inferring a {}-plane {}x{} MPI from views {:?} (weights {}, config {})",
         depths.len(),
@@ -183,7 +192,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bar.set_message(format!("net {}", p.net));
     })?;
     bar.finish();
-    deepview_mpi::write_mpi(&args.out, &mpi)
+    deepview_mpi::write_mpi_with(&args.out, &mpi, Some(&choice.rule))
         .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
     println!(
         "wrote {} ({} planes, {}x{})",

@@ -1,15 +1,19 @@
 //! `deepview info SCENE`: what a dataset folder contains (format, views, image size, depth bounds, cameras).
 
+use super::args::DataArg;
 use anyhow::Context;
 use deepview_data::{Scene, SceneArgs, load_scene};
 use std::fmt::Write as _;
 use std::io::Write as _;
-use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
+#[command(after_help = "Examples:\n  \
+    deepview info --data ../shared/data/llff/fern\n  \
+    deepview info --data ../shared/data/llff/fern --images images_4 --camera 0 > cam.json\n  \
+    deepview info --data ../shared/data/spaces/scene_000 --rig 1 --json")]
 pub struct Args {
-    /// Dataset folder (LLFF, COLMAP, Spaces or light-field grid).
-    pub scene: PathBuf,
+    #[command(flatten)]
+    pub data: DataArg,
     #[command(flatten)]
     pub scene_args: SceneArgs,
     /// Print a JSON summary (every camera included) instead of text.
@@ -19,7 +23,7 @@ pub struct Args {
     #[arg(long, default_value_t = 5)]
     pub show: usize,
     /// Print only view N's camera as a camera JSON (the format `render --camera`, `depth` and `bench`
-    /// read), e.g. `deepview info fern --images images_4 --camera 0 > cam.json`.
+    /// read), e.g. `deepview info --data fern --images images_4 --camera 0 > cam.json`.
     #[arg(long, value_name = "N")]
     pub camera: Option<usize>,
 }
@@ -43,13 +47,14 @@ fn range_text((lo, hi): (u32, u32)) -> String {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let scene = load_scene(&args.scene, &args.scene_args.load_options())
-        .with_context(|| format!("cannot load scene {}", args.scene.display()))?;
+    let data = args.data.path();
+    let scene = load_scene(data, &args.scene_args.load_options())
+        .with_context(|| format!("cannot load scene {}", data.display()))?;
     if let Some(n) = args.camera {
         let Some(view) = scene.views.get(n) else {
             anyhow::bail!(
                 "view {n} is out of range: {} has {} views (0..{})",
-                args.scene.display(),
+                data.display(),
                 scene.views.len(),
                 scene.views.len().saturating_sub(1)
             );

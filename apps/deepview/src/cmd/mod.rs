@@ -1,5 +1,6 @@
 //! One module per subcommand: `Args` (clap) and `run`.
 
+pub mod args;
 pub mod baseline;
 pub mod bench;
 pub mod demo;
@@ -83,9 +84,9 @@ pub struct CameraSource {
     #[arg(long, conflicts_with = "scene_dir")]
     pub camera: Option<std::path::PathBuf>,
     /// A dataset folder whose view `--view` gives the camera.
-    #[arg(long = "scene", requires = "view")]
+    #[arg(long = "data", alias = "scene", value_name = "DIR", requires = "view")]
     pub scene_dir: Option<std::path::PathBuf>,
-    /// View index in `--scene`.
+    /// View index in `--data`.
     #[arg(long)]
     pub view: Option<usize>,
     #[command(flatten)]
@@ -93,7 +94,7 @@ pub struct CameraSource {
 }
 
 impl CameraSource {
-    /// The camera, or `None` when neither `--camera` nor `--scene` was given.
+    /// The camera, or `None` when neither `--camera` nor `--data` was given.
     pub fn camera(&self) -> anyhow::Result<Option<Camera>> {
         if let Some(p) = &self.camera {
             return Ok(Some(read_camera_json(p)?));

@@ -1,29 +1,33 @@
 //! `deepview optimize`: fit an MPI to input views by classical gradient descent (no learning) and write it.
 
+use super::args::{self, DataArg, PlanesArg};
 use super::parse_indices;
 use anyhow::Context;
+use deepview_eval::Baseline;
 use deepview_eval::{OptimizeOptions, optimize_mpi_with_history};
 use deepview_geometry::Camera;
-use deepview_mpi::write_mpi;
+use deepview_mpi::write_mpi_with;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
-#[command(
-    after_help = "Example:\n  deepview optimize ../shared/data/llff/fern --inputs 0,1,2,3 --out mpi/"
-)]
+#[command(after_help = "Examples:\n  \
+    deepview optimize --data ../shared/data/llff/fern --images images_8 --out mpi/\n  \
+    deepview optimize --data ../shared/data/llff/fern --images images_8 --inputs 0,1,2,3 --planes 32 --steps 500 --out mpi/")]
 pub struct Args {
-    /// Dataset folder (LLFF, COLMAP, Spaces, light-field grid).
-    pub scene_dir: PathBuf,
+    #[command(flatten)]
+    pub data: DataArg,
     #[command(flatten)]
     pub scene: deepview_data::SceneArgs,
-    /// Input view indices, comma-separated (default: all views).
+    /// Input view indices, comma-separated. Default: the 4 views nearest the centroid of all camera centres.
     #[arg(long)]
     pub inputs: Option<String>,
     /// Output MPI folder (mpi.json + layer PNGs).
     #[arg(long)]
     pub out: PathBuf,
-    #[arg(long, default_value_t = 32)]
-    pub planes: usize,
+    #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
+    pub planes: PlanesArg,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    pub max_memory: Option<String>,
     /// Adam steps.
     #[arg(long, default_value_t = 300)]
     pub steps: usize,
@@ -36,26 +40,39 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let scene = deepview_data::load_scene(&args.scene_dir, &args.scene.load_options())
-        .with_context(|| format!("cannot load scene {}", args.scene_dir.display()))?;
+    let data = args.data.path();
+    let scene = deepview_data::load_scene(data, &args.scene.load_options())
+        .with_context(|| format!("cannot load scene {}", data.display()))?;
     let near_far = scene.near_far()?;
     let indices = match &args.inputs {
         Some(t) => parse_indices(t, scene.views.len())?,
-        None => (0..scene.views.len()).collect(),
+        None => super::views_nearest_centroid(&scene.cameras(), 4),
     };
+    let cams: Vec<Camera> = indices.iter().map(|&i| scene.views[i].camera).collect();
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
+    let choice = super::eval::baseline_planes(
+        Baseline::Optimize,
+        args.planes,
+        budget,
+        &cams,
+        &indices,
+        near_far,
+        args.max_width,
+    )?;
+    eprintln!("{}", choice.message);
     let inputs: Vec<(deepview_image::ImageF32, Camera)> = indices
         .iter()
         .map(|&i| Ok((scene.load_image(i)?, scene.views[i].camera)))
         .collect::<anyhow::Result<_>>()?;
     let options = OptimizeOptions {
-        planes: args.planes,
+        planes: choice.count,
         steps: args.steps,
         learning_rate: args.lr,
         max_width: args.max_width,
     };
     let start = std::time::Instant::now();
     let (mpi, history) = optimize_mpi_with_history(&inputs, near_far, &options)?;
-    write_mpi(&args.out, &mpi)?;
+    write_mpi_with(&args.out, &mpi, Some(&choice.rule))?;
     println!(
         "optimised {} planes {}x{} from {} views in {:.1} s: loss {:.5} -> {:.5}; wrote {}",
         mpi.planes(),

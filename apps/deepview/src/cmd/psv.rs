@@ -1,5 +1,6 @@
 //! `deepview psv`: the plane sweep volume of one view, written as RGBA images (alpha = validity).
 
+use super::args::{self, DataArg, PlanesArg};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
 use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
@@ -7,12 +8,12 @@ use deepview_mpi::plane_sweep;
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
-#[command(
-    after_help = "Example:\n  deepview psv ../shared/data/llff/fern --view 1 --reference 0 --planes 16 --out psv/"
-)]
+#[command(after_help = "Examples:\n  \
+    deepview psv --data ../shared/data/llff/fern --images images_8 --view 1 --reference 0 --planes 16 --out psv/\n  \
+    deepview psv --data ../shared/data/llff/fern --images images_8 --view 2 --reference centroid:0,1,2,3 --planes auto --out psv/")]
 pub struct Args {
-    /// Dataset folder.
-    pub scene_dir: PathBuf,
+    #[command(flatten)]
+    pub data: DataArg,
     /// The view to sweep.
     #[arg(long, default_value_t = 0)]
     pub view: usize,
@@ -20,9 +21,10 @@ pub struct Args {
     /// those views). Default: the swept view's own camera.
     #[arg(long)]
     pub reference: Option<String>,
-    /// Number of planes (equally spaced in inverse depth between near and far).
-    #[arg(long, default_value_t = 32)]
-    pub planes: usize,
+    /// Number of planes, equally spaced in inverse depth between near and far, or `auto`: at most 1 px of
+    /// disparity apart between the reference camera and the swept view (8..=256; see `deepview infer --help`).
+    #[arg(long, default_value = "32")]
+    pub planes: PlanesArg,
     /// Output folder for psv_NNN.png (far plane first).
     #[arg(long)]
     pub out: PathBuf,
@@ -31,7 +33,9 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let scene = load_scene(&args.scene_dir, &args.scene.load_options())?;
+    let data = args.data.path();
+    let scene = load_scene(data, &args.scene.load_options())
+        .with_context(|| format!("cannot load scene {}", data.display()))?;
     let n = scene.views.len();
     super::parse_indices(&args.view.to_string(), n)?;
     let reference = match args.reference.as_deref() {
@@ -44,7 +48,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(r) => scene.views[super::parse_indices(r, n)?[0]].camera,
     };
     let (near, far) = scene.near_far()?;
-    let depths = plane_depths(near, far, args.planes, PlaneSpacing::InverseDepth)?;
+    let view_camera = scene.views[args.view].camera;
+    let choice = args::choose_planes(
+        args.planes,
+        &reference,
+        &[view_camera],
+        &[args.view],
+        (near, far),
+        None,
+        &mut |_| true,
+    )?;
+    if args.planes == PlanesArg::Auto {
+        eprintln!("{}", choice.message);
+    }
+    let depths = plane_depths(near, far, choice.count, PlaneSpacing::InverseDepth)?;
     let image = scene.load_image(args.view)?;
     let psv = plane_sweep(&image, &scene.views[args.view].camera, &reference, &depths);
     std::fs::create_dir_all(&args.out)

@@ -9,7 +9,7 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 #[command(
     after_help = "Examples:\n  deepview render --mpi mpi/ --camera cam.json --out view.png\n  \
-    deepview render --mpi mpi/ --scene ../shared/data/llff/fern --view 3 --out view3.png\n  \
+    deepview render --mpi mpi/ --data ../shared/data/llff/fern --images images_8 --view 3 --out view3.png\n  \
     deepview render --mpi mpi/ --path spiral --frames 90 --out spiral.gif\n  \
     deepview render --mpi mpi/ --camera-path camera_path.json --out path.mp4\n  \
     deepview render --mpi mpi/ --path swing --out frames/   (PNG frames)"

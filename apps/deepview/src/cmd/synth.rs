@@ -8,7 +8,7 @@ use std::path::PathBuf;
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  deepview synth --out synth/grid\n  \
     deepview synth --cameras ../shared/data/spaces/scene_000 --out synth/spaces_000\n  \
-    deepview synth --cameras ../shared/data/llff/fern --images images_8 --out synth/fern_rig\n  \
+    deepview synth --data ../shared/data/llff/fern --images images_8 --out synth/fern_rig\n  \
     deepview synth --out synth/grid_ns --out-format transforms")]
 pub struct Args {
     /// Output folder: a dataset in the rig's own format, plus ground_truth_mpi/ and synth.json.
@@ -16,7 +16,12 @@ pub struct Args {
     pub out: PathBuf,
     /// The rig: `grid` (a generated N x N light-field grid) or a dataset folder whose cameras to use
     /// (Spaces models.json, LLFF, COLMAP, light field).
-    #[arg(long, default_value = "grid")]
+    #[arg(
+        long,
+        default_value = "grid",
+        visible_alias = "data",
+        value_name = "grid|DIR"
+    )]
     pub cameras: String,
     /// Grid rig: views per side.
     #[arg(long, default_value_t = 4)]

@@ -22,7 +22,7 @@ use std::path::PathBuf;
 pub struct Args {
     /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
     /// built-in analytic scene. With --resume, defaults to the run's own list.
-    #[arg(long = "data")]
+    #[arg(long = "data", value_name = "DIR")]
     pub data: Vec<PathBuf>,
     /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view.
     #[arg(long, default_value = "cpu", conflicts_with = "init")]
@@ -30,7 +30,7 @@ pub struct Args {
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors, e.g. weights/cpu) or a checkpoint folder. The network
     /// configuration is the one saved with them. The optimizer starts afresh.
-    #[arg(long, value_name = "WEIGHTS_DIR")]
+    #[arg(long, value_name = "WEIGHTS_DIR", visible_alias = "weights")]
     pub init: Option<PathBuf>,
     /// Run name: the run lives in <runs>/<name>/.
     #[arg(long)]

@@ -1,12 +1,15 @@
-//! `deepview view MPI_DIR [--port 8080] [--host 127.0.0.1]`: serve the WebGL2 viewer for an MPI folder.
+//! `deepview view --mpi MPI_DIR [--port 8080] [--host 127.0.0.1]`: serve the WebGL2 viewer for an MPI folder.
 
+use super::args::MpiArg;
 use anyhow::Context;
-use std::path::PathBuf;
 
 #[derive(clap::Args)]
+#[command(
+    after_help = "Examples:\n  deepview view --mpi fern_mpi/\n  deepview view --mpi fern_mpi/ --port 0 --host 0.0.0.0"
+)]
 pub struct Args {
-    /// MPI folder (`mpi.json` + layers, or a compact export with `mpi_compact.json`).
-    pub mpi_dir: PathBuf,
+    #[command(flatten)]
+    pub mpi: MpiArg,
     /// Port to listen on (0: any free port).
     #[arg(long, default_value_t = 8080)]
     pub port: u16,
@@ -16,11 +19,12 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let server = deepview_viewer::Server::start(&args.mpi_dir, &args.host, args.port)
-        .with_context(|| format!("cannot serve the viewer for {}", args.mpi_dir.display()))?;
+    let mpi_dir = args.mpi.path();
+    let server = deepview_viewer::Server::start(mpi_dir, &args.host, args.port)
+        .with_context(|| format!("cannot serve the viewer for {}", mpi_dir.display()))?;
     println!(
         "deepview viewer for {}: {}",
-        args.mpi_dir.display(),
+        mpi_dir.display(),
         server.url()
     );
     println!(

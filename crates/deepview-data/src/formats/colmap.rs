@@ -588,6 +588,7 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         depth_bounds: depth_bounds(&model, &poses),
         grid: None,
         rig_count: 1,
+        downscale: 1,
     })
 }
 

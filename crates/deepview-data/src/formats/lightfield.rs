@@ -189,6 +189,7 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
         depth_bounds: Some(lf.depth_bounds(d_min, d_max)),
         grid: Some((side, side)),
         rig_count: 1,
+        downscale: 1,
     })
 }
 

@@ -166,6 +166,7 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         depth_bounds: Some((near, far)),
         grid: None,
         rig_count: 1,
+        downscale: 1,
     })
 }
 

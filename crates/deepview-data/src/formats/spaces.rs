@@ -122,6 +122,7 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         depth_bounds: None,
         grid: None,
         rig_count: rigs.len(),
+        downscale: 1,
     })
 }
 

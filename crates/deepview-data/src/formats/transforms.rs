@@ -458,6 +458,7 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         depth_bounds: transforms_depth_bounds(&file, &cameras),
         grid: None,
         rig_count: 1,
+        downscale: 1,
     })
 }
 
