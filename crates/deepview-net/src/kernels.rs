@@ -309,7 +309,7 @@ impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C>
 }
 
 /// A core net's convolutions packed for the kernels.
-struct PackedNet {
+pub(crate) struct PackedNet {
     input: Vec<PackedConv>,
     stages: Vec<PackedConv>,
     head: PackedConv,
@@ -332,6 +332,26 @@ fn pack(conv: &Conv2d) -> PackedConv {
     PackedConv::new(&w, b.as_deref(), cout, cin)
 }
 
+impl PackedNet {
+    pub(crate) fn new(input: &[Conv2d], stages: &[Conv2d], head: &Conv2d, out: &Conv2d) -> Self {
+        Self {
+            input: input.iter().map(pack).collect(),
+            stages: stages.iter().map(pack).collect(),
+            head: pack(head),
+            out: pack(out),
+        }
+    }
+    pub(crate) fn in_channels(&self) -> usize {
+        self.input[0].cin
+    }
+    pub(crate) fn features(&self) -> usize {
+        self.head.cin
+    }
+    pub(crate) fn out_channels(&self) -> usize {
+        self.out.cout
+    }
+}
+
 /// Element-wise maximum of `srcs` into `dst` (whole plane buffers: zero borders stay zero).
 fn max_into(dst: &mut [f32], srcs: &[&[f32]]) {
     dst.copy_from_slice(srcs[0]);
@@ -342,10 +362,109 @@ fn max_into(dst: &mut [f32], srcs: &[&[f32]]) {
     }
 }
 
+/// One thread's activations of a core net on the `K` slices of one plane: per view `[in (Cin) | A (F) |
+/// B (F)]`, then the max over views (F), the head (F) and the output (S) planes.
+pub(crate) struct NetScratch {
+    planes: Planes,
+    views: usize,
+    cin: usize,
+    f: usize,
+    so: usize,
+}
+
+impl NetScratch {
+    pub(crate) fn new(net: &PackedNet, plane: Plane, views: usize) -> Self {
+        let (cin, f, so) = (net.in_channels(), net.features(), net.out_channels());
+        Self {
+            planes: Planes::new(plane, views * (cin + 2 * f) + 2 * f + so),
+            views,
+            cin,
+            f,
+            so,
+        }
+    }
+
+    pub(crate) fn plane(&self) -> Plane {
+        self.planes.plane
+    }
+
+    /// The padded input plane of channel `c` of view `k` (write the interior; the border stays zero).
+    pub(crate) fn input_mut(&mut self, k: usize, c: usize) -> &mut [f32] {
+        &mut self.planes.bufs[k * (self.cin + 2 * self.f) + c]
+    }
+
+    /// The padded output plane of channel `c` after [`Self::run`].
+    pub(crate) fn output(&self, c: usize) -> &[f32] {
+        debug_assert!(c < self.so);
+        &self.planes.bufs[self.views * (self.cin + 2 * self.f) + 2 * self.f + c]
+    }
+
+    /// Run `net` on the inputs (see [`CoreNet::forward`](crate::network::CoreNet::forward)).
+    pub(crate) fn run(&mut self, net: &PackedNet) {
+        let plane = self.planes.plane;
+        let (views, cin, f) = (self.views, self.cin, self.f);
+        let per_view = cin + 2 * f;
+        let m0 = views * per_view;
+        let bufs = &mut self.planes.bufs;
+        // Convolve planes `from` (all before `to`) into `c.cout` planes from `to` on.
+        let layer =
+            |bufs: &mut Vec<Vec<f32>>, from: &[usize], to: usize, c: &PackedConv, act: Act| {
+                let (lo, hi) = bufs.split_at_mut(to);
+                let ins: Vec<&[f32]> = from.iter().map(|&i| lo[i].as_slice()).collect();
+                let mut outs: Vec<&mut [f32]> =
+                    hi[..c.cout].iter_mut().map(|v| v.as_mut_slice()).collect();
+                conv3x3(plane, &ins, c, act, &mut outs);
+            };
+        let a = |k: usize| k * per_view + cin;
+        let b = |k: usize| k * per_view + cin + f;
+        for k in 0..views {
+            let from: Vec<usize> = (k * per_view..k * per_view + cin).collect();
+            layer(bufs, &from, a(k), &net.input[0], Act::Elu);
+            let from: Vec<usize> = (a(k)..a(k) + f).collect();
+            layer(bufs, &from, b(k), &net.input[1], Act::Elu);
+        }
+        let max_views = |bufs: &mut Vec<Vec<f32>>| {
+            let (lo, hi) = bufs.split_at_mut(m0);
+            for c in 0..f {
+                let srcs: Vec<&[f32]> = (0..views).map(|k| lo[b(k) + c].as_slice()).collect();
+                max_into(&mut hi[c], &srcs);
+            }
+        };
+        for pair in net.stages.chunks(2) {
+            max_views(bufs);
+            for k in 0..views {
+                // concat(B_k, m) -> A_k: A lies before B and m, so move A's planes out meanwhile.
+                let mut a_planes: Vec<Vec<f32>> = (0..f)
+                    .map(|c| std::mem::take(&mut bufs[a(k) + c]))
+                    .collect();
+                {
+                    let ins: Vec<&[f32]> = (b(k)..b(k) + f)
+                        .chain(m0..m0 + f)
+                        .map(|i| bufs[i].as_slice())
+                        .collect();
+                    let mut outs: Vec<&mut [f32]> =
+                        a_planes.iter_mut().map(|v| v.as_mut_slice()).collect();
+                    conv3x3(plane, &ins, &pair[0], Act::Elu, &mut outs);
+                }
+                for (c, v) in a_planes.into_iter().enumerate() {
+                    bufs[a(k) + c] = v;
+                }
+                let from: Vec<usize> = (a(k)..a(k) + f).collect();
+                layer(bufs, &from, b(k), &pair[1], Act::Elu);
+            }
+        }
+        max_views(bufs);
+        let from: Vec<usize> = (m0..m0 + f).collect();
+        layer(bufs, &from, m0 + f, &net.head, Act::Elu);
+        let from: Vec<usize> = (m0 + f..m0 + 2 * f).collect();
+        layer(bufs, &from, m0 + 2 * f, &net.out, Act::Linear);
+    }
+}
+
 /// The whole core net (without the U-Net's resampling) on one plane's `K` slices at a time, every
-/// activation in per-thread plane buffers: no tensor per layer, the concatenation with the max over
-/// views by plane lists. `x` `[K*D, Cin, h, w]` (view-major) -> `[D, out, h, w]`; the same arithmetic
-/// as the per-layer [`KernelOps::conv3x3_act`] path (bit-identical outputs).
+/// activation in per-thread plane buffers ([`NetScratch`]): no tensor per layer, the concatenation with
+/// the max over views by plane lists. `x` `[K*D, Cin, h, w]` (view-major) -> `[D, out, h, w]`; the same
+/// arithmetic as the per-layer [`KernelOps::conv3x3_act`] path (bit-identical outputs).
 pub fn core_net_inference(
     input: &[Conv2d],
     stages: &[Conv2d],
@@ -357,90 +476,25 @@ pub fn core_net_inference(
     let device = x.device();
     let [kd, cin, h, w] = x.dims();
     let d = kd / views;
-    let net = PackedNet {
-        input: input.iter().map(pack).collect(),
-        stages: stages.iter().map(pack).collect(),
-        head: pack(head),
-        out: pack(out),
-    };
-    let f = net.head.cin;
-    let so = net.out.cout;
+    let net = PackedNet::new(input, stages, head, out);
+    let so = net.out_channels();
     let x: Vec<f32> = x.into_data().try_to_vec().expect("f32 tensor");
     let plane = Plane::new(h, w);
     let hw = h * w;
     let mut result = vec![0f32; d * so * hw];
     if hw > 0 {
-        // Per thread: K x (Cin + 2F) planes for the views, F for the max, F + S for the head.
         result.par_chunks_mut(so * hw).enumerate().for_each_init(
-            || Planes::new(plane, views * (cin + 2 * f) + 2 * f + so),
+            || NetScratch::new(&net, plane, views),
             |s, (p, res)| {
-                let per_view = cin + 2 * f;
-                let m0 = views * per_view;
                 for k in 0..views {
-                    s.load(k * per_view, &x[(k * d + p) * cin * hw..][..cin * hw]);
-                }
-                let bufs = &mut s.bufs;
-                // Planes of view k: [in (cin) | A (f) | B (f)].
-                let layer = |bufs: &mut Vec<Vec<f32>>,
-                             from: &[usize],
-                             to: usize,
-                             c: &PackedConv,
-                             act: Act| {
-                    let (lo, hi) = bufs.split_at_mut(to);
-                    let ins: Vec<&[f32]> = from.iter().map(|&i| lo[i].as_slice()).collect();
-                    let mut outs: Vec<&mut [f32]> =
-                        hi[..c.cout].iter_mut().map(|v| v.as_mut_slice()).collect();
-                    conv3x3(plane, &ins, c, act, &mut outs);
-                };
-                let a = |k: usize| k * per_view + cin;
-                let b = |k: usize| k * per_view + cin + f;
-                for k in 0..views {
-                    let base = k * per_view;
-                    let from: Vec<usize> = (base..base + cin).collect();
-                    layer(bufs, &from, a(k), &net.input[0], Act::Elu);
-                    let from: Vec<usize> = (a(k)..a(k) + f).collect();
-                    // B lies after A: write B from A.
-                    layer(bufs, &from, b(k), &net.input[1], Act::Elu);
-                }
-                let max_views = |bufs: &mut Vec<Vec<f32>>| {
-                    let (lo, hi) = bufs.split_at_mut(m0);
-                    for c in 0..f {
-                        let srcs: Vec<&[f32]> =
-                            (0..views).map(|k| lo[b(k) + c].as_slice()).collect();
-                        max_into(&mut hi[c], &srcs);
-                    }
-                };
-                for pair in net.stages.chunks(2) {
-                    max_views(bufs);
-                    for k in 0..views {
-                        // [B_k | m] -> A_k: A lies before B and m, so gather the inputs by copy-free
-                        // split: take A's planes out first.
-                        let mut a_planes: Vec<Vec<f32>> = (0..f)
-                            .map(|c| std::mem::take(&mut bufs[a(k) + c]))
-                            .collect();
-                        {
-                            let ins: Vec<&[f32]> = (b(k)..b(k) + f)
-                                .chain(m0..m0 + f)
-                                .map(|i| bufs[i].as_slice())
-                                .collect();
-                            let mut outs: Vec<&mut [f32]> =
-                                a_planes.iter_mut().map(|v| v.as_mut_slice()).collect();
-                            conv3x3(plane, &ins, &pair[0], Act::Elu, &mut outs);
-                        }
-                        for (c, v) in a_planes.into_iter().enumerate() {
-                            bufs[a(k) + c] = v;
-                        }
-                        let from: Vec<usize> = (a(k)..a(k) + f).collect();
-                        layer(bufs, &from, b(k), &pair[1], Act::Elu);
+                    for c in 0..cin {
+                        let src = &x[((k * d + p) * cin + c) * hw..][..hw];
+                        plane.pad_into(src, s.input_mut(k, c));
                     }
                 }
-                max_views(bufs);
-                let from: Vec<usize> = (m0..m0 + f).collect();
-                layer(bufs, &from, m0 + f, &net.head, Act::Elu);
-                let from: Vec<usize> = (m0 + f..m0 + 2 * f).collect();
-                layer(bufs, &from, m0 + 2 * f, &net.out, Act::Linear);
+                s.run(&net);
                 for (c, dst) in res.chunks_exact_mut(hw).enumerate() {
-                    plane.unpad_into(&bufs[m0 + 2 * f + c], dst);
+                    plane.unpad_into(s.output(c), dst);
                 }
             },
         );

@@ -525,12 +525,18 @@ mod tests {
     #[test]
     fn kernels_match_burn_ops() {
         let ad = Device::flex().autodiff();
-        for (cin, f, stages, unet, k, d, h, w) in [
-            (4, 8, 1, false, 4, 3, 17, 23),
-            (19, 8, 1, false, 1, 2, 9, 12),
-            (19, 16, 3, true, 12, 2, 15, 11),
-            (4, 64, 3, true, 4, 2, 13, 18),
-            (11, 5, 2, false, 3, 1, 1, 3),
+        // With many features and views, a feature of two views can agree to f32 rounding somewhere,
+        // and the max over views may then pick either (both right): its gradient then flows through
+        // the other view and spreads over the receptive field. Gradients are compared where that has
+        // negligible probability (<= 16 features, or one view); outputs everywhere.
+        for (cin, f, stages, unet, k, d, h, w, grads) in [
+            (4, 8, 1, false, 4, 3, 17, 23, true),
+            (19, 8, 1, false, 1, 2, 9, 12, true),
+            (19, 16, 3, true, 12, 2, 15, 11, true),
+            (4, 64, 3, true, 1, 2, 13, 18, true),
+            (19, 64, 3, false, 1, 2, 13, 18, true),
+            (4, 64, 3, true, 4, 2, 13, 18, false),
+            (11, 5, 2, false, 3, 1, 1, 3, true),
         ] {
             let net = CoreNet::new(cin, f, 8, stages, unet, &ad);
             let x = Tensor::<4>::random(
@@ -560,11 +566,15 @@ mod tests {
             let ya = net.forward(xa.clone(), k);
             let e = rel(ya.clone().inner(), reference);
             assert!(e < 1e-5, "per-layer forward: {e}");
+            if !grads {
+                continue;
+            }
             let ga = (ya * seed.clone()).sum().backward();
             let xb = x.clone().require_grad();
             let gb = (net.forward_burn(xb.clone(), k) * seed).sum().backward();
+            let case = format!("{cin} {f} {unet} {k}x{d} {h}x{w}");
             let e = rel(xa.grad(&ga).unwrap(), xb.grad(&gb).unwrap());
-            assert!(e < 1e-4, "input gradient: {e}");
+            assert!(e < 1e-4, "input gradient {case}: {e}");
             for (i, c) in net
                 .input
                 .iter()
@@ -573,7 +583,7 @@ mod tests {
                 .enumerate()
             {
                 let e = rel(c.weight.grad(&ga).unwrap(), c.weight.grad(&gb).unwrap());
-                assert!(e < 1e-4, "conv {i} weight gradient: {e}");
+                assert!(e < 1e-4, "conv {i} weight gradient {case}: {e}");
             }
         }
     }
