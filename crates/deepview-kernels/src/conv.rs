@@ -14,6 +14,8 @@ pub enum Act {
 
 /// Output channels per kernel pass.
 pub const CO_BLOCK: usize = 8;
+/// Rows of a band (see [`conv3x3`]).
+const ROWS_PER_BAND: usize = 8;
 
 /// Weights of one 3x3 convolution in the kernel's order: blocks of 8 output channels, then input
 /// channel, tap (row-major `3 * ky + kx`) and the 8 outputs (`w[((block * cin + ci) * 9 + t) * 8 + j]`);
@@ -109,47 +111,35 @@ pub fn conv3x3(
     }
     let taps = plane.taps();
     let ins: Vec<*const f32> = inputs.iter().map(|b| b.as_ptr()).collect();
-    for blk in 0..conv.blocks() {
-        let co0 = blk * crate::conv::CO_BLOCK;
-        let n = (conv.cout - co0).min(CO_BLOCK);
-        let w = &conv.w[blk * conv.cin * 9 * CO_BLOCK..][..conv.cin * 9 * CO_BLOCK];
-        let b = &conv.b[co0..co0 + CO_BLOCK];
-        let mut outs: [*mut f32; CO_BLOCK] = [std::ptr::null_mut(); CO_BLOCK];
-        for j in 0..n {
-            outs[j] = outputs[co0 + j].as_mut_ptr();
+    // Row bands of the plane, every output block within a band: the band's input rows stay in the
+    // L2 cache while the output blocks (passes of the kernel) reread them.
+    let band = ROWS_PER_BAND * plane.pitch();
+    let (start, end) = (plane.start(), plane.end());
+    let mut b0 = start;
+    while b0 < end {
+        // Bands are whole kernel steps (16 outputs), so that no output is computed twice.
+        let b1 = (b0 + band.next_multiple_of(16)).min(end);
+        for blk in 0..conv.blocks() {
+            let co0 = blk * CO_BLOCK;
+            let n = (conv.cout - co0).min(CO_BLOCK);
+            let w = &conv.w[blk * conv.cin * 9 * CO_BLOCK..][..conv.cin * 9 * CO_BLOCK];
+            let b = &conv.b[co0..co0 + CO_BLOCK];
+            let mut outs: [*mut f32; CO_BLOCK] = [std::ptr::null_mut(); CO_BLOCK];
+            for j in 0..n {
+                outs[j] = outputs[co0 + j].as_mut_ptr();
+            }
+            #[cfg(target_arch = "x86_64")]
+            if simd() {
+                // SAFETY: every input and output holds `plane.len()` floats (checked above), which
+                // covers the kernel's reads (taps of one step past `end`) and writes (one step past
+                // `end`); outputs are distinct buffers from the inputs (they are `&mut`).
+                unsafe { crate::x86::conv_block(&ins, w, b, &outs[..n], b0, b1, &taps, act) };
+                continue;
+            }
+            // SAFETY: as above.
+            unsafe { scalar::conv_block(&ins, w, b, &outs[..n], b0, b1, &taps, act) };
         }
-        #[cfg(target_arch = "x86_64")]
-        if simd() {
-            // SAFETY: every input and output holds `plane.len()` floats (checked above), which covers
-            // the kernel's reads (taps of one step past `end`) and writes (one step past `end`);
-            // outputs are distinct buffers from the inputs (they are `&mut`).
-            unsafe {
-                crate::x86::conv_block(
-                    &ins,
-                    w,
-                    b,
-                    &outs[..n],
-                    plane.start(),
-                    plane.end(),
-                    &taps,
-                    act,
-                )
-            };
-            continue;
-        }
-        // SAFETY: as above.
-        unsafe {
-            scalar::conv_block(
-                &ins,
-                w,
-                b,
-                &outs[..n],
-                plane.start(),
-                plane.end(),
-                &taps,
-                act,
-            )
-        };
+        b0 = b1;
     }
     for o in outputs.iter_mut() {
         plane.clear_border(o);

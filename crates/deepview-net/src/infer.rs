@@ -637,6 +637,27 @@ pub fn infer_mpi(
     max_memory_bytes: u64,
     progress: &mut dyn FnMut(InferProgress),
 ) -> Result<Mpi, InferError> {
+    validate(model, views, depths)?;
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    if crate::kernels::fast_device(&model_device(model))
+        && crate::engine::supported(model)
+        && crate::engine::engine_bytes(model, views, w, h, depths.len()) <= max_memory_bytes
+    {
+        // Whole image at once on the CPU kernels (see `engine`): the same result as the tiled path.
+        let total = model.nets.len();
+        let layers = crate::engine::infer_engine(model, views, reference, depths, &mut |n| {
+            progress(InferProgress {
+                done: n + 1,
+                total,
+                net: n,
+            })
+        });
+        return Ok(Mpi {
+            camera: *reference,
+            depths: depths.to_vec(),
+            layers,
+        });
+    }
     let plan = plan_inference(model, views, reference, depths, max_memory_bytes)?;
     infer_mpi_planned(model, views, reference, depths, &plan, progress)
 }

@@ -384,13 +384,18 @@ impl NetScratch {
         }
     }
 
-    pub(crate) fn plane(&self) -> Plane {
-        self.planes.plane
-    }
-
     /// The padded input plane of channel `c` of view `k` (write the interior; the border stays zero).
     pub(crate) fn input_mut(&mut self, k: usize, c: usize) -> &mut [f32] {
         &mut self.planes.bufs[k * (self.cin + 2 * self.f) + c]
+    }
+
+    /// The padded input planes of view `k` (all `Cin` channels).
+    pub(crate) fn view_inputs_mut(&mut self, k: usize) -> Vec<&mut [f32]> {
+        let base = k * (self.cin + 2 * self.f);
+        self.planes.bufs[base..base + self.cin]
+            .iter_mut()
+            .map(|v| v.as_mut_slice())
+            .collect()
     }
 
     /// The padded output plane of channel `c` after [`Self::run`].

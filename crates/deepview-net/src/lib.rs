@@ -3,6 +3,7 @@
 //! ([`weights`]) and tiled inference ([`infer`]); training lives in [`train`], [`vgg`] and [`loss`].
 
 pub mod config;
+pub mod engine;
 pub mod forward;
 pub mod infer;
 pub mod kernels;

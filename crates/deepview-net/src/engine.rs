@@ -1,0 +1,649 @@
+//! Whole-image inference on plain `f32` arrays with the CPU kernels: the same model as
+//! [`DeepViewModel::forward`] (plane sweeps, the agreement prior, renders `R`, `A`, `T` into every view
+//! and their inverse warps, every net), with no tensor per operation. Each net runs one plane at a time
+//! per thread ([`NetScratch`]): its inputs are warped straight into the kernels' padded planes.
+//!
+//! Memory: the state between nets (`D x S x H x W`), for update nets the views' renders (`K x D x 4`
+//! texels per view pixel: `A` and `T` of every plane, plus `I` and `R`), and per thread one plane's
+//! activations. [`engine_bytes`] estimates it; `infer` falls back to the tiled burn path
+//! ([`crate::infer`]) when it exceeds the budget or the model has U-Net nets.
+
+use crate::forward::{Hom, invert};
+use crate::kernels::{NetScratch, PackedNet};
+use crate::network::{DeepViewModel, PRIOR_EPS, PRIOR_SINGLE_VIEW_VARIANCE};
+use deepview_geometry::{Camera, plane_homography};
+use deepview_image::ImageF32;
+use deepview_kernels::Plane;
+use deepview_mpi::warp::Sampler;
+use rayon::prelude::*;
+
+/// Whether the engine can run `model` (every net without U-Net; any view and plane count).
+pub fn supported(model: &DeepViewModel) -> bool {
+    model.nets.iter().all(|n| !n.unet)
+}
+
+/// Estimated peak bytes of [`infer_engine`] (besides the inputs' images).
+pub fn engine_bytes(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    w: usize,
+    h: usize,
+    d: usize,
+) -> u64 {
+    let k = views.len() as u64;
+    let (hw, d64) = ((w * h) as u64, d as u64);
+    let view_px: u64 = views
+        .iter()
+        .map(|(i, _)| i.width as u64 * i.height as u64)
+        .sum();
+    let s = model.state_channels as u64;
+    let plane = Plane::new(h, w).len() as u64;
+    let threads = rayon::current_num_threads() as u64;
+    let scratch = model
+        .nets
+        .iter()
+        .map(|n| {
+            let cin = n.input[0].weight.dims()[1] as u64;
+            let f = n.head.weight.dims()[1] as u64;
+            k * (cin + 2 * f) + 2 * f + s
+        })
+        .max()
+        .unwrap_or(0)
+        * plane;
+    let renders = if model.nets.len() > 1 {
+        view_px * (4 * d64 + 6)
+    } else {
+        0
+    };
+    4 * (2 * d64 * s * hw + d64 * 4 * hw + renders + threads * scratch)
+}
+
+/// Bilinear warp of an interleaved `channels`-channel `src_w x src_h` source by `hom` (output pixels ->
+/// source pixels, the project's sampling rule) into channel planes `dst[c]` of `plane`; `valid` gets 1
+/// where the sample is inside the source. Outside: 0.
+fn warp_into(
+    src: &[f32],
+    channels: usize,
+    src_w: u32,
+    src_h: u32,
+    hom: &Hom,
+    plane: Plane,
+    dst: &mut [&mut [f32]],
+    valid: Option<&mut [f32]>,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if deepview_kernels::simd() {
+        // SAFETY: the CPU has AVX2 and FMA (checked); the body is the portable one, compiled with
+        // hardware `fma` and `floor` (otherwise libm calls).
+        unsafe { warp_into_fma(src, channels, src_w, src_h, hom, plane, dst, valid) };
+        return;
+    }
+    warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn warp_into_fma(
+    src: &[f32],
+    channels: usize,
+    src_w: u32,
+    src_h: u32,
+    hom: &Hom,
+    plane: Plane,
+    dst: &mut [&mut [f32]],
+    valid: Option<&mut [f32]>,
+) {
+    warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
+}
+
+#[inline(always)]
+fn warp_into_portable(
+    src: &[f32],
+    channels: usize,
+    src_w: u32,
+    src_h: u32,
+    hom: &Hom,
+    plane: Plane,
+    dst: &mut [&mut [f32]],
+    mut valid: Option<&mut [f32]>,
+) {
+    let sampler = Sampler::new(*hom, src_w, src_h);
+    for y in 0..plane.h {
+        let row = sampler.row(y as u32);
+        let base = plane.index(y, 0);
+        for x in 0..plane.w {
+            let i = base + x;
+            match row.tap(x as u32) {
+                None => {
+                    for d in dst.iter_mut() {
+                        d[i] = 0.0;
+                    }
+                    if let Some(v) = valid.as_deref_mut() {
+                        v[i] = 0.0;
+                    }
+                }
+                Some(t) => {
+                    for (c, d) in dst.iter_mut().enumerate() {
+                        let mut acc = 0f32;
+                        for j in 0..4 {
+                            acc += t.w[j] * src[t.idx[j] as usize * channels + c];
+                        }
+                        d[i] = acc;
+                    }
+                    if let Some(v) = valid.as_deref_mut() {
+                        v[i] = 1.0;
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn sigmoid(x: f32) -> f32 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+fn logit(p: f32) -> f32 {
+    let p = p.clamp(PRIOR_EPS as f32, 1.0 - PRIOR_EPS as f32);
+    (p / (1.0 - p)).ln()
+}
+
+/// The agreement prior's RGBA logits `[D][4][H*W]` from the views' plane sweeps (see
+/// [`crate::network::agreement_prior_logits`]; same arithmetic).
+fn agreement_prior(
+    views: &[(ImageF32, Camera)],
+    homs: &[Vec<Hom>],
+    plane: Plane,
+    d: usize,
+    temperature: f64,
+) -> Vec<f32> {
+    let hw = plane.h * plane.w;
+    let k = views.len();
+    // Pass 1, per plane: mean colour and the (masked) logit of the depth weight.
+    let mut out = vec![0f32; d * 4 * hw];
+    out.par_chunks_mut(4 * hw).enumerate().for_each(|(p, o)| {
+        let mut psv: Vec<Vec<f32>> = (0..4 * k).map(|_| plane.zeroed()).collect();
+        for (v, (img, _)) in views.iter().enumerate() {
+            let (rgb, rest) = psv[4 * v..4 * v + 4].split_at_mut(3);
+            let mut dst: Vec<&mut [f32]> = rgb.iter_mut().map(|b| b.as_mut_slice()).collect();
+            warp_into(
+                &img.data,
+                img.channels,
+                img.width,
+                img.height,
+                &homs[v][p],
+                plane,
+                &mut dst,
+                Some(&mut rest[0]),
+            );
+        }
+        let (mean, lg) = o.split_at_mut(3 * hw);
+        for y in 0..plane.h {
+            for x in 0..plane.w {
+                let i = plane.index(y, x);
+                let o = y * plane.w + x;
+                let mut count = 0f32;
+                let mut sum = [0f32; 3];
+                for v in 0..k {
+                    let m = psv[4 * v + 3][i];
+                    count += m;
+                    for c in 0..3 {
+                        sum[c] += psv[4 * v + c][i] * m;
+                    }
+                }
+                let denom = count.max(1.0);
+                let mu = [sum[0] / denom, sum[1] / denom, sum[2] / denom];
+                let mut var = [0f32; 3];
+                for v in 0..k {
+                    let m = psv[4 * v + 3][i];
+                    for c in 0..3 {
+                        let e = psv[4 * v + c][i] * m - mu[c] * m;
+                        var[c] += e * e;
+                    }
+                }
+                let mut var = (var[0] / denom + var[1] / denom + var[2] / denom) / 3.0;
+                if count == 1.0 {
+                    var = PRIOR_SINGLE_VIEW_VARIANCE as f32;
+                }
+                let seen = if count > 0.5 { 1.0 } else { 0.0 };
+                let l = -var / temperature as f32;
+                for c in 0..3 {
+                    mean[c * hw + o] = mu[c];
+                }
+                lg[o] = l * seen + (1.0 - seen) * -1e30;
+            }
+        }
+    });
+    // Pass 2, per pixel over planes back to front: alpha_d = w_d / sum_{i<=d} w_i (log domain).
+    let base = out.as_mut_ptr() as usize;
+    (0..hw).into_par_iter().with_min_len(256).for_each(|o| {
+        let ptr = base as *mut f32;
+        let mut run: Option<(f32, f32)> = None;
+        for p in 0..d {
+            // SAFETY: each task touches only pixel `o` of every plane (disjoint across tasks).
+            let lgp = unsafe { ptr.add((p * 4 + 3) * hw + o) };
+            let l = unsafe { *lgp };
+            let (m, s) = match run {
+                None => (l, 1.0),
+                Some((m0, s0)) => {
+                    let m = m0.max(l);
+                    (m, s0 * (m0 - m).exp() + (l - m).exp())
+                }
+            };
+            let alpha = (l - (m + s.ln())).exp().min(1.0);
+            run = Some((m, s));
+            // `seen` is encoded in the masked logit (unseen: -1e30, alpha exp(-huge) = 0 there too).
+            let seen = l > -1e29;
+            unsafe {
+                *lgp = logit(if seen { alpha } else { 0.0 });
+                for c in 0..3 {
+                    let q = ptr.add((p * 4 + c) * hw + o);
+                    *q = logit(*q);
+                }
+            }
+        }
+    });
+    out
+}
+
+/// The views' renders of an RGBA MPI (`[D][H][W][4]`, premultiplied): per view, `[y][x][6]` of `I` and
+/// `R`, and `[D][y][x][4]` of `A` (3) and `T` (1) in view pixels.
+struct Renders {
+    ir: Vec<Vec<f32>>,
+    at: Vec<Vec<f32>>,
+}
+
+fn render_views(
+    rgba: &[f32],
+    views: &[(ImageF32, Camera)],
+    homs: &[Vec<Hom>],
+    w: usize,
+    h: usize,
+    d: usize,
+) -> Renders {
+    let mut ir = Vec::with_capacity(views.len());
+    let mut at = Vec::with_capacity(views.len());
+    for (v, (img, _)) in views.iter().enumerate() {
+        let (vw, vh) = (img.width as usize, img.height as usize);
+        let samplers: Vec<Sampler> = homs[v]
+            .iter()
+            .map(|m| Sampler::new(invert(m), w as u32, h as u32))
+            .collect();
+        let mut irv = vec![0f32; vw * vh * 6];
+        let mut atv = vec![0f32; d * vw * vh * 4];
+        let at_ptr = atv.as_mut_ptr() as usize;
+        irv.par_chunks_mut(vw * 6).enumerate().for_each(|(y, row)| {
+            render_row(rgba, img, &samplers, y, row, at_ptr, w, h, d);
+        });
+        ir.push(irv);
+        at.push(atv);
+    }
+    Renders { ir, at }
+}
+
+/// Row `y` of one view's render: `row` gets `[x][I (3), R (3)]`, the `A`/`T` store (at `at_ptr`,
+/// `[D][vh][vw][4]`) row `y` of every plane.
+#[allow(clippy::too_many_arguments)]
+fn render_row(
+    rgba: &[f32],
+    img: &ImageF32,
+    samplers: &[Sampler],
+    y: usize,
+    row: &mut [f32],
+    at_ptr: usize,
+    w: usize,
+    h: usize,
+    d: usize,
+) {
+    #[cfg(target_arch = "x86_64")]
+    if deepview_kernels::simd() {
+        // SAFETY: AVX2 and FMA are present (checked).
+        unsafe { render_row_fma(rgba, img, samplers, y, row, at_ptr, w, h, d) };
+        return;
+    }
+    render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn render_row_fma(
+    rgba: &[f32],
+    img: &ImageF32,
+    samplers: &[Sampler],
+    y: usize,
+    row: &mut [f32],
+    at_ptr: usize,
+    w: usize,
+    h: usize,
+    d: usize,
+) {
+    render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d)
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+fn render_row_portable(
+    rgba: &[f32],
+    img: &ImageF32,
+    samplers: &[Sampler],
+    y: usize,
+    row: &mut [f32],
+    at_ptr: usize,
+    w: usize,
+    h: usize,
+    d: usize,
+) {
+    let (vw, vh) = (img.width as usize, img.height as usize);
+    {
+        {
+            let rows: Vec<_> = samplers.iter().map(|s| s.row(y as u32)).collect();
+            let mut acc_all = vec![[0f32; 4]; d];
+            for x in 0..vw {
+                // Back to front: A_p before adding plane p; then T front to back.
+                let mut acc = [0f32; 3];
+                for p in 0..d {
+                    let (c, a) = match rows[p].tap(x as u32) {
+                        None => ([0f32; 3], 0f32),
+                        Some(t) => {
+                            let mut s = [0f32; 4];
+                            for j in 0..4 {
+                                let q = &rgba[(p * h * w + t.idx[j] as usize) * 4..][..4];
+                                for c in 0..4 {
+                                    s[c] += t.w[j] * q[c];
+                                }
+                            }
+                            ([s[0], s[1], s[2]], s[3])
+                        }
+                    };
+                    acc_all[p] = [acc[0], acc[1], acc[2], a];
+                    let om = 1.0 - a;
+                    for ch in 0..3 {
+                        acc[ch] = acc[ch] * om + c[ch];
+                    }
+                }
+                let src = &img.data[(y * vw + x) * img.channels..];
+                row[x * 6..x * 6 + 3].copy_from_slice(&src[..3]);
+                row[x * 6 + 3..x * 6 + 6].copy_from_slice(&acc);
+                let mut t = 1f32;
+                for p in (0..d).rev() {
+                    let [a0, a1, a2, alpha] = acc_all[p];
+                    // SAFETY: row `y` of every plane is written by this task only.
+                    unsafe {
+                        let q = (at_ptr as *mut f32).add(((p * vh + y) * vw + x) * 4);
+                        *q = a0;
+                        *q.add(1) = a1;
+                        *q.add(2) = a2;
+                        *q.add(3) = t;
+                    }
+                    if p > 0 {
+                        t *= 1.0 - alpha;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Infer the MPI (premultiplied RGBA `[D][H][W][4]`) of `reference` at `depths` from `views` with the
+/// kernels; `progress(net)` after each net. The model must be [`supported`].
+pub fn infer_engine(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    progress: &mut dyn FnMut(usize),
+) -> Vec<f32> {
+    assert!(supported(model), "the engine runs nets without U-Net");
+    let (w, h, d) = (
+        reference.width as usize,
+        reference.height as usize,
+        depths.len(),
+    );
+    let k = views.len();
+    let hw = w * h;
+    let plane = Plane::new(h, w);
+    let s = model.state_channels;
+    let homs: Vec<Vec<Hom>> = views
+        .iter()
+        .map(|(_, cam)| {
+            depths
+                .iter()
+                .map(|&z| plane_homography(reference, cam, z).to_row_major())
+                .collect()
+        })
+        .collect();
+    let nets: Vec<PackedNet> = model
+        .nets
+        .iter()
+        .map(|n| PackedNet::new(&n.input, &n.stages, &n.head, &n.out))
+        .collect();
+    // The state `[D][S][H*W]`.
+    let mut state = vec![0f32; d * s * hw];
+    for (n, net) in nets.iter().enumerate() {
+        let cin = net.in_channels();
+        if n == 0 {
+            let prior = (model.prior_temperature > 0.0)
+                .then(|| agreement_prior(views, &homs, plane, d, model.prior_temperature));
+            state.par_chunks_mut(s * hw).enumerate().for_each_init(
+                || NetScratch::new(net, plane, k),
+                |sc, (p, st)| {
+                    for (v, (img, _)) in views.iter().enumerate() {
+                        let mut ins = sc.view_inputs_mut(v);
+                        let (rgb, rest) = ins.split_at_mut(3);
+                        let valid = rest[0].as_mut();
+                        warp_into(
+                            &img.data,
+                            img.channels,
+                            img.width,
+                            img.height,
+                            &homs[v][p],
+                            plane,
+                            rgb,
+                            Some(valid),
+                        );
+                    }
+                    sc.run(net);
+                    for c in 0..s {
+                        plane.unpad_into(sc.output(c), &mut st[c * hw..(c + 1) * hw]);
+                        if let Some(pr) = &prior
+                            && c < 4
+                        {
+                            for (o, &q) in st[c * hw..(c + 1) * hw]
+                                .iter_mut()
+                                .zip(&pr[(p * 4 + c) * hw..(p * 4 + c + 1) * hw])
+                            {
+                                *o = q + *o;
+                            }
+                        }
+                    }
+                },
+            );
+            debug_assert_eq!(cin, crate::network::INIT_CHANNELS);
+        } else {
+            // RGBA of the current state, `[D][H][W][4]`.
+            let mut rgba = vec![0f32; d * hw * 4];
+            rgba.par_chunks_mut(hw * 4).enumerate().for_each(|(p, r)| {
+                let st = &state[p * s * hw..];
+                for (i, t) in r.chunks_exact_mut(4).enumerate() {
+                    let a = sigmoid(st[3 * hw + i]);
+                    for c in 0..3 {
+                        t[c] = sigmoid(st[c * hw + i]) * a;
+                    }
+                    t[3] = a;
+                }
+            });
+            let renders = render_views(&rgba, views, &homs, w, h, d);
+            drop(rgba);
+            let old = state;
+            let mut next = vec![0f32; d * s * hw];
+            next.par_chunks_mut(s * hw).enumerate().for_each_init(
+                || NetScratch::new(net, plane, k),
+                |sc, (p, nx)| {
+                    let st = &old[p * s * hw..(p + 1) * s * hw];
+                    for (v, (img, _)) in views.iter().enumerate() {
+                        let (vw, vh) = (img.width, img.height);
+                        let vpx = vw as usize * vh as usize;
+                        let mut ins = sc.view_inputs_mut(v);
+                        // [I (3), R (3), A (3), T (1), validity (1), state (S)].
+                        let (ir, rest) = ins.split_at_mut(6);
+                        let (atp, rest) = rest.split_at_mut(4);
+                        let (valid, st_planes) = rest.split_at_mut(1);
+                        warp_into(
+                            &renders.ir[v],
+                            6,
+                            vw,
+                            vh,
+                            &homs[v][p],
+                            plane,
+                            ir,
+                            Some(valid[0].as_mut()),
+                        );
+                        let at_plane = &renders.at[v][p * vpx * 4..][..vpx * 4];
+                        warp_into(at_plane, 4, vw, vh, &homs[v][p], plane, atp, None);
+                        for (c, dst) in st_planes.iter_mut().enumerate() {
+                            plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
+                        }
+                    }
+                    debug_assert_eq!(cin, 11 + s);
+                    sc.run(net);
+                    for c in 0..s {
+                        let o = &mut nx[c * hw..(c + 1) * hw];
+                        plane.unpad_into(sc.output(c), o);
+                        for (x, &y) in o.iter_mut().zip(&st[c * hw..(c + 1) * hw]) {
+                            *x += y;
+                        }
+                    }
+                },
+            );
+            state = next;
+        }
+        progress(n);
+    }
+    // Premultiplied RGBA `[D][H][W][4]`.
+    let mut layers = vec![0f32; d * hw * 4];
+    layers
+        .par_chunks_mut(hw * 4)
+        .enumerate()
+        .for_each(|(p, r)| {
+            let st = &state[p * s * hw..];
+            for (i, t) in r.chunks_exact_mut(4).enumerate() {
+                let a = sigmoid(st[3 * hw + i]);
+                for c in 0..3 {
+                    t[c] = sigmoid(st[c * hw + i]) * a;
+                }
+                t[3] = a;
+            }
+        });
+    layers
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::DeepViewConfig;
+    use crate::forward::image_tensor;
+    use crate::network::ModelInputs;
+    use burn::tensor::Device;
+    use deepview_geometry::{DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths};
+
+    fn scene(k: usize, d: usize) -> (Vec<(ImageF32, Camera)>, Camera, Vec<f64>) {
+        let reference = Camera::new(37, 29, Intrinsics::centred(33.0, 37, 29), Pose::IDENTITY);
+        let depths = plane_depths(1.5, 12.0, d, PlaneSpacing::InverseDepth).unwrap();
+        let views = (0..k)
+            .map(|i| {
+                let (vw, vh) = (31 + 3 * i as u32, 27 + 2 * i as u32);
+                let a = i as f64 * 2.1;
+                let cam = Camera::new(
+                    vw,
+                    vh,
+                    Intrinsics::new(30.0, 31.0, vw as f64 / 2.0 + 0.3, vh as f64 / 2.0 - 0.2),
+                    Pose::from_center(
+                        DMat3::from_rotation_y(0.02 * i as f64),
+                        DVec3::new(0.1 * a.cos(), 0.08 * a.sin(), 0.01),
+                    ),
+                );
+                let mut img = ImageF32::new(vw, vh, 3);
+                for (j, v) in img.data.iter_mut().enumerate() {
+                    let (p, c) = (j / 3, j % 3);
+                    let (x, y) = ((p % vw as usize) as f32, (p / vw as usize) as f32);
+                    *v = 0.5
+                        + 0.4 * (0.3 * x + 0.2 * y + c as f32 + i as f32).sin() * (0.11 * y).cos();
+                }
+                (img, cam)
+            })
+            .collect();
+        (views, reference, depths)
+    }
+
+    /// The engine equals the model's own forward pass (burn's plane sweeps, prior, renders and warps)
+    /// on the whole reference image: with and without the agreement prior, 1 to 3 nets, 1 to 5 views.
+    #[test]
+    fn engine_equals_model_forward() {
+        let dev = Device::flex();
+        for (k, d, updates, prior) in [
+            (3, 5, 1, true),
+            (4, 4, 2, false),
+            (1, 3, 0, true),
+            (5, 6, 1, false),
+        ] {
+            let cfg = DeepViewConfig {
+                features_large: 6,
+                features_small: 5,
+                updates,
+                unet_nets: 0,
+                init_prior: None,
+                ..DeepViewConfig::preset("cpu").unwrap()
+            };
+            // Random output convs (a prior model starts with zero ones), so every net matters.
+            let mut model = DeepViewModel::new(&cfg, &dev);
+            if prior {
+                model.prior_temperature = crate::config::CPU_PRIOR_TEMPERATURE;
+            }
+            let (views, reference, depths) = scene(k, d);
+            let inputs = ModelInputs {
+                images: views
+                    .iter()
+                    .map(|(i, _)| {
+                        image_tensor(&i.data, i.width as usize, i.height as usize, 3, &dev)
+                    })
+                    .collect(),
+                mpi_to_view: views
+                    .iter()
+                    .map(|(_, c)| {
+                        depths
+                            .iter()
+                            .map(|&z| plane_homography(&reference, c, z).to_row_major())
+                            .collect()
+                    })
+                    .collect(),
+                height: 29,
+                width: 37,
+                shrink: false,
+            };
+            let want: Vec<f32> = model
+                .forward(&inputs)
+                .rgba
+                .into_data()
+                .try_to_vec()
+                .unwrap();
+            let mut calls = 0;
+            let got = infer_engine(&model, &views, &reference, &depths, &mut |_| calls += 1);
+            assert_eq!(calls, 1 + updates);
+            let hw = 29 * 37;
+            let mut max = 0f32;
+            for p in 0..d {
+                for c in 0..4 {
+                    for i in 0..hw {
+                        max =
+                            max.max((want[(p * 4 + c) * hw + i] - got[(p * hw + i) * 4 + c]).abs());
+                    }
+                }
+            }
+            assert!(
+                max < 2e-5,
+                "{k} views, {d} planes, {updates} updates, prior {prior}: {max}"
+            );
+        }
+    }
+}
