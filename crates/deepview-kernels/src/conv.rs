@@ -10,6 +10,8 @@ pub enum Act {
     Linear,
     /// `x` for `x > 0`, `exp(x) - 1` otherwise (ELU with alpha 1).
     Elu,
+    /// `max(x, 0)`.
+    Relu,
 }
 
 /// Output channels per kernel pass.
@@ -196,6 +198,16 @@ pub fn elu_backward(out: &[f32], grad: &mut [f32]) {
     for (g, &o) in grad.iter_mut().zip(out) {
         if o <= 0.0 {
             *g *= o + 1.0;
+        }
+    }
+}
+
+/// `grad *= relu'(x)` given the ReLU's output: 1 where `out > 0`, 0 elsewhere.
+pub fn relu_backward(out: &[f32], grad: &mut [f32]) {
+    assert_eq!(out.len(), grad.len());
+    for (g, &o) in grad.iter_mut().zip(out) {
+        if o <= 0.0 {
+            *g = 0.0;
         }
     }
 }

@@ -36,6 +36,7 @@ pub unsafe fn conv_block(
             let v = match act {
                 Act::Linear => acc[j],
                 Act::Elu => elu(acc[j]),
+                Act::Relu => acc[j].max(0.0),
             };
             // SAFETY: in bounds by the caller's contract.
             unsafe { *o.add(i) = v };

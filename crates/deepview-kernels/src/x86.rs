@@ -122,6 +122,10 @@ unsafe fn conv_pass(
             let v = match act {
                 Act::Linear => [a0[j], a1[j]],
                 Act::Elu => [elu8(a0[j]), elu8(a1[j])],
+                Act::Relu => {
+                    let z = _mm256_setzero_ps();
+                    [_mm256_max_ps(a0[j], z), _mm256_max_ps(a1[j], z)]
+                }
             };
             // SAFETY: in bounds by the caller's contract.
             unsafe {

@@ -78,6 +78,7 @@ fn reference(
                     Act::Linear => s,
                     Act::Elu if s > 0.0 => s,
                     Act::Elu => s.exp_m1(),
+                    Act::Relu => s.max(0.0),
                 };
             }
         }
@@ -123,7 +124,7 @@ fn forward_check() {
         let b = noise(cout, 200 + n as u64);
         let conv = PackedConv::new(&wt, Some(&b), cout, cin);
         let xin = padded(plane, &x, cin);
-        for act in [Act::Linear, Act::Elu] {
+        for act in [Act::Linear, Act::Elu, Act::Relu] {
             let mut outs: Vec<Vec<f32>> = (0..cout).map(|_| plane.zeroed()).collect();
             // Garbage in the outputs must not matter.
             for o in outs.iter_mut() {

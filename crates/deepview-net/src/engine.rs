@@ -55,7 +55,7 @@ pub fn engine_bytes(
     } else {
         0
     };
-    4 * (2 * d64 * s * hw + d64 * 4 * hw + renders + threads * scratch)
+    4 * (d64 * s * hw + d64 * 4 * hw + renders + threads * scratch)
 }
 
 /// Bilinear warp of an interleaved `channels`-channel `src_w x src_h` source by `hom` (output pixels ->
@@ -475,12 +475,10 @@ pub fn infer_engine(
             });
             let renders = render_views(&rgba, views, &homs, w, h, d);
             drop(rgba);
-            let old = state;
-            let mut next = vec![0f32; d * s * hw];
-            next.par_chunks_mut(s * hw).enumerate().for_each_init(
+            // In place: plane p's update reads only its own state and the renders (made before).
+            state.par_chunks_mut(s * hw).enumerate().for_each_init(
                 || NetScratch::new(net, plane, k),
-                |sc, (p, nx)| {
-                    let st = &old[p * s * hw..(p + 1) * s * hw];
+                |sc, (p, st)| {
                     for (v, (img, _)) in views.iter().enumerate() {
                         let (vw, vh) = (img.width, img.height);
                         let vpx = vw as usize * vh as usize;
@@ -507,16 +505,18 @@ pub fn infer_engine(
                     }
                     debug_assert_eq!(cin, 11 + s);
                     sc.run(net);
+                    let out = sc.output_planes();
                     for c in 0..s {
-                        let o = &mut nx[c * hw..(c + 1) * hw];
-                        plane.unpad_into(sc.output(c), o);
-                        for (x, &y) in o.iter_mut().zip(&st[c * hw..(c + 1) * hw]) {
-                            *x += y;
+                        let o = &mut st[c * hw..(c + 1) * hw];
+                        for (y, row) in o.chunks_exact_mut(w).enumerate() {
+                            let i = plane.index(y, 0);
+                            for (x, &u) in row.iter_mut().zip(&out[c][i..i + w]) {
+                                *x += u;
+                            }
                         }
                     }
                 },
             );
-            state = next;
         }
         progress(n);
     }

@@ -15,10 +15,11 @@ use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, Flex, backend_extension};
 use burn::nn::conv::Conv2d;
-use burn::tensor::activation::elu;
+use burn::tensor::activation::{elu, relu};
 use burn::tensor::{Device, Shape, Tensor, TensorData};
 use deepview_kernels::{
     Act, PackedConv, Plane, conv3x3, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
+    relu_backward,
 };
 use rayon::prelude::*;
 
@@ -26,12 +27,12 @@ use rayon::prelude::*;
 #[backend_extension(Flex, Autodiff)]
 pub trait KernelOps: Backend {
     /// `x` `[N, Cin, H, W]`, `w` `[Co, Cin, 3, 3]`, `b` `[Co]` -> `[N, Co, H, W]`: a 3x3 convolution with
-    /// zero padding 1 and stride 1, plus bias, then ELU when `elu`.
+    /// zero padding 1 and stride 1, plus bias, then the activation `act` ([`act_code`]).
     fn conv3x3_act(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         b: FloatTensor<Self>,
-        elu: bool,
+        act: u32,
     ) -> FloatTensor<Self>;
 
     /// Gradients `(x, w, b)` of [`KernelOps::conv3x3_act`] given its inputs, its output `out` and the
@@ -41,9 +42,26 @@ pub trait KernelOps: Backend {
         w: FloatTensor<Self>,
         out: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        elu: bool,
+        act: u32,
         input_grad: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+}
+
+/// The activation's code in [`KernelOps`] (0 linear, 1 ELU, 2 ReLU).
+pub fn act_code(act: Act) -> u32 {
+    match act {
+        Act::Linear => 0,
+        Act::Elu => 1,
+        Act::Relu => 2,
+    }
+}
+
+fn act_of(code: u32) -> Act {
+    match code {
+        1 => Act::Elu,
+        2 => Act::Relu,
+        _ => Act::Linear,
+    }
 }
 
 /// Whether tensors on `device` take the custom kernels (the `flex` CPU backend, with or without
@@ -58,12 +76,16 @@ pub fn fast_device(device: &Device) -> bool {
     )
 }
 
-/// `act(conv(x))` with `conv` a 3x3, stride 1, "same" padding convolution (as every conv of the
-/// network): through the custom kernels on the CPU, through burn's ops elsewhere.
-pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act_elu: bool) -> Tensor<4> {
+/// `act(conv(x))` with `conv` a 3x3, stride 1, padding 1 convolution (every conv of the network and
+/// of VGG-16): through the custom kernels on the CPU, through burn's ops elsewhere.
+pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act: Act) -> Tensor<4> {
     if !fast_device(&x.device()) {
         let y = conv.forward(x);
-        return if act_elu { elu(y, 1.0) } else { y };
+        return match act {
+            Act::Linear => y,
+            Act::Elu => elu(y, 1.0),
+            Act::Relu => relu(y),
+        };
     }
     debug_assert_eq!(conv.weight.dims()[2..], [3, 3]);
     let w = conv.weight.val();
@@ -75,17 +97,21 @@ pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act_elu: bool) -> Tensor<4> {
         x.into_dispatch(),
         w.into_dispatch(),
         b.into_dispatch(),
-        act_elu,
+        act_code(act),
     ))
 }
 
-fn f32_vec(t: FloatTensor<Flex>) -> (Vec<f32>, Vec<usize>) {
-    let data = t.into_data();
-    let shape = data.shape().clone();
-    (
-        data.try_into_vec::<f32>().expect("f32 tensor"),
-        shape.to_vec(),
-    )
+/// The values of a flex tensor, borrowed when contiguous (no copy), and its shape.
+fn f32_data(t: &FloatTensor<Flex>) -> (std::borrow::Cow<'_, [f32]>, Vec<usize>) {
+    let shape = t.layout().shape().to_vec();
+    match t.as_slice::<f32>() {
+        Some(s) => (std::borrow::Cow::Borrowed(s), shape),
+        None => {
+            let data = t.clone().into_data();
+            let v = data.try_into_vec::<f32>().expect("f32 tensor");
+            (std::borrow::Cow::Owned(v), shape)
+        }
+    }
 }
 
 fn flex(v: Vec<f32>, shape: Vec<usize>) -> FloatTensor<Flex> {
@@ -126,11 +152,11 @@ impl KernelOps for Flex {
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         b: FloatTensor<Self>,
-        act_elu: bool,
+        act: u32,
     ) -> FloatTensor<Self> {
-        let (x, xs) = f32_vec(x);
-        let (w, ws) = f32_vec(w);
-        let (b, _) = f32_vec(b);
+        let (x, xs) = f32_data(&x);
+        let (w, ws) = f32_data(&w);
+        let (b, _) = f32_data(&b);
         let [n, cin, h, wd] = [xs[0], xs[1], xs[2], xs[3]];
         let cout = ws[0];
         assert_eq!(
@@ -139,7 +165,7 @@ impl KernelOps for Flex {
             "conv3x3_act: weights for {cin} inputs"
         );
         let conv = PackedConv::new(&w, Some(&b), cout, cin);
-        let act = if act_elu { Act::Elu } else { Act::Linear };
+        let act = act_of(act);
         let plane = Plane::new(h, wd);
         let hw = h * wd;
         let mut out = vec![0f32; n * cout * hw];
@@ -166,19 +192,25 @@ impl KernelOps for Flex {
         w: FloatTensor<Self>,
         out: FloatTensor<Self>,
         grad: FloatTensor<Self>,
-        act_elu: bool,
+        act: u32,
         input_grad: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
-        let (x, xs) = f32_vec(x);
-        let (w, ws) = f32_vec(w);
-        let (out, _) = f32_vec(out);
-        let (mut g, _) = f32_vec(grad);
+        let (x, xs) = f32_data(&x);
+        let (w, ws) = f32_data(&w);
+        let (out, _) = f32_data(&out);
+        let mut g = f32_data(&grad).0.into_owned();
         let [n, cin, h, wd] = [xs[0], xs[1], xs[2], xs[3]];
         let cout = ws[0];
-        if act_elu {
-            g.par_chunks_mut(1 << 14)
+        match act_of(act) {
+            Act::Linear => {}
+            Act::Elu => g
+                .par_chunks_mut(1 << 14)
                 .zip(out.par_chunks(1 << 14))
-                .for_each(|(g, o)| elu_backward(o, g));
+                .for_each(|(g, o)| elu_backward(o, g)),
+            Act::Relu => g
+                .par_chunks_mut(1 << 14)
+                .zip(out.par_chunks(1 << 14))
+                .for_each(|(g, o)| relu_backward(o, g)),
         }
         drop(out);
         let transposed = PackedConv::transposed(&w, cout, cin);
@@ -256,14 +288,14 @@ fn add_pair(
 struct Conv3x3ActBackward;
 
 impl<B: Backend + KernelOps> Backward<B, 3> for Conv3x3ActBackward {
-    /// Input, weights, output, ELU.
-    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, bool);
+    /// Input, weights, output, activation code.
+    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, u32);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node_x, node_w, node_b] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
-        let (x, w, out, act_elu) = ops.state;
-        let (gx, gw, gb) = B::conv3x3_act_backward(x, w, out, grad, act_elu, node_x.is_some());
+        let (x, w, out, act) = ops.state;
+        let (gx, gw, gb) = B::conv3x3_act_backward(x, w, out, grad, act, node_x.is_some());
         if let Some(node) = node_x {
             grads.register::<B>(node.id, gx);
         }
@@ -281,17 +313,17 @@ impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C>
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
         b: FloatTensor<Self>,
-        act_elu: bool,
+        act: u32,
     ) -> FloatTensor<Self> {
         let guards = [x.node(), w.node(), b.node()];
         let (x, w) = (x.into_primitive(), w.into_primitive());
-        let out = B::conv3x3_act(x.clone(), w.clone(), b.into_primitive(), act_elu);
+        let out = B::conv3x3_act(x.clone(), w.clone(), b.into_primitive(), act);
         match Conv3x3ActBackward
             .prepare::<C>(guards)
             .compute_bound()
             .stateful()
         {
-            OpsKind::Tracked(prep) => prep.finish((x, w, out.clone(), act_elu), out),
+            OpsKind::Tracked(prep) => prep.finish((x, w, out.clone(), act), out),
             OpsKind::UnTracked(prep) => prep.finish(out),
         }
     }
@@ -301,7 +333,7 @@ impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C>
         _w: FloatTensor<Self>,
         _out: FloatTensor<Self>,
         _grad: FloatTensor<Self>,
-        _elu: bool,
+        _act: u32,
         _input_grad: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         unimplemented!("second-order gradients of conv3x3_act")
@@ -402,6 +434,11 @@ impl NetScratch {
     pub(crate) fn output(&self, c: usize) -> &[f32] {
         debug_assert!(c < self.so);
         &self.planes.bufs[self.views * (self.cin + 2 * self.f) + 2 * self.f + c]
+    }
+
+    /// The padded output planes after [`Self::run`].
+    pub(crate) fn output_planes(&self) -> Vec<&[f32]> {
+        (0..self.so).map(|c| self.output(c)).collect()
     }
 
     /// Run `net` on the inputs (see [`CoreNet::forward`](crate::network::CoreNet::forward)).
@@ -538,16 +575,20 @@ mod tests {
                 .init(&dev);
             let x = Tensor::<4>::random([n, cin, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
             let seed = Tensor::<4>::random([n, cout, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
-            for act in [false, true] {
+            for act in [Act::Linear, Act::Elu, Act::Relu] {
                 let xa = x.clone().require_grad();
                 let ours = conv3x3_act(xa.clone(), &conv, act);
                 let g_ours = (ours.clone() * seed.clone()).sum().backward();
                 let xb = x.clone().require_grad();
                 let y = conv.forward(xb.clone());
-                let theirs = if act { elu(y, 1.0) } else { y };
+                let theirs = match act {
+                    Act::Linear => y,
+                    Act::Elu => elu(y, 1.0),
+                    Act::Relu => relu(y),
+                };
                 let g_theirs = (theirs.clone() * seed.clone()).sum().backward();
                 let e = max_rel(ours.inner(), theirs.inner());
-                assert!(e < 1e-5, "{n}x{cin}->{cout} {h}x{w} elu {act}: output {e}");
+                assert!(e < 1e-5, "{n}x{cin}->{cout} {h}x{w} {act:?}: output {e}");
                 let gx = max_rel(xa.grad(&g_ours).unwrap(), xb.grad(&g_theirs).unwrap());
                 assert!(gx < 1e-4, "input gradient {gx}");
                 let gw = max_rel(

@@ -32,6 +32,7 @@ use burn::tensor::activation::sigmoid;
 use burn::tensor::module::{avg_pool2d, interpolate};
 use burn::tensor::ops::{AvgPoolOptions, InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
+use deepview_kernels::Act;
 
 /// Input channels per (view, plane) slice of the initialisation net: PSV RGB + validity.
 pub const INIT_CHANNELS: usize = 4;
@@ -106,7 +107,7 @@ impl CoreNet {
         }
         let mut f = x;
         for c in &self.input {
-            f = conv3x3_act(f, c, true);
+            f = conv3x3_act(f, c, Act::Elu);
         }
         for pair in self.stages.chunks(2) {
             let [_, fc, hh, ww] = f.dims();
@@ -115,11 +116,11 @@ impl CoreNet {
                 .repeat_dim(0, views);
             f = Tensor::cat(vec![f, m.reshape([kd, fc, hh, ww])], 1);
             for c in pair {
-                f = conv3x3_act(f, c, true);
+                f = conv3x3_act(f, c, Act::Elu);
             }
         }
         let m = max_over_views(f, views);
-        let o = conv3x3_act(conv3x3_act(m, &self.head, true), &self.out, false);
+        let o = conv3x3_act(conv3x3_act(m, &self.head, Act::Elu), &self.out, Act::Linear);
         self.upsample(o, h, w)
     }
 

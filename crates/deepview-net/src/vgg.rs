@@ -11,12 +11,13 @@
 //! The parameters never receive gradients (`no_grad`), but gradients do flow through the network to its
 //! input, which is what the feature loss needs.
 
+use crate::kernels::conv3x3_act;
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
-use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
+use deepview_kernels::Act;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -273,15 +274,15 @@ impl Vgg16 {
     /// Features of `rgb` ([n, 3, h, w], RGB in 0..1; h and w multiples of 4).
     pub fn features(&self, rgb: Tensor<4>) -> VggFeatures {
         let x = Self::preprocess(rgb);
-        let x = relu(self.conv1_1.forward(x));
-        let conv1_2 = relu(self.conv1_2.forward(x));
+        let x = conv3x3_act(x, &self.conv1_1, Act::Relu);
+        let conv1_2 = conv3x3_act(x, &self.conv1_2, Act::Relu);
         let x = self.pool.forward(conv1_2.clone());
-        let x = relu(self.conv2_1.forward(x));
-        let conv2_2 = relu(self.conv2_2.forward(x));
+        let x = conv3x3_act(x, &self.conv2_1, Act::Relu);
+        let conv2_2 = conv3x3_act(x, &self.conv2_2, Act::Relu);
         let x = self.pool.forward(conv2_2.clone());
-        let x = relu(self.conv3_1.forward(x));
-        let x = relu(self.conv3_2.forward(x));
-        let conv3_3 = relu(self.conv3_3.forward(x));
+        let x = conv3x3_act(x, &self.conv3_1, Act::Relu);
+        let x = conv3x3_act(x, &self.conv3_2, Act::Relu);
+        let conv3_3 = conv3x3_act(x, &self.conv3_3, Act::Relu);
         VggFeatures {
             conv1_2,
             conv2_2,
@@ -291,7 +292,7 @@ impl Vgg16 {
 
     /// conv1_1 after ReLU (for tests).
     pub fn conv1_1(&self, rgb: Tensor<4>) -> Tensor<4> {
-        relu(self.conv1_1.forward(Self::preprocess(rgb)))
+        conv3x3_act(Self::preprocess(rgb), &self.conv1_1, Act::Relu)
     }
 }
 
