@@ -10,7 +10,9 @@ use std::path::PathBuf;
 
 /// Train the network (Adam, lr 1.5e-4, global gradient clipping at 8, VGG feature loss on 32x32 target
 /// crops, as in the paper). A run lives in `<runs>/<name>/`: config.json, metrics.jsonl and
-/// checkpoints/step-NNNNNNN/ (the last 3 are kept). Ctrl-C saves a checkpoint and exits; `--resume`
+/// checkpoints/step-NNNNNNN/ (the last 3 are kept, --keep-checkpoints). A checkpoint is written into a
+/// temporary folder and renamed when complete, so a run killed at any moment resumes from its last
+/// complete checkpoint. Ctrl-C saves a checkpoint and exits; `--resume`
 /// continues a run exactly where its last checkpoint left it.
 #[derive(clap::Args, Debug)]
 #[command(
@@ -73,6 +75,10 @@ pub struct Args {
     /// Write a checkpoint every N steps (and always at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: u64,
+    /// Keep the last N checkpoints (older ones are removed after each new one). Default: 3, or the
+    /// run's own setting with --resume.
+    #[arg(long, value_name = "N")]
+    pub keep_checkpoints: Option<usize>,
     /// Random seed (weights initialisation and tuple sampling).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -137,7 +143,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.data.clone()
         };
         let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
-        let t = Trainer::resume(&run_dir, data, args.steps, device_list(&args.devices))?;
+        let mut t = Trainer::resume(&run_dir, data, args.steps, device_list(&args.devices))?;
+        if let Some(k) = args.keep_checkpoints {
+            anyhow::ensure!(k >= 1, "--keep-checkpoints must be at least 1");
+            t.config.train.keep_checkpoints = k;
+        }
         eprintln!(
             "resuming {} at step {} of {}",
             run_dir.display(),
@@ -145,6 +155,31 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             t.config.train.steps
         );
         t
+    } else if args.resume && run_dir.join("config.json").is_file() {
+        // Killed before its first checkpoint: start the run over with its own configuration.
+        let cfg_path = run_dir.join("config.json");
+        let text = std::fs::read_to_string(&cfg_path)
+            .with_context(|| format!("cannot read {}", cfg_path.display()))?;
+        let mut cfg: RunConfig = serde_json::from_str(&text)
+            .with_context(|| format!("invalid {}", cfg_path.display()))?;
+        if let Some(s) = args.steps {
+            cfg.train.steps = s;
+        }
+        if let Some(k) = args.keep_checkpoints {
+            cfg.train.keep_checkpoints = k;
+        }
+        if !args.data.is_empty() {
+            cfg.train.data = args.data.clone();
+        }
+        if let Some(d) = device_list(&args.devices) {
+            cfg.train.devices = d;
+        }
+        let data = load_data(&cfg.train.data, &opts, cfg.train.holdout_every)?;
+        eprintln!(
+            "{} has no complete checkpoint yet: starting it over from step 0 with its config.json",
+            run_dir.display()
+        );
+        Trainer::create(&run_dir, cfg, data)?
     } else {
         if args.data.is_empty() {
             bail!("no training data: pass --data DIR (repeatable)");
@@ -171,6 +206,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         train.learning_rate = args.lr;
         train.clip_norm = args.clip;
         train.checkpoint_every = args.checkpoint_every;
+        if let Some(k) = args.keep_checkpoints {
+            train.keep_checkpoints = k;
+        }
         train.seed = args.seed;
         train.holdout_every = args.holdout_every;
         if args.recompute || args.no_recompute {

@@ -8,7 +8,15 @@
 //!   back), `optimizer.bpk` (Adam moments), `state.json` (step, RNG state, wall time); each written into a
 //!   temporary folder and renamed into place; the last `keep_checkpoints` (3) are kept;
 //! - `metrics.jsonl`: one JSON object per step (step, loss, grad_norm, views, steps_per_s, wall_time_s,
-//!   skipped).
+//!   skipped);
+//! - `.lock`: held (`flock`) by the process training the run.
+//!
+//! Faults: a process killed at any moment (SIGKILL, a lost node) leaves the run resumable: a checkpoint
+//! folder `step-N` appears only once all its files are flushed to disk, so `--resume` continues from the
+//! last complete one (leftover temporary folders are removed, a checkpoint that fails to load is skipped
+//! for the one before), and `metrics.jsonl` loses the lines after that step (and a torn last line), so
+//! the log has each step once. A failed write (full disk, read-only or vanished folder) stops the run
+//! with [`TrainError::Write`], naming what failed and the checkpoint that is kept.
 //!
 //! A step: draw K (per batch) and `batch` tuples ([`data`]); split them across the devices; each replica
 //! (a copy of the model on its device) runs forward, loss and backward per example (loss divided by the
@@ -67,6 +75,16 @@ pub enum TrainError {
     Config(String),
     #[error("device `{name}`: {message}")]
     Device { name: String, message: String },
+    /// A write of the run folder failed (disk full, read-only or removed folder): the run stops, its
+    /// last complete checkpoint is untouched.
+    #[error("step {step}: cannot write {what}: {source}; {kept}")]
+    Write {
+        step: u64,
+        what: String,
+        source: Box<TrainError>,
+        /// Which checkpoint a `--resume` continues from.
+        kept: String,
+    },
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
@@ -428,6 +446,69 @@ pub struct Trainer {
     wall_offset: f64,
     session_start: Instant,
     session_steps: u64,
+    /// `runs/<name>/.lock`, locked while this trainer lives (released by the system when the process
+    /// dies, even by SIGKILL).
+    _lock: std::fs::File,
+}
+
+/// The message of a burn store error, without its `Record I/O error:` prefix.
+fn record_message(e: &impl std::fmt::Display) -> String {
+    let m = e.to_string();
+    m.strip_prefix("Record I/O error: ")
+        .unwrap_or(&m)
+        .to_string()
+}
+
+/// Lock `run_dir/.lock` so that two processes never train the same run at once (the file is held open
+/// read-only: the folder can still be remounted read-only under a running trainer).
+fn lock_run(run_dir: &Path) -> Result<std::fs::File, TrainError> {
+    let path = run_dir.join(".lock");
+    if !path.exists() {
+        std::fs::File::create(&path).map_err(io_err(&path))?;
+    }
+    let f = std::fs::File::open(&path).map_err(io_err(&path))?;
+    match f.try_lock() {
+        Ok(()) => Ok(f),
+        Err(std::fs::TryLockError::WouldBlock) => Err(run_err(
+            run_dir,
+            "another `deepview train` is training this run right now",
+        )),
+        Err(std::fs::TryLockError::Error(e)) => Err(io_err(&path)(e)),
+    }
+}
+
+/// Load the model, optimizer and state of checkpoint `ck` (the folder of step `step`).
+fn load_checkpoint(
+    ck: &Path,
+    step: u64,
+    model: &DeepViewConfig,
+    device: &Device,
+) -> Result<(DeepViewModel, ModuleOptimizer, CheckpointState), TrainError> {
+    let state_path = ck.join("state.json");
+    let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
+    let state: CheckpointState =
+        serde_json::from_str(&text).map_err(|e| run_err(&state_path, e))?;
+    if state.step != step {
+        return Err(run_err(
+            &state_path,
+            format!("says step {} but the folder is step {step}", state.step),
+        ));
+    }
+    let model_path = ck.join("model.bpk");
+    if !model_path.is_file() {
+        return Err(run_err(&model_path, "missing"));
+    }
+    let model = DeepViewModel::new(model, device)
+        .try_load_file(&model_path)
+        .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
+    let optim_path = ck.join("optimizer.bpk");
+    if !optim_path.is_file() {
+        return Err(run_err(&optim_path, "missing"));
+    }
+    let optim = adam()
+        .load(&optim_path)
+        .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+    Ok((model, optim, state))
 }
 
 fn adam() -> ModuleOptimizer {
@@ -448,14 +529,51 @@ fn make_losses(kind: LossKind, devices: &[Device]) -> Result<Vec<Loss>, TrainErr
     }
 }
 
-/// Write `bytes` to `path` atomically (temporary file in the same folder, then rename).
+/// Write `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
+/// renamed over `path` (a crash leaves either the old or the new content, never a torn file).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
     let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    std::fs::write(&tmp, bytes).map_err(io_err(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(io_err(path))
+    let write = || -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()
+    };
+    if let Err(e) = write() {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io_err(&tmp)(e));
+    }
+    std::fs::rename(&tmp, path).map_err(io_err(path))?;
+    sync_dir(path.parent().unwrap_or(Path::new(".")));
+    Ok(())
 }
 
-/// Checkpoints of a run folder, sorted by step.
+/// Flush a folder's entries (renames, new files) to disk; best effort (not every filesystem allows it).
+fn sync_dir(dir: &Path) {
+    if let Ok(f) = std::fs::File::open(dir) {
+        let _ = f.sync_all();
+    }
+}
+
+/// Flush a file's content to disk.
+fn sync_file(path: &Path) -> Result<(), TrainError> {
+    std::fs::File::open(path)
+        .and_then(|f| f.sync_all())
+        .map_err(io_err(path))
+}
+
+/// The files of a complete checkpoint folder.
+pub const CHECKPOINT_FILES: [&str; 3] = ["model.bpk", "optimizer.bpk", "state.json"];
+
+/// Whether `dir` holds all the files of a checkpoint (a folder named `step-N` only appears once it is
+/// complete, see [`Trainer::save_checkpoint`]; this also rejects one damaged by hand or by the disk).
+pub fn checkpoint_is_complete(dir: &Path) -> bool {
+    CHECKPOINT_FILES
+        .iter()
+        .all(|f| std::fs::metadata(dir.join(f)).is_ok_and(|m| m.is_file() && m.len() > 0))
+}
+
+/// The complete checkpoints of a run folder, sorted by step (`checkpoints/step-N` folders holding every
+/// file of [`CHECKPOINT_FILES`]; temporary folders of an interrupted write are not listed).
 pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainError> {
     let dir = run_dir.join("checkpoints");
     if !dir.is_dir() {
@@ -468,6 +586,7 @@ pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainErro
         if let Some(n) = name
             .strip_prefix("step-")
             .and_then(|s| s.parse::<u64>().ok())
+            && checkpoint_is_complete(&e.path())
         {
             out.push((n, e.path()));
         }
@@ -492,6 +611,7 @@ impl Trainer {
         }
         let devices = Self::devices(&config.train.devices)?;
         std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
+        let lock = lock_run(run_dir)?;
         let cfg_path = run_dir.join("config.json");
         write_atomic(
             &cfg_path,
@@ -531,6 +651,7 @@ impl Trainer {
             wall_offset: 0.0,
             session_start: Instant::now(),
             session_steps: 0,
+            _lock: lock,
         })
     }
 
@@ -553,34 +674,29 @@ impl Trainer {
             config.train.devices = d;
         }
         config.train.validate()?;
-        let (step, ck) = list_checkpoints(run_dir)?
-            .pop()
-            .ok_or_else(|| run_err(run_dir, "no checkpoint to resume from (checkpoints/step-*)"))?;
-        let state_path = ck.join("state.json");
-        let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
-        let state: CheckpointState =
-            serde_json::from_str(&text).map_err(|e| run_err(&state_path, e))?;
-        if state.step != step {
+        let lock = lock_run(run_dir)?;
+        let devices = Self::devices(&config.train.devices)?;
+        let checkpoints = list_checkpoints(run_dir)?;
+        if checkpoints.is_empty() {
             return Err(run_err(
-                &state_path,
-                format!("says step {} but the folder is step {step}", state.step),
+                run_dir,
+                "no complete checkpoint to resume from (checkpoints/step-*)",
             ));
         }
-        let devices = Self::devices(&config.train.devices)?;
-        let model_path = ck.join("model.bpk");
-        if !model_path.is_file() {
-            return Err(run_err(&model_path, "missing"));
+        // The latest checkpoint that loads; a damaged one is reported and skipped.
+        let mut loaded = None;
+        for (step, ck) in checkpoints.iter().rev() {
+            match load_checkpoint(ck, *step, &config.model, &devices[0]) {
+                Ok(l) => {
+                    loaded = Some((*step, l));
+                    break;
+                }
+                Err(e) => eprintln!("warning: skipping checkpoint {}: {e}", ck.display()),
+            }
         }
-        let model = DeepViewModel::new(&config.model, &devices[0])
-            .try_load_file(&model_path)
-            .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
-        let optim_path = ck.join("optimizer.bpk");
-        if !optim_path.is_file() {
-            return Err(run_err(&optim_path, "missing"));
-        }
-        let optim = adam()
-            .load(&optim_path)
-            .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+        let Some((step, (model, optim, state))) = loaded else {
+            return Err(run_err(run_dir, "no checkpoint of this run loads"));
+        };
         let losses = make_losses(config.train.loss, &devices)?;
         let trainer = Self {
             run_dir: run_dir.to_path_buf(),
@@ -595,7 +711,9 @@ impl Trainer {
             wall_offset: state.wall_time_s,
             session_start: Instant::now(),
             session_steps: 0,
+            _lock: lock,
         };
+        trainer.remove_leftovers();
         trainer.truncate_metrics()?;
         Ok(trainer)
     }
@@ -720,46 +838,140 @@ impl Trainer {
         report
     }
 
-    /// Write a checkpoint of the current state (atomically) and prune old ones. Returns its folder.
+    /// Write a checkpoint of the current state and prune old ones. Returns its folder.
+    ///
+    /// The files go into `checkpoints/.tmp-step-N-PID/`, are flushed to disk, and the folder is renamed
+    /// to `step-N` (a process killed at any moment leaves either no `step-N` or a complete one; the
+    /// temporary folder is removed on the next `--resume`). A failed write (disk full, read-only
+    /// folder) removes the temporary folder and is a [`TrainError::Write`] naming the checkpoint that is
+    /// kept. Old checkpoints beyond `keep_checkpoints` are renamed to `.old-step-N` and then removed, so
+    /// a kill during the removal never leaves a damaged `step-N`.
     pub fn save_checkpoint(&self) -> Result<PathBuf, TrainError> {
         let dir = self.run_dir.join("checkpoints");
-        std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
         let done = dir.join(format!("step-{:07}", self.step));
-        if done.exists() {
+        if checkpoint_is_complete(&done) {
             return Ok(done);
         }
         let tmp = dir.join(format!(".tmp-step-{:07}-{}", self.step, std::process::id()));
-        if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).map_err(io_err(&tmp))?;
+        if let Err(e) = self.write_checkpoint(&dir, &tmp, &done) {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(self.write_error(format!("the checkpoint {}", done.display()), e));
         }
-        std::fs::create_dir(&tmp).map_err(io_err(&tmp))?;
+        sync_dir(&dir);
+        self.prune_checkpoints();
+        Ok(done)
+    }
+
+    fn write_checkpoint(&self, dir: &Path, tmp: &Path, done: &Path) -> Result<(), TrainError> {
+        std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+        if tmp.exists() {
+            std::fs::remove_dir_all(tmp).map_err(io_err(tmp))?;
+        }
+        std::fs::create_dir(tmp).map_err(io_err(tmp))?;
         let model_path = tmp.join("model.bpk");
         self.model
             .clone()
             .save_file(&model_path)
-            .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
+            .map_err(|e| run_err(&model_path, record_message(&e)))?;
+        sync_file(&model_path)?;
         let optim_path = tmp.join("optimizer.bpk");
         self.optim
             .save(&optim_path)
-            .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+            .map_err(|e| run_err(&optim_path, record_message(&e)))?;
+        sync_file(&optim_path)?;
         let state = CheckpointState {
             step: self.step,
             rng: self.rng,
             wall_time_s: self.wall_time(),
         };
         let state_path = tmp.join("state.json");
-        std::fs::write(
-            &state_path,
-            serde_json::to_string_pretty(&state).expect("serialisable"),
-        )
-        .map_err(io_err(&state_path))?;
-        std::fs::rename(&tmp, &done).map_err(io_err(&done))?;
-        let all = list_checkpoints(&self.run_dir)?;
-        let keep = self.config.train.keep_checkpoints.max(1);
-        for (_, p) in all.iter().take(all.len().saturating_sub(keep)) {
-            std::fs::remove_dir_all(p).map_err(io_err(p))?;
+        let bytes = serde_json::to_string_pretty(&state).expect("serialisable");
+        std::fs::File::create(&state_path)
+            .and_then(|mut f| {
+                f.write_all(bytes.as_bytes())?;
+                f.sync_all()
+            })
+            .map_err(io_err(&state_path))?;
+        sync_dir(tmp);
+        if done.exists() {
+            // A `step-N` without all its files (damaged by hand or by the disk): replace it.
+            let stale = dir.join(format!(".old-step-{:07}-{}", self.step, std::process::id()));
+            std::fs::rename(done, &stale).map_err(io_err(done))?;
+            let _ = std::fs::remove_dir_all(&stale);
         }
-        Ok(done)
+        std::fs::rename(tmp, done).map_err(io_err(done))
+    }
+
+    /// A [`TrainError::Write`] for a failed write of `what` at the current step.
+    fn write_error(&self, what: String, source: TrainError) -> TrainError {
+        let kept = match list_checkpoints(&self.run_dir)
+            .ok()
+            .and_then(|mut v| v.pop())
+        {
+            Some((step, p)) => format!(
+                "the last complete checkpoint {} (step {step}) is kept: free space or fix the folder, then \
+                 --resume",
+                p.display()
+            ),
+            None => "the run has no complete checkpoint yet".into(),
+        };
+        TrainError::Write {
+            step: self.step,
+            what,
+            source: Box::new(source),
+            kept,
+        }
+    }
+
+    /// Remove all but the last `keep_checkpoints` checkpoints (failures are warnings: the new checkpoint
+    /// is complete either way).
+    fn prune_checkpoints(&self) {
+        let Ok(all) = list_checkpoints(&self.run_dir) else {
+            return;
+        };
+        let keep = self.config.train.keep_checkpoints.max(1);
+        for (step, p) in all.iter().take(all.len().saturating_sub(keep)) {
+            let trash = p.with_file_name(format!(".old-step-{step:07}-{}", std::process::id()));
+            let r = std::fs::rename(p, &trash).and_then(|_| std::fs::remove_dir_all(&trash));
+            if let Err(e) = r {
+                eprintln!(
+                    "warning: cannot remove the old checkpoint {}: {e}",
+                    p.display()
+                );
+            }
+        }
+    }
+
+    /// Remove what a killed process left behind: temporary checkpoint folders (`.tmp-step-*`),
+    /// half-removed old ones (`.old-step-*`) and temporary files of atomic writes.
+    fn remove_leftovers(&self) {
+        let remove = |dir: &Path, is_leftover: &dyn Fn(&str) -> bool| {
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                return;
+            };
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().to_string();
+                if !is_leftover(&name) {
+                    continue;
+                }
+                let p = e.path();
+                let r = if p.is_dir() {
+                    std::fs::remove_dir_all(&p)
+                } else {
+                    std::fs::remove_file(&p)
+                };
+                match r {
+                    Ok(()) => eprintln!("removed {} (left by an interrupted run)", p.display()),
+                    Err(err) => eprintln!("warning: cannot remove {}: {err}", p.display()),
+                }
+            }
+        };
+        remove(&self.run_dir.join("checkpoints"), &|n| {
+            n.starts_with(".tmp-step-") || n.starts_with(".old-step-")
+        });
+        remove(&self.run_dir, &|n| {
+            n.starts_with("metrics.tmp-") || n.starts_with("config.tmp-")
+        });
     }
 
     /// Drop metric lines after the current step (written after the checkpoint we resume from).
@@ -832,7 +1044,8 @@ impl Trainer {
         let mut ema: Option<f64> = None;
         while self.step < total && !stop.load(Ordering::SeqCst) {
             let r = self.train_step()?;
-            self.append_metrics(&r)?;
+            self.append_metrics(&r)
+                .map_err(|e| self.write_error("metrics.jsonl".into(), e))?;
             if let Some(msg) = &r.skipped {
                 if progress {
                     pb.println(format!("warning: {msg}"));
