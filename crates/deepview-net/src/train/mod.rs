@@ -34,10 +34,12 @@
 
 pub mod clip;
 pub mod data;
+pub mod dist;
 pub mod recompute;
 pub mod synthetic;
 
 pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
+pub use dist::Collective;
 
 use crate::config::DeepViewConfig;
 use crate::forward::{Hom, crop_output, image_tensor, invert, render_view};
@@ -50,6 +52,7 @@ use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -75,6 +78,9 @@ pub enum TrainError {
     Config(String),
     #[error("device `{name}`: {message}")]
     Device { name: String, message: String },
+    /// The ranks of a distributed run disagree (weights out of sync, no common checkpoint).
+    #[error("rank {rank}: {message}")]
+    Rank { rank: usize, message: String },
     /// A write of the run folder failed (disk full, read-only or removed folder): the run stops, its
     /// last complete checkpoint is untouched.
     #[error("step {step}: cannot write {what}: {source}; {kept}")]
@@ -262,18 +268,20 @@ fn wgpu_device(name: &str, index: Option<usize>) -> Result<Device, String> {
 }
 
 /// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N` (feature `wgpu`), `cuda`/`cuda:N`
-/// (feature `cuda`).
+/// (feature `cuda`). The index `local` is the process's rank on its machine under an MPI launcher
+/// (`cuda:local`: one GPU per rank), see [`dist::local_rank`].
 pub fn parse_device(name: &str) -> Result<Device, TrainError> {
     let err = |m: &str| TrainError::Device {
         name: name.to_string(),
         message: m.to_string(),
     };
     let (kind, index) = match name.split_once(':') {
+        Some((k, "local")) => (k, Some(dist::local_rank())),
         Some((k, i)) => (
             k,
             Some(
                 i.parse::<usize>()
-                    .map_err(|_| err("the index after ':' must be a number"))?,
+                    .map_err(|_| err("the index after ':' must be a number or `local`"))?,
             ),
         ),
         None => (name, None),
@@ -447,8 +455,14 @@ pub struct Trainer {
     session_start: Instant,
     session_steps: u64,
     /// `runs/<name>/.lock`, locked while this trainer lives (released by the system when the process
-    /// dies, even by SIGKILL).
-    _lock: std::fs::File,
+    /// dies, even by SIGKILL); `None` on ranks other than 0, which do not write the run folder.
+    _lock: Option<std::fs::File>,
+    /// The other processes of a distributed run ([`dist`]); `None`: this process alone.
+    comm: Option<Rc<dyn Collective>>,
+    /// Whether this process asked to stop before the current step (Ctrl-C), and whether any rank did
+    /// (agreed at the step's reduction, so that every rank stops after the same step).
+    stop_requested: bool,
+    stop_agreed: bool,
 }
 
 /// The message of a burn store error, without its `Record I/O error:` prefix.
@@ -477,13 +491,37 @@ fn lock_run(run_dir: &Path) -> Result<std::fs::File, TrainError> {
     }
 }
 
+type Loaded = (DeepViewModel, ModuleOptimizer, CheckpointState);
+
+/// The latest checkpoint of `run_dir` that loads (a damaged one is reported and skipped).
+fn latest_loadable(
+    run_dir: &Path,
+    model: &DeepViewConfig,
+    device: &Device,
+) -> Result<(u64, Loaded), TrainError> {
+    let checkpoints = list_checkpoints(run_dir)?;
+    if checkpoints.is_empty() {
+        return Err(run_err(
+            run_dir,
+            "no complete checkpoint to resume from (checkpoints/step-*)",
+        ));
+    }
+    for (step, ck) in checkpoints.iter().rev() {
+        match load_checkpoint(ck, *step, model, device) {
+            Ok(l) => return Ok((*step, l)),
+            Err(e) => eprintln!("warning: skipping checkpoint {}: {e}", ck.display()),
+        }
+    }
+    Err(run_err(run_dir, "no checkpoint of this run loads"))
+}
+
 /// Load the model, optimizer and state of checkpoint `ck` (the folder of step `step`).
 fn load_checkpoint(
     ck: &Path,
     step: u64,
     model: &DeepViewConfig,
     device: &Device,
-) -> Result<(DeepViewModel, ModuleOptimizer, CheckpointState), TrainError> {
+) -> Result<Loaded, TrainError> {
     let state_path = ck.join("state.json");
     let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
     let state: CheckpointState =
@@ -595,31 +633,60 @@ pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainErro
     Ok(out)
 }
 
+fn check_ranks(config: &TrainConfig, comm: &Option<Rc<dyn Collective>>) -> Result<(), TrainError> {
+    if let Some(c) = comm
+        && config.batch < c.size()
+    {
+        return Err(TrainError::Config(format!(
+            "batch {} is smaller than the number of ranks ({}): every rank needs at least one tuple per step",
+            config.batch,
+            c.size()
+        )));
+    }
+    Ok(())
+}
+
 impl Trainer {
     /// Start a new run in `run_dir` (created; an error if it already holds checkpoints).
     pub fn create(run_dir: &Path, config: RunConfig, data: TrainData) -> Result<Self, TrainError> {
+        Self::create_on(run_dir, config, data, None)
+    }
+
+    /// [`Trainer::create`] as one rank of `comm` (every rank calls it; rank 0 writes the run folder and
+    /// its initial weights are broadcast to the others).
+    pub fn create_on(
+        run_dir: &Path,
+        config: RunConfig,
+        data: TrainData,
+        comm: Option<Rc<dyn Collective>>,
+    ) -> Result<Self, TrainError> {
         config
             .model
             .validate()
             .map_err(|e| TrainError::Config(e.to_string()))?;
         config.train.validate()?;
-        if !list_checkpoints(run_dir)?.is_empty() {
-            return Err(run_err(
-                run_dir,
-                "this run already has checkpoints: pass --resume to continue it, or choose another --name",
-            ));
-        }
+        check_ranks(&config.train, &comm)?;
+        let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
         let devices = Self::devices(&config.train.devices)?;
-        std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
-        let lock = lock_run(run_dir)?;
-        let cfg_path = run_dir.join("config.json");
-        write_atomic(
-            &cfg_path,
-            serde_json::to_string_pretty(&config)
-                .expect("serialisable")
-                .as_bytes(),
-        )?;
-        let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
+        let mut lock = None;
+        if writer {
+            if !list_checkpoints(run_dir)?.is_empty() {
+                return Err(run_err(
+                    run_dir,
+                    "this run already has checkpoints: pass --resume to continue it, or choose another --name",
+                ));
+            }
+            std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
+            lock = Some(lock_run(run_dir)?);
+            let cfg_path = run_dir.join("config.json");
+            write_atomic(
+                &cfg_path,
+                serde_json::to_string_pretty(&config)
+                    .expect("serialisable")
+                    .as_bytes(),
+            )?;
+            let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
+        }
         devices[0].seed(config.train.seed);
         let model = match &config.train.init {
             Some(init) => {
@@ -636,7 +703,19 @@ impl Trainer {
             None => DeepViewModel::new(&config.model, &devices[0]),
         };
         // Materialise lazily initialised parameters now, right after seeding.
-        parameter_values(&model);
+        let mut values = parameter_values(&model);
+        let model = match &comm {
+            Some(c) => {
+                // Rank 0's initial weights everywhere.
+                c.broadcast_f32(&mut values);
+                if c.rank() == 0 {
+                    model
+                } else {
+                    dist::with_parameter_values(model, &values)
+                }
+            }
+            None => model,
+        };
         let losses = make_losses(config.train.loss, &devices)?;
         Ok(Self {
             run_dir: run_dir.to_path_buf(),
@@ -652,6 +731,9 @@ impl Trainer {
             session_start: Instant::now(),
             session_steps: 0,
             _lock: lock,
+            comm,
+            stop_requested: false,
+            stop_agreed: false,
         })
     }
 
@@ -662,6 +744,19 @@ impl Trainer {
         data: TrainData,
         steps: Option<u64>,
         devices: Option<Vec<String>>,
+    ) -> Result<Self, TrainError> {
+        Self::resume_on(run_dir, data, steps, devices, None)
+    }
+
+    /// [`Trainer::resume`] as one rank of `comm`: rank 0 chooses the checkpoint (its latest one that
+    /// loads), every rank loads that one (the runs folder must be visible to every rank), and the ranks
+    /// check that they hold the same weights.
+    pub fn resume_on(
+        run_dir: &Path,
+        data: TrainData,
+        steps: Option<u64>,
+        devices: Option<Vec<String>>,
+        comm: Option<Rc<dyn Collective>>,
     ) -> Result<Self, TrainError> {
         let cfg_path = run_dir.join("config.json");
         let text = std::fs::read_to_string(&cfg_path).map_err(io_err(&cfg_path))?;
@@ -674,29 +769,39 @@ impl Trainer {
             config.train.devices = d;
         }
         config.train.validate()?;
-        let lock = lock_run(run_dir)?;
+        check_ranks(&config.train, &comm)?;
+        let rank = comm.as_ref().map_or(0, |c| c.rank());
         let devices = Self::devices(&config.train.devices)?;
-        let checkpoints = list_checkpoints(run_dir)?;
-        if checkpoints.is_empty() {
-            return Err(run_err(
-                run_dir,
-                "no complete checkpoint to resume from (checkpoints/step-*)",
-            ));
-        }
-        // The latest checkpoint that loads; a damaged one is reported and skipped.
-        let mut loaded = None;
-        for (step, ck) in checkpoints.iter().rev() {
-            match load_checkpoint(ck, *step, &config.model, &devices[0]) {
-                Ok(l) => {
-                    loaded = Some((*step, l));
-                    break;
-                }
-                Err(e) => eprintln!("warning: skipping checkpoint {}: {e}", ck.display()),
+        let mut lock = None;
+        let loaded = if rank == 0 {
+            let found = lock_run(run_dir).and_then(|l| {
+                lock = Some(l);
+                latest_loadable(run_dir, &config.model, &devices[0])
+            });
+            if let Some(c) = &comm {
+                let mut step = [found.as_ref().map_or(u64::MAX, |f| f.0)];
+                c.broadcast_u64(&mut step);
             }
-        }
-        let Some((step, (model, optim, state))) = loaded else {
-            return Err(run_err(run_dir, "no checkpoint of this run loads"));
+            found?
+        } else {
+            let c = comm.as_ref().expect("rank > 0 has a communicator");
+            let mut step = [0];
+            c.broadcast_u64(&mut step);
+            let step = step[0];
+            let rank_err = |message: String| TrainError::Rank { rank, message };
+            if step == u64::MAX {
+                return Err(rank_err("rank 0 found no checkpoint to resume from".into()));
+            }
+            let ck = run_dir.join("checkpoints").join(format!("step-{step:07}"));
+            let l = load_checkpoint(&ck, step, &config.model, &devices[0]).map_err(|e| {
+                rank_err(format!(
+                    "cannot load the checkpoint rank 0 resumes from ({e}); the runs folder must be \
+                     shared by all ranks"
+                ))
+            })?;
+            (step, l)
         };
+        let (step, (model, optim, state)) = loaded;
         let losses = make_losses(config.train.loss, &devices)?;
         let trainer = Self {
             run_dir: run_dir.to_path_buf(),
@@ -712,9 +817,15 @@ impl Trainer {
             session_start: Instant::now(),
             session_steps: 0,
             _lock: lock,
+            comm,
+            stop_requested: false,
+            stop_agreed: false,
         };
-        trainer.remove_leftovers();
-        trainer.truncate_metrics()?;
+        trainer.check_replicas()?;
+        if trainer.is_writer() {
+            trainer.remove_leftovers();
+            trainer.truncate_metrics()?;
+        }
         Ok(trainer)
     }
 
@@ -727,6 +838,44 @@ impl Trainer {
 
     pub fn run_dir(&self) -> &Path {
         &self.run_dir
+    }
+
+    /// Whether this process writes the run folder and prints (rank 0, or a run without ranks).
+    pub fn is_writer(&self) -> bool {
+        self.comm.as_ref().is_none_or(|c| c.rank() == 0)
+    }
+
+    /// `(rank, number of ranks)`: `(0, 1)` without a communicator.
+    pub fn rank(&self) -> (usize, usize) {
+        self.comm.as_ref().map_or((0, 1), |c| (c.rank(), c.size()))
+    }
+
+    /// With ranks: an error on every rank unless all hold bit-identical weights.
+    pub fn check_replicas(&self) -> Result<(), TrainError> {
+        let Some(c) = &self.comm else {
+            return Ok(());
+        };
+        let h = dist::hash_values(&parameter_values(&self.model));
+        let mut root = [h];
+        c.broadcast_u64(&mut root);
+        let mut differ = [(root[0] != h) as u8 as f32];
+        c.all_reduce_sum(&mut differ);
+        if differ[0] > 0.0 {
+            return Err(TrainError::Rank {
+                rank: c.rank(),
+                message: format!(
+                    "the weights of {} rank(s) differ from rank 0's at step {} (replicas out of sync{})",
+                    differ[0],
+                    self.step,
+                    if root[0] != h {
+                        ", this one among them"
+                    } else {
+                        ""
+                    }
+                ),
+            });
+        }
+        Ok(())
     }
 
     /// Steps per second in this session.
@@ -759,31 +908,37 @@ impl Trainer {
     }
 
     /// One training step on a given batch (the step counter advances even when the step is skipped).
+    /// With ranks, `batch` is the global batch (the same on every rank) and this rank computes its
+    /// share of it ([`dist`]).
     pub fn step_on(&mut self, batch: Vec<Example>) -> StepReport {
         self.step += 1;
         self.session_steps += 1;
         let n = batch.len();
         let views = batch.first().map_or(0, |e| e.inputs.len());
-        let nd = self.devices.len().min(n.max(1));
+        let (rank, size) = self.rank();
+        let mine = dist::share(n, rank, size);
+        let local = &batch[mine.clone()];
+        let m = local.len();
+        let nd = self.devices.len().min(m.max(1));
         let recompute = self.config.train.recompute;
-        let chunks: Vec<&[Example]> = (0..nd)
-            .map(|i| &batch[i * n / nd..(i + 1) * n / nd])
-            .collect();
+        let ranges: Vec<std::ops::Range<usize>> =
+            (0..nd).map(|i| i * m / nd..(i + 1) * m / nd).collect();
         let results: Vec<(Option<GradientsParams>, Vec<f32>)> = if nd == 1 {
             vec![run_replica(
                 &self.model,
                 &self.losses[0],
-                chunks[0],
+                local,
                 &self.devices[0],
                 n,
                 recompute,
             )]
         } else {
             std::thread::scope(|scope| {
-                let handles: Vec<_> = chunks
+                let handles: Vec<_> = ranges
                     .iter()
                     .enumerate()
-                    .map(|(i, chunk)| {
+                    .map(|(i, r)| {
+                        let chunk = &local[r.clone()];
                         let device = self.devices[i].clone();
                         let model = if i == 0 {
                             self.model.clone()
@@ -801,8 +956,27 @@ impl Trainer {
                     .collect()
             })
         };
-        let losses: Vec<f32> = results.iter().flat_map(|r| r.1.iter().copied()).collect();
-        let mean = losses.iter().map(|&v| v as f64).sum::<f64>() / losses.len().max(1) as f64;
+        // The loss of every tuple of the batch at its index (0 where another rank computed it, or where
+        // a replica stopped after a non-finite loss).
+        let mut losses = vec![0.0f32; n];
+        for (r, (_, l)) in ranges.iter().zip(&results) {
+            losses[mine.start + r.start..][..l.len()].copy_from_slice(l);
+        }
+        let main = self.devices[0].clone().inner();
+        let sets: Vec<GradientsParams> = results.into_iter().filter_map(|r| r.0).collect();
+        let mut grads = clip::sum_on_device(&self.model, sets, &main);
+        if let Some(c) = &self.comm {
+            // One reduction: gradient sums, has-gradient flags, the tuples' losses, the stop flag.
+            let mut flat = dist::flatten_grads(&self.model, Some(&grads));
+            let g = flat.len();
+            flat.extend_from_slice(&losses);
+            flat.push(self.stop_requested as u8 as f32);
+            c.all_reduce_sum(&mut flat);
+            self.stop_agreed = flat[g + n] > 0.0;
+            losses.copy_from_slice(&flat[g..g + n]);
+            grads = dist::unflatten_grads(&self.model, &flat[..g], &main);
+        }
+        let mean = losses.iter().map(|&v| v as f64).sum::<f64>() / n.max(1) as f64;
         let mut report = StepReport {
             step: self.step,
             loss: mean,
@@ -812,16 +986,21 @@ impl Trainer {
         };
         if let Some(i) = losses.iter().position(|v| !v.is_finite()) {
             let ex = &batch[i];
+            let on_rank = if size > 1 {
+                let r = (0..size)
+                    .find(|&r| dist::share(n, r, size).contains(&i))
+                    .unwrap_or(0);
+                format!(", rank {r}")
+            } else {
+                String::new()
+            };
             report.skipped = Some(format!(
-                "step {}: non-finite loss ({}) on tuple {i} (scene {}, target view {}, inputs {:?}); step skipped, \
-                 weights unchanged",
+                "step {}: non-finite loss ({}) on tuple {i} (scene {}, target view {}, inputs {:?}{on_rank}); step \
+                 skipped, weights unchanged",
                 self.step, losses[i], self.data.scenes[ex.scene].name, ex.target, ex.inputs
             ));
             return report;
         }
-        let main = self.devices[0].clone().inner();
-        let sets: Vec<GradientsParams> = results.into_iter().filter_map(|r| r.0).collect();
-        let grads = clip::sum_on_device(&self.model, sets, &main);
         let (grads, norm) = clip::clip_global_norm(&self.model, grads, self.config.train.clip_norm);
         report.grad_norm = norm;
         if !norm.is_finite() {
@@ -846,10 +1025,14 @@ impl Trainer {
     /// folder) removes the temporary folder and is a [`TrainError::Write`] naming the checkpoint that is
     /// kept. Old checkpoints beyond `keep_checkpoints` are renamed to `.old-step-N` and then removed, so
     /// a kill during the removal never leaves a damaged `step-N`.
+    ///
+    /// With ranks every rank calls it (the ranks first check that their weights agree); only rank 0
+    /// writes.
     pub fn save_checkpoint(&self) -> Result<PathBuf, TrainError> {
         let dir = self.run_dir.join("checkpoints");
         let done = dir.join(format!("step-{:07}", self.step));
-        if checkpoint_is_complete(&done) {
+        self.check_replicas()?;
+        if !self.is_writer() || checkpoint_is_complete(&done) {
             return Ok(done);
         }
         let tmp = dir.join(format!(".tmp-step-{:07}-{}", self.step, std::process::id()));
@@ -1027,7 +1210,8 @@ impl Trainer {
         progress: bool,
     ) -> Result<Vec<StepReport>, TrainError> {
         let total = self.config.train.steps;
-        let pb = if progress {
+        let writer = self.is_writer();
+        let pb = if progress && writer {
             let pb = indicatif::ProgressBar::new(total);
             pb.set_style(
                 indicatif::ProgressStyle::with_template(
@@ -1042,12 +1226,22 @@ impl Trainer {
         };
         let mut reports = Vec::new();
         let mut ema: Option<f64> = None;
-        while self.step < total && !stop.load(Ordering::SeqCst) {
+        // With ranks, a stop (Ctrl-C on any rank) is agreed at the next step's reduction so that all
+        // ranks stop after the same step.
+        let stopping = |t: &Self| match t.comm {
+            Some(_) => t.stop_agreed,
+            None => stop.load(Ordering::SeqCst),
+        };
+        while self.step < total && !stopping(self) {
+            self.stop_requested = stop.load(Ordering::SeqCst);
             let r = self.train_step()?;
-            self.append_metrics(&r)
-                .map_err(|e| self.write_error("metrics.jsonl".into(), e))?;
+            if writer {
+                self.append_metrics(&r)
+                    .map_err(|e| self.write_error("metrics.jsonl".into(), e))?;
+            }
             if let Some(msg) = &r.skipped {
-                if progress {
+                if !writer {
+                } else if progress {
                     pb.println(format!("warning: {msg}"));
                 } else {
                     eprintln!("warning: {msg}");
