@@ -633,19 +633,6 @@ pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainErro
     Ok(out)
 }
 
-fn check_ranks(config: &TrainConfig, comm: &Option<Rc<dyn Collective>>) -> Result<(), TrainError> {
-    if let Some(c) = comm
-        && config.batch < c.size()
-    {
-        return Err(TrainError::Config(format!(
-            "batch {} is smaller than the number of ranks ({}): every rank needs at least one tuple per step",
-            config.batch,
-            c.size()
-        )));
-    }
-    Ok(())
-}
-
 impl Trainer {
     /// Start a new run in `run_dir` (created; an error if it already holds checkpoints).
     pub fn create(run_dir: &Path, config: RunConfig, data: TrainData) -> Result<Self, TrainError> {
@@ -665,7 +652,6 @@ impl Trainer {
             .validate()
             .map_err(|e| TrainError::Config(e.to_string()))?;
         config.train.validate()?;
-        check_ranks(&config.train, &comm)?;
         let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
         let devices = Self::devices(&config.train.devices)?;
         let mut lock = None;
@@ -769,7 +755,6 @@ impl Trainer {
             config.train.devices = d;
         }
         config.train.validate()?;
-        check_ranks(&config.train, &comm)?;
         let rank = comm.as_ref().map_or(0, |c| c.rank());
         let devices = Self::devices(&config.train.devices)?;
         let mut lock = None;
