@@ -301,12 +301,21 @@ impl Tmpfs {
         ok.then(|| Tmpfs(dir.to_path_buf()))
     }
 
+    /// Remount with `opts`; retried, as a read-only remount is refused (busy) while a file is open for
+    /// writing (the trainer writing a checkpoint at that moment).
     fn remount(&self, opts: &str) {
-        let st = Command::new("mount")
-            .args(["-o", &format!("remount,{opts}"), s(&self.0)])
-            .status()
-            .unwrap();
-        assert!(st.success(), "remount {opts}");
+        for _ in 0..200 {
+            let st = Command::new("mount")
+                .args(["-o", &format!("remount,{opts}"), s(&self.0)])
+                .stderr(Stdio::null())
+                .status()
+                .unwrap();
+            if st.success() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        panic!("cannot remount {} with {opts}", self.0.display());
     }
 }
 
