@@ -10,6 +10,13 @@
 //! same Adam step, so the replicas stay identical (checked by a hash of the weights at every
 //! checkpoint). Only rank 0 writes the run folder (config, metrics, checkpoints) and prints; on
 //! `--resume` rank 0 chooses the checkpoint and every rank loads that one.
+//!
+//! Within one process, replicas on several devices (`--devices`) are still summed by
+//! [`super::clip::sum_on_device`]. burn 0.22's collective ops (`burn::tensor::distributed`:
+//! `DistributedContext::init(devices, config)`, `all_reduce(tensor, op, device_ids)` returning a
+//! `CollectiveTensor` to `resolve()`) are implemented by its cubecl backends (wgpu, cuda) only; the
+//! default `DistributedOps` of other backends, burn-flex (`cpu`) among them, is `unimplemented!()`, so
+//! they could serve only all-GPU device sets and are not used yet.
 
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
