@@ -4,13 +4,20 @@ use anyhow::{Context, bail};
 use deepview_net::config::DeepViewConfig;
 use deepview_net::loss::LossKind;
 use deepview_net::train::{
-    RunConfig, TrainConfig, Trainer, install_ctrlc, list_checkpoints, load_data,
+    Collective, RunConfig, TrainConfig, Trainer, install_ctrlc, list_checkpoints, load_data,
 };
 use std::path::PathBuf;
+use std::rc::Rc;
+
+#[cfg(feature = "mpi")]
+#[path = "train_mpi.rs"]
+mod mpi;
 
 /// Train the network (Adam, lr 1.5e-4, global gradient clipping at 8, VGG feature loss on 32x32 target
 /// crops, as in the paper). A run lives in `<runs>/<name>/`: config.json, metrics.jsonl and
-/// checkpoints/step-NNNNNNN/ (the last 3 are kept). Ctrl-C saves a checkpoint and exits; `--resume`
+/// checkpoints/step-NNNNNNN/ (the last 3 are kept, --keep-checkpoints). A checkpoint is written into a
+/// temporary folder and renamed when complete, so a run killed at any moment resumes from its last
+/// complete checkpoint. Ctrl-C saves a checkpoint and exits; `--resume`
 /// continues a run exactly where its last checkpoint left it.
 #[derive(clap::Args, Debug)]
 #[command(
@@ -73,6 +80,10 @@ pub struct Args {
     /// Write a checkpoint every N steps (and always at the end or on Ctrl-C).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: u64,
+    /// Keep the last N checkpoints (older ones are removed after each new one). Default: 3, or the
+    /// run's own setting with --resume.
+    #[arg(long, value_name = "N")]
+    pub keep_checkpoints: Option<usize>,
     /// Random seed (weights initialisation and tuple sampling).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -122,10 +133,51 @@ fn device_list(s: &Option<String>) -> Option<Vec<String>> {
     })
 }
 
+/// The number of ranks an MPI launcher (Open MPI's `mpirun`, MPICH/Intel MPI's Hydra, Slurm with PMI)
+/// started, from its environment; `None` outside a launcher.
+fn launcher_ranks() -> Option<usize> {
+    ["OMPI_COMM_WORLD_SIZE", "PMI_SIZE", "PMIX_SIZE"]
+        .iter()
+        .find_map(|k| std::env::var(k).ok()?.parse().ok())
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
+    #[cfg(feature = "mpi")]
+    if launcher_ranks().is_some_and(|n| n > 1) {
+        return mpi::run_ranks(|comm| train(args, Some(comm)));
+    }
+    #[cfg(not(feature = "mpi"))]
+    if let Some(n) = launcher_ranks().filter(|&n| n > 1) {
+        bail!(
+            "started by an MPI launcher as one of {n} ranks, but this deepview was built without MPI \
+             support: rebuild it with `cargo build --release -p deepview --features mpi`"
+        );
+    }
+    train(args, None)
+}
+
+/// How a run starts, as rank 0 decides for every rank.
+const FRESH: u64 = 0;
+const RESUME: u64 = 1;
+const RESTART: u64 = 2;
+
+fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     let run_dir = args.runs.join(&args.name);
     let opts = args.scene.load_options();
-    let mut trainer = if args.resume && !list_checkpoints(&run_dir)?.is_empty() {
+    let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
+    let mut mode = [if !args.resume {
+        FRESH
+    } else if !list_checkpoints(&run_dir)?.is_empty() {
+        RESUME
+    } else if run_dir.join("config.json").is_file() {
+        RESTART
+    } else {
+        FRESH
+    }];
+    if let Some(c) = &comm {
+        c.broadcast_u64(&mut mode);
+    }
+    let mut trainer = if mode[0] == RESUME {
         let cfg_path = run_dir.join("config.json");
         let text = std::fs::read_to_string(&cfg_path)
             .with_context(|| format!("cannot read {}", cfg_path.display()))?;
@@ -137,14 +189,56 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.data.clone()
         };
         let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
-        let t = Trainer::resume(&run_dir, data, args.steps, device_list(&args.devices))?;
-        eprintln!(
-            "resuming {} at step {} of {}",
-            run_dir.display(),
-            t.step,
-            t.config.train.steps
-        );
+        let mut t = Trainer::resume_on(
+            &run_dir,
+            data,
+            args.steps,
+            device_list(&args.devices),
+            comm.clone(),
+        )?;
+        if let Some(k) = args.keep_checkpoints {
+            anyhow::ensure!(k >= 1, "--keep-checkpoints must be at least 1");
+            t.config.train.keep_checkpoints = k;
+        }
+        if writer {
+            eprintln!(
+                "resuming {} at step {} of {}{}",
+                run_dir.display(),
+                t.step,
+                t.config.train.steps,
+                comm.as_ref()
+                    .map(|c| format!(" on {} MPI ranks", c.size()))
+                    .unwrap_or_default()
+            );
+        }
         t
+    } else if mode[0] == RESTART {
+        // Killed before its first checkpoint: start the run over with its own configuration.
+        let cfg_path = run_dir.join("config.json");
+        let text = std::fs::read_to_string(&cfg_path)
+            .with_context(|| format!("cannot read {}", cfg_path.display()))?;
+        let mut cfg: RunConfig = serde_json::from_str(&text)
+            .with_context(|| format!("invalid {}", cfg_path.display()))?;
+        if let Some(s) = args.steps {
+            cfg.train.steps = s;
+        }
+        if let Some(k) = args.keep_checkpoints {
+            cfg.train.keep_checkpoints = k;
+        }
+        if !args.data.is_empty() {
+            cfg.train.data = args.data.clone();
+        }
+        if let Some(d) = device_list(&args.devices) {
+            cfg.train.devices = d;
+        }
+        let data = load_data(&cfg.train.data, &opts, cfg.train.holdout_every)?;
+        if writer {
+            eprintln!(
+                "{} has no complete checkpoint yet: starting it over from step 0 with its config.json",
+                run_dir.display()
+            );
+        }
+        Trainer::create_on(&run_dir, cfg, data, comm.clone())?
     } else {
         if args.data.is_empty() {
             bail!("no training data: pass --data DIR (repeatable)");
@@ -171,6 +265,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         train.learning_rate = args.lr;
         train.clip_norm = args.clip;
         train.checkpoint_every = args.checkpoint_every;
+        if let Some(k) = args.keep_checkpoints {
+            train.keep_checkpoints = k;
+        }
         train.seed = args.seed;
         train.holdout_every = args.holdout_every;
         if args.recompute || args.no_recompute {
@@ -184,14 +281,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
-        eprintln!(
-            "training {} ({} preset) on {} scene(s), {views} training views, devices {:?}",
-            run_dir.display(),
-            model.name,
-            data.scenes.len(),
-            train.devices
-        );
-        Trainer::create(&run_dir, RunConfig { model, train }, data)?
+        if writer {
+            eprintln!(
+                "training {} ({} preset) on {} scene(s), {views} training views, devices {:?}{}",
+                run_dir.display(),
+                model.name,
+                data.scenes.len(),
+                train.devices,
+                ranks_note(&comm)
+            );
+        }
+        Trainer::create_on(&run_dir, RunConfig { model, train }, data, comm.clone())?
     };
     let stop = install_ctrlc()?;
     let start_step = trainer.step;
@@ -204,6 +304,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|r| r.loss)
         .collect();
     let skipped = reports.iter().filter(|r| r.skipped.is_some()).count();
+    if !writer {
+        return Ok(());
+    }
     eprintln!(
         "{} at step {} ({} steps this session, {skipped} skipped, {:.3} steps/s); mean loss of the last {}: {:.5}",
         if stop.load(std::sync::atomic::Ordering::SeqCst) {
@@ -221,6 +324,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         eprintln!("checkpoint: {}", ck.display());
     }
     Ok(())
+}
+
+/// ` on each of N MPI ranks ...` for a run across processes.
+fn ranks_note(comm: &Option<Rc<dyn Collective>>) -> String {
+    match comm {
+        Some(c) => format!(
+            " on each of {} MPI ranks (the global batch split across them)",
+            c.size()
+        ),
+        None => String::new(),
+    }
 }
 
 #[cfg(test)]

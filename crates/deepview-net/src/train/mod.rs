@@ -8,7 +8,15 @@
 //!   back), `optimizer.bpk` (Adam moments), `state.json` (step, RNG state, wall time); each written into a
 //!   temporary folder and renamed into place; the last `keep_checkpoints` (3) are kept;
 //! - `metrics.jsonl`: one JSON object per step (step, loss, grad_norm, views, steps_per_s, wall_time_s,
-//!   skipped).
+//!   skipped);
+//! - `.lock`: held (`flock`) by the process training the run.
+//!
+//! Faults: a process killed at any moment (SIGKILL, a lost node) leaves the run resumable: a checkpoint
+//! folder `step-N` appears only once all its files are flushed to disk, so `--resume` continues from the
+//! last complete one (leftover temporary folders are removed, a checkpoint that fails to load is skipped
+//! for the one before), and `metrics.jsonl` loses the lines after that step (and a torn last line), so
+//! the log has each step once. A failed write (full disk, read-only or vanished folder) stops the run
+//! with [`TrainError::Write`], naming what failed and the checkpoint that is kept.
 //!
 //! A step: draw K (per batch) and `batch` tuples ([`data`]); split them across the devices; each replica
 //! (a copy of the model on its device) runs forward, loss and backward per example (loss divided by the
@@ -26,10 +34,12 @@
 
 pub mod clip;
 pub mod data;
+pub mod dist;
 pub mod recompute;
 pub mod synthetic;
 
 pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
+pub use dist::Collective;
 
 use crate::config::DeepViewConfig;
 use crate::forward::{Hom, crop_output, image_tensor, invert, render_view};
@@ -42,6 +52,7 @@ use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+use std::rc::Rc;
 use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Instant;
@@ -67,6 +78,19 @@ pub enum TrainError {
     Config(String),
     #[error("device `{name}`: {message}")]
     Device { name: String, message: String },
+    /// The ranks of a distributed run disagree (weights out of sync, no common checkpoint).
+    #[error("rank {rank}: {message}")]
+    Rank { rank: usize, message: String },
+    /// A write of the run folder failed (disk full, read-only or removed folder): the run stops, its
+    /// last complete checkpoint is untouched.
+    #[error("step {step}: cannot write {what}: {source}; {kept}")]
+    Write {
+        step: u64,
+        what: String,
+        source: Box<TrainError>,
+        /// Which checkpoint a `--resume` continues from.
+        kept: String,
+    },
 }
 
 fn io_err(path: &Path) -> impl FnOnce(std::io::Error) -> TrainError + '_ {
@@ -244,18 +268,20 @@ fn wgpu_device(name: &str, index: Option<usize>) -> Result<Device, String> {
 }
 
 /// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N` (feature `wgpu`), `cuda`/`cuda:N`
-/// (feature `cuda`).
+/// (feature `cuda`). The index `local` is the process's rank on its machine under an MPI launcher
+/// (`cuda:local`: one GPU per rank), see [`dist::local_rank`].
 pub fn parse_device(name: &str) -> Result<Device, TrainError> {
     let err = |m: &str| TrainError::Device {
         name: name.to_string(),
         message: m.to_string(),
     };
     let (kind, index) = match name.split_once(':') {
+        Some((k, "local")) => (k, Some(dist::local_rank())),
         Some((k, i)) => (
             k,
             Some(
                 i.parse::<usize>()
-                    .map_err(|_| err("the index after ':' must be a number"))?,
+                    .map_err(|_| err("the index after ':' must be a number or `local`"))?,
             ),
         ),
         None => (name, None),
@@ -428,6 +454,99 @@ pub struct Trainer {
     wall_offset: f64,
     session_start: Instant,
     session_steps: u64,
+    /// `runs/<name>/.lock`, locked while this trainer lives (released by the system when the process
+    /// dies, even by SIGKILL); `None` on ranks other than 0, which do not write the run folder.
+    _lock: Option<std::fs::File>,
+    /// The other processes of a distributed run ([`dist`]); `None`: this process alone.
+    comm: Option<Rc<dyn Collective>>,
+    /// Whether this process asked to stop before the current step (Ctrl-C), and whether any rank did
+    /// (agreed at the step's reduction, so that every rank stops after the same step).
+    stop_requested: bool,
+    stop_agreed: bool,
+}
+
+/// The message of a burn store error, without its `Record I/O error:` prefix.
+fn record_message(e: &impl std::fmt::Display) -> String {
+    let m = e.to_string();
+    m.strip_prefix("Record I/O error: ")
+        .unwrap_or(&m)
+        .to_string()
+}
+
+/// Lock `run_dir/.lock` so that two processes never train the same run at once (the file is held open
+/// read-only: the folder can still be remounted read-only under a running trainer).
+fn lock_run(run_dir: &Path) -> Result<std::fs::File, TrainError> {
+    let path = run_dir.join(".lock");
+    if !path.exists() {
+        std::fs::File::create(&path).map_err(io_err(&path))?;
+    }
+    let f = std::fs::File::open(&path).map_err(io_err(&path))?;
+    match f.try_lock() {
+        Ok(()) => Ok(f),
+        Err(std::fs::TryLockError::WouldBlock) => Err(run_err(
+            run_dir,
+            "another `deepview train` is training this run right now",
+        )),
+        Err(std::fs::TryLockError::Error(e)) => Err(io_err(&path)(e)),
+    }
+}
+
+type Loaded = (DeepViewModel, ModuleOptimizer, CheckpointState);
+
+/// The latest checkpoint of `run_dir` that loads (a damaged one is reported and skipped).
+fn latest_loadable(
+    run_dir: &Path,
+    model: &DeepViewConfig,
+    device: &Device,
+) -> Result<(u64, Loaded), TrainError> {
+    let checkpoints = list_checkpoints(run_dir)?;
+    if checkpoints.is_empty() {
+        return Err(run_err(
+            run_dir,
+            "no complete checkpoint to resume from (checkpoints/step-*)",
+        ));
+    }
+    for (step, ck) in checkpoints.iter().rev() {
+        match load_checkpoint(ck, *step, model, device) {
+            Ok(l) => return Ok((*step, l)),
+            Err(e) => eprintln!("warning: skipping checkpoint {}: {e}", ck.display()),
+        }
+    }
+    Err(run_err(run_dir, "no checkpoint of this run loads"))
+}
+
+/// Load the model, optimizer and state of checkpoint `ck` (the folder of step `step`).
+fn load_checkpoint(
+    ck: &Path,
+    step: u64,
+    model: &DeepViewConfig,
+    device: &Device,
+) -> Result<Loaded, TrainError> {
+    let state_path = ck.join("state.json");
+    let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
+    let state: CheckpointState =
+        serde_json::from_str(&text).map_err(|e| run_err(&state_path, e))?;
+    if state.step != step {
+        return Err(run_err(
+            &state_path,
+            format!("says step {} but the folder is step {step}", state.step),
+        ));
+    }
+    let model_path = ck.join("model.bpk");
+    if !model_path.is_file() {
+        return Err(run_err(&model_path, "missing"));
+    }
+    let model = DeepViewModel::new(model, device)
+        .try_load_file(&model_path)
+        .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
+    let optim_path = ck.join("optimizer.bpk");
+    if !optim_path.is_file() {
+        return Err(run_err(&optim_path, "missing"));
+    }
+    let optim = adam()
+        .load(&optim_path)
+        .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+    Ok((model, optim, state))
 }
 
 fn adam() -> ModuleOptimizer {
@@ -448,14 +567,51 @@ fn make_losses(kind: LossKind, devices: &[Device]) -> Result<Vec<Loss>, TrainErr
     }
 }
 
-/// Write `bytes` to `path` atomically (temporary file in the same folder, then rename).
+/// Write `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
+/// renamed over `path` (a crash leaves either the old or the new content, never a torn file).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
     let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    std::fs::write(&tmp, bytes).map_err(io_err(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(io_err(path))
+    let write = || -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        f.sync_all()
+    };
+    if let Err(e) = write() {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(io_err(&tmp)(e));
+    }
+    std::fs::rename(&tmp, path).map_err(io_err(path))?;
+    sync_dir(path.parent().unwrap_or(Path::new(".")));
+    Ok(())
 }
 
-/// Checkpoints of a run folder, sorted by step.
+/// Flush a folder's entries (renames, new files) to disk; best effort (not every filesystem allows it).
+fn sync_dir(dir: &Path) {
+    if let Ok(f) = std::fs::File::open(dir) {
+        let _ = f.sync_all();
+    }
+}
+
+/// Flush a file's content to disk.
+fn sync_file(path: &Path) -> Result<(), TrainError> {
+    std::fs::File::open(path)
+        .and_then(|f| f.sync_all())
+        .map_err(io_err(path))
+}
+
+/// The files of a complete checkpoint folder.
+pub const CHECKPOINT_FILES: [&str; 3] = ["model.bpk", "optimizer.bpk", "state.json"];
+
+/// Whether `dir` holds all the files of a checkpoint (a folder named `step-N` only appears once it is
+/// complete, see [`Trainer::save_checkpoint`]; this also rejects one damaged by hand or by the disk).
+pub fn checkpoint_is_complete(dir: &Path) -> bool {
+    CHECKPOINT_FILES
+        .iter()
+        .all(|f| std::fs::metadata(dir.join(f)).is_ok_and(|m| m.is_file() && m.len() > 0))
+}
+
+/// The complete checkpoints of a run folder, sorted by step (`checkpoints/step-N` folders holding every
+/// file of [`CHECKPOINT_FILES`]; temporary folders of an interrupted write are not listed).
 pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainError> {
     let dir = run_dir.join("checkpoints");
     if !dir.is_dir() {
@@ -468,6 +624,7 @@ pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainErro
         if let Some(n) = name
             .strip_prefix("step-")
             .and_then(|s| s.parse::<u64>().ok())
+            && checkpoint_is_complete(&e.path())
         {
             out.push((n, e.path()));
         }
@@ -479,27 +636,43 @@ pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainErro
 impl Trainer {
     /// Start a new run in `run_dir` (created; an error if it already holds checkpoints).
     pub fn create(run_dir: &Path, config: RunConfig, data: TrainData) -> Result<Self, TrainError> {
+        Self::create_on(run_dir, config, data, None)
+    }
+
+    /// [`Trainer::create`] as one rank of `comm` (every rank calls it; rank 0 writes the run folder and
+    /// its initial weights are broadcast to the others).
+    pub fn create_on(
+        run_dir: &Path,
+        config: RunConfig,
+        data: TrainData,
+        comm: Option<Rc<dyn Collective>>,
+    ) -> Result<Self, TrainError> {
         config
             .model
             .validate()
             .map_err(|e| TrainError::Config(e.to_string()))?;
         config.train.validate()?;
-        if !list_checkpoints(run_dir)?.is_empty() {
-            return Err(run_err(
-                run_dir,
-                "this run already has checkpoints: pass --resume to continue it, or choose another --name",
-            ));
-        }
+        let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
         let devices = Self::devices(&config.train.devices)?;
-        std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
-        let cfg_path = run_dir.join("config.json");
-        write_atomic(
-            &cfg_path,
-            serde_json::to_string_pretty(&config)
-                .expect("serialisable")
-                .as_bytes(),
-        )?;
-        let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
+        let mut lock = None;
+        if writer {
+            if !list_checkpoints(run_dir)?.is_empty() {
+                return Err(run_err(
+                    run_dir,
+                    "this run already has checkpoints: pass --resume to continue it, or choose another --name",
+                ));
+            }
+            std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
+            lock = Some(lock_run(run_dir)?);
+            let cfg_path = run_dir.join("config.json");
+            write_atomic(
+                &cfg_path,
+                serde_json::to_string_pretty(&config)
+                    .expect("serialisable")
+                    .as_bytes(),
+            )?;
+            let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
+        }
         devices[0].seed(config.train.seed);
         let model = match &config.train.init {
             Some(init) => {
@@ -516,7 +689,19 @@ impl Trainer {
             None => DeepViewModel::new(&config.model, &devices[0]),
         };
         // Materialise lazily initialised parameters now, right after seeding.
-        parameter_values(&model);
+        let mut values = parameter_values(&model);
+        let model = match &comm {
+            Some(c) => {
+                // Rank 0's initial weights everywhere.
+                c.broadcast_f32(&mut values);
+                if c.rank() == 0 {
+                    model
+                } else {
+                    dist::with_parameter_values(model, &values)
+                }
+            }
+            None => model,
+        };
         let losses = make_losses(config.train.loss, &devices)?;
         Ok(Self {
             run_dir: run_dir.to_path_buf(),
@@ -531,6 +716,10 @@ impl Trainer {
             wall_offset: 0.0,
             session_start: Instant::now(),
             session_steps: 0,
+            _lock: lock,
+            comm,
+            stop_requested: false,
+            stop_agreed: false,
         })
     }
 
@@ -541,6 +730,19 @@ impl Trainer {
         data: TrainData,
         steps: Option<u64>,
         devices: Option<Vec<String>>,
+    ) -> Result<Self, TrainError> {
+        Self::resume_on(run_dir, data, steps, devices, None)
+    }
+
+    /// [`Trainer::resume`] as one rank of `comm`: rank 0 chooses the checkpoint (its latest one that
+    /// loads), every rank loads that one (the runs folder must be visible to every rank), and the ranks
+    /// check that they hold the same weights.
+    pub fn resume_on(
+        run_dir: &Path,
+        data: TrainData,
+        steps: Option<u64>,
+        devices: Option<Vec<String>>,
+        comm: Option<Rc<dyn Collective>>,
     ) -> Result<Self, TrainError> {
         let cfg_path = run_dir.join("config.json");
         let text = std::fs::read_to_string(&cfg_path).map_err(io_err(&cfg_path))?;
@@ -553,34 +755,38 @@ impl Trainer {
             config.train.devices = d;
         }
         config.train.validate()?;
-        let (step, ck) = list_checkpoints(run_dir)?
-            .pop()
-            .ok_or_else(|| run_err(run_dir, "no checkpoint to resume from (checkpoints/step-*)"))?;
-        let state_path = ck.join("state.json");
-        let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
-        let state: CheckpointState =
-            serde_json::from_str(&text).map_err(|e| run_err(&state_path, e))?;
-        if state.step != step {
-            return Err(run_err(
-                &state_path,
-                format!("says step {} but the folder is step {step}", state.step),
-            ));
-        }
+        let rank = comm.as_ref().map_or(0, |c| c.rank());
         let devices = Self::devices(&config.train.devices)?;
-        let model_path = ck.join("model.bpk");
-        if !model_path.is_file() {
-            return Err(run_err(&model_path, "missing"));
-        }
-        let model = DeepViewModel::new(&config.model, &devices[0])
-            .try_load_file(&model_path)
-            .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
-        let optim_path = ck.join("optimizer.bpk");
-        if !optim_path.is_file() {
-            return Err(run_err(&optim_path, "missing"));
-        }
-        let optim = adam()
-            .load(&optim_path)
-            .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+        let mut lock = None;
+        let loaded = if rank == 0 {
+            let found = lock_run(run_dir).and_then(|l| {
+                lock = Some(l);
+                latest_loadable(run_dir, &config.model, &devices[0])
+            });
+            if let Some(c) = &comm {
+                let mut step = [found.as_ref().map_or(u64::MAX, |f| f.0)];
+                c.broadcast_u64(&mut step);
+            }
+            found?
+        } else {
+            let c = comm.as_ref().expect("rank > 0 has a communicator");
+            let mut step = [0];
+            c.broadcast_u64(&mut step);
+            let step = step[0];
+            let rank_err = |message: String| TrainError::Rank { rank, message };
+            if step == u64::MAX {
+                return Err(rank_err("rank 0 found no checkpoint to resume from".into()));
+            }
+            let ck = run_dir.join("checkpoints").join(format!("step-{step:07}"));
+            let l = load_checkpoint(&ck, step, &config.model, &devices[0]).map_err(|e| {
+                rank_err(format!(
+                    "cannot load the checkpoint rank 0 resumes from ({e}); the runs folder must be \
+                     shared by all ranks"
+                ))
+            })?;
+            (step, l)
+        };
+        let (step, (model, optim, state)) = loaded;
         let losses = make_losses(config.train.loss, &devices)?;
         let trainer = Self {
             run_dir: run_dir.to_path_buf(),
@@ -595,8 +801,16 @@ impl Trainer {
             wall_offset: state.wall_time_s,
             session_start: Instant::now(),
             session_steps: 0,
+            _lock: lock,
+            comm,
+            stop_requested: false,
+            stop_agreed: false,
         };
-        trainer.truncate_metrics()?;
+        trainer.check_replicas()?;
+        if trainer.is_writer() {
+            trainer.remove_leftovers();
+            trainer.truncate_metrics()?;
+        }
         Ok(trainer)
     }
 
@@ -609,6 +823,44 @@ impl Trainer {
 
     pub fn run_dir(&self) -> &Path {
         &self.run_dir
+    }
+
+    /// Whether this process writes the run folder and prints (rank 0, or a run without ranks).
+    pub fn is_writer(&self) -> bool {
+        self.comm.as_ref().is_none_or(|c| c.rank() == 0)
+    }
+
+    /// `(rank, number of ranks)`: `(0, 1)` without a communicator.
+    pub fn rank(&self) -> (usize, usize) {
+        self.comm.as_ref().map_or((0, 1), |c| (c.rank(), c.size()))
+    }
+
+    /// With ranks: an error on every rank unless all hold bit-identical weights.
+    pub fn check_replicas(&self) -> Result<(), TrainError> {
+        let Some(c) = &self.comm else {
+            return Ok(());
+        };
+        let h = dist::hash_values(&parameter_values(&self.model));
+        let mut root = [h];
+        c.broadcast_u64(&mut root);
+        let mut differ = [(root[0] != h) as u8 as f32];
+        c.all_reduce_sum(&mut differ);
+        if differ[0] > 0.0 {
+            return Err(TrainError::Rank {
+                rank: c.rank(),
+                message: format!(
+                    "the weights of {} rank(s) differ from rank 0's at step {} (replicas out of sync{})",
+                    differ[0],
+                    self.step,
+                    if root[0] != h {
+                        ", this one among them"
+                    } else {
+                        ""
+                    }
+                ),
+            });
+        }
+        Ok(())
     }
 
     /// Steps per second in this session.
@@ -641,31 +893,37 @@ impl Trainer {
     }
 
     /// One training step on a given batch (the step counter advances even when the step is skipped).
+    /// With ranks, `batch` is the global batch (the same on every rank) and this rank computes its
+    /// share of it ([`dist`]).
     pub fn step_on(&mut self, batch: Vec<Example>) -> StepReport {
         self.step += 1;
         self.session_steps += 1;
         let n = batch.len();
         let views = batch.first().map_or(0, |e| e.inputs.len());
-        let nd = self.devices.len().min(n.max(1));
+        let (rank, size) = self.rank();
+        let mine = dist::share(n, rank, size);
+        let local = &batch[mine.clone()];
+        let m = local.len();
+        let nd = self.devices.len().min(m.max(1));
         let recompute = self.config.train.recompute;
-        let chunks: Vec<&[Example]> = (0..nd)
-            .map(|i| &batch[i * n / nd..(i + 1) * n / nd])
-            .collect();
+        let ranges: Vec<std::ops::Range<usize>> =
+            (0..nd).map(|i| i * m / nd..(i + 1) * m / nd).collect();
         let results: Vec<(Option<GradientsParams>, Vec<f32>)> = if nd == 1 {
             vec![run_replica(
                 &self.model,
                 &self.losses[0],
-                chunks[0],
+                local,
                 &self.devices[0],
                 n,
                 recompute,
             )]
         } else {
             std::thread::scope(|scope| {
-                let handles: Vec<_> = chunks
+                let handles: Vec<_> = ranges
                     .iter()
                     .enumerate()
-                    .map(|(i, chunk)| {
+                    .map(|(i, r)| {
+                        let chunk = &local[r.clone()];
                         let device = self.devices[i].clone();
                         let model = if i == 0 {
                             self.model.clone()
@@ -683,8 +941,27 @@ impl Trainer {
                     .collect()
             })
         };
-        let losses: Vec<f32> = results.iter().flat_map(|r| r.1.iter().copied()).collect();
-        let mean = losses.iter().map(|&v| v as f64).sum::<f64>() / losses.len().max(1) as f64;
+        // The loss of every tuple of the batch at its index (0 where another rank computed it, or where
+        // a replica stopped after a non-finite loss).
+        let mut losses = vec![0.0f32; n];
+        for (r, (_, l)) in ranges.iter().zip(&results) {
+            losses[mine.start + r.start..][..l.len()].copy_from_slice(l);
+        }
+        let main = self.devices[0].clone().inner();
+        let sets: Vec<GradientsParams> = results.into_iter().filter_map(|r| r.0).collect();
+        let mut grads = clip::sum_on_device(&self.model, sets, &main);
+        if let Some(c) = &self.comm {
+            // One reduction: gradient sums, has-gradient flags, the tuples' losses, the stop flag.
+            let mut flat = dist::flatten_grads(&self.model, Some(&grads));
+            let g = flat.len();
+            flat.extend_from_slice(&losses);
+            flat.push(self.stop_requested as u8 as f32);
+            c.all_reduce_sum(&mut flat);
+            self.stop_agreed = flat[g + n] > 0.0;
+            losses.copy_from_slice(&flat[g..g + n]);
+            grads = dist::unflatten_grads(&self.model, &flat[..g], &main);
+        }
+        let mean = losses.iter().map(|&v| v as f64).sum::<f64>() / n.max(1) as f64;
         let mut report = StepReport {
             step: self.step,
             loss: mean,
@@ -694,16 +971,21 @@ impl Trainer {
         };
         if let Some(i) = losses.iter().position(|v| !v.is_finite()) {
             let ex = &batch[i];
+            let on_rank = if size > 1 {
+                let r = (0..size)
+                    .find(|&r| dist::share(n, r, size).contains(&i))
+                    .unwrap_or(0);
+                format!(", rank {r}")
+            } else {
+                String::new()
+            };
             report.skipped = Some(format!(
-                "step {}: non-finite loss ({}) on tuple {i} (scene {}, target view {}, inputs {:?}); step skipped, \
-                 weights unchanged",
+                "step {}: non-finite loss ({}) on tuple {i} (scene {}, target view {}, inputs {:?}{on_rank}); step \
+                 skipped, weights unchanged",
                 self.step, losses[i], self.data.scenes[ex.scene].name, ex.target, ex.inputs
             ));
             return report;
         }
-        let main = self.devices[0].clone().inner();
-        let sets: Vec<GradientsParams> = results.into_iter().filter_map(|r| r.0).collect();
-        let grads = clip::sum_on_device(&self.model, sets, &main);
         let (grads, norm) = clip::clip_global_norm(&self.model, grads, self.config.train.clip_norm);
         report.grad_norm = norm;
         if !norm.is_finite() {
@@ -720,46 +1002,144 @@ impl Trainer {
         report
     }
 
-    /// Write a checkpoint of the current state (atomically) and prune old ones. Returns its folder.
+    /// Write a checkpoint of the current state and prune old ones. Returns its folder.
+    ///
+    /// The files go into `checkpoints/.tmp-step-N-PID/`, are flushed to disk, and the folder is renamed
+    /// to `step-N` (a process killed at any moment leaves either no `step-N` or a complete one; the
+    /// temporary folder is removed on the next `--resume`). A failed write (disk full, read-only
+    /// folder) removes the temporary folder and is a [`TrainError::Write`] naming the checkpoint that is
+    /// kept. Old checkpoints beyond `keep_checkpoints` are renamed to `.old-step-N` and then removed, so
+    /// a kill during the removal never leaves a damaged `step-N`.
+    ///
+    /// With ranks every rank calls it (the ranks first check that their weights agree); only rank 0
+    /// writes.
     pub fn save_checkpoint(&self) -> Result<PathBuf, TrainError> {
         let dir = self.run_dir.join("checkpoints");
-        std::fs::create_dir_all(&dir).map_err(io_err(&dir))?;
         let done = dir.join(format!("step-{:07}", self.step));
-        if done.exists() {
+        self.check_replicas()?;
+        if !self.is_writer() || checkpoint_is_complete(&done) {
             return Ok(done);
         }
         let tmp = dir.join(format!(".tmp-step-{:07}-{}", self.step, std::process::id()));
-        if tmp.exists() {
-            std::fs::remove_dir_all(&tmp).map_err(io_err(&tmp))?;
+        if let Err(e) = self.write_checkpoint(&dir, &tmp, &done) {
+            let _ = std::fs::remove_dir_all(&tmp);
+            return Err(self.write_error(format!("the checkpoint {}", done.display()), e));
         }
-        std::fs::create_dir(&tmp).map_err(io_err(&tmp))?;
+        sync_dir(&dir);
+        self.prune_checkpoints();
+        Ok(done)
+    }
+
+    fn write_checkpoint(&self, dir: &Path, tmp: &Path, done: &Path) -> Result<(), TrainError> {
+        std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+        if tmp.exists() {
+            std::fs::remove_dir_all(tmp).map_err(io_err(tmp))?;
+        }
+        std::fs::create_dir(tmp).map_err(io_err(tmp))?;
         let model_path = tmp.join("model.bpk");
         self.model
             .clone()
             .save_file(&model_path)
-            .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
+            .map_err(|e| run_err(&model_path, record_message(&e)))?;
+        sync_file(&model_path)?;
         let optim_path = tmp.join("optimizer.bpk");
         self.optim
             .save(&optim_path)
-            .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+            .map_err(|e| run_err(&optim_path, record_message(&e)))?;
+        sync_file(&optim_path)?;
         let state = CheckpointState {
             step: self.step,
             rng: self.rng,
             wall_time_s: self.wall_time(),
         };
         let state_path = tmp.join("state.json");
-        std::fs::write(
-            &state_path,
-            serde_json::to_string_pretty(&state).expect("serialisable"),
-        )
-        .map_err(io_err(&state_path))?;
-        std::fs::rename(&tmp, &done).map_err(io_err(&done))?;
-        let all = list_checkpoints(&self.run_dir)?;
-        let keep = self.config.train.keep_checkpoints.max(1);
-        for (_, p) in all.iter().take(all.len().saturating_sub(keep)) {
-            std::fs::remove_dir_all(p).map_err(io_err(p))?;
+        let bytes = serde_json::to_string_pretty(&state).expect("serialisable");
+        std::fs::File::create(&state_path)
+            .and_then(|mut f| {
+                f.write_all(bytes.as_bytes())?;
+                f.sync_all()
+            })
+            .map_err(io_err(&state_path))?;
+        sync_dir(tmp);
+        if done.exists() {
+            // A `step-N` without all its files (damaged by hand or by the disk): replace it.
+            let stale = dir.join(format!(".old-step-{:07}-{}", self.step, std::process::id()));
+            std::fs::rename(done, &stale).map_err(io_err(done))?;
+            let _ = std::fs::remove_dir_all(&stale);
         }
-        Ok(done)
+        std::fs::rename(tmp, done).map_err(io_err(done))
+    }
+
+    /// A [`TrainError::Write`] for a failed write of `what` at the current step.
+    fn write_error(&self, what: String, source: TrainError) -> TrainError {
+        let kept = match list_checkpoints(&self.run_dir)
+            .ok()
+            .and_then(|mut v| v.pop())
+        {
+            Some((step, p)) => format!(
+                "the last complete checkpoint {} (step {step}) is kept: free space or fix the folder, then \
+                 --resume",
+                p.display()
+            ),
+            None => "the run has no complete checkpoint yet".into(),
+        };
+        TrainError::Write {
+            step: self.step,
+            what,
+            source: Box::new(source),
+            kept,
+        }
+    }
+
+    /// Remove all but the last `keep_checkpoints` checkpoints (failures are warnings: the new checkpoint
+    /// is complete either way).
+    fn prune_checkpoints(&self) {
+        let Ok(all) = list_checkpoints(&self.run_dir) else {
+            return;
+        };
+        let keep = self.config.train.keep_checkpoints.max(1);
+        for (step, p) in all.iter().take(all.len().saturating_sub(keep)) {
+            let trash = p.with_file_name(format!(".old-step-{step:07}-{}", std::process::id()));
+            let r = std::fs::rename(p, &trash).and_then(|_| std::fs::remove_dir_all(&trash));
+            if let Err(e) = r {
+                eprintln!(
+                    "warning: cannot remove the old checkpoint {}: {e}",
+                    p.display()
+                );
+            }
+        }
+    }
+
+    /// Remove what a killed process left behind: temporary checkpoint folders (`.tmp-step-*`),
+    /// half-removed old ones (`.old-step-*`) and temporary files of atomic writes.
+    fn remove_leftovers(&self) {
+        let remove = |dir: &Path, is_leftover: &dyn Fn(&str) -> bool| {
+            let Ok(entries) = std::fs::read_dir(dir) else {
+                return;
+            };
+            for e in entries.flatten() {
+                let name = e.file_name().to_string_lossy().to_string();
+                if !is_leftover(&name) {
+                    continue;
+                }
+                let p = e.path();
+                let r = if p.is_dir() {
+                    std::fs::remove_dir_all(&p)
+                } else {
+                    std::fs::remove_file(&p)
+                };
+                match r {
+                    Ok(()) => eprintln!("removed {} (left by an interrupted run)", p.display()),
+                    Err(err) => eprintln!("warning: cannot remove {}: {err}", p.display()),
+                }
+            }
+        };
+        remove(&self.run_dir.join("checkpoints"), &|n| {
+            n.starts_with(".tmp-step-") || n.starts_with(".old-step-")
+        });
+        remove(&self.run_dir, &|n| {
+            n.starts_with("metrics.tmp-") || n.starts_with("config.tmp-")
+        });
     }
 
     /// Drop metric lines after the current step (written after the checkpoint we resume from).
@@ -815,7 +1195,8 @@ impl Trainer {
         progress: bool,
     ) -> Result<Vec<StepReport>, TrainError> {
         let total = self.config.train.steps;
-        let pb = if progress {
+        let writer = self.is_writer();
+        let pb = if progress && writer {
             let pb = indicatif::ProgressBar::new(total);
             pb.set_style(
                 indicatif::ProgressStyle::with_template(
@@ -830,11 +1211,22 @@ impl Trainer {
         };
         let mut reports = Vec::new();
         let mut ema: Option<f64> = None;
-        while self.step < total && !stop.load(Ordering::SeqCst) {
+        // With ranks, a stop (Ctrl-C on any rank) is agreed at the next step's reduction so that all
+        // ranks stop after the same step.
+        let stopping = |t: &Self| match t.comm {
+            Some(_) => t.stop_agreed,
+            None => stop.load(Ordering::SeqCst),
+        };
+        while self.step < total && !stopping(self) {
+            self.stop_requested = stop.load(Ordering::SeqCst);
             let r = self.train_step()?;
-            self.append_metrics(&r)?;
+            if writer {
+                self.append_metrics(&r)
+                    .map_err(|e| self.write_error("metrics.jsonl".into(), e))?;
+            }
             if let Some(msg) = &r.skipped {
-                if progress {
+                if !writer {
+                } else if progress {
                     pb.println(format!("warning: {msg}"));
                 } else {
                     eprintln!("warning: {msg}");

@@ -220,6 +220,131 @@ fn two_cpu_replicas_match_one_device() {
     assert!(max < 1e-6, "replicas diverge from one device by {max}");
 }
 
+/// Run `steps` steps of the small configuration with `batch` tuples per step as `ranks` ranks (threads
+/// joined by a [`dist::ThreadGroup`]; rank `r` on `devices[r]` replicas of the CPU) from the weights
+/// of `init`, resuming at `resume_at` if given. Returns every rank's final weights and reports.
+fn ranks_run(
+    dir: &std::path::Path,
+    init: &DeepViewModel,
+    ranks: usize,
+    devices: &[usize],
+    batch: usize,
+    steps: u64,
+    resume_at: Option<u64>,
+) -> Vec<(Vec<f32>, Vec<StepReport>)> {
+    let group = dist::ThreadGroup::new(ranks);
+    std::thread::scope(|scope| {
+        let handles: Vec<_> = group
+            .into_iter()
+            .map(|g| {
+                let cpus = vec!["cpu"; devices[g.rank()]];
+                scope.spawn(move || {
+                    let comm: Rc<dyn Collective> = Rc::new(g);
+                    let mut reports = Vec::new();
+                    let first = resume_at.unwrap_or(steps);
+                    let mut t = Trainer::create_on(
+                        dir,
+                        small_config(first, &cpus, batch),
+                        small_data(),
+                        Some(comm.clone()),
+                    )
+                    .unwrap();
+                    same_start(init, &mut t);
+                    reports.extend(t.run(&never(), false).unwrap());
+                    if resume_at.is_some() {
+                        drop(t);
+                        let mut t =
+                            Trainer::resume_on(dir, small_data(), Some(steps), None, Some(comm))
+                                .unwrap();
+                        assert_eq!(Some(t.step), resume_at);
+                        reports.extend(t.run(&never(), false).unwrap());
+                        return (parameter_values(&t.model), reports);
+                    }
+                    (parameter_values(&t.model), reports)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    })
+}
+
+/// Ranks that split a global batch (drawn from one seed on every rank) and all-reduce their gradients
+/// end with the weights of one process training on the whole batch: bit for bit with 2 ranks (one sum,
+/// in either order), to rounding with 3 (another summation order) and with ranks that split their share
+/// across devices; only rank 0 writes, and `resume_on` continues exactly.
+#[test]
+fn ranks_match_one_process() {
+    let dir = tempfile::tempdir().unwrap();
+    for (ranks, devices, batch, exact) in [
+        (2, vec![1, 1], 2, true),
+        (3, vec![1, 1, 1], 3, false),
+        (2, vec![2, 1], 3, false),
+    ] {
+        let one_dir = dir.path().join(format!("one-{ranks}-{batch}"));
+        let mut one =
+            Trainer::create(&one_dir, small_config(3, &["cpu"], batch), small_data()).unwrap();
+        let init = one.model.clone();
+        let ra = one.run(&never(), false).unwrap();
+        let wa = parameter_values(&one.model);
+        let run_dir = dir.path().join(format!("ranks-{ranks}-{batch}"));
+        let out = ranks_run(&run_dir, &init, ranks, &devices, batch, 3, None);
+        for (r, (w, reports)) in out.iter().enumerate() {
+            let max = max_abs_diff(&wa, w);
+            if exact {
+                assert!(wa == *w, "rank {r} of {ranks}: differs by {max}");
+            }
+            assert!(max <= 1e-6, "rank {r} of {ranks}: weights differ by {max}");
+            for (a, b) in ra.iter().zip(reports) {
+                assert!(
+                    (a.loss - b.loss).abs() <= 1e-6 * a.loss.abs(),
+                    "{a:?} vs {b:?}"
+                );
+            }
+        }
+        // Rank 0 wrote the run: one metrics line per step, the checkpoints.
+        let metrics = std::fs::read_to_string(run_dir.join("metrics.jsonl")).unwrap();
+        assert_eq!(metrics.lines().count(), 3);
+        assert_eq!(list_checkpoints(&run_dir).unwrap().last().unwrap().0, 3);
+    }
+    // Interrupted after 2 steps and resumed by every rank to 4: as one process straight to 4.
+    let mut one = Trainer::create(
+        &dir.path().join("one-4"),
+        small_config(4, &["cpu"], 2),
+        small_data(),
+    )
+    .unwrap();
+    let init = one.model.clone();
+    one.run(&never(), false).unwrap();
+    let out = ranks_run(
+        &dir.path().join("resumed"),
+        &init,
+        2,
+        &[1, 1],
+        2,
+        4,
+        Some(2),
+    );
+    for (w, _) in &out {
+        assert!(parameter_values(&one.model) == *w, "resumed ranks differ");
+    }
+    // A batch smaller than the number of ranks: the last rank computes nothing, same result.
+    let mut one = Trainer::create(
+        &dir.path().join("one-small"),
+        small_config(2, &["cpu"], 2),
+        small_data(),
+    )
+    .unwrap();
+    let init = one.model.clone();
+    one.run(&never(), false).unwrap();
+    let out = ranks_run(&dir.path().join("small"), &init, 3, &[1, 1, 1], 2, 2, None);
+    for (w, _) in &out {
+        assert!(
+            parameter_values(&one.model) == *w,
+            "3 ranks on a batch of 2 differ"
+        );
+    }
+}
+
 /// Data parallelism over "CPU + one wgpu device" (`--features wgpu`; on a machine without a GPU, Mesa's
 /// lavapipe Vulkan driver serves): the same steps as on the CPU alone, up to the other backend's float
 /// arithmetic. The device comes from `parse_device("wgpu")` first (burn's fallible options API), so a
