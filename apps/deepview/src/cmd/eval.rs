@@ -43,19 +43,19 @@ pub struct Args {
     /// `auto`). See `deepview infer --help`.
     #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
     pub planes: PlanesArg,
-    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
     pub max_memory: Option<String>,
     /// Colour variance treated as disagreement, s in exp(-variance / s) (psv-mean).
     #[arg(long, default_value_t = PsvMeanOptions::default().temperature)]
     pub temperature: f64,
     /// Adam steps (optimize).
-    #[arg(long, default_value_t = 300)]
+    #[arg(long, default_value_t = 300, value_parser = args::parse_positive)]
     pub steps: usize,
     /// Adam learning rate on the RGBA logits (optimize).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = args::parse_positive_f64)]
     pub lr: f64,
     /// Working width of the optimisation (optimize).
-    #[arg(long, default_value_t = 160)]
+    #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(1..))]
     pub max_width: u32,
     /// Trained weights for --method deepview: a weights folder or a training checkpoint folder
     /// (default: the shipped weights/cpu).
@@ -158,6 +158,8 @@ impl LearnedMethod {
                     },
                 )
             };
+            let mut minimum =
+                |count: usize| learned_minimum(model, &views, &reference, near_far, count);
             let choice = args::choose_planes(
                 self.planes,
                 &reference,
@@ -166,6 +168,7 @@ impl LearnedMethod {
                 near_far,
                 Some(self.config.infer_planes),
                 &mut fits,
+                &mut minimum,
             )
             .map_err(|e| fail(&e))?;
             announce(&mut self.last_message, &choice);
@@ -188,6 +191,23 @@ impl LearnedMethod {
         }
         Ok(&self.cache.as_ref().expect("just filled").2)
     }
+}
+
+/// The smallest memory budget the tiled inference of `count` planes plans within.
+pub fn learned_minimum(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    near_far: (f64, f64),
+    count: usize,
+) -> u64 {
+    use deepview_geometry::{PlaneSpacing, plane_depths};
+    let Ok(depths) = plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth) else {
+        return 0;
+    };
+    args::min_budget(&mut |b| {
+        deepview_net::infer::plan_inference(model, views, reference, &depths, b).is_ok()
+    })
 }
 
 /// A baseline whose plane count follows `--planes` per input set, by the same rule as the learned model
@@ -236,7 +256,17 @@ pub fn baseline_planes(
         _ => args::psv_mean_bytes(&reference, cams),
     };
     let mut fits = args::fits_estimate(fixed, per_plane, budget);
-    args::choose_planes(planes, &reference, cams, ids, near_far, None, &mut fits)
+    let mut minimum = |n: usize| fixed.saturating_add(per_plane.saturating_mul(n as u64));
+    args::choose_planes(
+        planes,
+        &reference,
+        cams,
+        ids,
+        near_far,
+        None,
+        &mut fits,
+        &mut minimum,
+    )
 }
 
 impl Method for PlannedBaseline {
@@ -295,6 +325,25 @@ fn weights_of(args: &Args) -> anyhow::Result<PathBuf> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let weights = args.weights.clone().unwrap_or_default();
+    let mut inputs: Vec<super::safety::Input> = vec![("--data", args.data.as_path())];
+    if args.weights.is_some() {
+        inputs.push(("--weights", &weights));
+    }
+    if let Some(out) = &args.out {
+        super::safety::check_output("--out", out, super::safety::Kind::File, &inputs)?;
+    }
+    if let Some(dir) = &args.save_renders {
+        super::safety::check_output("--save-renders", dir, super::safety::Kind::Files, &inputs)?;
+    }
+    if let (Some(a), Some(b)) = (&args.out, &args.save_renders) {
+        super::safety::check_output(
+            "--out",
+            a,
+            super::safety::Kind::File,
+            &[("--save-renders", b)],
+        )?;
+    }
     // The runner downscales (and scales the protocol's crops with it), so the scene loads at full size.
     let load = deepview_data::LoadOptions {
         downscale: 1,
@@ -348,10 +397,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         verbose: true,
     };
+    let renders = args
+        .save_renders
+        .as_deref()
+        .map(super::safety::CreatedDirs::create)
+        .transpose()?;
     let report = evaluate(&scene, &protocol, method.as_mut(), &options)?;
+    if let Some(r) = renders {
+        r.keep();
+    }
     print!("{}", report.table());
     if let Some(out) = &args.out {
-        report.write_json(out)?;
+        super::safety::write_file(out, |out| Ok(report.write_json(out)?))?;
         println!("wrote {}", out.display());
     }
     Ok(())
