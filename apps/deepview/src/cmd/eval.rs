@@ -210,6 +210,32 @@ pub fn learned_minimum(
     })
 }
 
+/// Refuse an inference that cannot be planned within `budget`, naming the smallest budget that can.
+pub fn check_learned(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    depths: &[f64],
+    budget: u64,
+) -> anyhow::Result<()> {
+    use deepview_net::infer::plan_inference;
+    if plan_inference(model, views, reference, depths, budget).is_ok() {
+        return Ok(());
+    }
+    let need =
+        args::min_budget(&mut |b| plan_inference(model, views, reference, depths, b).is_ok());
+    args::check_memory(
+        &format!(
+            "inferring {} planes of {}x{}",
+            depths.len(),
+            reference.width,
+            reference.height
+        ),
+        need,
+        budget,
+    )
+}
+
 /// A baseline whose plane count follows `--planes` per input set, by the same rule as the learned model
 /// (memory clamp from a simple bytes estimate).
 pub struct PlannedBaseline {

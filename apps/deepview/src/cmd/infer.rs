@@ -189,6 +189,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         weights.display(),
         config.name
     );
+    super::eval::check_learned(&model, &views, &reference, &depths, budget)?;
     let bar = indicatif::ProgressBar::new(1);
     bar.set_style(
         indicatif::ProgressStyle::with_template(

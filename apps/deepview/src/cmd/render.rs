@@ -178,6 +178,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.path.is_some() || args.camera_path.is_some() {
         return run_path(&args);
     }
+    check_output("--out", &args.out, Kind::File, &args.inputs())?;
     let format = ImageFormat::of("--out", &args.out)?;
     if args.alpha && format == ImageFormat::Jpeg {
         bail!(
@@ -185,7 +186,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             args.out.display()
         );
     }
-    check_output("--out", &args.out, Kind::File, &args.inputs())?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;
     let (meta, reference) = MpiMeta::read(&args.mpi)?;
     let camera = args.source.camera()?.unwrap_or(reference);
