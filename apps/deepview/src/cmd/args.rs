@@ -259,19 +259,6 @@ pub fn min_arg(bytes: u64) -> String {
     format!("{}MiB", bytes.div_ceil(1 << 20).max(1))
 }
 
-/// The smallest budget for which `fits` holds (`fits` monotone in the budget), by bisection up to 1 PiB.
-pub fn min_budget(fits: &mut dyn FnMut(u64) -> bool) -> u64 {
-    let (mut lo, mut hi) = (0u64, 1u64 << 50);
-    if !fits(hi) {
-        return hi;
-    }
-    while lo + 1 < hi {
-        let mid = lo + (hi - lo) / 2;
-        if fits(mid) { hi = mid } else { lo = mid }
-    }
-    hi
-}
-
 /// Refuse work estimated at `need` bytes that does not fit `budget`, before anything is allocated; the
 /// message names the one `--max-memory` that does fit.
 pub fn check_memory(what: &str, need: u64, budget: u64) -> anyhow::Result<()> {
@@ -610,7 +597,6 @@ mod tests {
             &mut |_| 0,
         );
         assert!(no_weights.is_err());
-        assert_eq!(min_budget(&mut |b| b >= 12345), 12345);
         assert_eq!(min_arg((1 << 20) + 1), "2MiB");
         assert!("1,2,1".parse::<ViewList>().is_err());
         assert_eq!(

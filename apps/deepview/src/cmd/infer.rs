@@ -5,7 +5,7 @@ use super::safety::{Kind, OutputDir, check_output};
 use anyhow::{Context, bail};
 use deepview_data::{SceneArgs, load_scene};
 use deepview_geometry::{PlaneSpacing, plane_depths};
-use deepview_net::infer::{infer_mpi, plan_inference};
+use deepview_net::infer::infer_mpi;
 use deepview_net::weights::{check_views, load_model};
 use std::path::PathBuf;
 
@@ -162,9 +162,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|&i| Ok((scene.load_image(i)?.to_rgb(), scene.views[i].camera)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     // `auto` takes the largest count up to the rule's that the inference can plan within the budget.
+    super::eval::precheck_planes(
+        &model,
+        &views,
+        &reference,
+        args.planes,
+        config.infer_planes,
+        budget,
+    )?;
     let mut fits = |count: usize| {
-        plane_depths(near, far, count, PlaneSpacing::InverseDepth)
-            .is_ok_and(|depths| plan_inference(&model, &views, &reference, &depths, budget).is_ok())
+        super::eval::learned_fits(&model, &views, &reference, (near, far), count, budget)
     };
     let mut minimum =
         |count: usize| super::eval::learned_minimum(&model, &views, &reference, (near, far), count);
