@@ -1023,10 +1023,20 @@ fn bad_arguments_are_usage_errors() {
         ),
         &["--crop, --lr", "cannot change on resume"],
     );
-    // info exits 2 when it reports a problem (an image of the wrong size).
-    let img = scene.join("input_Cam004.png");
-    deepview_image::write_png(&img, &deepview_image::ImageF32::new(10, 10, 3)).unwrap();
-    let out = deepview(&["info", "--data", sc]);
-    refused(&out, &["problem"]);
+    // info exits 2 when it reports a problem (a missing image), after printing the report.
+    let room = t.join("room");
+    copy_dir(&deepview_data::data_dir().join("colmap/room"), &room);
+    let first = std::fs::read_dir(room.join("images"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    std::fs::remove_file(&first).unwrap();
+    let out = deepview(&["info", "--data", s(&room)]);
+    refused(
+        &out,
+        &["problem", first.file_name().unwrap().to_str().unwrap()],
+    );
     assert!(String::from_utf8_lossy(&out.stdout).contains("images       problem"));
 }
