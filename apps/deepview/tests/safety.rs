@@ -340,7 +340,7 @@ fn runs_and_weights_are_never_overwritten_and_images_follow_their_extension() {
 
 /// Start `args`, send SIGTERM after `after`, return the exit code.
 fn terminate(args: &[&str], after: Duration) -> Option<i32> {
-    let mut child = bin()
+    let child = bin()
         .args(args)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -506,7 +506,7 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
     ok(&o);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(
-        err.contains(&format!("resuming")) && err.contains(&format!("at step {step}")),
+        err.contains("resuming") && err.contains(&format!("at step {step}")),
         "{err}"
     );
 }

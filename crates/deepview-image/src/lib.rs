@@ -192,14 +192,23 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
                 .ok_or_else(|| corrupt("truncated or corrupt JPEG (short pixel data)".into()))?;
             Ok(image::DynamicImage::ImageRgb8(img))
         }
-        image::ImageFormat::Png if !bytes.windows(4).rev().take(64).any(|w| w == b"IEND") => {
-            Err(corrupt("truncated PNG (no IEND chunk at the end)".into()))
-        }
+        image::ImageFormat::Png if !png_complete(&bytes) => Err(corrupt(
+            "truncated PNG (no complete IEND chunk at the end)".into(),
+        )),
         f => image::load_from_memory_with_format(&bytes, f).map_err(|e| ImageError::Read {
             path: path.into(),
             source: e,
         }),
     }
+}
+
+/// Whether a PNG file ends with its IEND chunk and that chunk's CRC (trailing bytes after it allowed).
+fn png_complete(bytes: &[u8]) -> bool {
+    let tail = bytes.len().saturating_sub(64);
+    bytes[tail..]
+        .windows(4)
+        .rposition(|w| w == b"IEND")
+        .is_some_and(|p| tail + p + 8 <= bytes.len())
 }
 
 /// Read a PNG or JPEG (8 or 16 bit) as RGB (`channels = 3`) or RGBA (`channels = 4`, straight alpha),
