@@ -36,7 +36,7 @@ pub struct Args {
     #[arg(long, default_value_t = 192, value_parser = clap::value_parser!(u32).range(1..))]
     pub height: u32,
     /// Planes of the ground-truth MPI (at least 2).
-    #[arg(long, default_value_t = 32, value_parser = clap::value_parser!(u64).range(2..))]
+    #[arg(long, default_value_t = 32, value_parser = parse_planes)]
     pub planes: u64,
     /// Random seed of the scene's layout and textures.
     #[arg(long, default_value_t = 1)]
@@ -52,6 +52,15 @@ pub struct Args {
     pub out_format: Option<deepview_data::SceneFormat>,
     #[command(flatten)]
     pub scene: SceneArgs,
+}
+
+/// `--planes`: at least 2 (the ground truth's layers lie between planes).
+fn parse_planes(s: &str) -> Result<u64, String> {
+    match s.trim().parse::<u64>() {
+        Ok(n) if n >= 2 => Ok(n),
+        Ok(n) => Err(format!("must be at least 2 (got {n})")),
+        Err(_) => Err(format!("{s:?} is not a whole number")),
+    }
 }
 
 /// `--cameras`: `grid` or an existing dataset folder.
