@@ -96,10 +96,16 @@ fn tune_allocator() {
 
 fn main() -> ExitCode {
     tune_allocator();
+    // Before any other thread starts: Ctrl-C and SIGTERM clean up unfinished outputs (cmd::signals).
+    cmd::signals::install();
     let cli = Cli::parse();
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
+            if let Some(i) = e.downcast_ref::<cmd::signals::Interrupted>() {
+                eprintln!("{i}");
+                return ExitCode::from(i.exit_code());
+            }
             eprintln!("error: {e}");
             // Library errors often quote their source already; print only causes that add something.
             let mut shown = e.to_string();

@@ -22,6 +22,8 @@ pub enum ImageError {
         path: PathBuf,
         source: image::ImageError,
     },
+    #[error("cannot read image {path}: {msg}")]
+    Corrupt { path: PathBuf, msg: String },
     #[error("{0}")]
     Invalid(String),
 }
@@ -150,23 +152,69 @@ pub fn to_u8(v: f32) -> u8 {
     (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8
 }
 
-/// Read a PNG or JPEG (8 or 16 bit) as RGB (`channels = 3`) or RGBA (`channels = 4`, straight alpha).
-pub fn read_image(path: &Path, channels: usize) -> Result<ImageF32, ImageError> {
-    let img = image::ImageReader::open(path)
-        .map_err(|e| ImageError::Read {
-            path: path.into(),
-            source: image::ImageError::IoError(e),
-        })?
-        .with_guessed_format()
-        .map_err(|e| ImageError::Read {
-            path: path.into(),
-            source: image::ImageError::IoError(e),
-        })?
-        .decode()
-        .map_err(|e| ImageError::Read {
+/// Decode an image file completely, or refuse it: a truncated or corrupt JPEG is an error (the `image`
+/// crate's lenient decoder would fill the missing rows with grey), as is a PNG without its end chunk.
+pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
+    let read_err = |e: std::io::Error| ImageError::Read {
+        path: path.into(),
+        source: image::ImageError::IoError(e),
+    };
+    let bytes = std::fs::read(path).map_err(read_err)?;
+    let corrupt = |msg: String| ImageError::Corrupt {
+        path: path.into(),
+        msg,
+    };
+    let format = image::guess_format(&bytes).map_err(|e| ImageError::Read {
+        path: path.into(),
+        source: e,
+    })?;
+    match format {
+        image::ImageFormat::Jpeg => {
+            use zune_core::bytestream::ZCursor;
+            use zune_core::colorspace::ColorSpace;
+            let options = zune_core::options::DecoderOptions::default()
+                .set_strict_mode(true)
+                .jpeg_set_out_colorspace(ColorSpace::RGB);
+            let mut dec =
+                zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(&bytes[..]), options);
+            let px = dec
+                .decode()
+                .map_err(|e| corrupt(format!("truncated or corrupt JPEG ({e:?})")))?;
+            let (w, h) = dec
+                .dimensions()
+                .ok_or_else(|| corrupt("JPEG without a size".into()))?;
+            if !bytes.windows(2).rev().take(4096).any(|w| w == [0xFF, 0xD9]) {
+                return Err(corrupt(
+                    "truncated JPEG (no end-of-image marker FF D9)".into(),
+                ));
+            }
+            let img = image::RgbImage::from_raw(w as u32, h as u32, px)
+                .ok_or_else(|| corrupt("truncated or corrupt JPEG (short pixel data)".into()))?;
+            Ok(image::DynamicImage::ImageRgb8(img))
+        }
+        image::ImageFormat::Png if !png_complete(&bytes) => Err(corrupt(
+            "truncated PNG (no complete IEND chunk at the end)".into(),
+        )),
+        f => image::load_from_memory_with_format(&bytes, f).map_err(|e| ImageError::Read {
             path: path.into(),
             source: e,
-        })?;
+        }),
+    }
+}
+
+/// Whether a PNG file ends with its IEND chunk and that chunk's CRC (trailing bytes after it allowed).
+fn png_complete(bytes: &[u8]) -> bool {
+    let tail = bytes.len().saturating_sub(64);
+    bytes[tail..]
+        .windows(4)
+        .rposition(|w| w == b"IEND")
+        .is_some_and(|p| tail + p + 8 <= bytes.len())
+}
+
+/// Read a PNG or JPEG (8 or 16 bit) as RGB (`channels = 3`) or RGBA (`channels = 4`, straight alpha),
+/// decoded completely ([`decode_file`]).
+pub fn read_image(path: &Path, channels: usize) -> Result<ImageF32, ImageError> {
+    let img = decode_file(path)?;
     let (w, h) = (img.width(), img.height());
     let data: Vec<f32> = match channels {
         3 => img.into_rgb32f().into_raw(),
@@ -261,6 +309,21 @@ pub fn write_png_u8(
     write_atomic(path, &buf)
 }
 
+/// Write a float image (its first three channels, values clamped to 0..1) as a JPEG of `quality`
+/// (1..=100), atomically.
+pub fn write_jpeg(path: &Path, img: &ImageF32, quality: u8) -> Result<(), ImageError> {
+    use image::ImageEncoder;
+    let rgb = img.to_rgb().to_u8();
+    let mut buf = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut buf, quality.clamp(1, 100))
+        .write_image(&rgb, img.width, img.height, image::ExtendedColorType::Rgb8)
+        .map_err(|e| ImageError::Encode {
+            path: path.into(),
+            source: e,
+        })?;
+    write_atomic(path, &buf)
+}
+
 /// Write a float image (1, 3 or 4 channels, values clamped to 0..1) as an 8-bit PNG, atomically.
 pub fn write_png(path: &Path, img: &ImageF32) -> Result<(), ImageError> {
     write_png_u8(path, img.width, img.height, img.channels, &img.to_u8())
@@ -318,6 +381,38 @@ mod tests {
         std::fs::write(&bad, b"\x89PNG\r\n\x1a\nthis is not a png").unwrap();
         let e = read_image(&bad, 3).unwrap_err().to_string();
         assert!(e.contains("bad.png"), "{e}");
+    }
+
+    #[test]
+    fn truncated_images_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = ImageF32::new(64, 48, 3);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = ((i * 37) % 251) as f32 / 251.0;
+        }
+        for (name, write) in [
+            (
+                "a.jpg",
+                write_jpeg as fn(&Path, &ImageF32) -> Result<(), ImageError>,
+            ),
+            ("a.png", write_png),
+        ] {
+            let p = dir.path().join(name);
+            write(&p, &img).unwrap();
+            let full = read_image(&p, 3).unwrap();
+            assert_eq!((full.width, full.height), (64, 48));
+            let bytes = std::fs::read(&p).unwrap();
+            for keep in [bytes.len() / 2, bytes.len() - 2] {
+                let t = dir.path().join(format!("t{keep}_{name}"));
+                std::fs::write(&t, &bytes[..keep]).unwrap();
+                let e = read_image(&t, 3).unwrap_err().to_string();
+                assert!(e.contains(t.file_name().unwrap().to_str().unwrap()), "{e}");
+            }
+        }
+    }
+
+    fn write_jpeg(path: &Path, img: &ImageF32) -> Result<(), ImageError> {
+        super::write_jpeg(path, img, 90)
     }
 
     #[test]

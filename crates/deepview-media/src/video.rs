@@ -3,12 +3,12 @@
 //! The format follows the output path: `*.gif` -> GIF (the `image` crate's encoder, looping),
 //! `*.mp4` / `*.mov` / `*.mkv` -> raw RGB frames piped to `ffmpeg` (H.264, yuv420p; found on `PATH` or
 //! named by `DEEPVIEW_FFMPEG`), anything else -> a folder of `frame_00000.png ...`. Frames are the
-//! premultiplied render over black. Every file is written atomically (GIF and MP4 into a temporary file
-//! renamed at the end).
+//! premultiplied render over black, streamed to the output as they are rendered (never held). Every file is
+//! written atomically (GIF and MP4 into a temporary file renamed at the end).
 
 use crate::{MediaError, write_err};
 use deepview_geometry::Camera;
-use deepview_image::{temp_path, write_atomic, write_png_u8};
+use deepview_image::{temp_path, write_png_u8};
 use deepview_mpi::{MpiU8, render_rgba8_into};
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -83,25 +83,55 @@ impl FrameSink for PngFrames {
     }
 }
 
-/// Animated, looping GIF (encoded in memory, written atomically at the end).
+/// Animated, looping GIF, each frame encoded as it comes into a temporary file beside the output (so a
+/// long path never holds its frames in memory), renamed into place at the end.
 pub struct GifSink {
     path: PathBuf,
+    tmp: PathBuf,
     width: u32,
     height: u32,
     delay_ms: u32,
-    frames: Vec<image::Frame>,
+    encoder: Option<image::codecs::gif::GifEncoder<ErrWriter>>,
+    error: std::rc::Rc<std::cell::RefCell<Option<std::io::Error>>>,
 }
 
 impl GifSink {
-    pub fn new(path: &Path, width: u32, height: u32, fps: f64) -> Self {
+    pub fn new(path: &Path, width: u32, height: u32, fps: f64) -> Result<Self, MediaError> {
+        use image::codecs::gif::{GifEncoder, Repeat};
         let delay_ms = (1000.0 / fps.max(1e-3)).round().clamp(10.0, 655_350.0) as u32;
-        Self {
+        let tmp = temp_path(path);
+        let file = std::fs::File::create(&tmp).map_err(write_err(path))?;
+        let error = std::rc::Rc::new(std::cell::RefCell::new(None));
+        let writer = ErrWriter {
+            inner: std::io::BufWriter::new(file),
+            error: error.clone(),
+        };
+        let mut enc = GifEncoder::new_with_speed(writer, 10);
+        if let Err(e) = enc.set_repeat(Repeat::Infinite) {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(deepview_image::ImageError::Encode {
+                path: path.into(),
+                source: e,
+            }
+            .into());
+        }
+        Ok(Self {
             path: path.into(),
+            tmp,
             width,
             height,
             delay_ms,
-            frames: Vec::new(),
+            encoder: Some(enc),
+            error,
+        })
+    }
+
+    fn enc_err(&self, e: image::ImageError) -> MediaError {
+        deepview_image::ImageError::Encode {
+            path: self.path.clone(),
+            source: e,
         }
+        .into()
     }
 }
 
@@ -114,23 +144,64 @@ impl FrameSink for GifSink {
         let buf =
             image::RgbaImage::from_raw(self.width, self.height, rgba).expect("frame size matches");
         let delay = image::Delay::from_numer_denom_ms(self.delay_ms, 1);
-        self.frames.push(image::Frame::from_parts(buf, 0, 0, delay));
-        Ok(())
+        let frame = image::Frame::from_parts(buf, 0, 0, delay);
+        let enc = self.encoder.as_mut().expect("open until finish");
+        enc.encode_frame(frame).map_err(|e| self.enc_err(e))
     }
-    fn finish(self: Box<Self>) -> Result<(), MediaError> {
-        use image::codecs::gif::{GifEncoder, Repeat};
-        let mut bytes = Vec::new();
-        {
-            let mut enc = GifEncoder::new_with_speed(&mut bytes, 10);
-            let enc_err = |e: image::ImageError| deepview_image::ImageError::Encode {
-                path: self.path.clone(),
-                source: e,
-            };
-            enc.set_repeat(Repeat::Infinite).map_err(enc_err)?;
-            enc.encode_frames(self.frames).map_err(enc_err)?;
+    fn finish(mut self: Box<Self>) -> Result<(), MediaError> {
+        // Dropping the encoder writes the GIF trailer and flushes the file.
+        drop(self.encoder.take());
+        if let Some(e) = self.error.borrow_mut().take() {
+            let _ = std::fs::remove_file(&self.tmp);
+            return Err(write_err(&self.path)(e));
         }
-        write_atomic(&self.path, &bytes)?;
-        Ok(())
+        std::fs::rename(&self.tmp, &self.path).map_err(write_err(&self.path))
+    }
+}
+
+impl Drop for GifSink {
+    fn drop(&mut self) {
+        // Not finished (an error): no half-written GIF is left behind.
+        if self.encoder.is_some() {
+            drop(self.encoder.take());
+            let _ = std::fs::remove_file(&self.tmp);
+        }
+    }
+}
+
+/// A buffered file that remembers its first write error (the GIF encoder writes its trailer on drop).
+struct ErrWriter {
+    inner: std::io::BufWriter<std::fs::File>,
+    error: std::rc::Rc<std::cell::RefCell<Option<std::io::Error>>>,
+}
+
+impl ErrWriter {
+    fn keep<T>(&self, r: std::io::Result<T>) -> std::io::Result<T> {
+        if let Err(e) = &r {
+            let mut slot = self.error.borrow_mut();
+            if slot.is_none() {
+                *slot = Some(std::io::Error::new(e.kind(), e.to_string()));
+            }
+        }
+        r
+    }
+}
+
+impl Write for ErrWriter {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let r = self.inner.write(buf);
+        self.keep(r)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        let r = self.inner.flush();
+        self.keep(r)
+    }
+}
+
+impl Drop for ErrWriter {
+    fn drop(&mut self) {
+        let r = self.inner.flush();
+        let _ = self.keep(r);
     }
 }
 
@@ -229,7 +300,7 @@ pub fn open_sink(
 ) -> Result<Box<dyn FrameSink>, MediaError> {
     Ok(match VideoFormat::from_path(out) {
         VideoFormat::PngFrames => Box::new(PngFrames::new(out, width, height)?),
-        VideoFormat::Gif => Box::new(GifSink::new(out, width, height, fps)),
+        VideoFormat::Gif => Box::new(GifSink::new(out, width, height, fps)?),
         VideoFormat::Mp4 => Box::new(Mp4Sink::new(out, width, height, fps, &ffmpeg_program())?),
     })
 }

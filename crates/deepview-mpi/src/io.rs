@@ -172,21 +172,7 @@ pub fn read_mpi_u8(dir: &Path) -> Result<MpiU8, MpiError> {
         .par_iter()
         .map(|name| {
             let path = dir.join(name);
-            let img = image::ImageReader::open(&path)
-                .map_err(|source| MpiError::Io {
-                    path: path.clone(),
-                    source,
-                })?
-                .with_guessed_format()
-                .map_err(|source| MpiError::Io {
-                    path: path.clone(),
-                    source,
-                })?
-                .decode()
-                .map_err(|source| ImageError::Read {
-                    path: path.clone(),
-                    source,
-                })?;
+            let img = deepview_image::decode_file(&path)?;
             if (img.width(), img.height()) != (w, h) {
                 return Err(invalid(
                     &path,

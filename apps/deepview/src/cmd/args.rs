@@ -158,7 +158,18 @@ pub fn choose_planes(
     near_far: (f64, f64),
     weights: Option<usize>,
     fits: &mut dyn FnMut(usize) -> bool,
+    minimum: &mut dyn FnMut(usize) -> u64,
 ) -> anyhow::Result<PlaneChoice> {
+    // Any count is checked against the budget before anything is allocated.
+    let mut refuse = |n: usize, how: &str| -> anyhow::Error {
+        let need = minimum(n);
+        anyhow::anyhow!(
+            "{n} planes ({how}) do not fit the memory budget: they need at least {}; use fewer planes, \
+             smaller images (--downscale) or --max-memory {}",
+            human(need),
+            min_arg(need)
+        )
+    };
     let simple = |count: usize, rule: &str, message: String| PlaneChoice {
         count,
         rule: PlanesRule {
@@ -172,8 +183,10 @@ pub fn choose_planes(
     };
     match arg {
         PlanesArg::Count(0) => bail!("--planes: an MPI needs at least one plane (got 0)"),
+        PlanesArg::Count(n) if !fits(n) => Err(refuse(n, "--planes")),
         PlanesArg::Count(n) => Ok(simple(n, "explicit", format!("planes: {n} (--planes)"))),
         PlanesArg::Weights => match weights {
+            Some(n) if !fits(n) => Err(refuse(n, "--planes weights")),
             Some(n) => Ok(simple(
                 n,
                 "weights",
@@ -195,6 +208,10 @@ pub fn choose_planes(
             };
             let mut count = auto.count;
             let mut limited_by = None;
+            let least = AUTO_PLANES_MIN.min(count);
+            if !fits(least) {
+                return Err(refuse(least, "the fewest --planes auto takes"));
+            }
             if !fits(count) {
                 // The largest count in [MIN, count) that fits (fitting is monotone in the count).
                 let (mut lo, mut hi) = (AUTO_PLANES_MIN, count);
@@ -225,6 +242,161 @@ pub fn choose_planes(
                 message,
             })
         }
+    }
+}
+
+/// `human(bytes)`: e.g. `1.5 GiB`, `12.0 MiB`.
+pub fn human(bytes: u64) -> String {
+    if bytes >= 1 << 30 {
+        gib(bytes)
+    } else {
+        format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64)
+    }
+}
+
+/// The smallest `--max-memory` value (whole MiB, rounded up) that is at least `bytes`.
+pub fn min_arg(bytes: u64) -> String {
+    format!("{}MiB", bytes.div_ceil(1 << 20).max(1))
+}
+
+/// Refuse work estimated at `need` bytes that does not fit `budget`, before anything is allocated; the
+/// message names the one `--max-memory` that does fit.
+pub fn check_memory(what: &str, need: u64, budget: u64) -> anyhow::Result<()> {
+    if need > budget {
+        bail!(
+            "{what} needs about {} of memory but the budget is {}: make it smaller or pass --max-memory {}",
+            human(need),
+            human(budget),
+            min_arg(need)
+        );
+    }
+    Ok(())
+}
+
+/// Worker threads (per-thread scratch in the estimates).
+fn threads() -> u64 {
+    rayon::current_num_threads().max(1) as u64
+}
+
+fn px(w: u32, h: u32) -> u64 {
+    w as u64 * h as u64
+}
+
+/// Bytes of an MPI of `planes` planes of `w x h` read as f32 premultiplied texels (layer decoding
+/// included), `u8`: as 8-bit texels.
+pub fn mpi_bytes(w: u32, h: u32, planes: usize, u8: bool) -> u64 {
+    let texel = if u8 { 4 } else { 16 };
+    px(w, h)
+        .saturating_mul(planes as u64)
+        .saturating_mul(texel)
+        .saturating_add(px(w, h).saturating_mul(20).saturating_mul(threads()))
+}
+
+/// Bytes of rendering one `w x h` image from an MPI (f32 accumulation, output conversion, PNG encoding).
+pub fn render_bytes(camera: &Camera) -> u64 {
+    px(camera.width, camera.height).saturating_mul(48)
+}
+
+/// Bytes of a camera path video's frames of `camera`'s size: each frame is streamed to the output, so a
+/// few frame buffers whatever the count, plus the cameras themselves.
+pub fn video_bytes(camera: &Camera, frames: usize) -> u64 {
+    px(camera.width, camera.height)
+        .saturating_mul(24)
+        .saturating_add((frames as u64).saturating_mul(std::mem::size_of::<Camera>() as u64))
+}
+
+/// Bytes of a depth map from an MPI into `camera` (depth, disparity, colour, 16-bit output).
+pub fn depth_bytes(camera: &Camera) -> u64 {
+    px(camera.width, camera.height).saturating_mul(40)
+}
+
+/// Bytes of `deepview synth`: every view's image (f32 RGB, held until written) and the ground-truth MPI in
+/// a reference camera up to twice the views' size on each side (f32 RGBA).
+pub fn synth_bytes(views: &[(u32, u32)], planes: usize) -> u64 {
+    let images: u64 = views
+        .iter()
+        .map(|&(w, h)| px(w, h).saturating_mul(12))
+        .fold(0, u64::saturating_add);
+    let largest = views.iter().map(|&(w, h)| px(w, h)).max().unwrap_or(0);
+    images.saturating_add(
+        largest
+            .saturating_mul(4)
+            .saturating_mul(planes as u64)
+            .saturating_mul(16),
+    )
+}
+
+/// Bytes of the plane sweep volume of `image` into `reference` with `planes` planes (f32 RGBA).
+pub fn psv_bytes(reference: &Camera, image: &Camera, planes: usize) -> u64 {
+    px(reference.width, reference.height)
+        .saturating_mul(planes as u64)
+        .saturating_mul(16)
+        .saturating_add(px(image.width, image.height).saturating_mul(16))
+}
+
+/// `--max-memory` as parsed by clap: `auto` or a positive size.
+pub fn parse_memory(s: &str) -> Result<String, String> {
+    if s.trim().eq_ignore_ascii_case("auto") {
+        return Ok(s.to_string());
+    }
+    super::infer::parse_bytes(s)
+        .map(|_| s.to_string())
+        .map_err(|e| e.to_string())
+}
+
+/// A list of view indices, `0,3,5`: numbers, at least one, no duplicates (checked against the scene's
+/// view count by [`ViewList::check`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ViewList(pub Vec<usize>);
+
+impl FromStr for ViewList {
+    type Err = String;
+    fn from_str(text: &str) -> Result<Self, String> {
+        let mut out = Vec::new();
+        for part in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
+            let i: usize = part
+                .parse()
+                .map_err(|_| format!("{part:?} is not a view index"))?;
+            if out.contains(&i) {
+                return Err(format!("view {i} is given twice in {text:?}"));
+            }
+            out.push(i);
+        }
+        if out.is_empty() {
+            return Err("no view indices given".into());
+        }
+        Ok(Self(out))
+    }
+}
+
+impl ViewList {
+    /// The indices, each checked against a scene of `views` views.
+    pub fn check(&self, views: usize) -> anyhow::Result<Vec<usize>> {
+        if let Some(&i) = self.0.iter().find(|&&i| i >= views) {
+            bail!(
+                "view index {i} out of range: the scene has {views} views (0..{})",
+                views.saturating_sub(1)
+            );
+        }
+        Ok(self.0.clone())
+    }
+}
+
+/// A count of at least one (`--repeats`, `--frames`, `--supersample`, ...).
+pub fn parse_positive(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!("{s:?} is not a positive whole number")),
+    }
+}
+
+/// A finite number above zero (`--fps`, `--radius`, `--lr`, ...).
+pub fn parse_positive_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(_) => Err(format!("{s:?} must be a finite number above 0")),
+        Err(_) => Err(format!("{s:?} is not a number")),
     }
 }
 
@@ -367,6 +539,7 @@ mod tests {
             (2.0, 50.0),
             Some(32),
             &mut |_| true,
+            &mut |_| 0,
         )
         .unwrap();
         assert_eq!(c.count, 49);
@@ -383,14 +556,16 @@ mod tests {
             (2.0, 50.0),
             None,
             &mut |n| n <= 20,
+            &mut |n| n as u64,
         )
         .unwrap();
         assert_eq!(
             (c.count, c.rule.limited_by.as_deref()),
             (20, Some("memory budget"))
         );
-        // Explicit counts and the weights' count win, whatever the memory.
-        let explicit = |arg| {
+        // Explicit counts and the weights' count are used as given when they fit, refused with the
+        // minimum budget when they do not.
+        let explicit = |arg, fit: usize| {
             choose_planes(
                 arg,
                 &reference,
@@ -398,12 +573,19 @@ mod tests {
                 &[3, 7],
                 (2.0, 50.0),
                 Some(32),
-                &mut |_| false,
+                &mut |n| n <= fit,
+                &mut |n| n as u64 * (1 << 20),
             )
         };
-        assert_eq!(explicit(PlanesArg::Count(5)).unwrap().count, 5);
-        assert_eq!(explicit(PlanesArg::Weights).unwrap().count, 32);
-        assert!(explicit(PlanesArg::Count(0)).is_err());
+        assert_eq!(explicit(PlanesArg::Count(5), 100).unwrap().count, 5);
+        assert_eq!(explicit(PlanesArg::Weights, 100).unwrap().count, 32);
+        assert!(explicit(PlanesArg::Count(0), 100).is_err());
+        let e = explicit(PlanesArg::Count(100000), 100)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("--max-memory 100000MiB"), "{e}");
+        let e = explicit(PlanesArg::Auto, 2).unwrap_err().to_string();
+        assert!(e.contains("--max-memory 8MiB"), "{e}");
         let no_weights = choose_planes(
             PlanesArg::Weights,
             &reference,
@@ -412,8 +594,16 @@ mod tests {
             (2.0, 50.0),
             None,
             &mut |_| true,
+            &mut |_| 0,
         );
         assert!(no_weights.is_err());
+        assert_eq!(min_arg((1 << 20) + 1), "2MiB");
+        assert!("1,2,1".parse::<ViewList>().is_err());
+        assert_eq!(
+            "3, 1".parse::<ViewList>().unwrap().check(4).unwrap(),
+            [3, 1]
+        );
+        assert!("3,4".parse::<ViewList>().unwrap().check(4).is_err());
     }
 
     #[test]

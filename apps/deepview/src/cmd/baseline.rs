@@ -1,8 +1,9 @@
 //! `deepview baseline`: the MPI of a classical baseline (no learning, no weights), written as an MPI folder
 //! that `render`, `view`, `depth` and `export` read.
 
-use super::args::{self, DataArg, PlanesArg};
-use super::{parse_indices, views_nearest_centroid};
+use super::args::{self, DataArg, PlanesArg, ViewList};
+use super::safety::{Kind, OutputDir, check_output};
+use super::views_nearest_centroid;
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
 use deepview_eval::Baseline;
@@ -39,11 +40,11 @@ pub struct Args {
     pub out: PathBuf,
     /// Input view indices, comma-separated. Default: the 4 views nearest the centroid of all camera centres.
     #[arg(long)]
-    pub inputs: Option<String>,
+    pub inputs: Option<ViewList>,
     /// psv-mean's planes (nearest always writes one plane). See `deepview infer --help`.
     #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
     pub planes: PlanesArg,
-    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
     pub max_memory: Option<String>,
     #[command(flatten)]
     pub scene: SceneArgs,
@@ -51,12 +52,14 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let data = args.data.path();
+    check_output("--out", &args.out, Kind::Mpi, &[("--data", data)])?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
     let scene = load_scene(data, &args.scene.load_options())
         .with_context(|| format!("cannot load scene {}", data.display()))?;
     let near_far = scene.near_far()?;
     let cameras = scene.cameras();
     let indices = match &args.inputs {
-        Some(text) => parse_indices(text, cameras.len())?,
+        Some(list) => list.check(cameras.len())?,
         None => views_nearest_centroid(&cameras, 4),
     };
     let load =
@@ -64,12 +67,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut rule = None;
     let (mpi, what) = match args.method {
         BaselineKind::PsvMean => {
-            let inputs = indices
-                .iter()
-                .map(|&i| load(i))
-                .collect::<anyhow::Result<Vec<_>>>()?;
             let cams: Vec<Camera> = indices.iter().map(|&i| cameras[i]).collect();
-            let budget = args::memory_budget(args.max_memory.as_deref())?;
             let c = super::eval::baseline_planes(
                 Baseline::PsvMean,
                 args.planes,
@@ -80,6 +78,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 0,
             )?;
             eprintln!("{}", c.message);
+            let inputs = indices
+                .iter()
+                .map(|&i| load(i))
+                .collect::<anyhow::Result<Vec<_>>>()?;
             let options = PsvMeanOptions {
                 planes: c.count,
                 ..Default::default()
@@ -91,6 +93,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         BaselineKind::Nearest => {
             let chosen: Vec<Camera> = indices.iter().map(|&i| cameras[i]).collect();
             let view = indices[views_nearest_centroid(&chosen, 1)[0]];
+            let c = &cameras[view];
+            args::check_memory(
+                "the nearest-view MPI",
+                args::mpi_bytes(c.width, c.height, 1, false).saturating_mul(2),
+                budget,
+            )?;
             let mpi = nearest_view_mpi(&load(view)?, near_far)?;
             let mut what = format!("nearest MPI of view {view} ({})", scene.views[view].name);
             if indices.len() > 1 {
@@ -99,8 +107,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             (mpi, what)
         }
     };
-    write_mpi_with(&args.out, &mpi, rule.as_ref())
+    let out = OutputDir::new(&args.out)?;
+    write_mpi_with(out.path(), &mpi, rule.as_ref())
         .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
+    out.commit()?;
     let (far, near) = (mpi.depths[0], mpi.depths[mpi.planes() - 1]);
     let planes = if mpi.planes() == 1 {
         format!(

@@ -1,5 +1,6 @@
 //! `deepview bench`: timings printed as one JSON line.
 
+use super::args;
 use anyhow::bail;
 use deepview_geometry::{Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths};
 use deepview_mpi::{MpiU8, Occupancy, read_mpi_u8, render_rgba8_with};
@@ -31,18 +32,18 @@ pub struct NetArgs {
     /// Architecture preset (random weights): cpu, paper-kalantari, paper-spaces-4view, ...
     #[arg(long, default_value = "cpu")]
     pub preset: String,
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = args::parse_positive)]
     pub views: usize,
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = args::parse_positive)]
     pub planes: usize,
     /// MPI size WIDTHxHEIGHT (the input views have the same size).
     #[arg(long, default_value = "575x412")]
     pub size: String,
     /// Memory budget of the tiled inference.
-    #[arg(long, default_value = "8GiB")]
+    #[arg(long, default_value = "8GiB", value_parser = args::parse_memory)]
     pub max_memory: String,
     /// Timed forward passes (after one warm-up pass).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, value_parser = args::parse_positive)]
     pub repeats: usize,
 }
 
@@ -54,15 +55,15 @@ pub struct NetArgs {
 pub struct TrainArgs {
     #[arg(long, default_value = "cpu")]
     pub preset: String,
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_parser = args::parse_positive)]
     pub views: usize,
-    #[arg(long, default_value_t = 32)]
+    #[arg(long, default_value_t = 32, value_parser = args::parse_positive)]
     pub planes: usize,
     /// Target crop side in pixels.
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 16, value_parser = args::parse_positive)]
     pub crop: usize,
     /// Timed steps (after 2 warm-up steps).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = 5, value_parser = args::parse_positive)]
     pub steps: usize,
     /// Recompute each net's activations in the backward pass (default: the preset's training default).
     #[arg(long)]
@@ -86,8 +87,10 @@ pub struct RenderArgs {
     #[arg(long)]
     pub camera: Option<PathBuf>,
     /// Timed renders (after 3 warm-up renders).
-    #[arg(long, default_value_t = 30)]
+    #[arg(long, default_value_t = 30, value_parser = args::parse_positive)]
     pub repeats: usize,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
@@ -161,8 +164,36 @@ fn process_cpu_seconds() -> Option<f64> {
 }
 
 fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
+    let camera_file = args
+        .camera
+        .as_deref()
+        .map(super::read_camera_json)
+        .transpose()?;
+    // The MPI's size, and the render's (the MPI's own size for the default novel view).
+    let check = |w: u32, h: u32, planes: usize| {
+        let cam = camera_file.unwrap_or(Camera::new(
+            w,
+            h,
+            Intrinsics::centred(w as f64, w, h),
+            Pose::IDENTITY,
+        ));
+        args::check_memory(
+            &format!(
+                "rendering {}x{} from a {planes}-plane {w}x{h} MPI",
+                cam.width, cam.height
+            ),
+            args::mpi_bytes(w, h, planes, true)
+                .saturating_add(args::render_bytes(&cam).saturating_mul(2)),
+            budget,
+        )
+    };
     let mpi = match (&args.mpi, &args.synthetic) {
-        (Some(dir), _) => read_mpi_u8(dir)?,
+        (Some(dir), _) => {
+            let (meta, _) = deepview_mpi::MpiMeta::read(dir)?;
+            check(meta.width, meta.height, meta.depths.len())?;
+            read_mpi_u8(dir)?
+        }
         (None, Some(spec)) => {
             let v: Vec<usize> = spec
                 .split('x')
@@ -176,13 +207,17 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
             if v.len() != 3 || v.contains(&0) {
                 bail!("--synthetic takes WIDTHxHEIGHTxPLANES with positive numbers (got {spec:?})");
             }
+            if v[0] > u32::MAX as usize || v[1] > u32::MAX as usize {
+                bail!("--synthetic {spec}: the size is too large");
+            }
+            check(v[0] as u32, v[1] as u32, v[2])?;
             synthetic_mpi(v[0] as u32, v[1] as u32, v[2])?
         }
         (None, None) => bail!("give --mpi DIR or --synthetic WxHxD"),
     };
     let near = *mpi.depths.last().expect("an MPI has planes");
-    let camera = match &args.camera {
-        Some(p) => super::read_camera_json(p)?,
+    let camera = match camera_file {
+        Some(c) => c,
         None => novel_view(&mpi.camera, near),
     };
     // The occupancy of the planes' tiles is computed once per MPI (as a viewer does), not per frame.
@@ -271,7 +306,16 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
         }
     };
     let budget = super::infer::parse_bytes(&args.max_memory)?;
+    let px = (w as u64).saturating_mul(h as u64);
+    args::check_memory(
+        &format!("{} synthetic {w}x{h} views", args.views),
+        px.saturating_mul(12)
+            .saturating_mul(args.views as u64 + 1)
+            .saturating_add(px.saturating_mul(args.planes as u64).saturating_mul(8)),
+        budget,
+    )?;
     let (views, reference, depths) = synthetic_views(args.views, args.planes, w, h);
+    super::eval::check_learned(&model, &views, &reference, &depths, budget)?;
     let mut times = Vec::new();
     for i in 0..=args.repeats.max(1) {
         let t = Instant::now();

@@ -31,7 +31,7 @@ pub struct Args {
     /// MPI planes of every method (see `deepview infer --help`).
     #[arg(long, default_value = "auto", help = super::args::PLANES_HELP)]
     pub planes: PlanesArg,
-    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP)]
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
     pub max_memory: Option<String>,
 }
 
@@ -40,11 +40,17 @@ const TARGETS: &str = "5,10";
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let out = &args.out;
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
     let weights = match &args.weights {
         Some(w) => w.clone(),
         None => super::infer::default_weights()?,
     };
+    super::safety::check_output(
+        "--out",
+        out,
+        super::safety::Kind::Demo,
+        &[("--weights", &weights)],
+    )?;
+    let created = super::safety::CreatedDirs::create(out)?;
     let budget = super::args::memory_budget(args.max_memory.as_deref())?;
     let mut learned = LearnedMethod::load(&weights, args.planes, budget).with_context(
         || "the demo needs the shipped weights (weights/cpu in the repository) or --weights DIR",
@@ -56,8 +62,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "[1/5] synthesising a scene with ground truth in {}",
         scene_dir.display()
     );
+    let scene_tmp = super::safety::OutputDir::new(&scene_dir)?;
     let synth = synthesize(
-        &scene_dir,
+        scene_tmp.path(),
         &SynthOptions {
             rig: Rig::Grid {
                 side: 4,
@@ -70,6 +77,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             supersample: 2,
         },
     )?;
+    scene_tmp.commit()?;
+    created.keep();
     let scene = load_scene(&scene_dir, &LoadOptions::default())?;
     let near_far = synth.near_far;
     let inputs: Vec<usize> = INPUTS
@@ -94,7 +103,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mpi = learned.mpi(&views, near_far)?.clone();
     let infer_seconds = started.elapsed().as_secs_f64();
     let mpi_dir = out.join("mpi");
-    deepview_mpi::write_mpi_with(&mpi_dir, &mpi, learned.last_choice().map(|c| &c.rule))?;
+    let mpi_tmp = super::safety::OutputDir::new(&mpi_dir)?;
+    deepview_mpi::write_mpi_with(mpi_tmp.path(), &mpi, learned.last_choice().map(|c| &c.rule))?;
+    mpi_tmp.commit()?;
 
     // 3. Novel views (the inner, held-out cameras) beside their ground truth, depth, a camera path.
     eprintln!("[3/5] rendering novel views, a depth map and a spiral animation");

@@ -1,7 +1,9 @@
 //! `deepview depth`: expected depth through the alpha, as a false-colour image and a 16-bit disparity PNG.
 
 use super::CameraSource;
-use deepview_mpi::{depth_maps, read_mpi};
+use super::args;
+use super::safety::{CreatedDirs, Input, Kind, check_output, parse_component};
+use deepview_mpi::{MpiMeta, depth_maps, read_mpi};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -19,16 +21,47 @@ pub struct Args {
     /// Output folder.
     #[arg(long)]
     pub out: PathBuf,
-    /// File name prefix.
-    #[arg(long, default_value = "depth")]
+    /// File name prefix (a plain name: the files go into --out).
+    #[arg(long, default_value = "depth", value_parser = parse_component)]
     pub prefix: String,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let mut inputs: Vec<Input> = vec![("--mpi", args.mpi.as_path())];
+    if let Some(c) = &args.source.camera {
+        inputs.push(("--camera", c));
+    }
+    if let Some(d) = &args.source.scene_dir {
+        inputs.push(("--data", d));
+    }
+    check_output("--out", &args.out, Kind::Files, &inputs)?;
+    for suffix in ["color", "disparity16"] {
+        let file = args.out.join(format!("{}_{suffix}.png", args.prefix));
+        check_output("--out", &file, Kind::File, &inputs)?;
+    }
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
+    let (meta, reference) = MpiMeta::read(&args.mpi)?;
+    let camera = args.source.camera()?.unwrap_or(reference);
+    args::check_memory(
+        &format!(
+            "a {}x{} depth map from a {}-plane {}x{} MPI",
+            camera.width,
+            camera.height,
+            meta.depths.len(),
+            meta.width,
+            meta.height
+        ),
+        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), false)
+            .saturating_add(args::depth_bytes(&camera)),
+        budget,
+    )?;
     let mpi = read_mpi(&args.mpi)?;
-    let camera = args.source.camera()?.unwrap_or(mpi.camera);
     let maps = depth_maps(&mpi, &camera);
+    let dirs = CreatedDirs::create(&args.out)?;
     maps.write(&args.out, &args.prefix)?;
+    dirs.keep();
     println!(
         "wrote {0}/{1}_color.png and {0}/{1}_disparity16.png (disparity 0 = depth {2:.4}, 65535 = depth {3:.4})",
         args.out.display(),

@@ -43,19 +43,19 @@ pub struct Args {
     /// `auto`). See `deepview infer --help`.
     #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
     pub planes: PlanesArg,
-    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
     pub max_memory: Option<String>,
     /// Colour variance treated as disagreement, s in exp(-variance / s) (psv-mean).
     #[arg(long, default_value_t = PsvMeanOptions::default().temperature)]
     pub temperature: f64,
     /// Adam steps (optimize).
-    #[arg(long, default_value_t = 300)]
+    #[arg(long, default_value_t = 300, value_parser = args::parse_positive)]
     pub steps: usize,
     /// Adam learning rate on the RGBA logits (optimize).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = 0.1, value_parser = args::parse_positive_f64)]
     pub lr: f64,
     /// Working width of the optimisation (optimize).
-    #[arg(long, default_value_t = 160)]
+    #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(1..))]
     pub max_width: u32,
     /// Trained weights for --method deepview: a weights folder or a training checkpoint folder
     /// (default: the shipped weights/cpu).
@@ -148,16 +148,19 @@ impl LearnedMethod {
                 .map(|(img, cam)| (img.to_rgb(), *cam))
                 .collect();
             let (model, budget) = (&self.model, self.budget);
-            let mut fits = |count: usize| {
-                plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth).is_ok_and(
-                    |depths| {
-                        deepview_net::infer::plan_inference(
-                            model, &views, &reference, &depths, budget,
-                        )
-                        .is_ok()
-                    },
-                )
-            };
+            precheck_planes(
+                model,
+                &views,
+                &reference,
+                self.planes,
+                self.config.infer_planes,
+                budget,
+            )
+            .map_err(|e| fail(&e))?;
+            let mut fits =
+                |count: usize| learned_fits(model, &views, &reference, near_far, count, budget);
+            let mut minimum =
+                |count: usize| learned_minimum(model, &views, &reference, near_far, count);
             let choice = args::choose_planes(
                 self.planes,
                 &reference,
@@ -166,6 +169,7 @@ impl LearnedMethod {
                 near_far,
                 Some(self.config.infer_planes),
                 &mut fits,
+                &mut minimum,
             )
             .map_err(|e| fail(&e))?;
             announce(&mut self.last_message, &choice);
@@ -188,6 +192,160 @@ impl LearnedMethod {
         }
         Ok(&self.cache.as_ref().expect("just filled").2)
     }
+}
+
+/// A quick lower bound of the inference's memory for `planes` planes (the MPI state at half precision,
+/// twice when there are several nets, and the input images): larger counts are refused without planning.
+pub fn learned_lower_bound(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    planes: usize,
+) -> u64 {
+    let store = (reference.width as u64 * reference.height as u64)
+        .saturating_mul(planes as u64)
+        .saturating_mul(model.state_channels as u64)
+        .saturating_mul(2);
+    let stores = if model.nets.len() > 1 { 2 } else { 1 };
+    let images: u64 = views
+        .iter()
+        .map(|(i, _)| 24 * i.width as u64 * i.height as u64)
+        .sum();
+    store.saturating_mul(stores).saturating_add(images)
+}
+
+/// The smallest memory budget the tiled inference of `depths` plans within: from below, each refusal of
+/// the planner names what its net needs, until a plan fits.
+pub fn learned_minimum_depths(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    depths: &[f64],
+) -> u64 {
+    use deepview_net::infer::{InferError, plan_inference};
+    let mut b = learned_lower_bound(model, views, reference, depths.len()).max(1);
+    for _ in 0..64 {
+        match plan_inference(model, views, reference, depths, b) {
+            Ok(_) => return b,
+            Err(InferError::BudgetTooSmall {
+                fixed, min_tile, ..
+            }) => {
+                let need = fixed.saturating_add(min_tile);
+                b = if need > b { need } else { b + b / 32 + 1 };
+            }
+            Err(_) => return b,
+        }
+    }
+    b
+}
+
+/// [`learned_minimum_depths`] for `count` planes between `near_far`.
+pub fn learned_minimum(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    near_far: (f64, f64),
+    count: usize,
+) -> u64 {
+    use deepview_geometry::{PlaneSpacing, plane_depths};
+    match plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth) {
+        Ok(depths) => learned_minimum_depths(model, views, reference, &depths),
+        Err(_) => 0,
+    }
+}
+
+/// Whether `count` planes fit `budget`: the quick lower bound first, then the planner.
+pub fn learned_fits(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    near_far: (f64, f64),
+    count: usize,
+    budget: u64,
+) -> bool {
+    use deepview_geometry::{PlaneSpacing, plane_depths};
+    learned_lower_bound(model, views, reference, count) <= budget
+        && plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth).is_ok_and(|d| {
+            deepview_net::infer::plan_inference(model, views, reference, &d, budget).is_ok()
+        })
+}
+
+/// Refuse at once an explicit plane count (`--planes N` or `weights`) whose quick lower bound is far over
+/// the budget (planning so many planes would itself take long).
+pub fn precheck_planes(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    arg: PlanesArg,
+    weights_planes: usize,
+    budget: u64,
+) -> anyhow::Result<()> {
+    let n = match arg {
+        PlanesArg::Count(n) => n,
+        PlanesArg::Weights => weights_planes,
+        PlanesArg::Auto => return Ok(()),
+    };
+    if learned_lower_bound(model, views, reference, n) > budget {
+        too_many_planes(model, views, reference, n, budget, &mut |_| 0)?;
+    }
+    Ok(())
+}
+
+/// Refuse an inference that cannot be planned within `budget`, naming the smallest budget that can.
+pub fn check_learned(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    depths: &[f64],
+    budget: u64,
+) -> anyhow::Result<()> {
+    let lower = learned_lower_bound(model, views, reference, depths.len());
+    if lower <= budget
+        && deepview_net::infer::plan_inference(model, views, reference, depths, budget).is_ok()
+    {
+        return Ok(());
+    }
+    too_many_planes(model, views, reference, depths.len(), budget, &mut |_| {
+        learned_minimum_depths(model, views, reference, depths)
+    })
+}
+
+/// The refusal of `planes` planes that do not fit `budget`. When even the quick lower bound is far over
+/// the budget (planning itself would take long), the message names the largest plane count that fits
+/// instead of a budget; otherwise the exact smallest `--max-memory`.
+pub fn too_many_planes(
+    model: &deepview_net::network::DeepViewModel,
+    views: &[(deepview_image::ImageF32, deepview_geometry::Camera)],
+    reference: &deepview_geometry::Camera,
+    planes: usize,
+    budget: u64,
+    minimum: &mut dyn FnMut(usize) -> u64,
+) -> anyhow::Result<()> {
+    let what = format!(
+        "inferring {planes} planes of {}x{}",
+        reference.width, reference.height
+    );
+    let lower = learned_lower_bound(model, views, reference, planes);
+    if lower > budget {
+        // The most planes whose lower bound fits (the plan may need a little more).
+        let (mut lo, mut hi) = (0usize, planes);
+        while lo + 1 < hi {
+            let mid = lo + (hi - lo) / 2;
+            if learned_lower_bound(model, views, reference, mid) <= budget {
+                lo = mid
+            } else {
+                hi = mid
+            }
+        }
+        anyhow::bail!(
+            "{what} needs more than {} of memory (the MPI state alone) but the budget is {}: use fewer than \
+             {} planes (--planes), smaller images (--downscale) or far more --max-memory",
+            args::human(lower),
+            args::human(budget),
+            lo + 1
+        );
+    }
+    args::check_memory(&what, minimum(planes).max(budget + 1), budget)
 }
 
 /// A baseline whose plane count follows `--planes` per input set, by the same rule as the learned model
@@ -236,7 +394,17 @@ pub fn baseline_planes(
         _ => args::psv_mean_bytes(&reference, cams),
     };
     let mut fits = args::fits_estimate(fixed, per_plane, budget);
-    args::choose_planes(planes, &reference, cams, ids, near_far, None, &mut fits)
+    let mut minimum = |n: usize| fixed.saturating_add(per_plane.saturating_mul(n as u64));
+    args::choose_planes(
+        planes,
+        &reference,
+        cams,
+        ids,
+        near_far,
+        None,
+        &mut fits,
+        &mut minimum,
+    )
 }
 
 impl Method for PlannedBaseline {
@@ -295,6 +463,25 @@ fn weights_of(args: &Args) -> anyhow::Result<PathBuf> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    let weights = args.weights.clone().unwrap_or_default();
+    let mut inputs: Vec<super::safety::Input> = vec![("--data", args.data.as_path())];
+    if args.weights.is_some() {
+        inputs.push(("--weights", &weights));
+    }
+    if let Some(out) = &args.out {
+        super::safety::check_output("--out", out, super::safety::Kind::File, &inputs)?;
+    }
+    if let Some(dir) = &args.save_renders {
+        super::safety::check_output("--save-renders", dir, super::safety::Kind::Files, &inputs)?;
+    }
+    if let (Some(a), Some(b)) = (&args.out, &args.save_renders) {
+        super::safety::check_output(
+            "--out",
+            a,
+            super::safety::Kind::File,
+            &[("--save-renders", b)],
+        )?;
+    }
     // The runner downscales (and scales the protocol's crops with it), so the scene loads at full size.
     let load = deepview_data::LoadOptions {
         downscale: 1,
@@ -348,10 +535,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         verbose: true,
     };
+    let renders = args
+        .save_renders
+        .as_deref()
+        .map(super::safety::CreatedDirs::create)
+        .transpose()?;
     let report = evaluate(&scene, &protocol, method.as_mut(), &options)?;
+    if let Some(r) = renders {
+        r.keep();
+    }
     print!("{}", report.table());
     if let Some(out) = &args.out {
-        report.write_json(out)?;
+        super::safety::write_file(out, |out| Ok(report.write_json(out)?))?;
         println!("wrote {}", out.display());
     }
     Ok(())

@@ -1,6 +1,7 @@
 //! `deepview export --mpi MPI_DIR --out OUT --format llff|stereo-mag|compact`: write an MPI in another tool's format.
 
 use super::args::{MpiArg, OutArg};
+use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_media::ExportFormat;
 
@@ -23,8 +24,11 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let format: ExportFormat = args.format.parse()?;
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
-    let report = deepview_media::export(mpi_dir, out, format)
+    check_output("--out", out, Kind::Export, &[("--mpi", mpi_dir)])?;
+    let dir = OutputDir::new(out)?;
+    let report = deepview_media::export(mpi_dir, dir.path(), format)
         .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;
+    dir.commit()?;
     for w in &report.warnings {
         eprintln!("warning: {w}");
     }

@@ -1,6 +1,7 @@
 //! `deepview export-web --mpi MPI_DIR --out OUT`: the viewer page and the MPI's files as a static folder.
 
 use super::args::{MpiArg, OutArg};
+use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 
 #[derive(clap::Args)]
@@ -17,13 +18,16 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
-    let files = deepview_viewer::export_web(mpi_dir, out)
+    check_output("--out", out, Kind::Web, &[("--mpi", mpi_dir)])?;
+    let dir = OutputDir::new(out)?;
+    let files = deepview_viewer::export_web(mpi_dir, dir.path())
         .with_context(|| format!("cannot export the web viewer for {}", mpi_dir.display()))?;
     let bytes: u64 = files
         .iter()
         .filter_map(|f| std::fs::metadata(f).ok())
         .map(|m| m.len())
         .sum();
+    dir.commit()?;
     println!(
         "wrote {} files ({:.1} MB) to {}",
         files.len(),

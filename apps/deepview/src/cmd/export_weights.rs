@@ -1,5 +1,6 @@
 //! `deepview export-weights`: turn a training checkpoint into a weights folder for `infer`, `eval`, `demo`.
 
+use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use std::path::PathBuf;
 
@@ -31,6 +32,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .checkpoint
         .or(args.checkpoint_positional)
         .expect("clap requires --checkpoint");
+    check_output(
+        "--out",
+        &args.out,
+        Kind::Weights,
+        &[("--checkpoint", &given)],
+    )?;
     let ck = if given.join("checkpoints").is_dir() {
         deepview_net::train::list_checkpoints(&given)?
             .pop()
@@ -39,8 +46,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         given.clone()
     };
-    let config = deepview_net::weights::export_checkpoint(&ck, &args.out)
+    let dir = OutputDir::new(&args.out)?;
+    let config = deepview_net::weights::export_checkpoint(&ck, dir.path())
         .with_context(|| format!("cannot export {}", ck.display()))?;
+    dir.commit()?;
     eprintln!(
         "exported {} ({} preset) to {}",
         ck.display(),

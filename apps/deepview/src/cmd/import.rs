@@ -1,6 +1,7 @@
 //! `deepview import --mpi IN --out OUT_MPI_DIR`: read an MPI in any supported format (detected) into our folder format.
 
 use super::args::{MpiArg, OutArg};
+use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_media::interchange::ImportOptions;
 
@@ -29,8 +30,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         near_far: args.near.zip(args.far),
     };
     let (input, out) = (args.mpi.path(), args.out.path());
-    let format = deepview_media::import(input, out, &opts)
+    check_output("--out", out, Kind::Mpi, &[("--mpi", input)])?;
+    let dir = OutputDir::new(out)?;
+    let format = deepview_media::import(input, dir.path(), &opts)
         .with_context(|| format!("cannot import {}", input.display()))?;
+    dir.commit()?;
     println!(
         "imported {} ({format:?}) into {}",
         input.display(),

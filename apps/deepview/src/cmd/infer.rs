@@ -1,10 +1,11 @@
 //! `deepview infer`: an MPI from a few posed views with the learned network (tiled, bounded memory).
 
-use super::args::{self, DataArg, PlanesArg};
+use super::args::{self, DataArg, PlanesArg, ViewList};
+use super::safety::{Kind, OutputDir, check_output};
 use anyhow::{Context, bail};
 use deepview_data::{SceneArgs, load_scene};
 use deepview_geometry::{PlaneSpacing, plane_depths};
-use deepview_net::infer::{infer_mpi, plan_inference};
+use deepview_net::infer::infer_mpi;
 use deepview_net::weights::{check_views, load_model};
 use std::path::PathBuf;
 
@@ -79,14 +80,14 @@ pub struct Args {
     /// Input view indices, comma-separated. Default: the views nearest the centroid of all camera centres
     /// (as many as the weights need; 4 for weights that take any number).
     #[arg(long)]
-    pub inputs: Option<String>,
+    pub inputs: Option<ViewList>,
     #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
     pub planes: PlanesArg,
     /// Weights folder (config.json + model.safetensors) or a training checkpoint folder
     /// (runs/<name>/checkpoints/step-N). Default: the shipped weights/cpu.
     #[arg(long, visible_alias = "checkpoint")]
     pub weights: Option<PathBuf>,
-    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP)]
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
     pub max_memory: Option<String>,
     /// Output MPI folder.
     #[arg(long)]
@@ -134,16 +135,22 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             deepview_net::weights::WEIGHTS_FILE
         );
     }
+    let data = args.data.path();
+    check_output(
+        "--out",
+        &args.out,
+        Kind::Mpi,
+        &[("--data", data), ("--weights", &weights)],
+    )?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;
     let device = deepview_net::burn::tensor::Device::flex();
     let (model, config) = load_model(&weights, &device)
         .with_context(|| format!("cannot load weights from {}", weights.display()))?;
-    let data = args.data.path();
     let scene = load_scene(data, &args.scene.load_options())
         .with_context(|| format!("cannot load scene {}", data.display()))?;
     let n = scene.views.len();
     let inputs = match &args.inputs {
-        Some(text) => super::parse_indices(text, n)?,
+        Some(list) => list.check(n)?,
         None => super::views_nearest_centroid(&scene.cameras(), config.views.unwrap_or(4)),
     };
     check_views(&config, inputs.len())?;
@@ -155,10 +162,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .map(|&i| Ok((scene.load_image(i)?.to_rgb(), scene.views[i].camera)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     // `auto` takes the largest count up to the rule's that the inference can plan within the budget.
+    super::eval::precheck_planes(
+        &model,
+        &views,
+        &reference,
+        args.planes,
+        config.infer_planes,
+        budget,
+    )?;
     let mut fits = |count: usize| {
-        plane_depths(near, far, count, PlaneSpacing::InverseDepth)
-            .is_ok_and(|depths| plan_inference(&model, &views, &reference, &depths, budget).is_ok())
+        super::eval::learned_fits(&model, &views, &reference, (near, far), count, budget)
     };
+    let mut minimum =
+        |count: usize| super::eval::learned_minimum(&model, &views, &reference, (near, far), count);
     let choice = args::choose_planes(
         args.planes,
         &reference,
@@ -167,6 +183,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (near, far),
         Some(config.infer_planes),
         &mut fits,
+        &mut minimum,
     )?;
     eprintln!("{}", choice.message);
     let depths = plane_depths(near, far, choice.count, PlaneSpacing::InverseDepth)?;
@@ -179,6 +196,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         weights.display(),
         config.name
     );
+    super::eval::check_learned(&model, &views, &reference, &depths, budget)?;
     let bar = indicatif::ProgressBar::new(1);
     bar.set_style(
         indicatif::ProgressStyle::with_template(
@@ -192,8 +210,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bar.set_message(format!("net {}", p.net));
     })?;
     bar.finish();
-    deepview_mpi::write_mpi_with(&args.out, &mpi, Some(&choice.rule))
+    let out = OutputDir::new(&args.out)?;
+    deepview_mpi::write_mpi_with(out.path(), &mpi, Some(&choice.rule))
         .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
+    out.commit()?;
     println!(
         "wrote {} ({} planes, {}x{})",
         args.out.display(),

@@ -92,7 +92,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "image_problem": image_problem,
             "cameras": cameras,
         });
-        return emit(&(serde_json::to_string_pretty(&summary)? + "\n"));
+        emit(&(serde_json::to_string_pretty(&summary)? + "\n"))?;
+        return problem_exit(data, image_problem);
     }
     let mut out = String::new();
     writeln!(out, "scene        {}", scene.root.display())?;
@@ -137,7 +138,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             c.z + 0.0
         )?;
     }
-    emit(&out)
+    emit(&out)?;
+    problem_exit(data, image_problem)
+}
+
+/// After the report: a problem it showed makes the command fail (exit 2).
+fn problem_exit(data: &std::path::Path, problem: Option<String>) -> anyhow::Result<()> {
+    match problem {
+        None => Ok(()),
+        Some(p) => anyhow::bail!("{} has a problem: {p}", data.display()),
+    }
 }
 
 /// Print `text`; a closed pipe (`| head`) is not an error.

@@ -16,11 +16,13 @@ pub mod optimize;
 pub mod process;
 pub mod psv;
 pub mod render;
+pub mod safety;
+pub mod signals;
 pub mod synth;
 pub mod train;
 pub mod view;
 
-use anyhow::{Context, bail};
+use anyhow::Context;
 use deepview_geometry::{Camera, CameraJson};
 use std::path::Path;
 
@@ -34,25 +36,11 @@ pub fn read_camera_json(path: &Path) -> anyhow::Result<Camera> {
         .with_context(|| format!("invalid camera in {}", path.display()))
 }
 
-/// Parse a comma-separated list of view indices, checking them against the view count.
+/// Parse a comma-separated list of view indices (no duplicates), checking them against the view count.
 pub fn parse_indices(text: &str, views: usize) -> anyhow::Result<Vec<usize>> {
-    let mut out = Vec::new();
-    for part in text.split(',').map(str::trim).filter(|s| !s.is_empty()) {
-        let i: usize = part
-            .parse()
-            .with_context(|| format!("{part:?} is not a view index"))?;
-        if i >= views {
-            bail!(
-                "view index {i} out of range: the scene has {views} views (0..{})",
-                views.saturating_sub(1)
-            );
-        }
-        out.push(i);
-    }
-    if out.is_empty() {
-        bail!("no view indices given");
-    }
-    Ok(out)
+    text.parse::<args::ViewList>()
+        .map_err(anyhow::Error::msg)?
+        .check(views)
 }
 
 /// The indices (ascending) of the `count` cameras whose centres are nearest the centroid of all the cameras'

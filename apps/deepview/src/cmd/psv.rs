@@ -1,6 +1,7 @@
 //! `deepview psv`: the plane sweep volume of one view, written as RGBA images (alpha = validity).
 
 use super::args::{self, DataArg, PlanesArg};
+use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
 use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
@@ -28,12 +29,16 @@ pub struct Args {
     /// Output folder for psv_NNN.png (far plane first).
     #[arg(long)]
     pub out: PathBuf,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
+    pub max_memory: Option<String>,
     #[command(flatten)]
     pub scene: SceneArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let data = args.data.path();
+    check_output("--out", &args.out, Kind::Psv, &[("--data", data)])?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
     let scene = load_scene(data, &args.scene.load_options())
         .with_context(|| format!("cannot load scene {}", data.display()))?;
     let n = scene.views.len();
@@ -56,7 +61,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &[args.view],
         (near, far),
         None,
-        &mut |_| true,
+        &mut |n| args::psv_bytes(&reference, &view_camera, n) <= budget,
+        &mut |n| args::psv_bytes(&reference, &view_camera, n),
     )?;
     if args.planes == PlanesArg::Auto {
         eprintln!("{}", choice.message);
@@ -64,8 +70,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let depths = plane_depths(near, far, choice.count, PlaneSpacing::InverseDepth)?;
     let image = scene.load_image(args.view)?;
     let psv = plane_sweep(&image, &scene.views[args.view].camera, &reference, &depths);
-    std::fs::create_dir_all(&args.out)
-        .with_context(|| format!("cannot create {}", args.out.display()))?;
+    let out = OutputDir::new(&args.out)?;
     for d in 0..depths.len() {
         let plane = psv.plane(d);
         let img = deepview_image::ImageF32 {
@@ -74,13 +79,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             channels: 4,
             data: plane.to_vec(),
         };
-        deepview_image::write_png(&args.out.join(format!("psv_{d:03}.png")), &img)?;
+        deepview_image::write_png(&out.path().join(format!("psv_{d:03}.png")), &img)?;
     }
     let meta = serde_json::json!({ "view": args.view, "depths": depths, "width": psv.width, "height": psv.height });
     deepview_image::write_atomic(
-        &args.out.join("psv.json"),
+        &out.path().join("psv.json"),
         serde_json::to_string_pretty(&meta)?.as_bytes(),
     )?;
+    out.commit()?;
     println!(
         "wrote {} planes ({}x{}) to {}",
         depths.len(),

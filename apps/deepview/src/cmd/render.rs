@@ -1,10 +1,13 @@
 //! `deepview render`: an MPI seen from a camera (JSON file or a dataset's view).
 
 use super::CameraSource;
-use anyhow::Context;
-use deepview_image::{ImageF32, write_png};
-use deepview_mpi::{read_mpi, render};
-use std::path::PathBuf;
+use super::args;
+use super::safety::{ImageFormat, Input, Kind, OutputDir, check_output, write_file};
+use anyhow::bail;
+use deepview_image::ImageF32;
+use deepview_media::VideoFormat;
+use deepview_mpi::{MpiMeta, read_mpi, render};
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
 #[command(
@@ -26,22 +29,55 @@ pub struct Args {
     /// A nerfstudio camera_path.json (render_width, render_height, seconds, camera_path[{camera_to_world, fov}]).
     #[arg(long, conflicts_with_all = ["camera", "scene_dir"])]
     pub camera_path: Option<PathBuf>,
-    /// Frames of a --path.
-    #[arg(long, default_value_t = 60)]
+    /// Frames of a --path (streamed to the output one by one).
+    #[arg(long, default_value_t = 60, value_parser = args::parse_positive)]
     pub frames: usize,
     /// Radius of a --path as a fraction of the MPI's nearest plane depth.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.05, value_parser = args::parse_positive_f64)]
     pub radius: f64,
     /// Frames per second of a --path video (a --camera-path uses its own `seconds`).
-    #[arg(long, default_value_t = 30.0)]
+    #[arg(long, default_value_t = 30.0, value_parser = args::parse_positive_f64)]
     pub fps: f64,
-    /// Output: an image (PNG) for one camera; for a path: a .gif, a .mp4 (needs ffmpeg on the PATH) or a
-    /// folder of PNG frames. Images are RGB composited over black, or RGBA with --alpha.
+    /// Output: an image for one camera (.png, or .jpg/.jpeg: the format follows the name); for a path: a
+    /// .gif, a .mp4/.mov/.mkv (needs ffmpeg on the PATH) or a folder (no extension) of PNG frames. Images
+    /// are RGB composited over black, or RGBA with --alpha (PNG only).
     #[arg(long)]
     pub out: PathBuf,
     /// Keep the accumulated alpha (straight-alpha RGBA PNG).
     #[arg(long)]
     pub alpha: bool,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
+    pub max_memory: Option<String>,
+}
+
+impl Args {
+    fn inputs(&self) -> Vec<Input<'_>> {
+        let mut v: Vec<Input> = vec![("--mpi", self.mpi.as_path())];
+        if let Some(c) = &self.source.camera {
+            v.push(("--camera", c));
+        }
+        if let Some(d) = &self.source.scene_dir {
+            v.push(("--data", d));
+        }
+        if let Some(c) = &self.camera_path {
+            v.push(("--camera-path", c));
+        }
+        v
+    }
+}
+
+/// The kind of a video output: a file named .gif/.mp4/.mov/.mkv, or a folder of frames (no extension).
+fn video_kind(out: &Path) -> anyhow::Result<Kind> {
+    if VideoFormat::from_path(out) != VideoFormat::PngFrames {
+        return Ok(Kind::File);
+    }
+    if out.extension().is_some() && !out.is_dir() {
+        bail!(
+            "--out {}: unknown video format (use .gif, .mp4, .mov, .mkv, or a folder name for PNG frames)",
+            out.display()
+        );
+    }
+    Ok(Kind::Frames)
 }
 
 /// Premultiplied RGBA render -> RGB over black, or straight RGBA.
@@ -61,9 +97,37 @@ pub fn to_output(img: &ImageF32, alpha: bool) -> ImageF32 {
 }
 
 fn run_path(args: &Args) -> anyhow::Result<()> {
+    let kind = video_kind(&args.out)?;
+    check_output("--out", &args.out, kind, &args.inputs())?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
+    let (meta, reference) = MpiMeta::read(&args.mpi)?;
+    let file = args
+        .camera_path
+        .as_deref()
+        .map(deepview_media::read_camera_path)
+        .transpose()?;
+    let (frame, frames) = match &file {
+        Some(p) => (
+            p.cameras.first().copied().unwrap_or(reference),
+            p.cameras.len(),
+        ),
+        None => (reference, args.frames),
+    };
+    args::check_memory(
+        &format!(
+            "{frames} frames of {}x{} from a {}-plane {}x{} MPI",
+            frame.width,
+            frame.height,
+            meta.depths.len(),
+            meta.width,
+            meta.height
+        ),
+        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), true)
+            .saturating_add(args::video_bytes(&frame, frames)),
+        budget,
+    )?;
     let mpi = deepview_mpi::read_mpi_u8(&args.mpi)?;
-    let (cameras, fps) = if let Some(file) = &args.camera_path {
-        let path = deepview_media::read_camera_path(file)?;
+    let (cameras, fps) = if let Some(path) = file {
         let fps = path.fps();
         (path.cameras, fps)
     } else {
@@ -79,10 +143,31 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
             args.fps,
         )
     };
-    let report = deepview_media::render_video(&mpi, &cameras, &args.out, fps, true)?;
+    let report = if kind == Kind::Frames {
+        let out = OutputDir::new(&args.out)?;
+        let r = deepview_media::render_video(&mpi, &cameras, out.path(), fps, true)?;
+        out.commit()?;
+        r
+    } else {
+        // The MP4 sink's temporary (`.NAME.PID.tmp.EXT`), removed by a signal like GIF's.
+        let ext = args
+            .out
+            .extension()
+            .and_then(|e| e.to_str())
+            .unwrap_or("mp4");
+        let mp4_tmp = deepview_image::temp_path(&args.out).with_extension(format!("tmp.{ext}"));
+        super::signals::register(&mp4_tmp);
+        let r = write_file(&args.out, |out| {
+            Ok(deepview_media::render_video(
+                &mpi, &cameras, out, fps, true,
+            )?)
+        });
+        super::signals::unregister(&mp4_tmp);
+        r?
+    };
     println!(
         "wrote {} ({} frames, {:.1} frames/s rendering)",
-        report.path.display(),
+        args.out.display(),
         report.frames,
         report.frames as f64 / report.seconds_rendering.max(1e-9)
     );
@@ -93,13 +178,35 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.path.is_some() || args.camera_path.is_some() {
         return run_path(&args);
     }
-    let mpi = read_mpi(&args.mpi)?;
-    let camera = args.source.camera()?.unwrap_or(mpi.camera);
-    let img = render(&mpi, &camera);
-    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+    check_output("--out", &args.out, Kind::File, &args.inputs())?;
+    let format = ImageFormat::of("--out", &args.out)?;
+    if args.alpha && format == ImageFormat::Jpeg {
+        bail!(
+            "--alpha needs a PNG output (JPEG has no alpha): --out {}",
+            args.out.display()
+        );
     }
-    write_png(&args.out, &to_output(&img, args.alpha))?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
+    let (meta, reference) = MpiMeta::read(&args.mpi)?;
+    let camera = args.source.camera()?.unwrap_or(reference);
+    args::check_memory(
+        &format!(
+            "rendering a {}x{} image from a {}-plane {}x{} MPI",
+            camera.width,
+            camera.height,
+            meta.depths.len(),
+            meta.width,
+            meta.height
+        ),
+        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), false)
+            .saturating_add(args::render_bytes(&camera)),
+        budget,
+    )?;
+    let mpi = read_mpi(&args.mpi)?;
+    let img = render(&mpi, &camera);
+    write_file(&args.out, |out| {
+        format.write(out, &to_output(&img, args.alpha))
+    })?;
     println!(
         "wrote {} ({}x{}, {} planes)",
         args.out.display(),

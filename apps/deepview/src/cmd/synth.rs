@@ -1,5 +1,7 @@
 //! `deepview synth`: a synthetic scene with ground truth, rendered through a camera rig.
 
+use super::args;
+use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_data::SceneArgs;
 use deepview_synth::{Rig, SynthOptions, synthesize_as};
@@ -20,27 +22,30 @@ pub struct Args {
         long,
         default_value = "grid",
         visible_alias = "data",
-        value_name = "grid|DIR"
+        value_name = "grid|DIR",
+        value_parser = parse_rig
     )]
     pub cameras: String,
-    /// Grid rig: views per side.
-    #[arg(long, default_value_t = 4)]
-    pub grid: usize,
+    /// Grid rig: views per side (at least 2).
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(2..=64))]
+    pub grid: u64,
     /// Grid rig: image width.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..))]
     pub width: u32,
     /// Grid rig: image height.
-    #[arg(long, default_value_t = 192)]
+    #[arg(long, default_value_t = 192, value_parser = clap::value_parser!(u32).range(1..))]
     pub height: u32,
-    /// Planes of the ground-truth MPI.
-    #[arg(long, default_value_t = 32)]
-    pub planes: usize,
+    /// Planes of the ground-truth MPI (at least 2).
+    #[arg(long, default_value_t = 32, value_parser = parse_planes)]
+    pub planes: u64,
     /// Random seed of the scene's layout and textures.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Rays per pixel side (antialiasing).
-    #[arg(long, default_value_t = 1)]
+    /// Rays per pixel side (antialiasing), 1..=16.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..=16))]
     pub supersample: u32,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
+    pub max_memory: Option<String>,
     /// Write the dataset in this format instead of the rig's own: `transforms` (nerfstudio
     /// transforms.json) works for every rig.
     #[arg(long, value_enum)]
@@ -49,19 +54,68 @@ pub struct Args {
     pub scene: SceneArgs,
 }
 
-pub fn run(args: Args) -> anyhow::Result<()> {
-    let rig = if args.cameras == "grid" {
-        Rig::Grid {
-            side: args.grid,
-            width: args.width,
-            height: args.height,
-        }
+/// `--planes`: at least 2 (the ground truth's layers lie between planes).
+fn parse_planes(s: &str) -> Result<u64, String> {
+    match s.trim().parse::<u64>() {
+        Ok(n) if n >= 2 => Ok(n),
+        Ok(n) => Err(format!("must be at least 2 (got {n})")),
+        Err(_) => Err(format!("{s:?} is not a whole number")),
+    }
+}
+
+/// `--cameras`: `grid` or an existing dataset folder.
+fn parse_rig(s: &str) -> Result<String, String> {
+    if s == "grid" || std::path::Path::new(s).is_dir() {
+        Ok(s.to_string())
     } else {
-        Rig::Dataset {
-            path: PathBuf::from(&args.cameras),
-            options: args.scene.load_options(),
-        }
+        Err(format!(
+            "{s:?} is neither `grid` nor a dataset folder (unknown rig)"
+        ))
+    }
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let planes = args.planes as usize;
+    let (rig, sizes) = if args.cameras == "grid" {
+        check_output("--out", &args.out, Kind::SynthScene, &[])?;
+        let side = args.grid as usize;
+        (
+            Rig::Grid {
+                side,
+                width: args.width,
+                height: args.height,
+            },
+            vec![(args.width, args.height); side * side],
+        )
+    } else {
+        let cams = std::path::Path::new(&args.cameras);
+        check_output("--out", &args.out, Kind::SynthScene, &[("--cameras", cams)])?;
+        let scene = deepview_data::load_scene(cams, &args.scene.load_options())
+            .with_context(|| format!("cannot load the rig {}", cams.display()))?;
+        let sizes = scene
+            .views
+            .iter()
+            .map(|v| (v.camera.width, v.camera.height))
+            .collect();
+        (
+            Rig::Dataset {
+                path: PathBuf::from(&args.cameras),
+                options: args.scene.load_options(),
+            },
+            sizes,
+        )
     };
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
+    args::check_memory(
+        &format!(
+            "a synthetic scene of {} views ({}x{} the largest) with {planes} planes",
+            sizes.len(),
+            sizes.iter().map(|s| s.0).max().unwrap_or(0),
+            sizes.iter().map(|s| s.1).max().unwrap_or(0)
+        ),
+        args::synth_bytes(&sizes, planes),
+        budget,
+    )?;
     let near_far = match (args.scene.near, args.scene.far) {
         (Some(n), Some(f)) => Some((n, f)),
         (None, None) => None,
@@ -70,12 +124,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let opts = SynthOptions {
         rig,
         seed: args.seed,
-        planes: args.planes,
+        planes,
         near_far,
         supersample: args.supersample,
     };
-    let out = synthesize_as(&args.out, &opts, args.out_format)
+    let dir = OutputDir::new(&args.out)?;
+    let out = synthesize_as(dir.path(), &opts, args.out_format)
         .with_context(|| format!("cannot synthesise into {}", args.out.display()))?;
+    dir.commit()?;
     println!(
         "wrote a {} scene with {} views, {} layers between depth {:.3} and {:.3}, to {}",
         out.format,

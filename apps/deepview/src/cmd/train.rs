@@ -1,10 +1,13 @@
 //! `deepview train`: train the DeepView network on one or more datasets.
 
+use super::args;
+use super::safety::{Input, Kind, check_output, parse_component};
+use super::signals;
 use anyhow::{Context, bail};
 use deepview_net::config::DeepViewConfig;
 use deepview_net::loss::LossKind;
 use deepview_net::train::{
-    Collective, RunConfig, TrainConfig, Trainer, install_ctrlc, list_checkpoints, load_data,
+    Collective, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data,
 };
 use std::path::PathBuf;
 use std::rc::Rc;
@@ -24,52 +27,54 @@ mod mpi;
     after_help = "Examples:\n  deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000\n  \
     deepview train --name fern --resume --steps 4000\n  \
     deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
-    deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu"
+    deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n\n\
+    Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
+    --steps, --devices, --data and the scene options may be given: the others are the run's own."
 )]
 pub struct Args {
     /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
     /// built-in analytic scene. With --resume, defaults to the run's own list.
-    #[arg(long = "data", value_name = "DIR")]
+    #[arg(long = "data", value_name = "DIR", value_parser = parse_data)]
     pub data: Vec<PathBuf>,
-    /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view.
-    #[arg(long, default_value = "cpu", conflicts_with = "init")]
-    pub preset: String,
+    /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view (default: cpu).
+    #[arg(long, conflicts_with = "init")]
+    pub preset: Option<String>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors, e.g. weights/cpu) or a checkpoint folder. The network
     /// configuration is the one saved with them. The optimizer starts afresh.
     #[arg(long, value_name = "WEIGHTS_DIR", visible_alias = "weights")]
     pub init: Option<PathBuf>,
-    /// Run name: the run lives in <runs>/<name>/.
-    #[arg(long)]
+    /// Run name: the run lives in <runs>/<name>/ (a plain name, no '/').
+    #[arg(long, value_parser = parse_component)]
     pub name: String,
     /// Folder holding the runs.
     #[arg(long, default_value = "runs")]
     pub runs: PathBuf,
-    /// Total number of steps of the run (with --resume: the new total).
-    #[arg(long)]
+    /// Total number of steps of the run (with --resume: the new total). Default 1000.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub steps: Option<u64>,
-    /// Training tuples per step, split over the devices.
-    #[arg(long, default_value_t = 1)]
-    pub batch: usize,
-    /// Target crop side in pixels (paper: 32).
-    #[arg(long, default_value_t = 32)]
-    pub crop: usize,
+    /// Training tuples per step, split over the devices (default 1).
+    #[arg(long, value_parser = args::parse_positive)]
+    pub batch: Option<usize>,
+    /// Target crop side in pixels (paper and default: 32).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(4..=4096))]
+    pub crop: Option<u64>,
     /// Number of input views: `K` or a range `A..B` (inclusive) drawn per batch. Default: the preset's
     /// fixed count, or 2..4.
-    #[arg(long)]
-    pub views: Option<String>,
+    #[arg(long, value_parser = parse_views_arg)]
+    pub views: Option<(usize, usize)>,
     /// MPI planes during training (default: the preset's training plane count).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(2..=1024))]
+    pub planes: Option<u64>,
+    /// Training loss: vgg (the paper's feature loss, default) or l1.
     #[arg(long)]
-    pub planes: Option<usize>,
-    /// Training loss: vgg (the paper's feature loss) or l1.
-    #[arg(long, default_value = "vgg")]
-    pub loss: LossKind,
-    /// Learning rate (paper: 1.5e-4).
-    #[arg(long, default_value_t = deepview_net::train::PAPER_LEARNING_RATE)]
-    pub lr: f64,
-    /// Global gradient-norm clipping threshold (paper: 8).
-    #[arg(long, default_value_t = 8.0)]
-    pub clip: f64,
+    pub loss: Option<LossKind>,
+    /// Learning rate (paper and default: 1.5e-4).
+    #[arg(long, value_parser = args::parse_positive_f64)]
+    pub lr: Option<f64>,
+    /// Global gradient-norm clipping threshold (paper and default: 8).
+    #[arg(long, value_parser = args::parse_positive_f64)]
+    pub clip: Option<f64>,
     /// Continue the run from its latest checkpoint (optimizer and RNG state included).
     #[arg(long)]
     pub resume: bool,
@@ -77,22 +82,23 @@ pub struct Args {
     /// deepview-net features `wgpu` / `cuda`). Example: cpu,cpu.
     #[arg(long)]
     pub devices: Option<String>,
-    /// Write a checkpoint every N steps (and always at the end or on Ctrl-C).
-    #[arg(long, default_value_t = 500)]
-    pub checkpoint_every: u64,
+    /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub checkpoint_every: Option<u64>,
     /// Keep the last N checkpoints (older ones are removed after each new one). Default: 3, or the
     /// run's own setting with --resume.
-    #[arg(long, value_name = "N")]
+    #[arg(long, value_name = "N", value_parser = args::parse_positive)]
     pub keep_checkpoints: Option<usize>,
-    /// Random seed (weights initialisation and tuple sampling).
-    #[arg(long, default_value_t = 0)]
-    pub seed: u64,
+    /// Random seed (weights initialisation and tuple sampling; default 0).
+    #[arg(long)]
+    pub seed: Option<u64>,
     /// Disable the random jitter of plane depths.
     #[arg(long)]
     pub no_jitter: bool,
-    /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none).
-    #[arg(long, default_value_t = 8)]
-    pub holdout_every: usize,
+    /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none; 1 would hold out
+    /// every view). Default 8.
+    #[arg(long, value_parser = parse_holdout)]
+    pub holdout_every: Option<usize>,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -106,6 +112,71 @@ pub struct Args {
     pub no_recompute: bool,
     #[command(flatten)]
     pub scene: deepview_data::SceneArgs,
+}
+
+/// `--data`: a folder, or one of the built-in synthetic scenes.
+fn parse_data(s: &str) -> Result<PathBuf, String> {
+    const SYNTHETIC: &[&str] = &["synthetic:two-planes"];
+    if s.is_empty() {
+        return Err("empty dataset path".into());
+    }
+    if s.starts_with("synthetic:") && !SYNTHETIC.contains(&s) {
+        return Err(format!(
+            "unknown synthetic scene {s:?} (known: {})",
+            SYNTHETIC.join(", ")
+        ));
+    }
+    Ok(PathBuf::from(s))
+}
+
+fn parse_holdout(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(1) => Err("1 would hold out every view: use 0 (none) or 2 and more".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!("{s:?} is not a whole number")),
+    }
+}
+
+fn parse_views_arg(s: &str) -> Result<(usize, usize), String> {
+    parse_views(s).map_err(|e| e.to_string())
+}
+
+/// The options a resumed run keeps from its config.json, given on the command line.
+fn fixed_on_resume(args: &Args) -> Vec<&'static str> {
+    let given = [
+        (args.preset.is_some(), "--preset"),
+        (args.init.is_some(), "--init"),
+        (args.batch.is_some(), "--batch"),
+        (args.crop.is_some(), "--crop"),
+        (args.views.is_some(), "--views"),
+        (args.planes.is_some(), "--planes"),
+        (args.loss.is_some(), "--loss"),
+        (args.lr.is_some(), "--lr"),
+        (args.clip.is_some(), "--clip"),
+        (args.checkpoint_every.is_some(), "--checkpoint-every"),
+        (args.seed.is_some(), "--seed"),
+        (args.no_jitter, "--no-jitter"),
+        (args.holdout_every.is_some(), "--holdout-every"),
+        (args.recompute, "--recompute"),
+        (args.no_recompute, "--no-recompute"),
+    ];
+    given.iter().filter(|g| g.0).map(|g| g.1).collect()
+}
+
+/// Every scene must have more training views than the largest input count (the target is one of them).
+fn check_views(data: &deepview_net::train::TrainData, views_max: usize) -> anyhow::Result<()> {
+    for s in &data.scenes {
+        let n = s.train_views.len();
+        if views_max + 1 > n {
+            bail!(
+                "--views {views_max}: the scene {} has {n} training views, so at most {} inputs besides the \
+                 target; use fewer --views (or a smaller --holdout-every)",
+                s.name,
+                n.saturating_sub(1)
+            );
+        }
+    }
+    Ok(())
 }
 
 fn parse_views(s: &str) -> anyhow::Result<(usize, usize)> {
@@ -162,17 +233,44 @@ const RESUME: u64 = 1;
 const RESTART: u64 = 2;
 
 fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
+    // From here on Ctrl-C / SIGTERM stop the loop, which saves a checkpoint.
+    let stop = signals::graceful();
     let run_dir = args.runs.join(&args.name);
+    let mut inputs: Vec<Input> = args.data.iter().map(|d| ("--data", d.as_path())).collect();
+    if let Some(init) = &args.init {
+        inputs.push(("--init", init));
+    }
+    check_output("--runs/--name", &run_dir, Kind::Run, &inputs)?;
     let opts = args.scene.load_options();
     let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
+    if args.resume {
+        if !run_dir.join("config.json").is_file() {
+            bail!(
+                "--resume: there is no run {} (no config.json); start it without --resume",
+                run_dir.display()
+            );
+        }
+        let fixed = fixed_on_resume(&args);
+        if !fixed.is_empty() {
+            bail!(
+                "--resume keeps the run's own {}: {} cannot change on resume (only --steps, --devices, --data, \
+                 --keep-checkpoints and the scene options can); start a new --name instead",
+                if fixed.len() == 1 {
+                    "setting"
+                } else {
+                    "settings"
+                },
+                fixed.join(", ")
+            );
+        }
+    }
+    // A run killed before its first checkpoint restarts from its config.json (said on stderr).
     let mut mode = [if !args.resume {
         FRESH
     } else if !list_checkpoints(&run_dir)?.is_empty() {
         RESUME
-    } else if run_dir.join("config.json").is_file() {
-        RESTART
     } else {
-        FRESH
+        RESTART
     }];
     if let Some(c) = &comm {
         c.broadcast_u64(&mut mode);
@@ -189,6 +287,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             args.data.clone()
         };
         let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
+        check_views(&data, cfg.train.sample.views_max)?;
         let mut t = Trainer::resume_on(
             &run_dir,
             data,
@@ -197,7 +296,6 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             comm.clone(),
         )?;
         if let Some(k) = args.keep_checkpoints {
-            anyhow::ensure!(k >= 1, "--keep-checkpoints must be at least 1");
             t.config.train.keep_checkpoints = k;
         }
         if writer {
@@ -217,8 +315,13 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         let cfg_path = run_dir.join("config.json");
         let text = std::fs::read_to_string(&cfg_path)
             .with_context(|| format!("cannot read {}", cfg_path.display()))?;
-        let mut cfg: RunConfig = serde_json::from_str(&text)
-            .with_context(|| format!("invalid {}", cfg_path.display()))?;
+        let mut cfg: RunConfig = serde_json::from_str(&text).with_context(|| {
+            format!(
+                "--resume: the run {} has no checkpoints yet, and its {} (to start it over from) is invalid",
+                run_dir.display(),
+                cfg_path.display()
+            )
+        })?;
         if let Some(s) = args.steps {
             cfg.train.steps = s;
         }
@@ -246,30 +349,34 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         let model = match &args.init {
             Some(dir) => deepview_net::weights::load_config_any(dir)
                 .with_context(|| format!("--init {}", dir.display()))?,
-            None => DeepViewConfig::preset(&args.preset)?,
+            None => DeepViewConfig::preset(args.preset.as_deref().unwrap_or("cpu"))?,
         };
         let mut train = TrainConfig::defaults(&model);
         train.init = args.init.clone();
         train.data = args.data.clone();
         train.steps = args.steps.unwrap_or(train.steps);
-        train.batch = args.batch;
-        train.sample.crop = args.crop;
-        if let Some(v) = &args.views {
-            (train.sample.views_min, train.sample.views_max) = parse_views(v)?;
+        train.batch = args.batch.unwrap_or(train.batch);
+        if let Some(c) = args.crop {
+            train.sample.crop = c as usize;
+        }
+        if let Some((a, b)) = args.views {
+            (train.sample.views_min, train.sample.views_max) = (a, b);
         }
         if let Some(p) = args.planes {
-            train.sample.planes = p;
+            train.sample.planes = p as usize;
         }
         train.sample.jitter = !args.no_jitter;
-        train.loss = args.loss;
-        train.learning_rate = args.lr;
-        train.clip_norm = args.clip;
-        train.checkpoint_every = args.checkpoint_every;
+        if let Some(l) = args.loss {
+            train.loss = l;
+        }
+        train.learning_rate = args.lr.unwrap_or(train.learning_rate);
+        train.clip_norm = args.clip.unwrap_or(train.clip_norm);
+        train.checkpoint_every = args.checkpoint_every.unwrap_or(train.checkpoint_every);
         if let Some(k) = args.keep_checkpoints {
             train.keep_checkpoints = k;
         }
-        train.seed = args.seed;
-        train.holdout_every = args.holdout_every;
+        train.seed = args.seed.unwrap_or(train.seed);
+        train.holdout_every = args.holdout_every.unwrap_or(train.holdout_every);
         if args.recompute || args.no_recompute {
             train.recompute = args.recompute;
         }
@@ -280,6 +387,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             deepview_net::train::parse_device(d)?;
         }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
+        check_views(&data, train.sample.views_max)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
         if writer {
             eprintln!(
@@ -293,7 +401,6 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         }
         Trainer::create_on(&run_dir, RunConfig { model, train }, data, comm.clone())?
     };
-    let stop = install_ctrlc()?;
     let start_step = trainer.step;
     let reports = trainer.run(&stop, !args.quiet)?;
     let last: Vec<f64> = reports
@@ -322,6 +429,9 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     );
     if let Some((_, ck)) = list_checkpoints(&run_dir)?.pop() {
         eprintln!("checkpoint: {}", ck.display());
+    }
+    if stop.load(std::sync::atomic::Ordering::SeqCst) {
+        return Err(signals::Interrupted(signals::received().unwrap_or(signals::SIGINT)).into());
     }
     Ok(())
 }

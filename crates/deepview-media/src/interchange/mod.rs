@@ -34,15 +34,7 @@ impl StraightMpi {
 
 /// Decode a PNG (or any image) file to RGBA8 with its size.
 pub(crate) fn decode_rgba8(path: &Path) -> Result<(u32, u32, Vec<u8>), MediaError> {
-    let img = image::ImageReader::open(path)
-        .map_err(read_err(path))?
-        .with_guessed_format()
-        .map_err(read_err(path))?
-        .decode()
-        .map_err(|source| deepview_image::ImageError::Read {
-            path: path.into(),
-            source,
-        })?;
+    let img = deepview_image::decode_file(path)?;
     Ok((img.width(), img.height(), img.into_rgba8().into_raw()))
 }
 

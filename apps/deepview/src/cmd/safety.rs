@@ -1,0 +1,544 @@
+//! Never destroy a user's data: outputs checked against inputs before any work ([`check_output`]), whole
+//! folders written into a temporary sibling and swapped into place ([`OutputDir`]), file outputs whose
+//! format follows their extension ([`ImageFormat`]).
+//!
+//! Every command that writes calls [`check_output`] once per output with all its inputs, before it loads
+//! or allocates anything. It refuses (exit 2, naming both) an output that is, contains or lies inside one
+//! of the inputs; an output that is or lies inside a training run or a weights folder (unless it is a
+//! weights export replacing a weights folder); an output folder that would replace a folder of another
+//! kind (a dataset, photos, your home folder: only empty folders and earlier outputs of the same kind are
+//! replaced).
+
+use super::signals;
+use anyhow::{Context, bail};
+use std::path::{Component, Path, PathBuf};
+
+/// What an output is, for recognising the folders it may replace.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// One file (an image, a video, a JSON report).
+    File,
+    /// An MPI folder (`mpi.json` + layers).
+    Mpi,
+    /// A weights folder (`config.json` + `model.safetensors`).
+    Weights,
+    /// A training run (`config.json`, `checkpoints/`, `metrics.jsonl`).
+    Run,
+    /// A synthetic scene (`synth.json`).
+    SynthScene,
+    /// An MPI export (LLFF, stereo magnification or compact).
+    Export,
+    /// A web viewer folder (`index.html` + an MPI).
+    Web,
+    /// A plane sweep volume (`psv.json` + `psv_NNN.png`).
+    Psv,
+    /// A folder of video frames (`frame_NNNNN.png`).
+    Frames,
+    /// A folder files are added to (depth maps, renders): never replaced, only written into.
+    Files,
+    /// The demo's folder.
+    Demo,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::File => "file",
+            Kind::Mpi => "MPI folder",
+            Kind::Weights => "weights folder",
+            Kind::Run => "training run",
+            Kind::SynthScene => "synthetic scene",
+            Kind::Export => "MPI export",
+            Kind::Web => "web viewer folder",
+            Kind::Psv => "plane sweep volume folder",
+            Kind::Frames => "folder of video frames",
+            Kind::Files => "folder",
+            Kind::Demo => "demo folder",
+        }
+    }
+
+    /// Whether the existing folder `dir` is an earlier output of this kind (which it may replace).
+    fn recognises(self, dir: &Path) -> bool {
+        let has = |n: &str| dir.join(n).is_file();
+        match self {
+            Kind::Mpi => has("mpi.json"),
+            Kind::Weights => is_weights(dir),
+            Kind::Run => is_run(dir),
+            Kind::SynthScene => has("synth.json"),
+            Kind::Export => {
+                has(deepview_media::interchange::compact::META)
+                    || (has("metadata.txt") && has("mpi.b"))
+                    || has("mpi_rgb_00.png")
+            }
+            Kind::Web => has("index.html"),
+            Kind::Psv => has("psv.json"),
+            Kind::Frames => has("frame_00000.png"),
+            Kind::Demo => has("eval.md") || dir.join("scene").join("synth.json").is_file(),
+            Kind::File | Kind::Files => false,
+        }
+    }
+}
+
+/// A training run folder: `config.json` with `checkpoints/` or `metrics.jsonl`.
+pub fn is_run(dir: &Path) -> bool {
+    dir.join("config.json").is_file()
+        && (dir.join("checkpoints").is_dir() || dir.join("metrics.jsonl").is_file())
+}
+
+/// A weights folder: `config.json` + `model.safetensors`.
+pub fn is_weights(dir: &Path) -> bool {
+    dir.join(deepview_net::weights::CONFIG_FILE).is_file()
+        && dir.join(deepview_net::weights::WEIGHTS_FILE).is_file()
+}
+
+/// `path` made absolute, symbolic links of its existing part resolved, `.` and `..` of the rest removed.
+pub fn resolve(path: &Path) -> PathBuf {
+    let abs = if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        std::env::current_dir()
+            .unwrap_or_else(|_| PathBuf::from("/"))
+            .join(path)
+    };
+    // The longest existing prefix, canonicalised, then the remaining components lexically.
+    let comps: Vec<Component> = abs.components().collect();
+    for split in (0..=comps.len()).rev() {
+        let head: PathBuf = comps[..split].iter().collect();
+        if let Ok(mut out) = head.canonicalize() {
+            for c in &comps[split..] {
+                match c {
+                    Component::ParentDir => {
+                        out.pop();
+                    }
+                    Component::CurDir => {}
+                    c => out.push(c),
+                }
+            }
+            return out;
+        }
+    }
+    abs
+}
+
+/// An input of a command: its option and path (`("--data", fern)`).
+pub type Input<'a> = (&'a str, &'a Path);
+
+/// Refuse an output (`option`, e.g. `--out`) that would overwrite an input or a folder it must not
+/// replace; see the module documentation. Inputs that are not paths (`synthetic:…`) are skipped.
+pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> anyhow::Result<()> {
+    let o = resolve(out);
+    for (what, input) in inputs {
+        if input.to_str().is_some_and(|s| s.starts_with("synthetic:")) {
+            continue;
+        }
+        let i = resolve(input);
+        let relation = if o == i {
+            "is"
+        } else if o.starts_with(&i) {
+            "lies inside"
+        } else if i.starts_with(&o) {
+            "contains"
+        } else {
+            continue;
+        };
+        bail!(
+            "{option} {} {relation} the input {what} {}: refusing to overwrite an input; choose another {option}",
+            out.display(),
+            input.display()
+        );
+    }
+    // Runs and weights are never written over by another kind of output, nor written into.
+    for a in o.ancestors() {
+        let exact = a == o;
+        if is_run(a) && !(exact && kind == Kind::Run) {
+            bail!(
+                "{option} {} {} the training run {}: refusing to overwrite it; choose another {option}",
+                out.display(),
+                if exact { "is" } else { "lies inside" },
+                a.display()
+            );
+        }
+        if (is_weights(a) || deepview_net::weights::is_checkpoint(a))
+            && !(exact && kind == Kind::Weights && is_weights(a))
+        {
+            bail!(
+                "{option} {} {} the weights folder {}: refusing to overwrite it; choose another {option}",
+                out.display(),
+                if exact { "is" } else { "lies inside" },
+                a.display()
+            );
+        }
+        let mpi_file = kind == Kind::File
+            && o.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n == "mpi.json" || n.starts_with("layer_"));
+        if !exact && (kind != Kind::File || mpi_file) && a.join("mpi.json").is_file() {
+            bail!(
+                "{option} {} lies inside the MPI folder {}: choose another {option}",
+                out.display(),
+                a.display()
+            );
+        }
+    }
+    match std::fs::metadata(&o) {
+        Err(_) => {}
+        Ok(m) if kind == Kind::File => {
+            if m.is_dir() {
+                bail!(
+                    "{option} {} is a folder, expected a file name",
+                    out.display()
+                );
+            }
+        }
+        Ok(m) if !m.is_dir() => {
+            bail!(
+                "{option} {} is a file, expected a folder ({})",
+                out.display(),
+                kind.name()
+            );
+        }
+        Ok(_) if kind == Kind::Files => {}
+        Ok(_) => {
+            let empty = std::fs::read_dir(&o)
+                .with_context(|| format!("cannot read {}", out.display()))?
+                .next()
+                .is_none();
+            if !empty && !kind.recognises(&o) {
+                bail!(
+                    "{option} {} exists and is not a {}: refusing to replace it; choose a new or empty folder",
+                    out.display(),
+                    kind.name()
+                );
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Run names and file-name prefixes: one plain path component (`--name`, `--prefix`).
+pub fn parse_component(s: &str) -> Result<String, String> {
+    let ok = !s.is_empty()
+        && s != "."
+        && s != ".."
+        && !s.contains(['/', '\\', '\0'])
+        && Path::new(s).components().count() == 1;
+    if ok {
+        Ok(s.to_string())
+    } else {
+        Err(format!(
+            "{s:?} must be a single file name (no '/', not empty, not '.' or '..')"
+        ))
+    }
+}
+
+fn sibling(out: &Path, tag: &str) -> PathBuf {
+    let name = out
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_else(|| "out".into());
+    out.with_file_name(format!(".{name}.deepview-{tag}.{}", std::process::id()))
+}
+
+/// Folders created for an output (deepest last), removed again when they stay empty after a failure.
+#[derive(Default)]
+pub struct CreatedDirs(Vec<PathBuf>);
+
+impl CreatedDirs {
+    /// Create `dir` and its missing parents, remembering which were made.
+    pub fn create(dir: &Path) -> anyhow::Result<Self> {
+        let mut missing: Vec<PathBuf> = dir
+            .ancestors()
+            .filter(|a| !a.as_os_str().is_empty())
+            .take_while(|a| !a.exists())
+            .map(Path::to_path_buf)
+            .collect();
+        missing.reverse();
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        Ok(Self(missing))
+    }
+
+    /// Create the parent folder of the file `file`.
+    pub fn parent_of(file: &Path) -> anyhow::Result<Self> {
+        match file.parent().filter(|p| !p.as_os_str().is_empty()) {
+            Some(p) => Self::create(p),
+            None => Ok(Self::default()),
+        }
+    }
+
+    /// Remove the created folders that are empty (after a failure).
+    pub fn remove_empty(&mut self) {
+        for d in self.0.drain(..).rev() {
+            let _ = std::fs::remove_dir(&d);
+        }
+    }
+
+    /// Keep them (success).
+    pub fn keep(mut self) {
+        self.0.clear();
+    }
+}
+
+impl Drop for CreatedDirs {
+    fn drop(&mut self) {
+        self.remove_empty();
+    }
+}
+
+/// Write an output file with `write` (itself atomic, e.g. `write_png`), creating its folder; on failure the
+/// folders it created are removed again.
+pub fn write_file<T>(
+    out: &Path,
+    write: impl FnOnce(&Path) -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
+    let dirs = CreatedDirs::parent_of(out)?;
+    let tmp = deepview_image::temp_path(out);
+    signals::register(&tmp);
+    let r = write(out);
+    signals::unregister(&tmp);
+    let v = r?;
+    dirs.keep();
+    Ok(v)
+}
+
+/// A whole output folder written into a temporary sibling (`.NAME.deepview-tmp.PID`) and swapped into
+/// place by [`OutputDir::commit`]: an interrupted or failed command leaves the old folder (or none) as it
+/// was. Dropped without a commit (an error), the temporary is removed; a signal removes it too
+/// ([`signals`]); a temporary left by a killed process is removed the next time.
+pub struct OutputDir {
+    out: PathBuf,
+    tmp: PathBuf,
+    dirs: CreatedDirs,
+    done: bool,
+}
+
+impl OutputDir {
+    /// Start writing the folder `out` (checked with [`check_output`] beforehand).
+    pub fn new(out: &Path) -> anyhow::Result<Self> {
+        let parent = match out.parent().filter(|p| !p.as_os_str().is_empty()) {
+            Some(p) => p.to_path_buf(),
+            None => PathBuf::from("."),
+        };
+        let dirs = CreatedDirs::create(&parent)?;
+        remove_stale(out);
+        let tmp = sibling(out, "tmp");
+        if tmp.exists() {
+            let _ = std::fs::remove_dir_all(&tmp);
+        }
+        signals::register(&tmp);
+        std::fs::create_dir(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+        Ok(Self {
+            out: out.to_path_buf(),
+            tmp,
+            dirs,
+            done: false,
+        })
+    }
+
+    /// The temporary folder to write into.
+    pub fn path(&self) -> &Path {
+        &self.tmp
+    }
+
+    /// Put the finished folder in place of `out` (the old folder, if any, is removed after the swap).
+    pub fn commit(mut self) -> anyhow::Result<()> {
+        let registry = signals::lock();
+        let old = if self.out.exists() {
+            swap(&self.tmp, &self.out)
+                .with_context(|| format!("cannot replace {}", self.out.display()))?
+        } else {
+            std::fs::rename(&self.tmp, &self.out).with_context(|| {
+                format!(
+                    "cannot rename {} to {}",
+                    self.tmp.display(),
+                    self.out.display()
+                )
+            })?;
+            None
+        };
+        self.done = true;
+        drop(registry);
+        signals::unregister(&self.tmp);
+        if let Some(old) = old {
+            signals::register(&old);
+            let _ = std::fs::remove_dir_all(&old);
+            signals::unregister(&old);
+        }
+        std::mem::take(&mut self.dirs).keep();
+        Ok(())
+    }
+}
+
+impl Drop for OutputDir {
+    fn drop(&mut self) {
+        if !self.done {
+            let _ = std::fs::remove_dir_all(&self.tmp);
+            signals::unregister(&self.tmp);
+        }
+    }
+}
+
+/// Swap the new folder `new` into `out`; returns where the old folder now is (to be removed).
+fn swap(new: &Path, out: &Path) -> std::io::Result<Option<PathBuf>> {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        use std::os::unix::ffi::OsStrExt;
+        let a = std::ffi::CString::new(new.as_os_str().as_bytes())?;
+        let b = std::ffi::CString::new(out.as_os_str().as_bytes())?;
+        // SAFETY: two valid NUL-terminated paths; RENAME_EXCHANGE swaps them atomically.
+        let r = unsafe {
+            libc::renameat2(
+                libc::AT_FDCWD,
+                a.as_ptr(),
+                libc::AT_FDCWD,
+                b.as_ptr(),
+                libc::RENAME_EXCHANGE,
+            )
+        };
+        if r == 0 {
+            return Ok(Some(new.to_path_buf()));
+        }
+        let e = std::io::Error::last_os_error();
+        if !matches!(e.raw_os_error(), Some(libc::EINVAL | libc::ENOSYS)) {
+            return Err(e);
+        }
+    }
+    // No atomic exchange on this file system: the old folder aside, the new one in, the old one removed
+    // (a crash in between leaves `.NAME.deepview-old.PID`, put back by the next run).
+    let old = sibling(out, "old");
+    std::fs::rename(out, &old)?;
+    if let Err(e) = std::fs::rename(new, out) {
+        let _ = std::fs::rename(&old, out);
+        return Err(e);
+    }
+    Ok(Some(old))
+}
+
+/// Remove the temporaries of `out` left by processes that no longer run, and put back an old folder that
+/// a crash left aside.
+fn remove_stale(out: &Path) {
+    let (Some(parent), Some(name)) = (out.parent(), out.file_name()) else {
+        return;
+    };
+    let parent = if parent.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        parent
+    };
+    let prefix = format!(".{}.deepview-", name.to_string_lossy());
+    let Ok(entries) = std::fs::read_dir(parent) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let file = e.file_name().to_string_lossy().into_owned();
+        let Some(rest) = file.strip_prefix(&prefix) else {
+            continue;
+        };
+        let Some((tag, pid)) = rest.split_once('.') else {
+            continue;
+        };
+        let alive = pid.parse::<u32>().is_ok_and(|p| {
+            p == std::process::id() || Path::new("/proc").join(p.to_string()).exists()
+        });
+        if alive || !Path::new("/proc/self").exists() {
+            continue;
+        }
+        let path = e.path();
+        if tag == "old" && !out.exists() {
+            let _ = std::fs::rename(&path, out);
+        } else {
+            let _ = std::fs::remove_dir_all(&path);
+        }
+    }
+}
+
+/// The format of an image output, from its extension.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImageFormat {
+    Png,
+    Jpeg,
+}
+
+impl ImageFormat {
+    /// `.png` or `.jpg`/`.jpeg` (any case); anything else is refused.
+    pub fn of(option: &str, path: &Path) -> anyhow::Result<Self> {
+        match path
+            .extension()
+            .and_then(|e| e.to_str())
+            .map(str::to_ascii_lowercase)
+            .as_deref()
+        {
+            Some("png") => Ok(Self::Png),
+            Some("jpg" | "jpeg") => Ok(Self::Jpeg),
+            _ => bail!(
+                "{option} {}: unknown image format (use a .png or .jpg/.jpeg name)",
+                path.display()
+            ),
+        }
+    }
+
+    /// Write `img` in this format (atomically).
+    pub fn write(self, path: &Path, img: &deepview_image::ImageF32) -> anyhow::Result<()> {
+        match self {
+            Self::Png => deepview_image::write_png(path, img)?,
+            Self::Jpeg => deepview_image::write_jpeg(path, img, 92)?,
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn components_and_relations() {
+        assert!(parse_component("fern").is_ok());
+        for bad in ["", ".", "..", "../x", "a/b", "/abs"] {
+            assert!(parse_component(bad).is_err(), "{bad}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path().join("data");
+        std::fs::create_dir(&d).unwrap();
+        let input = [("--data", d.as_path())];
+        for out in [
+            d.clone(),
+            d.join("x"),
+            dir.path().to_path_buf(),
+            d.join("a/../b"),
+        ] {
+            let e = check_output("--out", &out, Kind::Mpi, &input).unwrap_err();
+            assert!(e.to_string().contains("refusing"), "{e}");
+        }
+        check_output("--out", &dir.path().join("new"), Kind::Mpi, &input).unwrap();
+        // A non-empty folder of another kind is not replaced; an empty one is.
+        std::fs::write(d.join("photo.jpg"), b"x").unwrap();
+        let e = check_output("--out", &d, Kind::Mpi, &[]).unwrap_err();
+        assert!(e.to_string().contains("not a MPI folder"), "{e}");
+        std::fs::create_dir(dir.path().join("empty")).unwrap();
+        check_output("--out", &dir.path().join("empty"), Kind::Mpi, &[]).unwrap();
+    }
+
+    #[test]
+    fn output_dir_swaps_or_cleans_up() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("sub/mpi");
+        // A failure leaves nothing, not even the parent it created.
+        {
+            let o = OutputDir::new(&out).unwrap();
+            std::fs::write(o.path().join("a"), b"1").unwrap();
+        }
+        assert!(!dir.path().join("sub").exists());
+        let o = OutputDir::new(&out).unwrap();
+        std::fs::write(o.path().join("a"), b"1").unwrap();
+        o.commit().unwrap();
+        let o = OutputDir::new(&out).unwrap();
+        std::fs::write(o.path().join("b"), b"2").unwrap();
+        o.commit().unwrap();
+        assert!(!out.join("a").exists() && out.join("b").is_file());
+        let names: Vec<_> = std::fs::read_dir(dir.path().join("sub"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["mpi"]);
+    }
+}

@@ -1,0 +1,1042 @@
+//! Bad input never destroys data nor aborts (issue 12): outputs that would clobber inputs, interrupted
+//! commands (SIGTERM), sizes beyond the memory budget, truncated images, arguments refused where parsed.
+//! Every failure must be exit 2 (130 / 143 for signals), no panic, no abort, with the file or option named.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output, Stdio};
+use std::time::{Duration, Instant};
+
+fn bin() -> Command {
+    let mut c = Command::new(env!("CARGO_BIN_EXE_deepview"));
+    c.env("DEEPVIEW_DATA", deepview_data::data_dir());
+    c
+}
+
+fn deepview(args: &[&str]) -> Output {
+    bin().args(args).output().expect("binary runs")
+}
+
+fn deepview_in(dir: &Path, args: &[&str]) -> Output {
+    bin()
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("binary runs")
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Exit code 2, no panic or abort, every needle in stderr.
+fn refused(out: &Output, needles: &[&str]) {
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "stderr: {err}");
+    for bad in ["panicked", "memory allocation", "RUST_BACKTRACE"] {
+        assert!(!err.contains(bad), "{bad}: {err}");
+    }
+    for n in needles {
+        assert!(err.contains(n), "{n:?} not in: {err}");
+    }
+}
+
+fn ok(out: &Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// A small synthetic light-field scene (3 x 3 views of 64 x 48, 8 planes) with its ground-truth MPI.
+fn grid(dir: &Path, name: &str) -> PathBuf {
+    let out = dir.join(name);
+    ok(&deepview(&[
+        "synth",
+        "--out",
+        s(&out),
+        "--grid",
+        "3",
+        "--width",
+        "64",
+        "--height",
+        "48",
+        "--planes",
+        "8",
+    ]));
+    out
+}
+
+/// Every file under `dir` with its bytes (for "unchanged" checks).
+fn snapshot(dir: &Path) -> Vec<(PathBuf, Vec<u8>)> {
+    let mut out = Vec::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                out.push((p.clone(), std::fs::read(&p).unwrap()));
+            }
+        }
+    }
+    out.sort();
+    out
+}
+
+/// Names in `dir` left by an interrupted write.
+fn leftovers(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains(".deepview-") || n.ends_with(".tmp"))
+        .collect()
+}
+
+// 1. Outputs never clobber inputs.
+
+#[test]
+fn outputs_that_are_or_lie_inside_inputs_are_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = grid(tmp.path(), "scene");
+    let gt = scene.join("ground_truth_mpi");
+    let before = snapshot(&scene);
+    let (gt_json, gt_layer, psv, synth_json) = (
+        format!("{}/mpi.json", s(&gt)),
+        format!("{}/layer_000.png", s(&gt)),
+        format!("{}/psv", s(&scene)),
+        format!("{}/synth.json", s(&scene)),
+    );
+    let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
+        (
+            vec!["synth", "--cameras", s(&scene), "--out", s(&scene)],
+            vec!["--out", "--cameras", "refusing"],
+        ),
+        (
+            vec!["synth", "--cameras", s(&scene), "--out", s(&gt)],
+            vec!["lies inside"],
+        ),
+        (
+            vec!["render", "--mpi", s(&gt), "--out", &gt_json],
+            vec!["--mpi", "mpi.json"],
+        ),
+        (
+            vec!["render", "--mpi", s(&gt), "--out", &gt_layer],
+            vec!["layer_000.png"],
+        ),
+        (
+            vec![
+                "baseline",
+                "--data",
+                s(&scene),
+                "--method",
+                "nearest",
+                "--out",
+                s(&scene),
+            ],
+            vec!["--data"],
+        ),
+        (
+            vec![
+                "baseline",
+                "--data",
+                s(&scene),
+                "--method",
+                "nearest",
+                "--out",
+                s(tmp.path()),
+            ],
+            vec!["contains"],
+        ),
+        (
+            vec!["psv", "--data", s(&scene), "--planes", "4", "--out", &psv],
+            vec!["lies inside"],
+        ),
+        (
+            vec!["depth", "--mpi", s(&gt), "--out", s(&gt)],
+            vec!["--mpi"],
+        ),
+        (
+            vec![
+                "export",
+                "--mpi",
+                s(&gt),
+                "--out",
+                s(&gt),
+                "--format",
+                "compact",
+            ],
+            vec!["--mpi"],
+        ),
+        (
+            vec!["import", "--mpi", s(&gt), "--out", s(&gt)],
+            vec!["--mpi"],
+        ),
+        (
+            vec!["export-web", "--mpi", s(&gt), "--out", s(&gt)],
+            vec!["--mpi"],
+        ),
+        (
+            vec![
+                "eval",
+                "--data",
+                s(&scene),
+                "--method",
+                "nearest",
+                "--out",
+                &synth_json,
+            ],
+            vec!["--data"],
+        ),
+    ];
+    for (args, needles) in &cases {
+        refused(&deepview(args), needles);
+    }
+    // A folder of another kind (here: a dataset that is not an input) is never replaced.
+    let other = grid(tmp.path(), "other");
+    let other_before = snapshot(&other);
+    refused(
+        &deepview(&[
+            "baseline",
+            "--data",
+            s(&scene),
+            "--method",
+            "nearest",
+            "--out",
+            s(&other),
+        ]),
+        &["not a MPI folder"],
+    );
+    assert_eq!(snapshot(&other), other_before);
+    assert_eq!(snapshot(&scene), before, "an input changed");
+}
+
+#[test]
+fn runs_and_weights_are_never_overwritten_and_images_follow_their_extension() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    ok(&deepview_in(
+        t,
+        &[
+            "train",
+            "--data",
+            "synthetic:two-planes",
+            "--name",
+            "r",
+            "--steps",
+            "1",
+            "--loss",
+            "l1",
+            "--quiet",
+        ],
+    ));
+    let run = t.join("runs/r");
+    let before = snapshot(&run);
+    refused(
+        &deepview_in(t, &["export-weights", "runs/r", "--out", "runs/r"]),
+        &["runs/r", "refusing"],
+    );
+    refused(
+        &deepview_in(t, &["export-weights", "runs/r", "--out", "runs/r/w"]),
+        &["lies inside"],
+    );
+    ok(&deepview_in(t, &["export-weights", "runs/r", "--out", "w"]));
+    // Weights may replace weights, nothing else may.
+    ok(&deepview_in(t, &["export-weights", "runs/r", "--out", "w"]));
+    let scene = grid(t, "scene");
+    let gt = scene.join("ground_truth_mpi");
+    refused(
+        &deepview_in(
+            t,
+            &[
+                "baseline", "--data", "scene", "--method", "nearest", "--out", "w",
+            ],
+        ),
+        &["weights folder"],
+    );
+    refused(
+        &deepview_in(
+            t,
+            &[
+                "baseline", "--data", "scene", "--method", "nearest", "--out", "runs/r",
+            ],
+        ),
+        &["training run"],
+    );
+    refused(
+        &deepview_in(
+            t,
+            &["render", "--mpi", s(&gt), "--out", "runs/r/config.json"],
+        ),
+        &["training run"],
+    );
+    assert_eq!(snapshot(&run), before, "the run changed");
+    ok(&deepview_in(
+        t,
+        &[
+            "infer",
+            "--weights",
+            "w",
+            "--data",
+            "scene",
+            "--planes",
+            "4",
+            "--out",
+            "m",
+        ],
+    ));
+    // Image outputs: the format follows the extension; unknown ones are refused.
+    ok(&deepview(&[
+        "render",
+        "--mpi",
+        s(&gt),
+        "--out",
+        s(&t.join("v.jpg")),
+    ]));
+    let bytes = std::fs::read(t.join("v.jpg")).unwrap();
+    assert_eq!(&bytes[..3], &[0xFF, 0xD8, 0xFF], "not a JPEG");
+    ok(&deepview(&[
+        "render",
+        "--mpi",
+        s(&gt),
+        "--out",
+        s(&t.join("v.PNG")),
+    ]));
+    assert_eq!(&std::fs::read(t.join("v.PNG")).unwrap()[1..4], b"PNG");
+    refused(
+        &deepview(&["render", "--mpi", s(&gt), "--out", s(&t.join("v.tif"))]),
+        &["v.tif", "format"],
+    );
+    refused(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--alpha",
+            "--out",
+            s(&t.join("a.jpg")),
+        ]),
+        &["--alpha"],
+    );
+    refused(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--path",
+            "spiral",
+            "--frames",
+            "2",
+            "--out",
+            s(&t.join("p.jpg")),
+        ]),
+        &["p.jpg", "video format"],
+    );
+}
+
+// 2. Whole-folder atomicity and signals.
+
+/// Start `args`, send SIGTERM after `after`, return the exit code.
+fn terminate(args: &[&str], after: Duration) -> Option<i32> {
+    let child = bin()
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(after);
+    // SAFETY: kill(2) on the pid of the child this test started.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGTERM);
+    }
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    out.status.code()
+}
+
+#[test]
+fn sigterm_leaves_the_old_mpi_folder_intact() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = deepview_data::data_dir().join("llff/fern");
+    let out = tmp.path().join("mpi");
+    let base = |planes: &str| {
+        vec![
+            "baseline".to_string(),
+            "--data".into(),
+            s(&data).into(),
+            "--images".into(),
+            "images_8".into(),
+            "--method".into(),
+            "psv-mean".into(),
+            "--planes".into(),
+            planes.into(),
+            "--out".into(),
+            s(&out).into(),
+        ]
+    };
+    let args: Vec<String> = base("8");
+    ok(&deepview(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+    ));
+    let before = snapshot(&out);
+    // Interrupted at several moments (loading, sweeping, writing): the old folder or a whole new one.
+    let args: Vec<String> = base("40");
+    let args: Vec<&str> = args.iter().map(String::as_str).collect();
+    let started = Instant::now();
+    let mut replaced = 0;
+    for ms in [150, 600, 1200, 1800] {
+        let code = terminate(&args, Duration::from_millis(ms));
+        assert!(matches!(code, Some(143) | Some(0)), "exit {code:?}");
+        let mpi = deepview_mpi::read_mpi_u8(&out).expect("the MPI folder still loads");
+        if code == Some(143) {
+            assert!(mpi.depths.len() == 8 || mpi.depths.len() == 40);
+        }
+        if mpi.depths.len() == 8 {
+            assert_eq!(snapshot(&out), before, "the old folder changed");
+        } else {
+            replaced += 1;
+        }
+        assert!(
+            leftovers(tmp.path()).is_empty(),
+            "{:?}",
+            leftovers(tmp.path())
+        );
+    }
+    eprintln!(
+        "{replaced} of 4 runs finished first ({:.1?})",
+        started.elapsed()
+    );
+}
+
+#[test]
+fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let scene = grid(t, "scene");
+    let out = t.join("mpi");
+    ok(&deepview(&[
+        "baseline",
+        "--data",
+        s(&scene),
+        "--method",
+        "nearest",
+        "--out",
+        s(&out),
+    ]));
+    let before = snapshot(&out);
+    let data = deepview_data::data_dir().join("llff/fern");
+    let code = terminate(
+        &[
+            "infer",
+            "--data",
+            s(&data),
+            "--images",
+            "images_8",
+            "--planes",
+            "8",
+            "--out",
+            s(&out),
+        ],
+        Duration::from_millis(1500),
+    );
+    assert_eq!(code, Some(143));
+    assert_eq!(snapshot(&out), before, "the old MPI changed");
+    assert!(leftovers(t).is_empty(), "{:?}", leftovers(t));
+
+    // train: SIGTERM saves a checkpoint and exits 143; --resume continues from it.
+    let runs = t.join("runs");
+    let child = bin()
+        .args([
+            "train",
+            "--data",
+            "synthetic:two-planes",
+            "--name",
+            "k",
+            "--runs",
+            s(&runs),
+            "--steps",
+            "1000",
+            "--loss",
+            "l1",
+            "--quiet",
+            "--checkpoint-every",
+            "1000",
+        ])
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Wait for the first step, then stop it.
+    let metrics = runs.join("k/metrics.jsonl");
+    let start = Instant::now();
+    while !std::fs::read_to_string(&metrics).is_ok_and(|m| !m.is_empty()) {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "no training step"
+        );
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    // SAFETY: kill(2) on the pid of the child this test started.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGTERM);
+    }
+    let status = child.wait_with_output().unwrap().status;
+    assert_eq!(status.code(), Some(143));
+    let checkpoints: Vec<_> = std::fs::read_dir(runs.join("k/checkpoints"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with("step-"))
+        .collect();
+    assert_eq!(checkpoints.len(), 1, "{checkpoints:?}");
+    let step: u64 = checkpoints[0]["step-".len()..].parse().unwrap();
+    assert!(step >= 1);
+    let o = deepview(&[
+        "train",
+        "--name",
+        "k",
+        "--runs",
+        s(&runs),
+        "--resume",
+        "--steps",
+        &(step + 1).to_string(),
+        "--quiet",
+    ]);
+    ok(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        err.contains("resuming") && err.contains(&format!("at step {step}")),
+        "{err}"
+    );
+}
+
+#[test]
+fn failed_commands_leave_no_output_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = grid(tmp.path(), "scene");
+    let out = tmp.path().join("a/b/mpi");
+    // Fails after the checks (view 99 does not exist): nothing is created.
+    refused(
+        &deepview(&[
+            "baseline",
+            "--data",
+            s(&scene),
+            "--method",
+            "nearest",
+            "--inputs",
+            "99",
+            "--out",
+            s(&out),
+        ]),
+        &["99"],
+    );
+    assert!(!tmp.path().join("a").exists());
+    refused(
+        &deepview(&[
+            "export",
+            "--mpi",
+            s(&scene),
+            "--out",
+            s(&out),
+            "--format",
+            "llff",
+        ]),
+        &["mpi.json"],
+    );
+    assert!(!tmp.path().join("a").exists());
+    assert!(leftovers(tmp.path()).is_empty());
+}
+
+// 3. Sizes checked before work.
+
+#[test]
+fn huge_sizes_are_refused_at_once() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let scene = grid(t, "scene");
+    let gt = scene.join("ground_truth_mpi");
+    let big = t.join("big.json");
+    std::fs::write(
+        &big,
+        r#"{"width":100000,"height":100000,"fx":1e5,"fy":1e5,"cx":5e4,"cy":5e4,
+            "camera_from_world":[1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1]}"#,
+    )
+    .unwrap();
+    let fern = deepview_data::data_dir().join("llff/fern");
+    let o = |name: &str| t.join(name).to_string_lossy().into_owned();
+    let cases: Vec<Vec<String>> = vec![
+        vec![
+            "render".into(),
+            "--mpi".into(),
+            s(&gt).into(),
+            "--camera".into(),
+            s(&big).into(),
+            "--out".into(),
+            o("r.png"),
+        ],
+        vec![
+            "depth".into(),
+            "--mpi".into(),
+            s(&gt).into(),
+            "--camera".into(),
+            s(&big).into(),
+            "--out".into(),
+            o("d"),
+        ],
+        vec![
+            "bench".into(),
+            "render".into(),
+            "--synthetic".into(),
+            "64x48x4".into(),
+            "--camera".into(),
+            s(&big).into(),
+        ],
+        vec![
+            "bench".into(),
+            "render".into(),
+            "--synthetic".into(),
+            "100000x100000x32".into(),
+        ],
+        vec![
+            "synth".into(),
+            "--width".into(),
+            "100000".into(),
+            "--out".into(),
+            o("s"),
+        ],
+        vec![
+            "psv".into(),
+            "--data".into(),
+            s(&fern).into(),
+            "--images".into(),
+            "images_8".into(),
+            "--planes".into(),
+            "100000".into(),
+            "--out".into(),
+            o("p"),
+        ],
+        vec![
+            "baseline".into(),
+            "--data".into(),
+            s(&fern).into(),
+            "--images".into(),
+            "images_8".into(),
+            "--method".into(),
+            "psv-mean".into(),
+            "--planes".into(),
+            "100000".into(),
+            "--out".into(),
+            o("b"),
+        ],
+        vec![
+            "optimize".into(),
+            "--data".into(),
+            s(&fern).into(),
+            "--images".into(),
+            "images_8".into(),
+            "--planes".into(),
+            "100000".into(),
+            "--out".into(),
+            o("op"),
+        ],
+        vec![
+            "eval".into(),
+            "--data".into(),
+            s(&scene).into(),
+            "--method".into(),
+            "psv-mean".into(),
+            "--planes".into(),
+            "100000".into(),
+        ],
+        vec![
+            "infer".into(),
+            "--data".into(),
+            s(&scene).into(),
+            "--planes".into(),
+            "100000".into(),
+            "--out".into(),
+            o("i"),
+        ],
+        vec![
+            "render".into(),
+            "--mpi".into(),
+            s(&gt).into(),
+            "--path".into(),
+            "spiral".into(),
+            "--frames".into(),
+            "100000000".into(),
+            "--out".into(),
+            o("f.gif"),
+        ],
+    ];
+    for args in &cases {
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let start = Instant::now();
+        let out = deepview(&args);
+        refused(&out, &["--max-memory"]);
+        assert!(
+            start.elapsed() < Duration::from_secs(3),
+            "{args:?} took {:?}",
+            start.elapsed()
+        );
+        assert!(leftovers(t).is_empty());
+    }
+    // The minimum the message names is enough.
+    let out = deepview(&[
+        "baseline",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--planes",
+        "64",
+        "--max-memory",
+        "1MiB",
+        "--out",
+        &o("m"),
+    ]);
+    refused(&out, &["--max-memory"]);
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    let min = err
+        .split("--max-memory ")
+        .last()
+        .unwrap()
+        .trim()
+        .to_string();
+    ok(&deepview(&[
+        "baseline",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--planes",
+        "64",
+        "--max-memory",
+        &min,
+        "--out",
+        &o("m"),
+    ]));
+    // A long path streams its frames: a GIF of many frames within a small budget.
+    ok(&deepview(&[
+        "render",
+        "--mpi",
+        s(&gt),
+        "--path",
+        "circle",
+        "--frames",
+        "40",
+        "--max-memory",
+        "64MiB",
+        "--out",
+        &o("c.gif"),
+    ]));
+    let gif = std::fs::read(t.join("c.gif")).unwrap();
+    assert_eq!(&gif[..3], b"GIF");
+    assert_eq!(*gif.last().unwrap(), 0x3B, "GIF trailer");
+}
+
+// 4. Every image decoded completely or refused.
+
+#[test]
+fn truncated_and_corrupt_images_are_refused_with_their_name() {
+    let tmp = tempfile::tempdir().unwrap();
+    let src = deepview_data::data_dir().join("colmap/room");
+    let room = tmp.path().join("room");
+    copy_dir(&src, &room);
+    let mut names: Vec<String> = std::fs::read_dir(room.join("images"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    // A good JPEG decodes; one cut short (or damaged in the middle) is refused, naming the file.
+    let scene = deepview_data::load_scene(&room, &Default::default()).unwrap();
+    let view = scene.views[0].image_path.clone();
+    let bytes = std::fs::read(&view).unwrap();
+    ok(&deepview(&[
+        "baseline",
+        "--data",
+        s(&room),
+        "--method",
+        "nearest",
+        "--inputs",
+        "0",
+        "--out",
+        s(&tmp.path().join("m")),
+    ]));
+    let name = view.file_name().unwrap().to_str().unwrap().to_string();
+    for cut in [bytes.len() * 2 / 3, bytes.len() - 2] {
+        std::fs::write(&view, &bytes[..cut]).unwrap();
+        let out = deepview(&[
+            "baseline",
+            "--data",
+            s(&room),
+            "--method",
+            "nearest",
+            "--inputs",
+            "0",
+            "--out",
+            s(&tmp.path().join("m2")),
+        ]);
+        refused(&out, &[&name, "JPEG"]);
+    }
+    // A truncated PNG layer of an MPI.
+    let scene = grid(tmp.path(), "scene");
+    let layer = scene.join("ground_truth_mpi/layer_003.png");
+    let png = std::fs::read(&layer).unwrap();
+    std::fs::write(&layer, &png[..png.len() - 20]).unwrap();
+    refused(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&scene.join("ground_truth_mpi")),
+            "--out",
+            s(&tmp.path().join("x.png")),
+        ]),
+        &["layer_003.png"],
+    );
+    refused(
+        &deepview(&[
+            "export",
+            "--mpi",
+            s(&scene.join("ground_truth_mpi")),
+            "--out",
+            s(&tmp.path().join("e")),
+            "--format",
+            "llff",
+        ]),
+        &["layer_003.png"],
+    );
+    assert!(!tmp.path().join("e").exists());
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let e = e.unwrap();
+        let p = e.path();
+        if p.is_dir() {
+            copy_dir(&p, &to.join(e.file_name()));
+        } else {
+            std::fs::copy(&p, to.join(e.file_name())).unwrap();
+        }
+    }
+}
+
+// 5. Arguments validated where parsed.
+
+#[test]
+fn bad_arguments_are_usage_errors() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let scene = grid(t, "scene");
+    let gt = scene.join("ground_truth_mpi");
+    let sc = s(&scene);
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec![
+                "baseline", "--data", sc, "--method", "nearest", "--inputs", "0,2,0", "--out", "x",
+            ],
+            "twice",
+        ),
+        (
+            vec!["infer", "--data", sc, "--inputs", "1,1", "--out", "x"],
+            "twice",
+        ),
+        (
+            vec![
+                "baseline", "--data", sc, "--method", "nearest", "--inputs", "0,a", "--out", "x",
+            ],
+            "not a view index",
+        ),
+        (
+            vec![
+                "train", "--data", sc, "--name", "x", "--views", "9", "--steps", "1",
+            ],
+            "--views 9",
+        ),
+        (
+            vec![
+                "train",
+                "--data",
+                "synthetic:two-planes",
+                "--name",
+                "x",
+                "--holdout-every",
+                "1",
+            ],
+            "--holdout-every",
+        ),
+        (
+            vec!["train", "--data", "synthetic:nope", "--name", "x"],
+            "unknown synthetic scene",
+        ),
+        (
+            vec![
+                "train",
+                "--data",
+                "synthetic:two-planes",
+                "--name",
+                "../../x",
+            ],
+            "--name",
+        ),
+        (
+            vec!["train", "--data", "synthetic:two-planes", "--name", "/abs"],
+            "--name",
+        ),
+        (
+            vec!["train", "--data", "synthetic:two-planes", "--name", ""],
+            "--name",
+        ),
+        (vec!["train", "--name", "missing", "--resume"], "no run"),
+        (
+            vec!["synth", "--supersample", "0", "--out", "x"],
+            "--supersample",
+        ),
+        (vec!["synth", "--width", "-5", "--out", "x"], "-5"),
+        (
+            vec!["synth", "--cameras", "gird", "--out", "x"],
+            "--cameras",
+        ),
+        (
+            vec!["bench", "render", "--synthetic", "8x8x2", "--repeats", "0"],
+            "--repeats",
+        ),
+        (vec!["bench", "net", "--repeats", "0"], "--repeats"),
+        (
+            vec![
+                "baseline",
+                "--data",
+                sc,
+                "--method",
+                "psv-mean",
+                "--max-memory",
+                "lots",
+                "--out",
+                "x",
+            ],
+            "--max-memory",
+        ),
+        (
+            vec![
+                "baseline",
+                "--data",
+                sc,
+                "--method",
+                "psv-mean",
+                "--max-memory=-1GiB",
+                "--out",
+                "x",
+            ],
+            "--max-memory",
+        ),
+        (
+            vec![
+                "baseline",
+                "--data",
+                sc,
+                "--method",
+                "psv-mean",
+                "--max-memory",
+                "0",
+                "--out",
+                "x",
+            ],
+            "--max-memory",
+        ),
+        (
+            vec![
+                "render",
+                "--mpi",
+                s(&gt),
+                "--path",
+                "spiral",
+                "--frames",
+                "0",
+                "--out",
+                "x.gif",
+            ],
+            "--frames",
+        ),
+        (
+            vec![
+                "render",
+                "--mpi",
+                s(&gt),
+                "--path",
+                "spiral",
+                "--fps",
+                "0",
+                "--out",
+                "x.gif",
+            ],
+            "--fps",
+        ),
+        (
+            vec![
+                "depth",
+                "--mpi",
+                s(&gt),
+                "--out",
+                "d",
+                "--prefix",
+                "../../x",
+            ],
+            "--prefix",
+        ),
+    ];
+    for (args, needle) in &cases {
+        refused(&deepview_in(t, args), &[needle]);
+    }
+    assert!(!t.join("x").exists() && !t.join("runs/x").exists());
+    assert!(!t.parent().unwrap().join("x_color.png").exists());
+
+    // --resume: a run without checkpoints, and options that cannot change.
+    std::fs::create_dir_all(t.join("runs/empty/checkpoints")).unwrap();
+    std::fs::write(t.join("runs/empty/config.json"), "{}").unwrap();
+    refused(
+        &deepview_in(t, &["train", "--name", "empty", "--resume"]),
+        &["no checkpoints"],
+    );
+    ok(&deepview_in(
+        t,
+        &[
+            "train",
+            "--data",
+            "synthetic:two-planes",
+            "--name",
+            "r",
+            "--steps",
+            "1",
+            "--loss",
+            "l1",
+            "--quiet",
+        ],
+    ));
+    refused(
+        &deepview_in(
+            t,
+            &[
+                "train", "--name", "r", "--resume", "--steps", "2", "--lr", "0.1", "--crop", "16",
+            ],
+        ),
+        &["--crop, --lr", "cannot change on resume"],
+    );
+    // info exits 2 when it reports a problem (a missing image), after printing the report.
+    let room = t.join("room");
+    copy_dir(&deepview_data::data_dir().join("colmap/room"), &room);
+    let first = std::fs::read_dir(room.join("images"))
+        .unwrap()
+        .next()
+        .unwrap()
+        .unwrap()
+        .path();
+    std::fs::remove_file(&first).unwrap();
+    let out = deepview(&["info", "--data", s(&room)]);
+    refused(
+        &out,
+        &["problem", first.file_name().unwrap().to_str().unwrap()],
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("images       problem"));
+}
