@@ -105,34 +105,66 @@ fn warp_into_portable(
     hom: &Hom,
     plane: Plane,
     dst: &mut [&mut [f32]],
-    mut valid: Option<&mut [f32]>,
+    valid: Option<&mut [f32]>,
 ) {
+    match dst.len() {
+        3 => warp_into_c::<3>(src, channels, src_w, src_h, hom, plane, dst, valid),
+        4 => warp_into_c::<4>(src, channels, src_w, src_h, hom, plane, dst, valid),
+        6 => warp_into_c::<6>(src, channels, src_w, src_h, hom, plane, dst, valid),
+        n => panic!("warp of {n} channels"),
+    }
+}
+
+/// [`warp_into`] for `C` output channels (the first `C` of each `channels`-float source texel).
+#[inline(always)]
+fn warp_into_c<const C: usize>(
+    src: &[f32],
+    channels: usize,
+    src_w: u32,
+    src_h: u32,
+    hom: &Hom,
+    plane: Plane,
+    dst: &mut [&mut [f32]],
+    valid: Option<&mut [f32]>,
+) {
+    assert!(channels >= C && dst.len() == C);
+    assert!(dst.iter().all(|d| d.len() >= plane.len()));
+    assert!(valid.as_ref().is_none_or(|v| v.len() >= plane.len()));
+    let texels = src.len() / channels;
+    assert!(texels >= src_w as usize * src_h as usize);
+    let ptrs: [*mut f32; C] = std::array::from_fn(|c| dst[c].as_mut_ptr());
+    let vptr = valid.map(|v| v.as_mut_ptr());
     let sampler = Sampler::new(*hom, src_w, src_h);
     for y in 0..plane.h {
         let row = sampler.row(y as u32);
         let base = plane.index(y, 0);
         for x in 0..plane.w {
             let i = base + x;
-            match row.tap(x as u32) {
-                None => {
-                    for d in dst.iter_mut() {
-                        d[i] = 0.0;
-                    }
-                    if let Some(v) = valid.as_deref_mut() {
-                        v[i] = 0.0;
-                    }
-                }
+            let (vals, ok) = match row.tap(x as u32) {
+                None => ([0f32; C], 0.0),
                 Some(t) => {
-                    for (c, d) in dst.iter_mut().enumerate() {
-                        let mut acc = 0f32;
-                        for j in 0..4 {
-                            acc += t.w[j] * src[t.idx[j] as usize * channels + c];
-                        }
-                        d[i] = acc;
+                    // The taps are texels of the source (clamped into it by the sampler).
+                    let s: [&[f32]; 4] =
+                        std::array::from_fn(|j| &src[t.idx[j] as usize * channels..][..C]);
+                    let mut v = [0f32; C];
+                    for c in 0..C {
+                        // Same order as the burn path's sum over the four taps.
+                        v[c] = t.w[0] * s[0][c]
+                            + t.w[1] * s[1][c]
+                            + t.w[2] * s[2][c]
+                            + t.w[3] * s[3][c];
                     }
-                    if let Some(v) = valid.as_deref_mut() {
-                        v[i] = 1.0;
-                    }
+                    (v, 1.0)
+                }
+            };
+            // SAFETY: `i < plane.len()` (an interior index), and every plane holds `plane.len()` floats
+            // (asserted above); the planes are distinct buffers.
+            unsafe {
+                for c in 0..C {
+                    *ptrs[c].add(i) = vals[c];
+                }
+                if let Some(v) = vptr {
+                    *v.add(i) = ok;
                 }
             }
         }
