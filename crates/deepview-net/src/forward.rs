@@ -40,6 +40,29 @@ pub struct WarpTable {
 impl WarpTable {
     /// Taps of `homs.len()` warps (one per plane). Empty sources or outputs are allowed (all invalid).
     pub fn new(homs: &[Hom], src_w: usize, src_h: usize, out_w: usize, out_h: usize) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        if deepview_kernels::simd() {
+            // SAFETY: the CPU has AVX2 and FMA (checked): the same code with hardware `fma`/`floor`
+            // instead of libm calls (identical results: `mul_add` is exact either way).
+            return unsafe { Self::new_fma(homs, src_w, src_h, out_w, out_h) };
+        }
+        Self::new_portable(homs, src_w, src_h, out_w, out_h)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn new_fma(
+        homs: &[Hom],
+        src_w: usize,
+        src_h: usize,
+        out_w: usize,
+        out_h: usize,
+    ) -> Self {
+        Self::new_portable(homs, src_w, src_h, out_w, out_h)
+    }
+
+    #[inline(always)]
+    fn new_portable(homs: &[Hom], src_w: usize, src_h: usize, out_w: usize, out_h: usize) -> Self {
         let n = homs.len() * out_w * out_h;
         let mut idx = vec![0i64; 4 * n];
         let mut w = vec![0f32; 4 * n];
