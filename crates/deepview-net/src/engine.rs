@@ -463,7 +463,7 @@ pub fn infer_engine(
                     for (v, (img, _)) in views.iter().enumerate() {
                         let mut ins = sc.view_inputs_mut(v);
                         let (rgb, rest) = ins.split_at_mut(3);
-                        let valid = rest[0].as_mut();
+                        let valid = &mut *rest[0];
                         warp_into(
                             &img.data,
                             img.channels,
@@ -485,7 +485,7 @@ pub fn infer_engine(
                                 .iter_mut()
                                 .zip(&pr[(p * 4 + c) * hw..(p * 4 + c + 1) * hw])
                             {
-                                *o = q + *o;
+                                *o += q;
                             }
                         }
                     }
@@ -527,7 +527,7 @@ pub fn infer_engine(
                             &homs[v][p],
                             plane,
                             ir,
-                            Some(valid[0].as_mut()),
+                            Some(&mut *valid[0]),
                         );
                         let at_plane = &renders.at[v][p * vpx * 4..][..vpx * 4];
                         warp_into(at_plane, 4, vw, vh, &homs[v][p], plane, atp, None);
