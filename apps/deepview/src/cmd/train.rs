@@ -142,25 +142,71 @@ fn parse_views_arg(s: &str) -> Result<(usize, usize), String> {
 }
 
 /// The options a resumed run keeps from its config.json, given on the command line.
-fn fixed_on_resume(args: &Args) -> Vec<&'static str> {
-    let given = [
-        (args.preset.is_some(), "--preset"),
-        (args.init.is_some(), "--init"),
-        (args.batch.is_some(), "--batch"),
-        (args.crop.is_some(), "--crop"),
-        (args.views.is_some(), "--views"),
-        (args.planes.is_some(), "--planes"),
-        (args.loss.is_some(), "--loss"),
-        (args.lr.is_some(), "--lr"),
-        (args.clip.is_some(), "--clip"),
-        (args.checkpoint_every.is_some(), "--checkpoint-every"),
-        (args.seed.is_some(), "--seed"),
-        (args.no_jitter, "--no-jitter"),
-        (args.holdout_every.is_some(), "--holdout-every"),
-        (args.recompute, "--recompute"),
-        (args.no_recompute, "--no-recompute"),
+fn fixed_on_resume(args: &Args, cfg: &RunConfig) -> Vec<&'static str> {
+    // Repeating the run's own value is fine (scripts re-run the same command with --resume); a
+    // different value cannot take effect, so it is refused rather than ignored.
+    let t = &cfg.train;
+    let differs = [
+        (
+            args.preset.as_ref().is_some_and(|p| *p != cfg.model.name),
+            "--preset",
+        ),
+        (
+            args.init
+                .as_ref()
+                .is_some_and(|i| Some(i) != t.init.as_ref()),
+            "--init",
+        ),
+        (args.batch.is_some_and(|b| b != t.batch), "--batch"),
+        (
+            args.crop.is_some_and(|c| c as usize != t.sample.crop),
+            "--crop",
+        ),
+        (
+            args.views
+                .is_some_and(|v| v != (t.sample.views_min, t.sample.views_max)),
+            "--views",
+        ),
+        (
+            args.planes.is_some_and(|p| p as usize != t.sample.planes),
+            "--planes",
+        ),
+        (args.loss.is_some_and(|l| l != t.loss), "--loss"),
+        (args.lr.is_some_and(|l| l != t.learning_rate), "--lr"),
+        (args.clip.is_some_and(|c| c != t.clip_norm), "--clip"),
+        (
+            args.checkpoint_every
+                .is_some_and(|c| c != t.checkpoint_every),
+            "--checkpoint-every",
+        ),
+        (args.seed.is_some_and(|v| v != t.seed), "--seed"),
+        (args.no_jitter && t.sample.jitter, "--no-jitter"),
+        (
+            args.holdout_every.is_some_and(|h| h != t.holdout_every),
+            "--holdout-every",
+        ),
+        (args.recompute && !t.recompute, "--recompute"),
+        (args.no_recompute && t.recompute, "--no-recompute"),
     ];
-    given.iter().filter(|g| g.0).map(|g| g.1).collect()
+    differs.iter().filter(|g| g.0).map(|g| g.1).collect()
+}
+
+fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
+    let fixed = fixed_on_resume(args, cfg);
+    if !fixed.is_empty() {
+        bail!(
+            "--resume keeps the run's own {}: {} differ from the run's config.json and cannot change on \
+             resume (only --steps, --devices, --data, --keep-checkpoints and the scene options can); start a \
+             new --name instead",
+            if fixed.len() == 1 {
+                "setting"
+            } else {
+                "settings"
+            },
+            fixed.join(", ")
+        );
+    }
+    Ok(())
 }
 
 /// Every scene must have more training views than the largest input count (the target is one of them).
@@ -243,29 +289,24 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     check_output("--runs/--name", &run_dir, Kind::Run, &inputs)?;
     let opts = args.scene.load_options();
     let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
-    if args.resume {
-        if !run_dir.join("config.json").is_file() {
-            bail!(
-                "--resume: there is no run {} (no config.json); start it without --resume",
-                run_dir.display()
-            );
-        }
-        let fixed = fixed_on_resume(&args);
-        if !fixed.is_empty() {
-            bail!(
-                "--resume keeps the run's own {}: {} cannot change on resume (only --steps, --devices, --data, \
-                 --keep-checkpoints and the scene options can); start a new --name instead",
-                if fixed.len() == 1 {
-                    "setting"
-                } else {
-                    "settings"
-                },
-                fixed.join(", ")
-            );
-        }
+    // `--resume` of a run without config.json (killed before it wrote anything, or never started).
+    // With --data (the whole command repeated, as a job script does after a crash) it starts; without,
+    // it is an error.
+    let started = run_dir.join("config.json").is_file();
+    if args.resume && !started && args.data.is_empty() {
+        bail!(
+            "--resume: there is no run {} (no config.json); start it without --resume",
+            run_dir.display()
+        );
+    }
+    if args.resume && !started && writer {
+        eprintln!(
+            "--resume: there is no run {} yet (no config.json; stopped before it started?): starting it",
+            run_dir.display()
+        );
     }
     // A run killed before its first checkpoint restarts from its config.json (said on stderr).
-    let mut mode = [if !args.resume {
+    let mut mode = [if !args.resume || !started {
         FRESH
     } else if !list_checkpoints(&run_dir)?.is_empty() {
         RESUME
@@ -281,6 +322,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             .with_context(|| format!("cannot read {}", cfg_path.display()))?;
         let cfg: RunConfig = serde_json::from_str(&text)
             .with_context(|| format!("invalid {}", cfg_path.display()))?;
+        check_fixed_on_resume(&args, &cfg)?;
         let paths = if args.data.is_empty() {
             cfg.train.data.clone()
         } else {
@@ -322,6 +364,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
                 cfg_path.display()
             )
         })?;
+        check_fixed_on_resume(&args, &cfg)?;
         if let Some(s) = args.steps {
             cfg.train.steps = s;
         }

@@ -1017,7 +1017,13 @@ impl Trainer {
         let dir = self.run_dir.join("checkpoints");
         let done = dir.join(format!("step-{:07}", self.step));
         self.check_replicas()?;
-        if !self.is_writer() || checkpoint_is_complete(&done) {
+        if !self.is_writer() {
+            return Ok(done);
+        }
+        if checkpoint_is_complete(&done) {
+            // Already written (a run resumed at a checkpoint it had saved but maybe not pruned after,
+            // when it was killed in between): prune now.
+            self.prune_checkpoints();
             return Ok(done);
         }
         let tmp = dir.join(format!(".tmp-step-{:07}-{}", self.step, std::process::id()));
