@@ -171,6 +171,98 @@ fn warp_into_c<const C: usize>(
     }
 }
 
+/// The gradient components' warps of one view and plane: `[I, R]` (6 channels) and `[A, T]` (4) of the same
+/// view pixels, with one bilinear tap per output texel for both (see [`warp_into`]).
+fn warp_pair_into(
+    src: (&[f32], &[f32]),
+    size: (u32, u32),
+    hom: &Hom,
+    plane: Plane,
+    dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
+    valid: &mut [f32],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if deepview_kernels::simd() {
+        // SAFETY: AVX2 and FMA are present (checked).
+        unsafe { warp_pair_into_fma(src, size, hom, plane, dst, valid) };
+        return;
+    }
+    warp_pair_into_portable(src, size, hom, plane, dst, valid)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn warp_pair_into_fma(
+    src: (&[f32], &[f32]),
+    size: (u32, u32),
+    hom: &Hom,
+    plane: Plane,
+    dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
+    valid: &mut [f32],
+) {
+    warp_pair_into_portable(src, size, hom, plane, dst, valid)
+}
+
+#[inline(always)]
+fn warp_pair_into_portable(
+    (a, b): (&[f32], &[f32]),
+    (src_w, src_h): (u32, u32),
+    hom: &Hom,
+    plane: Plane,
+    (da, db): (&mut [&mut [f32]], &mut [&mut [f32]]),
+    valid: &mut [f32],
+) {
+    const A: usize = 6;
+    const B: usize = 4;
+    let n = src_w as usize * src_h as usize;
+    assert!(a.len() >= n * A && b.len() >= n * B && da.len() == A && db.len() == B);
+    assert!(
+        da.iter().chain(db.iter()).all(|d| d.len() >= plane.len()) && valid.len() >= plane.len()
+    );
+    let pa: [*mut f32; A] = std::array::from_fn(|c| da[c].as_mut_ptr());
+    let pb: [*mut f32; B] = std::array::from_fn(|c| db[c].as_mut_ptr());
+    let sampler = Sampler::new(*hom, src_w, src_h);
+    for y in 0..plane.h {
+        let row = sampler.row(y as u32);
+        let base = plane.index(y, 0);
+        for x in 0..plane.w {
+            let i = base + x;
+            let (va, vb, ok) = match row.tap(x as u32) {
+                None => ([0f32; A], [0f32; B], 0.0),
+                Some(t) => {
+                    let ix: [usize; 4] = std::array::from_fn(|j| t.idx[j] as usize);
+                    let mut va = [0f32; A];
+                    let mut vb = [0f32; B];
+                    for c in 0..A {
+                        va[c] = t.w[0] * a[ix[0] * A + c]
+                            + t.w[1] * a[ix[1] * A + c]
+                            + t.w[2] * a[ix[2] * A + c]
+                            + t.w[3] * a[ix[3] * A + c];
+                    }
+                    for c in 0..B {
+                        vb[c] = t.w[0] * b[ix[0] * B + c]
+                            + t.w[1] * b[ix[1] * B + c]
+                            + t.w[2] * b[ix[2] * B + c]
+                            + t.w[3] * b[ix[3] * B + c];
+                    }
+                    (va, vb, 1.0)
+                }
+            };
+            // SAFETY: `i < plane.len()` (an interior index) and the planes hold `plane.len()` floats
+            // (asserted); they are distinct buffers.
+            unsafe {
+                for c in 0..A {
+                    *pa[c].add(i) = va[c];
+                }
+                for c in 0..B {
+                    *pb[c].add(i) = vb[c];
+                }
+            }
+            valid[i] = ok;
+        }
+    }
+}
+
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
@@ -180,72 +272,54 @@ fn logit(p: f32) -> f32 {
     (p / (1.0 - p)).ln()
 }
 
-/// The agreement prior's RGBA logits `[D][4][H*W]` from the views' plane sweeps (see
-/// [`crate::network::agreement_prior_logits`]; same arithmetic).
-fn agreement_prior(
-    views: &[(ImageF32, Camera)],
-    homs: &[Vec<Hom>],
-    plane: Plane,
-    d: usize,
-    temperature: f64,
-) -> Vec<f32> {
+/// Pass 1 of the agreement prior (see [`crate::network::agreement_prior_logits`], same arithmetic) on
+/// one plane: from the views' plane sweeps `psv` (per view: R, G, B, validity planes of `plane`), the mean
+/// colour and the masked logit of the depth weight into `o` (`[4][H*W]`).
+fn prior_stats(psv: &[&mut [f32]], plane: Plane, temperature: f64, o: &mut [f32]) {
     let hw = plane.h * plane.w;
-    let k = views.len();
-    // Pass 1, per plane: mean colour and the (masked) logit of the depth weight.
-    let mut out = vec![0f32; d * 4 * hw];
-    out.par_chunks_mut(4 * hw).enumerate().for_each(|(p, o)| {
-        let mut psv: Vec<Vec<f32>> = (0..4 * k).map(|_| plane.zeroed()).collect();
-        for (v, (img, _)) in views.iter().enumerate() {
-            let (rgb, rest) = psv[4 * v..4 * v + 4].split_at_mut(3);
-            let mut dst: Vec<&mut [f32]> = rgb.iter_mut().map(|b| b.as_mut_slice()).collect();
-            warp_into(
-                &img.data,
-                img.channels,
-                img.width,
-                img.height,
-                &homs[v][p],
-                plane,
-                &mut dst,
-                Some(&mut rest[0]),
-            );
-        }
-        let (mean, lg) = o.split_at_mut(3 * hw);
-        for y in 0..plane.h {
-            for x in 0..plane.w {
-                let i = plane.index(y, x);
-                let o = y * plane.w + x;
-                let mut count = 0f32;
-                let mut sum = [0f32; 3];
-                for v in 0..k {
-                    let m = psv[4 * v + 3][i];
-                    count += m;
-                    for c in 0..3 {
-                        sum[c] += psv[4 * v + c][i] * m;
-                    }
-                }
-                let denom = count.max(1.0);
-                let mu = [sum[0] / denom, sum[1] / denom, sum[2] / denom];
-                let mut var = [0f32; 3];
-                for v in 0..k {
-                    let m = psv[4 * v + 3][i];
-                    for c in 0..3 {
-                        let e = psv[4 * v + c][i] * m - mu[c] * m;
-                        var[c] += e * e;
-                    }
-                }
-                let mut var = (var[0] / denom + var[1] / denom + var[2] / denom) / 3.0;
-                if count == 1.0 {
-                    var = PRIOR_SINGLE_VIEW_VARIANCE as f32;
-                }
-                let seen = if count > 0.5 { 1.0 } else { 0.0 };
-                let l = -var / temperature as f32;
+    let k = psv.len() / 4;
+    let (mean, lg) = o.split_at_mut(3 * hw);
+    for y in 0..plane.h {
+        for x in 0..plane.w {
+            let i = plane.index(y, x);
+            let o = y * plane.w + x;
+            let mut count = 0f32;
+            let mut sum = [0f32; 3];
+            for v in 0..k {
+                let m = psv[4 * v + 3][i];
+                count += m;
                 for c in 0..3 {
-                    mean[c * hw + o] = mu[c];
+                    sum[c] += psv[4 * v + c][i] * m;
                 }
-                lg[o] = l * seen + (1.0 - seen) * -1e30;
             }
+            let denom = count.max(1.0);
+            let mu = [sum[0] / denom, sum[1] / denom, sum[2] / denom];
+            let mut var = [0f32; 3];
+            for v in 0..k {
+                let m = psv[4 * v + 3][i];
+                for c in 0..3 {
+                    let e = psv[4 * v + c][i] * m - mu[c] * m;
+                    var[c] += e * e;
+                }
+            }
+            let mut var = (var[0] / denom + var[1] / denom + var[2] / denom) / 3.0;
+            if count == 1.0 {
+                var = PRIOR_SINGLE_VIEW_VARIANCE as f32;
+            }
+            let seen = if count > 0.5 { 1.0 } else { 0.0 };
+            let l = -var / temperature as f32;
+            for c in 0..3 {
+                mean[c * hw + o] = mu[c];
+            }
+            lg[o] = l * seen + (1.0 - seen) * -1e30;
         }
-    });
+    }
+}
+
+/// Pass 2 of the agreement prior over all `d` planes of `out` (`[D][4][H*W]` from [`prior_stats`]): per
+/// pixel, back to front, `alpha_d = w_d / sum_{i<=d} w_i` in the log domain; then every value turned into
+/// its clamped logit.
+fn prior_logits(out: &mut [f32], d: usize, hw: usize) {
     // Pass 2, per pixel over planes back to front: alpha_d = w_d / sum_{i<=d} w_i (log domain).
     let base = out.as_mut_ptr() as usize;
     (0..hw).into_par_iter().with_min_len(256).for_each(|o| {
@@ -275,7 +349,6 @@ fn agreement_prior(
             }
         }
     });
-    out
 }
 
 /// The views' renders of an RGBA MPI (`[D][H][W][4]`, premultiplied): per view, `[y][x][6]` of `I` and
@@ -455,8 +528,10 @@ pub fn infer_engine(
     for (n, net) in nets.iter().enumerate() {
         let cin = net.in_channels();
         if n == 0 {
-            let prior = (model.prior_temperature > 0.0)
-                .then(|| agreement_prior(views, &homs, plane, d, model.prior_temperature));
+            // The plane sweeps feed both the net and the agreement prior's first pass.
+            let temperature = model.prior_temperature;
+            let mut prior = vec![0f32; if temperature > 0.0 { d * 4 * hw } else { 0 }];
+            let prior_ptr = prior.as_mut_ptr() as usize;
             state.par_chunks_mut(s * hw).enumerate().for_each_init(
                 || NetScratch::new(net, plane, k),
                 |sc, (p, st)| {
@@ -475,22 +550,37 @@ pub fn infer_engine(
                             Some(valid),
                         );
                     }
+                    if temperature > 0.0 {
+                        let psv = sc.inputs_mut();
+                        // SAFETY: plane p's `4 * hw` values of the prior, written by this task only.
+                        let o = unsafe {
+                            std::slice::from_raw_parts_mut(
+                                (prior_ptr as *mut f32).add(p * 4 * hw),
+                                4 * hw,
+                            )
+                        };
+                        prior_stats(&psv, plane, temperature, o);
+                    }
                     sc.run(net);
                     for c in 0..s {
                         plane.unpad_into(sc.output(c), &mut st[c * hw..(c + 1) * hw]);
-                        if let Some(pr) = &prior
-                            && c < 4
-                        {
-                            for (o, &q) in st[c * hw..(c + 1) * hw]
-                                .iter_mut()
-                                .zip(&pr[(p * 4 + c) * hw..(p * 4 + c + 1) * hw])
-                            {
-                                *o += q;
-                            }
-                        }
                     }
                 },
             );
+            if temperature > 0.0 {
+                prior_logits(&mut prior, d, hw);
+                state
+                    .par_chunks_mut(s * hw)
+                    .enumerate()
+                    .for_each(|(p, st)| {
+                        for (o, &q) in st[..4 * hw]
+                            .iter_mut()
+                            .zip(&prior[p * 4 * hw..(p + 1) * 4 * hw])
+                        {
+                            *o += q;
+                        }
+                    });
+            }
             debug_assert_eq!(cin, crate::network::INIT_CHANNELS);
         } else {
             // RGBA of the current state, `[D][H][W][4]`.
@@ -519,18 +609,15 @@ pub fn infer_engine(
                         let (ir, rest) = ins.split_at_mut(6);
                         let (atp, rest) = rest.split_at_mut(4);
                         let (valid, st_planes) = rest.split_at_mut(1);
-                        warp_into(
-                            &renders.ir[v],
-                            6,
-                            vw,
-                            vh,
+                        let at_plane = &renders.at[v][p * vpx * 4..][..vpx * 4];
+                        warp_pair_into(
+                            (&renders.ir[v], at_plane),
+                            (vw, vh),
                             &homs[v][p],
                             plane,
-                            ir,
-                            Some(&mut *valid[0]),
+                            (ir, atp),
+                            &mut valid[0],
                         );
-                        let at_plane = &renders.at[v][p * vpx * 4..][..vpx * 4];
-                        warp_into(at_plane, 4, vw, vh, &homs[v][p], plane, atp, None);
                         for (c, dst) in st_planes.iter_mut().enumerate() {
                             plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
                         }

@@ -430,6 +430,16 @@ impl NetScratch {
             .collect()
     }
 
+    /// The padded input planes of every view, view after view (`K * Cin` planes).
+    pub(crate) fn inputs_mut(&mut self) -> Vec<&mut [f32]> {
+        let per_view = self.cin + 2 * self.f;
+        let cin = self.cin;
+        self.planes.bufs[..self.views * per_view]
+            .chunks_mut(per_view)
+            .flat_map(|v| v[..cin].iter_mut().map(|b| b.as_mut_slice()))
+            .collect()
+    }
+
     /// The padded output plane of channel `c` after [`Self::run`].
     pub(crate) fn output(&self, c: usize) -> &[f32] {
         debug_assert!(c < self.so);
