@@ -9,7 +9,7 @@
 //! ([`crate::infer`]) when it exceeds the budget or the model has U-Net nets.
 
 use crate::forward::{Hom, invert};
-use crate::kernels::{NetScratch, PackedNet};
+use crate::kernels::{NetScratch, PackedNet, for_each_chunk_with};
 use crate::network::{DeepViewModel, PRIOR_EPS, PRIOR_SINGLE_VIEW_VARIANCE};
 use deepview_geometry::{Camera, plane_homography};
 use deepview_image::ImageF32;
@@ -532,7 +532,9 @@ pub fn infer_engine(
             let temperature = model.prior_temperature;
             let mut prior = vec![0f32; if temperature > 0.0 { d * 4 * hw } else { 0 }];
             let prior_ptr = prior.as_mut_ptr() as usize;
-            state.par_chunks_mut(s * hw).enumerate().for_each_init(
+            for_each_chunk_with(
+                &mut state,
+                s * hw,
                 || NetScratch::new(net, plane, k),
                 |sc, (p, st)| {
                     for (v, (img, _)) in views.iter().enumerate() {
@@ -598,7 +600,9 @@ pub fn infer_engine(
             let renders = render_views(&rgba, views, &homs, w, h, d);
             drop(rgba);
             // In place: plane p's update reads only its own state and the renders (made before).
-            state.par_chunks_mut(s * hw).enumerate().for_each_init(
+            for_each_chunk_with(
+                &mut state,
+                s * hw,
                 || NetScratch::new(net, plane, k),
                 |sc, (p, st)| {
                     for (v, (img, _)) in views.iter().enumerate() {

@@ -340,6 +340,30 @@ impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C>
     }
 }
 
+/// `f(scratch, (i, chunk))` for every `len`-sized chunk of `data`, the chunks dealt round-robin to one task
+/// per rayon thread, each with one `init()` scratch (rayon's `for_each_init` may call `init` once per
+/// split: for plane-sized scratch that is hundreds of MB zeroed again and again).
+pub(crate) fn for_each_chunk_with<S, I, F>(data: &mut [f32], len: usize, init: I, f: F)
+where
+    I: Fn() -> S + Sync,
+    F: Fn(&mut S, (usize, &mut [f32])) + Sync,
+{
+    let threads = rayon::current_num_threads().max(1);
+    let mut groups: Vec<Vec<(usize, &mut [f32])>> = (0..threads).map(|_| Vec::new()).collect();
+    for (i, c) in data.chunks_mut(len.max(1)).enumerate() {
+        groups[i % threads].push((i, c));
+    }
+    groups.into_par_iter().for_each(|g| {
+        if g.is_empty() {
+            return;
+        }
+        let mut s = init();
+        for item in g {
+            f(&mut s, item);
+        }
+    });
+}
+
 /// A core net's convolutions packed for the kernels.
 pub(crate) struct PackedNet {
     input: Vec<PackedConv>,
@@ -535,7 +559,9 @@ pub fn core_net_inference(
     let hw = h * w;
     let mut result = vec![0f32; d * so * hw];
     if hw > 0 {
-        result.par_chunks_mut(so * hw).enumerate().for_each_init(
+        for_each_chunk_with(
+            &mut result,
+            so * hw,
             || NetScratch::new(&net, plane, views),
             |s, (p, res)| {
                 for k in 0..views {
