@@ -620,7 +620,7 @@ pub fn infer_engine(
                             &homs[v][p],
                             plane,
                             (ir, atp),
-                            &mut valid[0],
+                            valid[0],
                         );
                         for (c, dst) in st_planes.iter_mut().enumerate() {
                             plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
