@@ -31,7 +31,6 @@ enum Command {
     Bench(cmd::bench::BenchCommand),
     /// Print what a dataset folder contains (format, views, cameras, depth bounds).
     Info(cmd::info::Args),
-    // -- commands added by the other parts of the project go below this line --
     /// Serve the WebGL2 viewer for an MPI folder on a local web server.
     View(cmd::view::Args),
     /// Write the web viewer and an MPI as a static folder for any web host.
@@ -65,7 +64,6 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Depth(a) => cmd::depth::run(a),
         Command::Bench(a) => cmd::bench::run(a),
         Command::Info(a) => cmd::info::run(a),
-        // -- dispatch lines of the other commands go below this line --
         Command::View(a) => cmd::view::run(a),
         Command::ExportWeb(a) => cmd::export_web::run(a),
         Command::Export(a) => cmd::export::run(a),
