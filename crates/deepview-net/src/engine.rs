@@ -58,6 +58,22 @@ pub fn engine_bytes(
     4 * (d64 * s * hw + d64 * 4 * hw + renders + threads * scratch)
 }
 
+/// Run `f` compiled with AVX2 + FMA where the CPU has them (the warps' `mul_add` and `floor` become
+/// instructions instead of libm calls; `f`'s body is inlined into the feature-enabled function), else as is.
+#[inline(always)]
+fn with_fma<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if deepview_kernels::simd() {
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn fma<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        // SAFETY: AVX2 and FMA are present (checked).
+        return unsafe { fma(f) };
+    }
+    f()
+}
+
 /// Bilinear warp of an interleaved `channels`-channel `src_w x src_h` source by `hom` (output pixels ->
 /// source pixels, the project's sampling rule) into channel planes `dst[c]` of `plane`; `valid` gets 1
 /// where the sample is inside the source. Outside: 0.
@@ -71,28 +87,27 @@ fn warp_into(
     dst: &mut [&mut [f32]],
     valid: Option<&mut [f32]>,
 ) {
+    // Not through `with_fma`: a closure over the three channel-count monomorphs is not inlined into it.
     #[cfg(target_arch = "x86_64")]
     if deepview_kernels::simd() {
-        // SAFETY: the CPU has AVX2 and FMA (checked); the body is the portable one, compiled with
-        // hardware `fma` and `floor` (otherwise libm calls).
-        unsafe { warp_into_fma(src, channels, src_w, src_h, hom, plane, dst, valid) };
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn fma(
+            src: &[f32],
+            channels: usize,
+            src_w: u32,
+            src_h: u32,
+            hom: &Hom,
+            plane: Plane,
+            dst: &mut [&mut [f32]],
+            valid: Option<&mut [f32]>,
+        ) {
+            warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
+        }
+        // SAFETY: AVX2 and FMA are present (checked).
+        unsafe { fma(src, channels, src_w, src_h, hom, plane, dst, valid) };
         return;
     }
-    warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn warp_into_fma(
-    src: &[f32],
-    channels: usize,
-    src_w: u32,
-    src_h: u32,
-    hom: &Hom,
-    plane: Plane,
-    dst: &mut [&mut [f32]],
-    valid: Option<&mut [f32]>,
-) {
     warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
 }
 
@@ -181,26 +196,7 @@ fn warp_pair_into(
     dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
     valid: &mut [f32],
 ) {
-    #[cfg(target_arch = "x86_64")]
-    if deepview_kernels::simd() {
-        // SAFETY: AVX2 and FMA are present (checked).
-        unsafe { warp_pair_into_fma(src, size, hom, plane, dst, valid) };
-        return;
-    }
-    warp_pair_into_portable(src, size, hom, plane, dst, valid)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn warp_pair_into_fma(
-    src: (&[f32], &[f32]),
-    size: (u32, u32),
-    hom: &Hom,
-    plane: Plane,
-    dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
-    valid: &mut [f32],
-) {
-    warp_pair_into_portable(src, size, hom, plane, dst, valid)
+    with_fma(|| warp_pair_into_portable(src, size, hom, plane, dst, valid))
 }
 
 #[inline(always)]
@@ -265,6 +261,22 @@ fn warp_pair_into_portable(
 
 fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
+}
+
+/// The state `[D][S][H*W]` -> premultiplied RGBA `[D][H*W][4]` (see `network::state_to_rgba`).
+fn state_to_rgba(state: &[f32], s: usize, hw: usize) -> Vec<f32> {
+    let mut rgba = vec![0f32; state.len() / s * 4];
+    rgba.par_chunks_mut(hw * 4).enumerate().for_each(|(p, r)| {
+        let st = &state[p * s * hw..];
+        for (i, t) in r.chunks_exact_mut(4).enumerate() {
+            let a = sigmoid(st[3 * hw + i]);
+            for c in 0..3 {
+                t[c] = sigmoid(st[c * hw + i]) * a;
+            }
+            t[3] = a;
+        }
+    });
+    rgba
 }
 
 fn logit(p: f32) -> f32 {
@@ -400,30 +412,7 @@ fn render_row(
     h: usize,
     d: usize,
 ) {
-    #[cfg(target_arch = "x86_64")]
-    if deepview_kernels::simd() {
-        // SAFETY: AVX2 and FMA are present (checked).
-        unsafe { render_row_fma(rgba, img, samplers, y, row, at_ptr, w, h, d) };
-        return;
-    }
-    render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d)
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn render_row_fma(
-    rgba: &[f32],
-    img: &ImageF32,
-    samplers: &[Sampler],
-    y: usize,
-    row: &mut [f32],
-    at_ptr: usize,
-    w: usize,
-    h: usize,
-    d: usize,
-) {
-    render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d)
+    with_fma(|| render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d))
 }
 
 #[inline(always)]
@@ -586,17 +575,7 @@ pub fn infer_engine(
             debug_assert_eq!(cin, crate::network::INIT_CHANNELS);
         } else {
             // RGBA of the current state, `[D][H][W][4]`.
-            let mut rgba = vec![0f32; d * hw * 4];
-            rgba.par_chunks_mut(hw * 4).enumerate().for_each(|(p, r)| {
-                let st = &state[p * s * hw..];
-                for (i, t) in r.chunks_exact_mut(4).enumerate() {
-                    let a = sigmoid(st[3 * hw + i]);
-                    for c in 0..3 {
-                        t[c] = sigmoid(st[c * hw + i]) * a;
-                    }
-                    t[3] = a;
-                }
-            });
+            let rgba = state_to_rgba(&state, s, hw);
             let renders = render_views(&rgba, views, &homs, w, h, d);
             drop(rgba);
             // In place: plane p's update reads only its own state and the renders (made before).
@@ -644,21 +623,7 @@ pub fn infer_engine(
         progress(n);
     }
     // Premultiplied RGBA `[D][H][W][4]`.
-    let mut layers = vec![0f32; d * hw * 4];
-    layers
-        .par_chunks_mut(hw * 4)
-        .enumerate()
-        .for_each(|(p, r)| {
-            let st = &state[p * s * hw..];
-            for (i, t) in r.chunks_exact_mut(4).enumerate() {
-                let a = sigmoid(st[3 * hw + i]);
-                for c in 0..3 {
-                    t[c] = sigmoid(st[c * hw + i]) * a;
-                }
-                t[3] = a;
-            }
-        });
-    layers
+    state_to_rgba(&state, s, hw)
 }
 
 #[cfg(test)]
