@@ -63,9 +63,11 @@ pub struct Args {
     /// fixed count, or 2..4.
     #[arg(long, value_parser = parse_views_arg)]
     pub views: Option<(usize, usize)>,
-    /// MPI planes during training (default: the preset's training plane count).
-    #[arg(long, value_parser = clap::value_parser!(u64).range(2..=1024))]
-    pub planes: Option<u64>,
+    /// MPI planes during training: a count (default: the preset's training plane count), or `auto` /
+    /// `auto:MAX`: per tuple, the count `infer --planes auto` chooses for its inputs (1 px of disparity
+    /// between planes), from 8 to MAX (default 64).
+    #[arg(long, value_parser = parse_train_planes)]
+    pub planes: Option<(bool, usize)>,
     /// Training loss: vgg (the paper's feature loss, default) or l1.
     #[arg(long)]
     pub loss: Option<LossKind>,
@@ -95,6 +97,14 @@ pub struct Args {
     /// Disable the random jitter of plane depths.
     #[arg(long)]
     pub no_jitter: bool,
+    /// Disable the colour and exposure jitter of training tuples (one random exposure and channel gain
+    /// per tuple, +-5% exposure per input view).
+    #[arg(long)]
+    pub no_colour_jitter: bool,
+    /// Probability (0..1) that a tuple's K inputs are K random views among the target's 3K nearest
+    /// instead of its K nearest: wider, uneven baselines (default 0).
+    #[arg(long, value_name = "P", value_parser = parse_probability)]
+    pub wide_inputs: Option<f64>,
     /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none; 1 would hold out
     /// every view). Default 8.
     #[arg(long, value_parser = parse_holdout)]
@@ -137,6 +147,34 @@ fn parse_holdout(s: &str) -> Result<usize, String> {
     }
 }
 
+fn parse_probability(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(p) if (0.0..=1.0).contains(&p) => Ok(p),
+        _ => Err(format!("expected a probability between 0 and 1, got `{s}`")),
+    }
+}
+
+/// Largest plane count of `--planes auto` in training (the cost of a step grows with it).
+const TRAIN_AUTO_PLANES_MAX: usize = 64;
+
+/// `--planes N`, `auto` or `auto:MAX` -> (auto, count or maximum).
+fn parse_train_planes(s: &str) -> Result<(bool, usize), String> {
+    let count = |v: &str| match v.parse::<usize>() {
+        Ok(n) if (2..=1024).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "expected a plane count in 2..=1024, `auto` or `auto:MAX`, got `{s}`"
+        )),
+    };
+    match s.strip_prefix("auto") {
+        Some("") => Ok((true, TRAIN_AUTO_PLANES_MAX)),
+        Some(rest) => match rest.strip_prefix(':') {
+            Some(m) => count(m).map(|n| (true, n)),
+            None => count(s).map(|n| (false, n)),
+        },
+        None => count(s).map(|n| (false, n)),
+    }
+}
+
 fn parse_views_arg(s: &str) -> Result<(usize, usize), String> {
     parse_views(s).map_err(|e| e.to_string())
 }
@@ -168,7 +206,8 @@ fn fixed_on_resume(args: &Args, cfg: &RunConfig) -> Vec<&'static str> {
             "--views",
         ),
         (
-            args.planes.is_some_and(|p| p as usize != t.sample.planes),
+            args.planes
+                .is_some_and(|p| p != (t.sample.auto_planes, t.sample.planes)),
             "--planes",
         ),
         (args.loss.is_some_and(|l| l != t.loss), "--loss"),
@@ -181,6 +220,14 @@ fn fixed_on_resume(args: &Args, cfg: &RunConfig) -> Vec<&'static str> {
         ),
         (args.seed.is_some_and(|v| v != t.seed), "--seed"),
         (args.no_jitter && t.sample.jitter, "--no-jitter"),
+        (
+            args.no_colour_jitter && t.sample.colour_jitter,
+            "--no-colour-jitter",
+        ),
+        (
+            args.wide_inputs.is_some_and(|p| p != t.sample.wide_inputs),
+            "--wide-inputs",
+        ),
         (
             args.holdout_every.is_some_and(|h| h != t.holdout_every),
             "--holdout-every",
@@ -405,10 +452,12 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         if let Some((a, b)) = args.views {
             (train.sample.views_min, train.sample.views_max) = (a, b);
         }
-        if let Some(p) = args.planes {
-            train.sample.planes = p as usize;
+        if let Some((auto, p)) = args.planes {
+            (train.sample.auto_planes, train.sample.planes) = (auto, p);
         }
         train.sample.jitter = !args.no_jitter;
+        train.sample.colour_jitter = !args.no_colour_jitter;
+        train.sample.wide_inputs = args.wide_inputs.unwrap_or(0.0);
         if let Some(l) = args.loss {
             train.loss = l;
         }

@@ -204,6 +204,34 @@ pub struct SampleConfig {
     pub planes: usize,
     /// Random offset of the inverse-depth grid by up to half a step.
     pub jitter: bool,
+    /// Plane count per tuple from its cameras by the inference rule (`--planes auto`,
+    /// [`deepview_geometry::auto_plane_count`] between the tuple's reference and its inputs), at least
+    /// [`deepview_geometry::AUTO_PLANES_MIN`] and at most `planes`. Off: always `planes`.
+    #[serde(default)]
+    pub auto_planes: bool,
+    /// Colour and exposure jitter: one random exposure and per-channel gain for the whole tuple, plus a
+    /// small exposure difference per input view (captures from phones and video change exposure).
+    #[serde(default)]
+    pub colour_jitter: bool,
+    /// Probability that a tuple's K inputs are K random views among the target's 3K nearest training
+    /// views instead of its K nearest: wider and uneven baselines, targets inside or beyond the inputs
+    /// (like the Spaces quads or the demo's corner views). 0: always the K nearest.
+    #[serde(default)]
+    pub wide_inputs: f64,
+}
+
+/// Colour jitter ranges (natural-log units): whole-tuple exposure, per-channel gain, per-input exposure.
+const EXPOSURE_LOG: f64 = 0.3;
+const CHANNEL_LOG: f64 = 0.1;
+const VIEW_LOG: f64 = 0.05;
+
+fn scale_clamped(img: &mut ImageF32, gains: [f32; 3]) {
+    let c = img.channels;
+    for px in img.data.chunks_exact_mut(c) {
+        for (v, g) in px.iter_mut().zip(gains) {
+            *v = (*v * g).clamp(0.0, 1.0);
+        }
+    }
 }
 
 /// One training tuple, device-free (plain `f32` data).
@@ -321,7 +349,28 @@ impl TrainData {
         let s = &self.scenes[si];
         let target = s.train_views[rng.below(s.train_views.len())];
         let u = if cfg.jitter { rng.uniform() - 0.5 } else { 0.0 };
-        let depths = jittered_depths(s.near, s.far, cfg.planes, u);
+        let inputs = if cfg.wide_inputs > 0.0 && rng.uniform() < cfg.wide_inputs {
+            let mut pool = self.nearest_inputs(si, target, 3 * views.max(1));
+            // A uniformly random K-subset (partial Fisher-Yates), in pool order.
+            let k = views.max(1).min(pool.len());
+            for i in 0..k {
+                let j = i + rng.below(pool.len() - i);
+                pool.swap(i, j);
+            }
+            pool.truncate(k);
+            pool
+        } else {
+            self.nearest_inputs(si, target, views)
+        };
+        let planes = if cfg.auto_planes {
+            self.auto_planes_for(si, &inputs)?.clamp(
+                deepview_geometry::AUTO_PLANES_MIN.min(cfg.planes),
+                cfg.planes,
+            )
+        } else {
+            cfg.planes
+        };
+        let depths = jittered_depths(s.near, s.far, planes, u);
         let tcam = &s.cameras[target];
         let c = cfg.crop as u32;
         if tcam.width < c || tcam.height < c {
@@ -335,15 +384,68 @@ impl TrainData {
         }
         let cx0 = rng.below((tcam.width - c + 1) as usize) as u32;
         let cy0 = rng.below((tcam.height - c + 1) as usize) as u32;
-        self.example(
+        let mut ex = self.example_with_inputs(
             si,
             target,
-            views,
+            inputs,
             depths,
             (cx0, cy0),
             cfg.crop,
             model.margin_from(0),
-        )
+        )?;
+        if cfg.colour_jitter {
+            let mut log_uniform = |r: f64| ((rng.uniform() * 2.0 - 1.0) * r).exp();
+            let e = log_uniform(EXPOSURE_LOG);
+            let g: [f64; 3] = std::array::from_fn(|_| e * log_uniform(CHANNEL_LOG));
+            let views: Vec<f64> = (0..ex.images.len())
+                .map(|_| log_uniform(VIEW_LOG))
+                .collect();
+            scale_clamped(&mut ex.target_crop, g.map(|v| v as f32));
+            for (img, v) in ex.images.iter_mut().zip(views) {
+                scale_clamped(img, g.map(|x| (x * v) as f32));
+            }
+        }
+        Ok(ex)
+    }
+
+    /// The K training views nearest to `target` by camera centre (ties broken by index), K = `views`.
+    fn nearest_inputs(&self, si: usize, target: usize, views: usize) -> Vec<usize> {
+        let s = &self.scenes[si];
+        let tcam = s.cameras[target];
+        let mut others: Vec<(f64, usize)> = s
+            .train_views
+            .iter()
+            .filter(|&&v| v != target)
+            .map(|&v| ((s.cameras[v].center() - tcam.center()).length(), v))
+            .collect();
+        others.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        others.iter().take(views.max(1)).map(|x| x.1).collect()
+    }
+
+    /// The inference plane rule ([`deepview_geometry::auto_plane_count`]) for the tuple of `target` with
+    /// `views` inputs: the count `infer --planes auto` would use for those inputs (before clamping).
+    pub fn auto_planes(&self, si: usize, target: usize, views: usize) -> Result<usize, DataError> {
+        self.auto_planes_for(si, &self.nearest_inputs(si, target, views))
+    }
+
+    /// The inference plane rule for these input views of scene `si`.
+    fn auto_planes_for(&self, si: usize, inputs: &[usize]) -> Result<usize, DataError> {
+        let s = &self.scenes[si];
+        let cams: Vec<Camera> = inputs.iter().map(|&i| s.cameras[i]).collect();
+        let reference =
+            reference_camera(&cams, &ReferenceOptions::default()).map_err(|source| {
+                DataError::Geometry {
+                    scene: s.name.clone(),
+                    source,
+                }
+            })?;
+        Ok(deepview_geometry::auto_plane_count(
+            &reference,
+            &cams,
+            s.near,
+            s.far,
+            deepview_geometry::AUTO_MAX_SPACING_PX,
+        ))
     }
 
     /// Build the tuple for a given scene, target, input count, plane depths and target crop.
@@ -357,21 +459,28 @@ impl TrainData {
         crop: usize,
         margin: usize,
     ) -> Result<Example, DataError> {
+        let inputs = self.nearest_inputs(si, target, views);
+        self.example_with_inputs(si, target, inputs, depths, crop_origin, crop, margin)
+    }
+
+    /// [`Self::example`] with the input views given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn example_with_inputs(
+        &self,
+        si: usize,
+        target: usize,
+        inputs: Vec<usize>,
+        depths: Vec<f64>,
+        crop_origin: (u32, u32),
+        crop: usize,
+        margin: usize,
+    ) -> Result<Example, DataError> {
         let s = &self.scenes[si];
         let geo = |source| DataError::Geometry {
             scene: s.name.clone(),
             source,
         };
         let tcam = s.cameras[target];
-        // K nearest other training views (ties broken by index).
-        let mut others: Vec<(f64, usize)> = s
-            .train_views
-            .iter()
-            .filter(|&&v| v != target)
-            .map(|&v| ((s.cameras[v].center() - tcam.center()).length(), v))
-            .collect();
-        others.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-        let inputs: Vec<usize> = others.iter().take(views.max(1)).map(|x| x.1).collect();
         let in_cams: Vec<Camera> = inputs.iter().map(|&i| s.cameras[i]).collect();
         let reference = reference_camera(&in_cams, &ReferenceOptions::default()).map_err(geo)?;
 
@@ -529,6 +638,167 @@ mod tests {
         assert_eq!(t.train_views, vec![1, 2, 3, 4, 5, 6, 7]);
     }
 
+    /// `auto_planes`: each tuple gets the plane count of the inference rule for its own inputs, clamped to
+    /// 8..=planes; without it, always `planes`.
+    #[test]
+    fn auto_planes_follow_the_inference_rule() {
+        let data = TrainData::new(vec![two_plane_scene(4, 4, 96, 0.6)]).unwrap();
+        let mut cfg = SampleConfig {
+            crop: 16,
+            views_min: 2,
+            views_max: 5,
+            planes: 40,
+            jitter: true,
+            auto_planes: true,
+            colour_jitter: false,
+            wide_inputs: 0.0,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let mut rng = Rng::new(11);
+        let s = &data.scenes[0];
+        let mut counts = std::collections::BTreeSet::new();
+        for _ in 0..20 {
+            let k = data.draw_views(&cfg, &mut rng);
+            let ex = data.sample(&cfg, &model, k, &mut rng).unwrap();
+            let cams: Vec<Camera> = ex.inputs.iter().map(|&i| s.cameras[i]).collect();
+            let reference = reference_camera(&cams, &ReferenceOptions::default()).unwrap();
+            let want = deepview_geometry::auto_plane_count(&reference, &cams, s.near, s.far, 1.0);
+            assert_eq!(ex.depths.len(), want.clamp(8, 40), "inputs {:?}", ex.inputs);
+            counts.insert(ex.depths.len());
+        }
+        assert!(
+            counts.len() > 1,
+            "the scene's tuples should need different counts: {counts:?}"
+        );
+        cfg.auto_planes = false;
+        let ex = data.sample(&cfg, &model, 3, &mut rng).unwrap();
+        assert_eq!(ex.depths.len(), 40);
+    }
+
+    /// `wide_inputs = 1`: K distinct training views among the target's 3K nearest, never the target, and
+    /// not always the K nearest.
+    #[test]
+    fn wide_inputs_come_from_the_3k_nearest() {
+        let data = TrainData::new(vec![two_plane_scene(4, 4, 48, 0.15)]).unwrap();
+        let cfg = SampleConfig {
+            crop: 16,
+            views_min: 2,
+            views_max: 4,
+            planes: 6,
+            jitter: true,
+            auto_planes: false,
+            colour_jitter: false,
+            wide_inputs: 1.0,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let s = &data.scenes[0];
+        let mut rng = Rng::new(5);
+        let mut differs = 0;
+        for _ in 0..30 {
+            let k = data.draw_views(&cfg, &mut rng);
+            let ex = data.sample(&cfg, &model, k, &mut rng).unwrap();
+            // The 3K nearest by distance, computed here independently.
+            let t = s.cameras[ex.target].center();
+            let mut order: Vec<usize> = s
+                .train_views
+                .iter()
+                .copied()
+                .filter(|&v| v != ex.target)
+                .collect();
+            order.sort_by(|&a, &b| {
+                (s.cameras[a].center() - t)
+                    .length()
+                    .total_cmp(&(s.cameras[b].center() - t).length())
+                    .then(a.cmp(&b))
+            });
+            let pool = &order[..(3 * k).min(order.len())];
+            assert_eq!(ex.inputs.len(), k);
+            let mut uniq = ex.inputs.clone();
+            uniq.sort();
+            uniq.dedup();
+            assert_eq!(uniq.len(), k, "{:?}", ex.inputs);
+            assert!(
+                ex.inputs.iter().all(|v| pool.contains(v)),
+                "{:?} not in {pool:?}",
+                ex.inputs
+            );
+            let mut nearest = order[..k].to_vec();
+            nearest.sort();
+            differs += (uniq != nearest) as usize;
+        }
+        assert!(
+            differs > 10,
+            "only {differs} of 30 tuples differ from the K nearest"
+        );
+    }
+
+    /// Colour jitter scales every channel of the target by one gain within the documented range, and each
+    /// input by the same gains times its own exposure within +-5%; the tuple itself (views, crop) is the
+    /// one drawn without jitter.
+    #[test]
+    fn colour_jitter_is_a_gain_per_channel_and_view() {
+        let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.15)]).unwrap();
+        let mut cfg = SampleConfig {
+            crop: 16,
+            views_min: 3,
+            views_max: 3,
+            planes: 6,
+            jitter: true,
+            auto_planes: false,
+            colour_jitter: false,
+            wide_inputs: 0.0,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        for seed in 0..6 {
+            let plain = data.sample(&cfg, &model, 3, &mut Rng::new(seed)).unwrap();
+            cfg.colour_jitter = true;
+            let jit = data.sample(&cfg, &model, 3, &mut Rng::new(seed)).unwrap();
+            cfg.colour_jitter = false;
+            assert_eq!(
+                (plain.inputs.clone(), plain.crop_origin),
+                (jit.inputs.clone(), jit.crop_origin)
+            );
+            // Gains measured on unclamped pixels.
+            let gains = |a: &ImageF32, b: &ImageF32| -> [f64; 3] {
+                std::array::from_fn(|c| {
+                    let (mut num, mut den) = (0.0, 0.0);
+                    for (pa, pb) in a.data.chunks_exact(3).zip(b.data.chunks_exact(3)) {
+                        if pa[c] > 0.05 && pb[c] < 0.999 {
+                            num += pb[c] as f64;
+                            den += pa[c] as f64;
+                        }
+                    }
+                    num / den
+                })
+            };
+            let gt = gains(&plain.target_crop, &jit.target_crop);
+            for (c, g) in gt.iter().enumerate() {
+                assert!(
+                    (g.ln()).abs() <= EXPOSURE_LOG + CHANNEL_LOG + 1e-6,
+                    "channel {c} gain {g}"
+                );
+                for (pa, pb) in plain
+                    .target_crop
+                    .data
+                    .chunks_exact(3)
+                    .zip(jit.target_crop.data.chunks_exact(3))
+                {
+                    let want = (pa[c] as f64 * g).min(1.0);
+                    assert!((pb[c] as f64 - want).abs() < 1e-4, "{} vs {want}", pb[c]);
+                }
+            }
+            for (a, b) in plain.images.iter().zip(&jit.images) {
+                let gi = gains(a, b);
+                let view: Vec<f64> = (0..3).map(|c| gi[c] / gt[c]).collect();
+                assert!(
+                    (view[0] - view[1]).abs() < 1e-4 && (view[0] - view[2]).abs() < 1e-4,
+                    "{view:?}"
+                );
+                assert!(view[0].ln().abs() <= VIEW_LOG + 1e-6, "{view:?}");
+            }
+        }
+    }
+
     /// The window covers everything the target crop samples on every plane, after the model's shrink;
     /// input crops cover every in-image sample of the window.
     #[test]
@@ -540,6 +810,9 @@ mod tests {
             views_max: 4,
             planes: 6,
             jitter: true,
+            auto_planes: false,
+            colour_jitter: false,
+            wide_inputs: 0.0,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let margin = model.margin_from(0);

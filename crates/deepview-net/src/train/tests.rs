@@ -34,6 +34,9 @@ fn small_config(steps: u64, devices: &[&str], batch: usize) -> RunConfig {
         views_max: 3,
         planes: 4,
         jitter: true,
+        auto_planes: false,
+        colour_jitter: false,
+        wide_inputs: 0.0,
     };
     train.loss = LossKind::L1;
     train.checkpoint_every = 1000;
