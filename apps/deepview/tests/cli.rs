@@ -362,7 +362,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
         stdout.contains("psv_mpi") && stdout.contains("12 planes"),
         "{stdout}"
     );
-    let mpi = deepview_mpi::read_mpi(&psv).unwrap();
+    let mpi = deepview_mpi::read_mpi::<f32>(&psv).unwrap();
     assert_eq!(mpi.planes(), 12);
     let truth = scene.join("input_Cam004.png");
     let psnr = psnr_of_render(tmp.path(), &psv, &scene, 4, &truth);
@@ -402,7 +402,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let stdout = String::from_utf8_lossy(&o.stdout);
     assert!(stdout.contains("view 4"), "{stdout}");
-    let mpi = deepview_mpi::read_mpi(&near).unwrap();
+    let mpi = deepview_mpi::read_mpi::<f32>(&near).unwrap();
     assert_eq!(mpi.planes(), 1);
     assert!(mpi.layers.chunks_exact(4).all(|t| t[3] == 1.0));
     // Measured: identical (infinite PSNR); 50 dB allows for the 8-bit round trip of the layer.
@@ -734,7 +734,7 @@ fn demo_makes_everything_it_announces() {
         assert!(out.join(f).is_file(), "{f} missing; stdout: {stdout}");
     }
     // `--planes auto`: the count follows the grid's disparity and is recorded in mpi.json.
-    let mpi = deepview_mpi::read_mpi(&out.join("mpi")).unwrap();
+    let mpi = deepview_mpi::read_mpi::<f32>(&out.join("mpi")).unwrap();
     let (meta, _) = deepview_mpi::MpiMeta::read(&out.join("mpi")).unwrap();
     let rule = meta.planes_rule.expect("planes_rule in mpi.json");
     assert_eq!(rule.rule, "auto");
@@ -916,7 +916,7 @@ fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
         "--out",
         s(&old),
     ]));
-    assert_eq!(deepview_mpi::read_mpi(&old).unwrap().planes(), 6);
+    assert_eq!(deepview_mpi::read_mpi::<f32>(&old).unwrap().planes(), 6);
     let (meta, _) = deepview_mpi::MpiMeta::read(&old).unwrap();
     assert_eq!(meta.planes_rule.unwrap().rule, "explicit");
     let llff_old = tmp.path().join("llff_old");
@@ -949,7 +949,7 @@ fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
         "--out",
         s(&back),
     ]));
-    assert_eq!(deepview_mpi::read_mpi(&back).unwrap().planes(), 6);
+    assert_eq!(deepview_mpi::read_mpi::<f32>(&back).unwrap().planes(), 6);
     // Both spellings at once is an error.
     fails_with(
         &deepview(&["info", s(&scene), "--data", s(&scene)]),

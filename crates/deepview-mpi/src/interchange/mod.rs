@@ -10,11 +10,10 @@ pub mod compact;
 pub mod llff;
 pub mod stereo_mag;
 
-use crate::{MediaError, invalid, read_err, write_err};
+use crate::error::{MpiError, invalid, read_err};
+use crate::io::{MpiMeta, read_layers, write_layers};
 use deepview_geometry::Camera;
-use deepview_image::write_atomic;
-use deepview_mpi::MpiMeta;
-use deepview_mpi::io::layer_name;
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
@@ -33,29 +32,14 @@ impl StraightMpi {
 }
 
 /// Decode a PNG (or any image) file to RGBA8 with its size.
-pub(crate) fn decode_rgba8(path: &Path) -> Result<(u32, u32, Vec<u8>), MediaError> {
+pub(crate) fn decode_rgba8(path: &Path) -> Result<(u32, u32, Vec<u8>), MpiError> {
     let img = deepview_image::decode_file(path)?;
     Ok((img.width(), img.height(), img.into_rgba8().into_raw()))
 }
 
 /// Read our MPI folder (`mpi.json` + layers) without premultiplying.
-pub fn read_straight(dir: &Path) -> Result<StraightMpi, MediaError> {
-    let (meta, camera) = MpiMeta::read(dir)?;
-    let mut planes = Vec::with_capacity(meta.layers.len());
-    for name in &meta.layers {
-        let path = dir.join(name);
-        let (w, h, px) = decode_rgba8(&path)?;
-        if (w, h) != (camera.width, camera.height) {
-            return Err(invalid(
-                &path,
-                format!(
-                    "layer is {w}x{h} but mpi.json says {}x{}",
-                    camera.width, camera.height
-                ),
-            ));
-        }
-        planes.push(px);
-    }
+pub fn read_straight(dir: &Path) -> Result<StraightMpi, MpiError> {
+    let (meta, camera, planes) = read_layers(dir, |img| img.into_rgba8().into_raw())?;
     Ok(StraightMpi {
         camera,
         depths: meta.depths,
@@ -64,7 +48,7 @@ pub fn read_straight(dir: &Path) -> Result<StraightMpi, MediaError> {
 }
 
 /// Write our MPI folder from straight-alpha planes (layers first, `mpi.json` last, all atomic).
-pub fn write_straight(dir: &Path, mpi: &StraightMpi) -> Result<(), MediaError> {
+pub fn write_straight(dir: &Path, mpi: &StraightMpi) -> Result<(), MpiError> {
     if mpi.planes.len() != mpi.depths.len() || mpi.planes.is_empty() {
         return Err(invalid(
             dir,
@@ -75,19 +59,8 @@ pub fn write_straight(dir: &Path, mpi: &StraightMpi) -> Result<(), MediaError> {
             ),
         ));
     }
-    std::fs::create_dir_all(dir).map_err(write_err(dir))?;
     let meta = MpiMeta::new(&mpi.camera, &mpi.depths);
-    for (d, px) in mpi.planes.iter().enumerate() {
-        deepview_image::write_png_u8(
-            &dir.join(layer_name(d)),
-            mpi.camera.width,
-            mpi.camera.height,
-            4,
-            px,
-        )?;
-    }
-    let json = serde_json::to_string_pretty(&meta).expect("mpi.json serialises");
-    write_atomic(&dir.join("mpi.json"), json.as_bytes())?;
+    write_layers(dir, &meta, |d| Cow::Borrowed(&mpi.planes[d][..]))?;
     // Validate what we wrote (depth order, pose) so a bad import fails here, not in a later command.
     MpiMeta::read(dir)?;
     Ok(())
@@ -102,13 +75,13 @@ pub enum ExportFormat {
 }
 
 impl FromStr for ExportFormat {
-    type Err = MediaError;
-    fn from_str(s: &str) -> Result<Self, MediaError> {
+    type Err = MpiError;
+    fn from_str(s: &str) -> Result<Self, MpiError> {
         match s {
             "llff" => Ok(ExportFormat::Llff),
             "stereo-mag" | "stereomag" => Ok(ExportFormat::StereoMag),
             "compact" => Ok(ExportFormat::Compact),
-            _ => Err(MediaError::Config(format!(
+            _ => Err(MpiError::Config(format!(
                 "unknown export format {s:?} (expected llff, stereo-mag or compact)"
             ))),
         }
@@ -138,7 +111,7 @@ pub struct ExportReport {
 }
 
 impl ExportReport {
-    pub(crate) fn add(&mut self, path: PathBuf) -> Result<(), MediaError> {
+    pub(crate) fn add(&mut self, path: PathBuf) -> Result<(), MpiError> {
         self.bytes += std::fs::metadata(&path).map_err(read_err(&path))?.len();
         self.files.push(path);
         Ok(())
@@ -146,11 +119,7 @@ impl ExportReport {
 }
 
 /// Export the MPI folder `mpi_dir` to `out` in `format`.
-pub fn export(
-    mpi_dir: &Path,
-    out: &Path,
-    format: ExportFormat,
-) -> Result<ExportReport, MediaError> {
+pub fn export(mpi_dir: &Path, out: &Path, format: ExportFormat) -> Result<ExportReport, MpiError> {
     let mpi = read_straight(mpi_dir)?;
     let mut report = match format {
         ExportFormat::Llff => llff::write(out, &mpi)?,
@@ -166,7 +135,7 @@ pub fn export(
 }
 
 /// Which format the folder `dir` holds.
-pub fn detect_format(dir: &Path) -> Result<ImportFormat, MediaError> {
+pub fn detect_format(dir: &Path) -> Result<ImportFormat, MpiError> {
     if !dir.is_dir() {
         return Err(invalid(dir, "not a folder"));
     }
@@ -199,10 +168,7 @@ pub struct ImportOptions {
 }
 
 /// Read any supported MPI folder as straight-alpha planes.
-pub fn read_any(
-    dir: &Path,
-    opts: &ImportOptions,
-) -> Result<(ImportFormat, StraightMpi), MediaError> {
+pub fn read_any(dir: &Path, opts: &ImportOptions) -> Result<(ImportFormat, StraightMpi), MpiError> {
     let format = detect_format(dir)?;
     let mpi = match format {
         ImportFormat::Deepview => read_straight(dir)?,
@@ -214,14 +180,14 @@ pub fn read_any(
 }
 
 /// Import the MPI folder `input` (format detected) into our format at `out`.
-pub fn import(input: &Path, out: &Path, opts: &ImportOptions) -> Result<ImportFormat, MediaError> {
+pub fn import(input: &Path, out: &Path, opts: &ImportOptions) -> Result<ImportFormat, MpiError> {
     let (format, mpi) = read_any(input, opts)?;
     write_straight(out, &mpi)?;
     Ok(format)
 }
 
 /// Straight RGBA8 planes must be as many as depths and each `W x H x 4`.
-pub(crate) fn check_planes(path: &Path, mpi: &StraightMpi) -> Result<(), MediaError> {
+pub(crate) fn check_planes(path: &Path, mpi: &StraightMpi) -> Result<(), MpiError> {
     if mpi.planes.len() != mpi.depths.len() {
         return Err(invalid(
             path,
@@ -259,7 +225,7 @@ pub(crate) fn numbers(
     line_no: usize,
     line: &str,
     expect: usize,
-) -> Result<Vec<f64>, MediaError> {
+) -> Result<Vec<f64>, MpiError> {
     let v: Result<Vec<f64>, _> = line.split_whitespace().map(f64::from_str).collect();
     let v = v.map_err(|e| invalid(path, format!("line {}: {e} in {line:?}", line_no + 1)))?;
     if v.len() < expect || !v.iter().all(|x| x.is_finite()) {
