@@ -1,6 +1,6 @@
 //! COLMAP's binary model files: `cameras.bin`, `images.bin`, `points3D.bin` (little-endian).
 
-use super::{ColmapCamera, ColmapImage, ColmapPoint, MODELS};
+use super::model::{ColmapCamera, ColmapImage, ColmapPoint, MODELS};
 use crate::DataError;
 use std::collections::BTreeMap;
 use std::path::Path;

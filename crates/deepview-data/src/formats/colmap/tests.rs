@@ -1,7 +1,7 @@
 use super::*;
 use crate::load_scene;
-use deepview_geometry::DMat3;
 use deepview_geometry::convention::pose_to_colmap;
+use deepview_geometry::{DMat3, Intrinsics};
 
 const CAMERAS: &str = "# comment\n1 PINHOLE 64 48 50 51 32 24\n2 SIMPLE_PINHOLE 64 48 50 32.5 24\n3 SIMPLE_RADIAL 64 48 50 32 24 0\n";
 const IMAGES: &str = "# c\n1 1 0 0 0 0 0 2 1 b.png\n10 20 1\n2 0.7071067811865476 0 0.7071067811865476 0 1 0 0 2 a.png\n\n";

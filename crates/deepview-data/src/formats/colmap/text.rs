@@ -1,6 +1,6 @@
 //! COLMAP's text model files: `cameras.txt`, `images.txt`, `points3D.txt` (parsers and the writer).
 
-use super::{ColmapCamera, ColmapImage, ColmapPoint, model_params};
+use super::model::{ColmapCamera, ColmapImage, ColmapPoint, model_params};
 use crate::DataError;
 use deepview_geometry::convention::pose_to_colmap;
 use deepview_geometry::{Camera, DVec3};
