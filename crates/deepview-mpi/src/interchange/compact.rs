@@ -15,7 +15,7 @@
 //! `s / (C R)` at tile position `(s % C, (s / C) % R)`. Pages are straight-alpha RGBA8 PNGs `C T` wide;
 //! the last one only as tall as its used rows. Parts of edge tiles outside the plane are zero.
 
-use super::{ExportReport, StraightMpi, check_planes, decode_rgba8};
+use super::straight::{ExportReport, StraightMpi, check_planes, decode_rgba8};
 use crate::error::{MpiError, invalid, read_err, write_err};
 use deepview_geometry::{Camera, Intrinsics, Pose};
 use deepview_image::{write_atomic, write_png_u8};

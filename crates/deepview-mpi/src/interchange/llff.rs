@@ -22,7 +22,9 @@
 //! coordinates, half a pixel off ours; we read and write the centred principal point `(W/2, H/2)` of our
 //! convention and export warns when the MPI's principal point is not centred or `fx != fy`.
 
-use super::{ExportReport, StraightMpi, check_planes, inverse_depth_spacing_error, numbers};
+use super::straight::{
+    ExportReport, StraightMpi, check_planes, inverse_depth_spacing_error, numbers,
+};
 use crate::error::{MpiError, invalid, read_err, write_err};
 use deepview_geometry::convention::{opengl_c2w_to_pose, pose_to_opengl_c2w};
 use deepview_geometry::{Camera, Intrinsics, PlaneSpacing, plane_depths};

@@ -14,7 +14,7 @@
 //! an import restores the pose and depths exactly. Import without the sidecar reads `--min_depth=`/
 //! `--max_depth=` from the `README`, else needs explicit near/far depths; the pose is then the identity.
 
-use super::{ExportReport, StraightMpi, check_planes, decode_rgba8, numbers};
+use super::straight::{ExportReport, StraightMpi, check_planes, decode_rgba8, numbers};
 use crate::error::{MpiError, invalid, read_err, write_err};
 use deepview_geometry::{Camera, CameraJson, Intrinsics, PlaneSpacing, Pose, plane_depths};
 use deepview_image::{write_atomic, write_png_u8};
