@@ -390,7 +390,7 @@ fn sigterm_leaves_the_old_mpi_folder_intact() {
     for ms in [150, 600, 1200, 1800] {
         let code = terminate(&args, Duration::from_millis(ms));
         assert!(matches!(code, Some(143) | Some(0)), "exit {code:?}");
-        let mpi = deepview_mpi::read_mpi_u8(&out).expect("the MPI folder still loads");
+        let mpi = deepview_mpi::read_mpi::<u8>(&out).expect("the MPI folder still loads");
         if code == Some(143) {
             assert!(mpi.depths.len() == 8 || mpi.depths.len() == 40);
         }

@@ -3,6 +3,10 @@
 //! Every file this project writes goes through [`write_atomic`]: a temporary file beside the target, then
 //! a rename, so an interrupted run never leaves a half-written result in place of an earlier one.
 
+mod atomic;
+
+pub use atomic::{Durability, temp_path, write_atomic, write_atomic_with};
+
 use std::path::{Path, PathBuf};
 
 #[derive(Debug, thiserror::Error)]
@@ -240,29 +244,6 @@ pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
         path: path.into(),
         source: e,
     })
-}
-
-/// Write `bytes` to `path` atomically: a temporary file in the same folder, then a rename.
-pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
-    let err = |source| ImageError::Write {
-        path: path.into(),
-        source,
-    };
-    let tmp = temp_path(path);
-    std::fs::write(&tmp, bytes).map_err(err)?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        err(e)
-    })
-}
-
-/// The temporary name used for an atomic write of `path`.
-pub fn temp_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
 fn encode_png(

@@ -1,11 +1,10 @@
-//! Media around multiplane images: camera paths, nerfstudio `camera_path.json`, videos and interchange.
+//! Media around multiplane images: camera paths, nerfstudio `camera_path.json` and videos (the MPI
+//! interchange formats live next to the MPI format, in `deepview_mpi::interchange`).
 //!
 //! - [`path`]: `spiral`, `circle` and `swing` paths around an MPI's reference camera, kept inside the range
 //!   where the MPI is valid (translations small relative to the near plane).
 //! - [`camera_path`]: nerfstudio's `camera_path.json` (OpenGL camera-to-world, vertical fov in degrees).
 //! - [`video`]: PNG frames, animated GIF, MP4 through an `ffmpeg` found on `PATH`, with a progress bar.
-//! - [`interchange`]: LLFF (`metadata.txt` + `mpi.b`), stereo magnification (`mpi_rgb_NN.png`,
-//!   `mpi_alpha_NN.png`, `intrinsics.txt`) and a compact tiled export, all exact on the 8-bit layers.
 //!
 //! ```
 //! use deepview_geometry::{Camera, Intrinsics, Pose};
@@ -18,7 +17,6 @@
 //! ```
 
 pub mod camera_path;
-pub mod interchange;
 pub mod path;
 pub mod video;
 
@@ -77,6 +75,5 @@ pub(crate) fn write_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -
 }
 
 pub use camera_path::{CameraPathFile, read_camera_path, write_camera_path};
-pub use interchange::{ExportFormat, ExportReport, ImportFormat, detect_format, export, import};
 pub use path::{PathKind, PathSpec, Radius, camera_path as make_camera_path};
 pub use video::{VideoFormat, VideoReport, render_video};

@@ -7,40 +7,17 @@
 //!  "layers":["layer_000.png", ...]}
 //! ```
 
-use crate::mpi::{Mpi, MpiU8};
+use crate::error::{MpiError, invalid, read_err, write_err};
+use crate::mpi::{Mpi, Texel};
 use deepview_geometry::{Camera, Intrinsics, Pose};
-use deepview_image::{ImageError, write_atomic, write_png_u8};
+use deepview_image::{write_atomic, write_png_u8};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::borrow::Cow;
+use std::path::Path;
 
 pub const FORMAT: &str = "deepview-mpi";
 pub const VERSION: u32 = 1;
-
-#[derive(Debug, thiserror::Error)]
-pub enum MpiError {
-    #[error("{path}: {msg}")]
-    Invalid { path: PathBuf, msg: String },
-    #[error("cannot read {path}: {source}")]
-    Io {
-        path: PathBuf,
-        source: std::io::Error,
-    },
-    #[error("{path} is not valid mpi.json: {source}")]
-    Json {
-        path: PathBuf,
-        source: serde_json::Error,
-    },
-    #[error(transparent)]
-    Image(#[from] ImageError),
-}
-
-fn invalid(path: &Path, msg: impl Into<String>) -> MpiError {
-    MpiError::Invalid {
-        path: path.to_path_buf(),
-        msg: msg.into(),
-    }
-}
 
 /// Serde mirror of `mpi.json`.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -96,12 +73,10 @@ impl MpiMeta {
     /// Read and validate `dir/mpi.json` (not the layers).
     pub fn read(dir: &Path) -> Result<(MpiMeta, Camera), MpiError> {
         let path = dir.join("mpi.json");
-        let text = std::fs::read_to_string(&path).map_err(|source| MpiError::Io {
-            path: path.clone(),
-            source,
-        })?;
+        let text = std::fs::read_to_string(&path).map_err(read_err(&path))?;
         let meta: MpiMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json {
             path: path.clone(),
+            what: "mpi.json",
             source,
         })?;
         let camera = meta.validate(&path)?;
@@ -163,11 +138,16 @@ pub fn layer_name(i: usize) -> String {
     format!("layer_{i:03}.png")
 }
 
-/// Read the straight-alpha RGBA8 layers of an MPI folder as premultiplied 8-bit texels.
-pub fn read_mpi_u8(dir: &Path) -> Result<MpiU8, MpiError> {
+/// The one reader of the folder format: `mpi.json` validated, then every layer decoded (in parallel), its
+/// size checked against `mpi.json` and turned into a plane by `convert`. The first bad layer (in plane
+/// order) is the error.
+pub(crate) fn read_layers<P: Send>(
+    dir: &Path,
+    convert: impl Fn(image::DynamicImage) -> P + Sync,
+) -> Result<(MpiMeta, Camera, Vec<P>), MpiError> {
     let (meta, camera) = MpiMeta::read(dir)?;
     let (w, h) = (camera.width, camera.height);
-    let planes: Vec<Vec<u8>> = meta
+    let planes: Vec<Result<P, MpiError>> = meta
         .layers
         .par_iter()
         .map(|name| {
@@ -183,51 +163,17 @@ pub fn read_mpi_u8(dir: &Path) -> Result<MpiU8, MpiError> {
                     ),
                 ));
             }
-            let mut px = img.into_rgba8().into_raw();
-            for p in px.chunks_exact_mut(4) {
-                let a = p[3] as u32;
-                for c in &mut p[..3] {
-                    *c = ((*c as u32 * a + 127) / 255) as u8;
-                }
-            }
-            Ok(px)
+            Ok(convert(img))
         })
-        .collect::<Result<_, _>>()?;
-    Ok(MpiU8 {
-        camera,
-        depths: meta.depths,
-        layers: planes.concat(),
-    })
+        .collect();
+    let planes = planes.into_iter().collect::<Result<_, _>>()?;
+    Ok((meta, camera, planes))
 }
 
-/// Read an MPI folder as f32 premultiplied texels (straight alpha on disk converted exactly).
-pub fn read_mpi(dir: &Path) -> Result<Mpi, MpiError> {
-    let (meta, camera) = MpiMeta::read(dir)?;
-    let (w, h) = (camera.width, camera.height);
-    let planes: Vec<Vec<f32>> = meta
-        .layers
-        .par_iter()
-        .map(|name| {
-            let path = dir.join(name);
-            let img = deepview_image::read_image(&path, 4)?;
-            if (img.width, img.height) != (w, h) {
-                return Err(invalid(
-                    &path,
-                    format!(
-                        "layer is {}x{} but mpi.json says {w}x{h}",
-                        img.width, img.height
-                    ),
-                ));
-            }
-            let mut data = img.data;
-            for p in data.chunks_exact_mut(4) {
-                for k in 0..3 {
-                    p[k] *= p[3];
-                }
-            }
-            Ok(data)
-        })
-        .collect::<Result<_, _>>()?;
+/// Read an MPI folder as premultiplied texels `T`: `read_mpi::<f32>` converts the straight alpha on disk
+/// exactly, `read_mpi::<u8>` rounds to 8 bits (for rendering).
+pub fn read_mpi<T: Texel>(dir: &Path) -> Result<Mpi<T>, MpiError> {
+    let (meta, camera, planes) = read_layers(dir, T::premultiplied)?;
     Ok(Mpi {
         camera,
         depths: meta.depths,
@@ -266,20 +212,30 @@ pub fn write_mpi_with(
     if mpi.depths.is_empty() {
         return Err(invalid(dir, "refusing to write an MPI with zero planes"));
     }
-    std::fs::create_dir_all(dir).map_err(|source| MpiError::Io {
-        path: dir.to_path_buf(),
-        source,
-    })?;
     let meta = MpiMeta {
         planes_rule: planes_rule.cloned(),
         ..MpiMeta::new(&mpi.camera, &mpi.depths)
     };
-    let (w, h) = (mpi.camera.width, mpi.camera.height);
-    (0..mpi.planes()).into_par_iter().try_for_each(|d| {
-        let bytes = plane_to_straight_rgba8(mpi.plane(d));
-        write_png_u8(&dir.join(&meta.layers[d]), w, h, 4, &bytes)
-    })?;
-    let json = serde_json::to_string_pretty(&meta).expect("mpi.json serialises");
+    write_layers(dir, &meta, |d| {
+        Cow::Owned(plane_to_straight_rgba8(mpi.plane(d)))
+    })
+}
+
+/// The one writer of the folder format: `dir` created, the layers (straight-alpha RGBA8 bytes of plane
+/// `d` from `straight`) written in parallel, then `mpi.json`; every file atomically.
+pub(crate) fn write_layers<'a>(
+    dir: &Path,
+    meta: &MpiMeta,
+    straight: impl Fn(usize) -> Cow<'a, [u8]> + Sync,
+) -> Result<(), MpiError> {
+    std::fs::create_dir_all(dir).map_err(write_err(dir))?;
+    meta.layers
+        .par_iter()
+        .enumerate()
+        .try_for_each(|(d, name)| {
+            write_png_u8(&dir.join(name), meta.width, meta.height, 4, &straight(d))
+        })?;
+    let json = serde_json::to_string_pretty(meta).expect("mpi.json serialises");
     write_atomic(&dir.join("mpi.json"), json.as_bytes())?;
     Ok(())
 }
@@ -320,7 +276,7 @@ mod tests {
         write_mpi_with(dir.path(), &mpi, Some(&rule)).unwrap();
         let (meta, _) = MpiMeta::read(dir.path()).unwrap();
         assert_eq!(meta.planes_rule, Some(rule));
-        assert_eq!(read_mpi(dir.path()).unwrap().depths, mpi.depths);
+        assert_eq!(read_mpi::<f32>(dir.path()).unwrap().depths, mpi.depths);
     }
 
     #[test]
@@ -328,7 +284,7 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let mpi = small_mpi();
         write_mpi(dir.path(), &mpi).unwrap();
-        let back = read_mpi(dir.path()).unwrap();
+        let back = read_mpi::<f32>(dir.path()).unwrap();
         assert_eq!(back.camera, mpi.camera);
         assert_eq!(back.depths, mpi.depths);
         for (a, b) in back.layers.iter().zip(&mpi.layers) {
@@ -363,13 +319,13 @@ mod tests {
     #[test]
     fn bad_folders_give_clear_errors() {
         let dir = tempfile::tempdir().unwrap();
-        let e = read_mpi(dir.path()).unwrap_err().to_string();
+        let e = read_mpi::<f32>(dir.path()).unwrap_err().to_string();
         assert!(e.contains("mpi.json"), "{e}");
         write_mpi(dir.path(), &small_mpi()).unwrap();
         std::fs::remove_file(dir.path().join("layer_001.png")).unwrap();
-        let e = read_mpi(dir.path()).unwrap_err().to_string();
+        let e = read_mpi::<f32>(dir.path()).unwrap_err().to_string();
         assert!(e.contains("layer_001.png"), "{e}");
-        let e = read_mpi_u8(dir.path()).unwrap_err().to_string();
+        let e = read_mpi::<u8>(dir.path()).unwrap_err().to_string();
         assert!(e.contains("layer_001.png"), "{e}");
 
         let json_path = dir.path().join("mpi.json");
@@ -384,7 +340,7 @@ mod tests {
         ];
         for (text, needle) in cases {
             std::fs::write(&json_path, text).unwrap();
-            let e = read_mpi(dir.path()).unwrap_err().to_string();
+            let e = read_mpi::<f32>(dir.path()).unwrap_err().to_string();
             assert!(e.contains(needle), "{e}");
         }
         // Zero planes and mismatched counts.
@@ -393,7 +349,7 @@ mod tests {
         meta.layers.clear();
         std::fs::write(&json_path, serde_json::to_string(&meta).unwrap()).unwrap();
         assert!(
-            read_mpi(dir.path())
+            read_mpi::<f32>(dir.path())
                 .unwrap_err()
                 .to_string()
                 .contains("zero planes")
@@ -403,17 +359,17 @@ mod tests {
         meta.layers.pop();
         std::fs::write(&json_path, serde_json::to_string(&meta).unwrap()).unwrap();
         assert!(
-            read_mpi(dir.path())
+            read_mpi::<f32>(dir.path())
                 .unwrap_err()
                 .to_string()
                 .contains("2 layers but 3 depths")
         );
         std::fs::write(&json_path, good.replacen("1.0", "1e999", 1)).unwrap();
-        assert!(read_mpi(dir.path()).is_err());
+        assert!(read_mpi::<f32>(dir.path()).is_err());
         // Layer of the wrong size.
         std::fs::write(&json_path, &good).unwrap();
         write_png_u8(&dir.path().join("layer_001.png"), 3, 3, 4, &[0; 36]).unwrap();
-        let e = read_mpi(dir.path()).unwrap_err().to_string();
+        let e = read_mpi::<f32>(dir.path()).unwrap_err().to_string();
         assert!(e.contains("layer_001.png") && e.contains("3x3"), "{e}");
     }
 }

@@ -4,11 +4,13 @@
 //! reference camera) is warped into any target camera by plane-induced homographies ([`warp`]), composited
 //! with the over operator ([`composite`]), which also yields the per-plane net transmittance `T` and
 //! accumulated over `A` (the paper's gradient components). [`psv`] is the inverse warp of an image onto the
-//! planes (the plane sweep volume). [`io`] reads and writes the interoperable folder format, [`depth`] turns
-//! an MPI into depth and disparity maps.
+//! planes (the plane sweep volume). [`io`] reads and writes the interoperable folder format, [`interchange`]
+//! converts it to and from other tools' MPI formats, [`depth`] turns an MPI into depth and disparity maps.
 
 pub mod composite;
 pub mod depth;
+mod error;
+pub mod interchange;
 pub mod io;
 pub mod mpi;
 pub mod psv;
@@ -18,9 +20,11 @@ pub mod warp;
 
 pub use composite::{RenderComponents, render_components};
 pub use depth::{DepthMaps, depth_maps, turbo};
-pub use io::{MpiError, MpiMeta, PlanesRule, read_mpi, read_mpi_u8, write_mpi, write_mpi_with};
-pub use mpi::{Mpi, MpiU8};
+pub use error::MpiError;
+pub use interchange::{ExportFormat, ExportReport, ImportFormat, detect_format, export, import};
+pub use io::{MpiMeta, PlanesRule, read_mpi, write_mpi, write_mpi_with};
+pub use mpi::{Mpi, MpiU8, Texel};
 pub use psv::{PlaneSweepVolume, plane_sweep};
-pub use render::{Texel, render, render_rgba8_into, render_rgba8_with, render_u8};
+pub use render::{render, render_rgba8_into, render_rgba8_with};
 pub use simd::Occupancy;
 pub use warp::{Sampler, target_to_plane_homographies};

@@ -4,48 +4,12 @@
 //! accumulator (`W x 4` floats, in L1) while the planes are visited back to front, so every plane's
 //! texels are read once per output row, in order. No allocation happens inside the loops.
 
-use crate::mpi::{Mpi, MpiU8};
+use crate::mpi::{Mpi, MpiU8, Texel};
 use crate::simd::Occupancy;
 use crate::warp::{Sampler, target_to_plane_homographies};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use rayon::prelude::*;
-
-/// A texel type of MPI layers: f32 or u8 premultiplied RGBA.
-pub trait Texel: Copy + Send + Sync + 'static {
-    /// Premultiplied RGBA of texel `i` (in texels) as f32 in 0..1.
-    fn rgba(layer: &[Self], i: usize) -> [f32; 4];
-    /// The layer as bytes when texels are 8-bit (enables the SIMD kernel).
-    fn as_bytes(layer: &[Self]) -> Option<&[u8]> {
-        let _ = layer;
-        None
-    }
-}
-
-impl Texel for f32 {
-    #[inline(always)]
-    fn rgba(layer: &[f32], i: usize) -> [f32; 4] {
-        let p = &layer[i * 4..i * 4 + 4];
-        [p[0], p[1], p[2], p[3]]
-    }
-}
-
-impl Texel for u8 {
-    #[inline(always)]
-    fn rgba(layer: &[u8], i: usize) -> [f32; 4] {
-        let p = &layer[i * 4..i * 4 + 4];
-        const S: f32 = 1.0 / 255.0;
-        [
-            p[0] as f32 * S,
-            p[1] as f32 * S,
-            p[2] as f32 * S,
-            p[3] as f32 * S,
-        ]
-    }
-    fn as_bytes(layer: &[u8]) -> Option<&[u8]> {
-        Some(layer)
-    }
-}
 
 /// Composite `planes` (each `[H][W][4]` premultiplied, back to front) seen through `homs` (target pixel ->
 /// plane pixel) into `out` (`[out_h][out_w][4]` premultiplied RGBA; alpha = 1 - prod(1 - a)).
@@ -190,24 +154,8 @@ fn composite_row<T: Texel>(layer: &[T], sampler: &Sampler, y: u32, row: &mut [f3
     }
 }
 
-/// Render an MPI into `target`: 4 channels, premultiplied RGB and accumulated alpha.
-pub fn render(mpi: &Mpi, target: &Camera) -> ImageF32 {
-    let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
-    let mut out = ImageF32::new(target.width, target.height, 4);
-    render_layers(
-        &mpi.layers,
-        mpi.camera.width,
-        mpi.camera.height,
-        &homs,
-        target.width,
-        target.height,
-        &mut out.data,
-    );
-    out
-}
-
-/// Render an 8-bit MPI into `target` (f32 result as [`render`]).
-pub fn render_u8(mpi: &MpiU8, target: &Camera) -> ImageF32 {
+/// Render an MPI (f32 or 8-bit texels) into `target`: 4 channels, premultiplied RGB and accumulated alpha.
+pub fn render<T: Texel>(mpi: &Mpi<T>, target: &Camera) -> ImageF32 {
     let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
     let mut out = ImageF32::new(target.width, target.height, 4);
     render_layers(
@@ -297,6 +245,9 @@ mod tests {
                     p[3].0 as f32 / 255.0,
                 ]
             }
+            fn premultiplied(_: image::DynamicImage) -> Vec<B> {
+                unreachable!("only rendered")
+            }
         }
         let layers: Vec<B> = mpi.layers.iter().map(|&b| B(b)).collect();
         let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
@@ -373,7 +324,7 @@ mod tests {
         // scalar back-to-front result within that bound.
         let occ = Occupancy::new(&mpi.layers, 37, 29, 4);
         for t in targets {
-            let fast = render_u8(&mpi, &t);
+            let fast = render(&mpi, &t);
             let slow = scalar_u8(&mpi, &t);
             let err = fast
                 .data
@@ -393,7 +344,7 @@ mod tests {
                 "with occupancy, 8-bit output: max difference {err}"
             );
         }
-        let id = render_u8(&mpi, &cam);
+        let id = render(&mpi, &cam);
         let f32_render = render(&mpi.to_f32(), &cam);
         let err = id
             .data
@@ -430,7 +381,7 @@ mod tests {
             cam.intrinsics,
             Pose::from_center(DMat3::from_rotation_z(0.1), DVec3::new(0.2, 0.1, 0.0)),
         );
-        let full = render_u8(&mpi, &target);
+        let full = render(&mpi, &target);
         let (mut scratch, mut out) = (Vec::new(), Vec::new());
         render_rgba8_with(&mpi, Some(&occ), &target, &mut scratch, &mut out);
         // Skipping empty tiles adds nothing that was not zero: the 8-bit image is exactly the full one's.

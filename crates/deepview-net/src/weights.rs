@@ -54,9 +54,8 @@ fn io(path: &Path) -> impl FnOnce(std::io::Error) -> WeightsError + '_ {
 
 /// Write `bytes` to `path` atomically (temp file in the same directory, then rename).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), WeightsError> {
-    let tmp = path.with_extension("tmp-write");
-    std::fs::write(&tmp, bytes).map_err(io(&tmp))?;
-    std::fs::rename(&tmp, path).map_err(io(path))
+    deepview_image::write_atomic_with(path, bytes, deepview_image::Durability::Rename)
+        .map_err(io(path))
 }
 
 /// Save `model` and `config` into `dir` (created if needed).

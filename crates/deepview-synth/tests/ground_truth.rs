@@ -109,7 +109,7 @@ fn grid_rig_round_trip_as_light_field() {
         .zip(&direct.data)
         .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
     assert!(err <= 0.5 / 255.0 + 1e-6, "8-bit quantisation only: {err}");
-    let gt = read_mpi(&dir.path().join("ground_truth_mpi")).unwrap();
+    let gt = read_mpi::<f32>(&dir.path().join("ground_truth_mpi")).unwrap();
     assert_eq!(gt.planes(), 8);
     assert!(dir.path().join("synth.json").is_file());
 }

@@ -11,7 +11,7 @@
 //! [`Server`] serves the page, the MPI's JSON and exactly the files that JSON names (anything else: 404),
 //! on loopback unless told otherwise. [`export_web`] writes the same page and files as a static folder.
 
-use deepview_media::interchange::{ImportFormat, ImportOptions, compact, detect_format, read_any};
+use deepview_mpi::interchange::{ImportFormat, ImportOptions, compact, detect_format, read_any};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -20,8 +20,6 @@ pub const INDEX_HTML: &str = include_str!("../web/index.html");
 
 #[derive(Debug, thiserror::Error)]
 pub enum ViewerError {
-    #[error(transparent)]
-    Media(#[from] deepview_media::MediaError),
     #[error(transparent)]
     Mpi(#[from] deepview_mpi::MpiError),
     #[error("cannot serve on {addr}: {msg}")]

@@ -444,7 +444,7 @@ fn browser_matches_native_renderer_and_reports_fps() {
     let tmp = tempfile::tempdir().unwrap();
     let dir = tmp.path().join("mpi");
     write_mpi(&dir, &scene()).unwrap();
-    let mpi = read_mpi(&dir).unwrap(); // what the files hold (8-bit straight alpha)
+    let mpi = read_mpi::<f32>(&dir).unwrap(); // what the files hold (8-bit straight alpha)
     let cam = target_camera(&mpi.camera);
     let native = render(&mpi, &cam);
 
@@ -453,8 +453,7 @@ fn browser_matches_native_renderer_and_reports_fps() {
 
     // The compact export renders the same.
     let compact = tmp.path().join("compact");
-    let rep =
-        deepview_media::export(&dir, &compact, deepview_media::ExportFormat::Compact).unwrap();
+    let rep = deepview_mpi::export(&dir, &compact, deepview_mpi::ExportFormat::Compact).unwrap();
     println!(
         "compact export: tiles {:?}, {} bytes vs {} bytes of layers",
         rep.tiles, rep.bytes, rep.source_bytes

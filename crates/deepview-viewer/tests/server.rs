@@ -158,7 +158,7 @@ fn export_web_writes_a_static_site() {
     // The exported site is itself a servable MPI folder, and so is a compact export.
     assert_eq!(mpi_files(&out).unwrap().len(), 4);
     let compact = tmp.path().join("compact");
-    deepview_media::export(&dir, &compact, deepview_media::ExportFormat::Compact).unwrap();
+    deepview_mpi::export(&dir, &compact, deepview_mpi::ExportFormat::Compact).unwrap();
     let site2 = tmp.path().join("site2");
     export_web(&compact, &site2).unwrap();
     assert!(site2.join("mpi_compact.json").is_file() && site2.join("tiles_000.png").is_file());

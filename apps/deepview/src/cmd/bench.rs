@@ -3,7 +3,7 @@
 use super::args;
 use anyhow::bail;
 use deepview_geometry::{Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths};
-use deepview_mpi::{MpiU8, Occupancy, read_mpi_u8, render_rgba8_with};
+use deepview_mpi::{MpiU8, Occupancy, read_mpi, render_rgba8_with};
 use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -192,7 +192,7 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
         (Some(dir), _) => {
             let (meta, _) = deepview_mpi::MpiMeta::read(dir)?;
             check(meta.width, meta.height, meta.depths.len())?;
-            read_mpi_u8(dir)?
+            read_mpi::<u8>(dir)?
         }
         (None, Some(spec)) => {
             let v: Vec<usize> = spec

@@ -57,7 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .saturating_add(args::depth_bytes(&camera)),
         budget,
     )?;
-    let mpi = read_mpi(&args.mpi)?;
+    let mpi = read_mpi::<f32>(&args.mpi)?;
     let maps = depth_maps(&mpi, &camera);
     let dirs = CreatedDirs::create(&args.out)?;
     maps.write(&args.out, &args.prefix)?;

@@ -3,7 +3,7 @@
 use super::args::{MpiArg, OutArg};
 use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
-use deepview_media::ExportFormat;
+use deepview_mpi::ExportFormat;
 
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
@@ -26,7 +26,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Export, &[("--mpi", mpi_dir)])?;
     let dir = OutputDir::new(out)?;
-    let report = deepview_media::export(mpi_dir, dir.path(), format)
+    let report = deepview_mpi::export(mpi_dir, dir.path(), format)
         .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;
     dir.commit()?;
     for w in &report.warnings {

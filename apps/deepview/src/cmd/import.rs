@@ -3,7 +3,7 @@
 use super::args::{MpiArg, OutArg};
 use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
-use deepview_media::interchange::ImportOptions;
+use deepview_mpi::interchange::ImportOptions;
 
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
@@ -32,7 +32,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (input, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Mpi, &[("--mpi", input)])?;
     let dir = OutputDir::new(out)?;
-    let format = deepview_media::import(input, dir.path(), &opts)
+    let format = deepview_mpi::import(input, dir.path(), &opts)
         .with_context(|| format!("cannot import {}", input.display()))?;
     dir.commit()?;
     println!(

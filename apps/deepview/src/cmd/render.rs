@@ -126,7 +126,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
             .saturating_add(args::video_bytes(&frame, frames)),
         budget,
     )?;
-    let mpi = deepview_mpi::read_mpi_u8(&args.mpi)?;
+    let mpi = deepview_mpi::read_mpi::<u8>(&args.mpi)?;
     let (cameras, fps) = if let Some(path) = file {
         let fps = path.fps();
         (path.cameras, fps)
@@ -202,7 +202,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .saturating_add(args::render_bytes(&camera)),
         budget,
     )?;
-    let mpi = read_mpi(&args.mpi)?;
+    let mpi = read_mpi::<f32>(&args.mpi)?;
     let img = render(&mpi, &camera);
     write_file(&args.out, |out| {
         format.write(out, &to_output(&img, args.alpha))

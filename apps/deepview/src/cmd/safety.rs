@@ -66,7 +66,7 @@ impl Kind {
             Kind::Run => is_run(dir),
             Kind::SynthScene => has("synth.json"),
             Kind::Export => {
-                has(deepview_media::interchange::compact::META)
+                has(deepview_mpi::interchange::compact::META)
                     || (has("metadata.txt") && has("mpi.b"))
                     || has("mpi_rgb_00.png")
             }

@@ -573,19 +573,8 @@ fn make_losses(kind: LossKind, devices: &[Device]) -> Result<Vec<Loss>, TrainErr
 /// Write `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
 /// renamed over `path` (a crash leaves either the old or the new content, never a torn file).
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
-    let tmp = path.with_extension(format!("tmp-{}", std::process::id()));
-    let write = || -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        f.write_all(bytes)?;
-        f.sync_all()
-    };
-    if let Err(e) = write() {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(io_err(&tmp)(e));
-    }
-    std::fs::rename(&tmp, path).map_err(io_err(path))?;
-    sync_dir(path.parent().unwrap_or(Path::new(".")));
-    Ok(())
+    deepview_image::write_atomic_with(path, bytes, deepview_image::Durability::Synced)
+        .map_err(io_err(path))
 }
 
 /// Flush a folder's entries (renames, new files) to disk; best effort (not every filesystem allows it).
@@ -1147,7 +1136,9 @@ impl Trainer {
             n.starts_with(".tmp-step-") || n.starts_with(".old-step-")
         });
         remove(&self.run_dir, &|n| {
-            n.starts_with("metrics.tmp-") || n.starts_with("config.tmp-")
+            // `deepview_image::temp_path` of metrics.jsonl and config.json.
+            (n.starts_with(".metrics.jsonl.") || n.starts_with(".config.json."))
+                && n.ends_with(".tmp")
         });
     }
 

@@ -14,8 +14,8 @@
 //! an import restores the pose and depths exactly. Import without the sidecar reads `--min_depth=`/
 //! `--max_depth=` from the `README`, else needs explicit near/far depths; the pose is then the identity.
 
-use super::{ExportReport, StraightMpi, check_planes, decode_rgba8, numbers};
-use crate::{MediaError, invalid, read_err, write_err};
+use super::straight::{ExportReport, StraightMpi, check_planes, decode_rgba8, numbers};
+use crate::error::{MpiError, invalid, read_err, write_err};
 use deepview_geometry::{Camera, CameraJson, Intrinsics, PlaneSpacing, Pose, plane_depths};
 use deepview_image::{write_atomic, write_png_u8};
 use serde::{Deserialize, Serialize};
@@ -38,7 +38,7 @@ fn alpha_name(i: usize) -> String {
 }
 
 /// Write `mpi` in stereo magnification's layout in the folder `out`.
-pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> {
+pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
     check_planes(out, mpi)?;
     std::fs::create_dir_all(out).map_err(write_err(out))?;
     let (w, h) = (mpi.camera.width, mpi.camera.height);
@@ -100,7 +100,7 @@ fn readme_depths(dir: &Path) -> Option<(f64, f64)> {
 
 /// Read a stereo magnification MPI folder. `near_far` overrides the depth bounds when the folder has no
 /// `deepview_camera.json`.
-pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, MediaError> {
+pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, MpiError> {
     let mut planes = Vec::new();
     let mut size = None;
     for i in 0.. {
@@ -147,9 +147,9 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Med
     let side_path = dir.join(SIDECAR);
     let (camera, depths) = if side_path.is_file() {
         let text = std::fs::read_to_string(&side_path).map_err(read_err(&side_path))?;
-        let s: Sidecar = serde_json::from_str(&text).map_err(|source| MediaError::Json {
+        let s: Sidecar = serde_json::from_str(&text).map_err(|source| MpiError::Json {
             path: side_path.clone(),
-            what: "deepview_camera.json",
+            what: "JSON for deepview_camera.json",
             source,
         })?;
         let cam = s

@@ -15,8 +15,8 @@
 //! `s / (C R)` at tile position `(s % C, (s / C) % R)`. Pages are straight-alpha RGBA8 PNGs `C T` wide;
 //! the last one only as tall as its used rows. Parts of edge tiles outside the plane are zero.
 
-use super::{ExportReport, StraightMpi, check_planes, decode_rgba8};
-use crate::{MediaError, invalid, read_err, write_err};
+use super::straight::{ExportReport, StraightMpi, check_planes, decode_rgba8};
+use crate::error::{MpiError, invalid, read_err, write_err};
 use deepview_geometry::{Camera, Intrinsics, Pose};
 use deepview_image::{write_atomic, write_png_u8};
 use serde::{Deserialize, Serialize};
@@ -47,12 +47,12 @@ pub struct CompactMeta {
 
 impl CompactMeta {
     /// Read and validate `dir/mpi_compact.json` (not the pages).
-    pub fn read(dir: &Path) -> Result<(CompactMeta, Camera), MediaError> {
+    pub fn read(dir: &Path) -> Result<(CompactMeta, Camera), MpiError> {
         let path = dir.join(META);
         let text = std::fs::read_to_string(&path).map_err(read_err(&path))?;
-        let meta: CompactMeta = serde_json::from_str(&text).map_err(|source| MediaError::Json {
+        let meta: CompactMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json {
             path: path.clone(),
-            what: "mpi_compact.json",
+            what: "JSON for mpi_compact.json",
             source,
         })?;
         let bad = |msg: String| invalid(&path, msg);
@@ -124,14 +124,10 @@ fn tile_is_empty(px: &[u8], w: u32, h: u32, t: u32, tx: u32, ty: u32) -> bool {
 }
 
 /// Write the compact export of `mpi` in the folder `out` with `tile x tile` tiles.
-pub fn write_with_tile(
-    out: &Path,
-    mpi: &StraightMpi,
-    tile: u32,
-) -> Result<ExportReport, MediaError> {
+pub fn write_with_tile(out: &Path, mpi: &StraightMpi, tile: u32) -> Result<ExportReport, MpiError> {
     check_planes(out, mpi)?;
     if tile == 0 {
-        return Err(MediaError::Config("tile size must be positive".into()));
+        return Err(MpiError::Config("tile size must be positive".into()));
     }
     let (w, h) = (mpi.camera.width, mpi.camera.height);
     let (tiles_x, tiles_y) = (w.div_ceil(tile), h.div_ceil(tile));
@@ -214,12 +210,12 @@ pub fn write_with_tile(
 }
 
 /// [`write_with_tile`] with 32 x 32 tiles.
-pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> {
+pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
     write_with_tile(out, mpi, DEFAULT_TILE)
 }
 
 /// Read a compact export back into full straight-alpha planes.
-pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
+pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
     let (meta, camera) = CompactMeta::read(dir)?;
     let (w, h, t) = (meta.width, meta.height, meta.tile);
     let (cols, rows) = (meta.page_cols as usize, meta.page_rows as usize);

@@ -22,15 +22,17 @@
 //! coordinates, half a pixel off ours; we read and write the centred principal point `(W/2, H/2)` of our
 //! convention and export warns when the MPI's principal point is not centred or `fx != fy`.
 
-use super::{ExportReport, StraightMpi, check_planes, inverse_depth_spacing_error, numbers};
-use crate::{MediaError, invalid, read_err, write_err};
+use super::straight::{
+    ExportReport, StraightMpi, check_planes, inverse_depth_spacing_error, numbers,
+};
+use crate::error::{MpiError, invalid, read_err, write_err};
 use deepview_geometry::convention::{opengl_c2w_to_pose, pose_to_opengl_c2w};
 use deepview_geometry::{Camera, Intrinsics, PlaneSpacing, plane_depths};
 use deepview_image::write_atomic;
 use std::path::Path;
 
 /// Write `mpi` as LLFF `metadata.txt` + `mpi.b` in the folder `out`.
-pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> {
+pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
     check_planes(out, mpi)?;
     let cam = &mpi.camera;
     let k = cam.intrinsics;
@@ -81,7 +83,7 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MediaError> 
 }
 
 /// Read an LLFF MPI folder (`metadata.txt` + `mpi.b`).
-pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
+pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
     let meta_path = dir.join("metadata.txt");
     let text = std::fs::read_to_string(&meta_path).map_err(read_err(&meta_path))?;
     let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
@@ -95,7 +97,7 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MediaError> {
         ));
     }
     let head = numbers(&meta_path, 0, lines[0], 4)?;
-    let as_count = |v: f64, what: &str| -> Result<usize, MediaError> {
+    let as_count = |v: f64, what: &str| -> Result<usize, MpiError> {
         if v >= 1.0 && v.fract() == 0.0 && v < 1e6 {
             Ok(v as usize)
         } else {

@@ -1,0 +1,149 @@
+//! Bad input across commands (render, psv, info): clear errors and exit code 2.
+
+use crate::common::{deepview, fails_with, s, synth_grid};
+
+#[test]
+fn bad_input_gives_clear_errors_and_exit_code_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = synth_grid(tmp.path());
+    let gt = scene.join("ground_truth_mpi");
+    let out = tmp.path().join("o.png");
+
+    // A missing layer of an MPI.
+    let broken = tmp.path().join("broken_mpi");
+    std::fs::create_dir_all(&broken).unwrap();
+    for f in std::fs::read_dir(&gt).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, broken.join(f.file_name().unwrap())).unwrap();
+    }
+    std::fs::remove_file(broken.join("layer_003.png")).unwrap();
+    fails_with(
+        &deepview(&["render", "--mpi", s(&broken), "--out", s(&out)]),
+        &["layer_003.png"],
+    );
+
+    // Zero planes.
+    let json = std::fs::read_to_string(gt.join("mpi.json")).unwrap();
+    let mut meta: serde_json::Value = serde_json::from_str(&json).unwrap();
+    meta["depths"] = serde_json::json!([]);
+    meta["layers"] = serde_json::json!([]);
+    std::fs::write(broken.join("mpi.json"), meta.to_string()).unwrap();
+    fails_with(
+        &deepview(&["render", "--mpi", s(&broken), "--out", s(&out)]),
+        &["mpi.json", "zero planes"],
+    );
+    fails_with(
+        &deepview(&[
+            "psv",
+            "--data",
+            s(&scene),
+            "--planes",
+            "0",
+            "--out",
+            s(&tmp.path().join("p")),
+        ]),
+        &["plane"],
+    );
+
+    // Malformed camera JSON, and a non-finite pose value.
+    let cam = tmp.path().join("cam.json");
+    std::fs::write(&cam, "{\"width\": 10,").unwrap();
+    fails_with(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--camera",
+            s(&cam),
+            "--out",
+            s(&out),
+        ]),
+        &["cam.json"],
+    );
+    std::fs::write(
+        &cam,
+        r#"{"width":10,"height":10,"fx":10,"fy":10,"cx":5,"cy":5,"camera_from_world":[1,0,0,1e999,0,1,0,0,0,0,1,0,0,0,0,1]}"#,
+    )
+    .unwrap();
+    fails_with(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--camera",
+            s(&cam),
+            "--out",
+            s(&out),
+        ]),
+        &["cam.json", "out of range"],
+    );
+
+    // A missing image, and an image of the wrong size.
+    std::fs::remove_file(scene.join("input_Cam002.png")).unwrap();
+    fails_with(
+        &deepview(&[
+            "psv",
+            "--data",
+            s(&scene),
+            "--view",
+            "2",
+            "--out",
+            s(&tmp.path().join("p")),
+        ]),
+        &["input_Cam002.png"],
+    );
+    deepview_image::write_png(
+        &scene.join("input_Cam002.png"),
+        &deepview_image::ImageF32::new(50, 20, 3),
+    )
+    .unwrap();
+    fails_with(
+        &deepview(&[
+            "psv",
+            "--data",
+            s(&scene),
+            "--view",
+            "2",
+            "--out",
+            s(&tmp.path().join("p")),
+        ]),
+        &["input_Cam002.png"],
+    );
+
+    // A malformed npy (LLFF) and a malformed COLMAP model.
+    let llff = tmp.path().join("llff");
+    std::fs::create_dir_all(llff.join("images")).unwrap();
+    std::fs::write(llff.join("poses_bounds.npy"), b"\x93NUMPY\x01\x00garbage").unwrap();
+    fails_with(
+        &deepview(&["info", "--data", s(&llff)]),
+        &["poses_bounds.npy"],
+    );
+    let colmap = tmp.path().join("colmap");
+    std::fs::create_dir_all(colmap.join("sparse/0")).unwrap();
+    std::fs::write(
+        colmap.join("sparse/0/cameras.txt"),
+        "1 PINHOLE 10 10 not-a-number 5 5 5\n",
+    )
+    .unwrap();
+    std::fs::write(colmap.join("sparse/0/images.txt"), "").unwrap();
+    fails_with(&deepview(&["info", "--data", s(&colmap)]), &["cameras.txt"]);
+
+    // Out-of-range view.
+    deepview_image::write_png(
+        &scene.join("input_Cam002.png"),
+        &deepview_image::ImageF32::new(96, 64, 3),
+    )
+    .unwrap();
+    fails_with(
+        &deepview(&[
+            "psv",
+            "--data",
+            s(&scene),
+            "--view",
+            "99",
+            "--out",
+            s(&tmp.path().join("p")),
+        ]),
+        &["out of range"],
+    );
+}

@@ -1,0 +1,59 @@
+//! `deepview demo`: the README's first command.
+
+use crate::common::{deepview, s, succeeds};
+
+/// The README's first command: the whole pipeline on the built-in scene (the slow `optimize` baseline
+/// skipped). Everything it announces is there, every method is scored, and the learned model beats the
+/// nearest-view baseline. (On this noise-free synthetic scene `psv-mean`, the model's own starting point,
+/// is hard to beat: colours agree exactly across views; BENCHMARKS.md has the figures.)
+#[test]
+fn demo_makes_everything_it_announces() {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("demo");
+    let stdout = succeeds(&deepview(&["demo", "--out", s(&out), "--no-optimize"]));
+    for f in [
+        "mpi/mpi.json",
+        "mpi/layer_007.png",
+        "scene/ground_truth_mpi/mpi.json",
+        "novel_views/view_05.png",
+        "novel_views/view_10_ground_truth.png",
+        "depth/depth_color.png",
+        "depth/depth_disparity16.png",
+        "spiral.gif",
+        "eval.json",
+        "eval.md",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing; stdout: {stdout}");
+    }
+    // `--planes auto`: the count follows the grid's disparity and is recorded in mpi.json.
+    let mpi = deepview_mpi::read_mpi::<f32>(&out.join("mpi")).unwrap();
+    let (meta, _) = deepview_mpi::MpiMeta::read(&out.join("mpi")).unwrap();
+    let rule = meta.planes_rule.expect("planes_rule in mpi.json");
+    assert_eq!(rule.rule, "auto");
+    let disparity = rule.max_disparity_px.unwrap();
+    assert_eq!(
+        mpi.planes(),
+        ((disparity - 1e-9).ceil() as usize + 1).clamp(8, 256),
+        "{disparity} px"
+    );
+    let reports: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("eval.json")).unwrap()).unwrap();
+    let ssim = |method: &str| {
+        reports
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["method"] == method)
+            .unwrap_or_else(|| panic!("no {method} in eval.json"))["results"]["ssim"]
+            .as_f64()
+            .unwrap()
+    };
+    let (nearest, psv, learned) = (ssim("nearest"), ssim("psv-mean"), ssim("deepview"));
+    assert!(
+        learned > nearest && psv > nearest,
+        "deepview {learned} vs nearest {nearest}, psv-mean {psv}"
+    );
+    // It says how to look at the MPI in the browser.
+    let view_hint = format!("-- view --mpi {}", out.join("mpi").display());
+    assert!(stdout.contains(&view_hint), "{view_hint:?} not in {stdout}");
+}

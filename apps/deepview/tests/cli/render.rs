@@ -1,0 +1,138 @@
+//! `deepview render`: ground truth into a dataset view or a camera, and bad MPI files and flags.
+
+use crate::common::{copy_dir, deepview, fails_with, s, succeeds, synth_grid};
+use std::path::Path;
+
+#[test]
+fn synth_then_render_ground_truth_into_a_view() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = synth_grid(tmp.path());
+    let view = tmp.path().join("v4.png");
+    let gt = scene.join("ground_truth_mpi");
+    let o = deepview(&[
+        "render",
+        "--mpi",
+        s(&gt),
+        "--scene",
+        s(&scene),
+        "--view",
+        "4",
+        "--out",
+        s(&view),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let a = deepview_image::read_image(&view, 3).unwrap();
+    let b = deepview_image::read_image(&scene.join("input_Cam004.png"), 3).unwrap();
+    let mse: f64 = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / a.data.len() as f64;
+    let psnr = -10.0 * mse.log10();
+    assert!(psnr > 38.0, "PSNR {psnr:.2}");
+    // Depth maps and a camera JSON render work on the same MPI.
+    let depth = tmp.path().join("depth");
+    assert!(
+        deepview(&["depth", "--mpi", s(&gt), "--out", s(&depth)])
+            .status
+            .success()
+    );
+    assert!(
+        depth.join("depth_color.png").is_file() && depth.join("depth_disparity16.png").is_file()
+    );
+    let meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(gt.join("mpi.json")).unwrap()).unwrap();
+    let cam = serde_json::json!({"width": 40, "height": 30, "fx": 50.0, "fy": 50.0, "cx": 20.0, "cy": 15.0,
+        "camera_from_world": meta["camera_from_world"]});
+    let cam_path = tmp.path().join("cam.json");
+    std::fs::write(&cam_path, cam.to_string()).unwrap();
+    let out = tmp.path().join("c.png");
+    assert!(
+        deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--camera",
+            s(&cam_path),
+            "--out",
+            s(&out)
+        ])
+        .status
+        .success()
+    );
+    assert_eq!(deepview_image::image_size(&out).unwrap(), (40, 30));
+    let o = deepview(&["bench", "render", "--mpi", s(&gt), "--repeats", "2"]);
+    let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert!(line["fps"].as_f64().unwrap() > 0.0 && line["planes"] == 8);
+    // `info --camera N` writes view N's camera JSON: rendering into it equals `--scene S --view N`. (The
+    // old spellings, a bare dataset folder and `render --scene`, still work for one release.)
+    let o = deepview(&["info", s(&scene), "--camera", "4"]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let cam4 = tmp.path().join("cam4.json");
+    std::fs::write(&cam4, &o.stdout).unwrap();
+    let via_json = tmp.path().join("v4_json.png");
+    let o = deepview(&[
+        "render",
+        "--mpi",
+        s(&gt),
+        "--camera",
+        s(&cam4),
+        "--out",
+        s(&via_json),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(
+        std::fs::read(&via_json).unwrap(),
+        std::fs::read(&view).unwrap()
+    );
+    fails_with(
+        &deepview(&["info", "--data", s(&scene), "--camera", "99"]),
+        &["view 99 is out of range", "9 views"],
+    );
+}
+
+#[test]
+fn bad_mpi_files_and_flags_give_clear_errors_and_exit_code_2() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let grid = synth_grid(t);
+    let gt = grid.join("ground_truth_mpi");
+    let out = t.join("o.png");
+    let render = |mpi: &Path| deepview(&["render", "--mpi", s(mpi), "--out", s(&out)]);
+    succeeds(&render(&gt));
+
+    // Truncated mpi.json.
+    let bad = copy_dir(&gt, &t.join("mpi_truncated"));
+    let text = std::fs::read_to_string(gt.join("mpi.json")).unwrap();
+    std::fs::write(bad.join("mpi.json"), &text[..text.len() / 2]).unwrap();
+    fails_with(&render(&bad), &["mpi.json", "not valid mpi.json", "EOF"]);
+
+    // A layer PNG of the wrong size.
+    let bad = copy_dir(&gt, &t.join("mpi_layer_size"));
+    deepview_image::write_png(
+        &bad.join("layer_002.png"),
+        &deepview_image::ImageF32::new(50, 20, 4),
+    )
+    .unwrap();
+    fails_with(&render(&bad), &["layer_002.png", "50x20", "mpi.json says"]);
+
+    // Too few planes for a synthetic scene.
+    for planes in ["0", "1"] {
+        let o = deepview(&[
+            "synth",
+            "--out",
+            s(&t.join(format!("synth_{planes}"))),
+            "--grid",
+            "2",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--planes",
+            planes,
+        ]);
+        fails_with(&o, &["--planes", "at least 2", &format!("got {planes}")]);
+    }
+}

@@ -1,0 +1,82 @@
+//! The one atomic file write of the workspace: a temporary file beside the target, then a rename, so an
+//! interrupted run never leaves a half-written file in place of an earlier one.
+
+use crate::ImageError;
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// How hard an atomic write tries to survive a crash of the machine (not just of the process).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Durability {
+    /// Write, then rename: a killed process leaves the old or the new content.
+    #[default]
+    Rename,
+    /// Also flush the file before the rename and the folder after it (training checkpoints' files): a
+    /// power cut leaves the old or the new content.
+    Synced,
+}
+
+/// The temporary name used for an atomic write of `path`: `.NAME.PID.tmp` in the same folder.
+pub fn temp_path(path: &Path) -> PathBuf {
+    let name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Write `bytes` to `path` atomically ([`temp_path`], then a rename), with the I/O error for the caller
+/// to wrap in its own error type. The temporary file is removed when any step fails.
+pub fn write_atomic_with(path: &Path, bytes: &[u8], durability: Durability) -> std::io::Result<()> {
+    let tmp = temp_path(path);
+    let write = || -> std::io::Result<()> {
+        let mut f = std::fs::File::create(&tmp)?;
+        f.write_all(bytes)?;
+        if durability == Durability::Synced {
+            f.sync_all()?;
+        }
+        Ok(())
+    };
+    if let Err(e) = write().and_then(|()| std::fs::rename(&tmp, path)) {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(e);
+    }
+    if durability == Durability::Synced {
+        // Best effort: not every filesystem lets a folder be opened and flushed.
+        let dir = match path.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p,
+            _ => Path::new("."),
+        };
+        if let Ok(f) = std::fs::File::open(dir) {
+            let _ = f.sync_all();
+        }
+    }
+    Ok(())
+}
+
+/// [`write_atomic_with`] without flushing, the error naming `path`.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), ImageError> {
+    write_atomic_with(path, bytes, Durability::Rename).map_err(|source| ImageError::Write {
+        path: path.into(),
+        source,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn writes_replace_and_leave_no_temporary() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.json");
+        write_atomic(&p, b"one").unwrap();
+        write_atomic_with(&p, b"two", Durability::Synced).unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"two");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+        assert_eq!(names.len(), 1);
+        // A missing folder: an error, and nothing left behind.
+        let e = write_atomic(&dir.path().join("no/such/file"), b"x").unwrap_err();
+        assert!(e.to_string().contains("no/such/file"), "{e}");
+    }
+}

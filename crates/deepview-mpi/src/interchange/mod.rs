@@ -1,0 +1,120 @@
+//! MPI interchange: export our folder format to other tools' MPI formats and import them back.
+//!
+//! All conversions work on the 8-bit straight-alpha bytes of the layer files, so a round trip through any
+//! of them reproduces our `layer_NNN.png` pixels exactly (see each module for the foreign layout).
+//! - [`llff`]: LLFF's `metadata.txt` + `mpi.b` (what LLFF's viewers read);
+//! - [`stereo_mag`]: stereo magnification's `mpi_rgb_NN.png` / `mpi_alpha_NN.png` / `intrinsics.txt`;
+//! - [`compact`]: our tiled export without fully transparent tiles (read by the web viewer);
+//! - `straight`: the straight-alpha MPI they all convert through ([`StraightMpi`]) and their shared checks.
+
+pub mod compact;
+pub mod llff;
+pub mod stereo_mag;
+
+mod straight;
+
+pub use straight::{ExportReport, StraightMpi, read_straight, write_straight};
+
+use crate::error::{MpiError, invalid, read_err};
+use crate::io::MpiMeta;
+use std::path::Path;
+use std::str::FromStr;
+
+/// Formats `deepview export` writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExportFormat {
+    Llff,
+    StereoMag,
+    Compact,
+}
+
+impl FromStr for ExportFormat {
+    type Err = MpiError;
+    fn from_str(s: &str) -> Result<Self, MpiError> {
+        match s {
+            "llff" => Ok(ExportFormat::Llff),
+            "stereo-mag" | "stereomag" => Ok(ExportFormat::StereoMag),
+            "compact" => Ok(ExportFormat::Compact),
+            _ => Err(MpiError::Config(format!(
+                "unknown export format {s:?} (expected llff, stereo-mag or compact)"
+            ))),
+        }
+    }
+}
+
+/// Formats `deepview import` recognises.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ImportFormat {
+    Deepview,
+    Llff,
+    StereoMag,
+    Compact,
+}
+
+/// Export the MPI folder `mpi_dir` to `out` in `format`.
+pub fn export(mpi_dir: &Path, out: &Path, format: ExportFormat) -> Result<ExportReport, MpiError> {
+    let mpi = read_straight(mpi_dir)?;
+    let mut report = match format {
+        ExportFormat::Llff => llff::write(out, &mpi)?,
+        ExportFormat::StereoMag => stereo_mag::write(out, &mpi)?,
+        ExportFormat::Compact => compact::write(out, &mpi)?,
+    };
+    let (meta, _) = MpiMeta::read(mpi_dir)?;
+    for name in &meta.layers {
+        let p = mpi_dir.join(name);
+        report.source_bytes += std::fs::metadata(&p).map_err(read_err(&p))?.len();
+    }
+    Ok(report)
+}
+
+/// Which format the folder `dir` holds.
+pub fn detect_format(dir: &Path) -> Result<ImportFormat, MpiError> {
+    if !dir.is_dir() {
+        return Err(invalid(dir, "not a folder"));
+    }
+    let has = |n: &str| dir.join(n).is_file();
+    if has("mpi.json") {
+        Ok(ImportFormat::Deepview)
+    } else if has(compact::META) {
+        Ok(ImportFormat::Compact)
+    } else if has("metadata.txt") && has("mpi.b") {
+        Ok(ImportFormat::Llff)
+    } else if has("mpi_rgb_00.png") {
+        Ok(ImportFormat::StereoMag)
+    } else {
+        Err(invalid(
+            dir,
+            format!(
+                "no known MPI format: looked for mpi.json (deepview), {} (compact), metadata.txt + mpi.b (LLFF), \
+                 mpi_rgb_00.png (stereo magnification)",
+                compact::META
+            ),
+        ))
+    }
+}
+
+/// Options of [`import`] for formats that do not store everything.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct ImportOptions {
+    /// Stereo magnification stores no depths: near / far plane depths when there is no sidecar or README.
+    pub near_far: Option<(f64, f64)>,
+}
+
+/// Read any supported MPI folder as straight-alpha planes.
+pub fn read_any(dir: &Path, opts: &ImportOptions) -> Result<(ImportFormat, StraightMpi), MpiError> {
+    let format = detect_format(dir)?;
+    let mpi = match format {
+        ImportFormat::Deepview => read_straight(dir)?,
+        ImportFormat::Compact => compact::read(dir)?,
+        ImportFormat::Llff => llff::read(dir)?,
+        ImportFormat::StereoMag => stereo_mag::read(dir, opts.near_far)?,
+    };
+    Ok((format, mpi))
+}
+
+/// Import the MPI folder `input` (format detected) into our format at `out`.
+pub fn import(input: &Path, out: &Path, opts: &ImportOptions) -> Result<ImportFormat, MpiError> {
+    let (format, mpi) = read_any(input, opts)?;
+    write_straight(out, &mpi)?;
+    Ok(format)
+}

@@ -1,0 +1,47 @@
+//! The output folder: built beside `--out` in `OUT.incomplete` (marked as ours), moved into place at the end.
+
+use crate::ProcessError;
+use crate::error::write_err;
+use std::path::{Path, PathBuf};
+
+/// Marks a working folder as ours, so that a later run may reuse (clear) it.
+pub(crate) const MARKER: &str = ".deepview-process";
+
+/// The folder the scene is built in, beside `out`: cleared when it is ours, refused otherwise.
+pub(crate) fn work_folder(out: &Path) -> Result<PathBuf, ProcessError> {
+    let name = out.file_name().ok_or_else(|| {
+        ProcessError::Invalid(format!("--out {} has no folder name", out.display()))
+    })?;
+    let mut work_name = name.to_os_string();
+    work_name.push(".incomplete");
+    let work = out.with_file_name(work_name);
+    if work.exists() {
+        if !work.join(MARKER).is_file() {
+            return Err(ProcessError::WorkFolderTaken { path: work });
+        }
+        std::fs::remove_dir_all(&work).map_err(write_err(&work))?;
+    }
+    std::fs::create_dir_all(&work).map_err(write_err(&work))?;
+    std::fs::write(work.join(MARKER), "built by deepview process\n").map_err(write_err(&work))?;
+    Ok(work)
+}
+
+pub(crate) fn out_is_free(out: &Path) -> Result<(), ProcessError> {
+    let taken = match std::fs::read_dir(out) {
+        Ok(mut rd) => rd.next().is_some(),
+        Err(_) => out.exists(),
+    };
+    if taken {
+        Err(ProcessError::OutputExists { path: out.into() })
+    } else {
+        Ok(())
+    }
+}
+
+/// Move `from` to `to`, the error naming both.
+pub(crate) fn rename(from: &Path, to: &Path) -> Result<(), ProcessError> {
+    std::fs::rename(from, to).map_err(|e| ProcessError::Write {
+        path: to.into(),
+        source: std::io::Error::new(e.kind(), format!("moving {} here: {e}", from.display())),
+    })
+}

@@ -1,0 +1,257 @@
+//! The pipeline: photos (or video frames), COLMAP's stages, the scene folder checked and moved into place.
+
+use crate::error::write_err;
+use crate::frames::extract_frames;
+use crate::layout::{MARKER, out_is_free, rename, work_folder};
+use crate::photos::{copy_photos, list_photos};
+use crate::runner::Runner;
+use crate::{Event, Input, Matcher, ProcessError, ProcessOptions, ProcessReport, Stage, colmap};
+use deepview_data::{LoadOptions, load_scene, read_colmap};
+use std::time::{Duration, Instant};
+
+/// Run the whole pipeline; `progress` hears of every stage. See the crate documentation for the output.
+pub fn process(
+    opts: &ProcessOptions,
+    progress: &mut dyn FnMut(Event),
+) -> Result<ProcessReport, ProcessError> {
+    let t0 = Instant::now();
+    let out = &opts.out;
+    out_is_free(out)?;
+    // Fail fast on empty folders and missing tools, before any long work.
+    let photos = match &opts.input {
+        Input::Photos(dir) => {
+            let p = list_photos(dir)?;
+            match p.len() {
+                0 => return Err(ProcessError::NoImages { dir: dir.clone() }),
+                1 => {
+                    return Err(ProcessError::TooFewImages {
+                        dir: dir.clone(),
+                        count: 1,
+                    });
+                }
+                _ => Some(p),
+            }
+        }
+        Input::Video { path, fps } => {
+            if !path.is_file() {
+                return Err(ProcessError::Read {
+                    path: path.clone(),
+                    source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such video file"),
+                });
+            }
+            if !(fps.is_finite() && *fps > 0.0) {
+                return Err(ProcessError::Invalid(format!(
+                    "--fps must be a positive number (got {fps})"
+                )));
+            }
+            None
+        }
+    };
+    colmap::check_colmap(&opts.colmap)?;
+    let work = work_folder(out)?;
+    let runner = Runner {
+        log: work.join("colmap.log"),
+    };
+    let colmap_dir = work.join("colmap");
+    let input = colmap_dir.join("input");
+    std::fs::create_dir_all(&input).map_err(write_err(&input))?;
+    let timed = |stage: Stage,
+                 what: String,
+                 progress: &mut dyn FnMut(Event),
+                 f: &mut dyn FnMut() -> Result<(), ProcessError>| {
+        progress(Event::Started(stage, what));
+        let t = Instant::now();
+        f()?;
+        progress(Event::Finished(stage, t.elapsed()));
+        Ok::<(), ProcessError>(())
+    };
+
+    // 1. Photos: copied (or downscaled), or frames extracted from the video.
+    let mut names = Vec::new();
+    match (&opts.input, &photos) {
+        (Input::Video { path, fps }, _) => {
+            let frames = colmap_dir.join("frames");
+            std::fs::create_dir_all(&frames).map_err(write_err(&frames))?;
+            timed(
+                Stage::Frames,
+                format!("{} at {fps} frames per second", path.display()),
+                progress,
+                &mut || extract_frames(&runner, &opts.ffmpeg, path, *fps, &frames),
+            )?;
+            let p = list_photos(&frames)?;
+            if p.len() < 2 {
+                return Err(ProcessError::TooFewImages {
+                    dir: frames,
+                    count: p.len(),
+                });
+            }
+            timed(
+                Stage::Photos,
+                format!("{} frames", p.len()),
+                progress,
+                &mut || {
+                    names = copy_photos(&p, &input, opts.max_size)?;
+                    Ok(())
+                },
+            )?;
+            std::fs::remove_dir_all(&frames).map_err(write_err(&frames))?;
+        }
+        (Input::Photos(dir), Some(p)) => {
+            let what = match opts.max_size {
+                Some(m) => format!("{} photos from {}, at most {m} px", p.len(), dir.display()),
+                None => format!("{} photos from {}", p.len(), dir.display()),
+            };
+            timed(Stage::Photos, what, progress, &mut || {
+                names = copy_photos(p, &input, opts.max_size)?;
+                Ok(())
+            })?;
+        }
+        (Input::Photos(_), None) => unreachable!("photos are listed above"),
+    }
+
+    // 2. COLMAP: features, matches, mapping, undistortion.
+    let db = colmap_dir.join("database.db");
+    timed(
+        Stage::Features,
+        format!(
+            "SIFT on the CPU, one shared {} camera",
+            opts.camera_model.colmap_name()
+        ),
+        progress,
+        &mut || colmap::extract_features(&runner, &opts.colmap, opts.camera_model, &db, &input),
+    )?;
+    let matcher = match opts.matcher {
+        Matcher::Auto if names.len() <= opts.exhaustive_up_to => Matcher::Exhaustive,
+        Matcher::Auto => Matcher::Sequential,
+        m => m,
+    };
+    timed(
+        Stage::Matching,
+        format!("{matcher}, {} images", names.len()),
+        progress,
+        &mut || colmap::match_features(&runner, &opts.colmap, matcher, &db),
+    )?;
+    let sparse = colmap_dir.join("sparse");
+    std::fs::create_dir_all(&sparse).map_err(write_err(&sparse))?;
+    let not_registered = |registered: &[String]| {
+        let missing: Vec<String> = names
+            .iter()
+            .filter(|n| !registered.contains(n))
+            .cloned()
+            .collect();
+        missing
+    };
+    let mapped = timed(
+        Stage::Mapping,
+        "incremental structure from motion".into(),
+        progress,
+        &mut || colmap::map(&runner, &opts.colmap, &db, &input, &sparse),
+    );
+    let best = colmap::best_model(&sparse)?;
+    // The mapper fails when it cannot start a model at all: say which images, not just "failed".
+    let (model_dir, registered) = match (mapped, best) {
+        (Ok(()), Some(b)) => b,
+        (Err(ProcessError::StageFailed { .. }), None) | (Ok(()), None) => {
+            return Err(ProcessError::NotRegistered {
+                registered: 0,
+                total: names.len(),
+                missing: list(&names),
+                log: runner.log.clone(),
+            });
+        }
+        (Err(e), _) => return Err(e),
+    };
+    let unregistered = not_registered(&registered);
+    if registered.len() < 2 {
+        return Err(ProcessError::NotRegistered {
+            registered: registered.len(),
+            total: names.len(),
+            missing: list(&unregistered),
+            log: runner.log.clone(),
+        });
+    }
+    if !unregistered.is_empty() {
+        progress(Event::Warning(format!(
+            "COLMAP registered {} of {} images; left out (not in the scene): {}",
+            registered.len(),
+            names.len(),
+            list(&unregistered)
+        )));
+    }
+    let undistorted = colmap_dir.join("undistorted");
+    timed(
+        Stage::Undistortion,
+        format!("{} images to one PINHOLE camera", registered.len()),
+        progress,
+        &mut || colmap::undistort(&runner, &opts.colmap, &input, &model_dir, &undistorted),
+    )?;
+
+    // 3. The scene folder: images/, sparse/0/, checked by loading it as every command will.
+    let mut report = None;
+    timed(
+        Stage::Scene,
+        out.display().to_string(),
+        progress,
+        &mut || {
+            rename(&undistorted.join("images"), &work.join("images"))?;
+            let model0 = work.join("sparse").join("0");
+            std::fs::create_dir_all(work.join("sparse")).map_err(write_err(&work))?;
+            rename(&undistorted.join("sparse"), &model0)?;
+            std::fs::remove_dir_all(&undistorted).map_err(write_err(&undistorted))?;
+            std::fs::remove_dir_all(&input).map_err(write_err(&input))?;
+            let scene = load_scene(&work, &LoadOptions::default())?;
+            scene.check_images()?;
+            let model = read_colmap(&model0)?;
+            let c = scene.views[0].camera;
+            report = Some(ProcessReport {
+                out: out.clone(),
+                images: names.len(),
+                registered: registered.clone(),
+                unregistered: unregistered.clone(),
+                points: model.points.len(),
+                depth_bounds: scene.depth_bounds,
+                matcher,
+                size: (c.width, c.height),
+                intrinsics: [
+                    c.intrinsics.fx,
+                    c.intrinsics.fy,
+                    c.intrinsics.cx,
+                    c.intrinsics.cy,
+                ],
+                log: out.join("colmap.log"),
+                elapsed: Duration::ZERO,
+            });
+            std::fs::remove_file(work.join(MARKER)).map_err(write_err(&work))?;
+            // Rename into place; an `out` that appeared meanwhile is left alone (the scene stays in `work`).
+            out_is_free(out)?;
+            if out.is_dir() {
+                std::fs::remove_dir(out).map_err(write_err(out))?;
+            }
+            rename(&work, out)
+        },
+    )?;
+    let mut report = report.expect("set by the last stage");
+    if report.depth_bounds.is_none() {
+        progress(Event::Warning(
+            "the model has no 3D points in front of the cameras: pass --near and --far to the other commands"
+                .into(),
+        ));
+    }
+    report.elapsed = t0.elapsed();
+    Ok(report)
+}
+
+/// Up to 20 names, comma-separated, then how many more.
+fn list(names: &[String]) -> String {
+    const SHOW: usize = 20;
+    let mut s = names
+        .iter()
+        .take(SHOW)
+        .cloned()
+        .collect::<Vec<_>>()
+        .join(", ");
+    if names.len() > SHOW {
+        s.push_str(&format!(" and {} more", names.len() - SHOW));
+    }
+    if s.is_empty() { "none".into() } else { s }
+}
