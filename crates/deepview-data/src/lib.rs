@@ -6,6 +6,7 @@
 //! Foreign conventions are converted in exactly one place each (`deepview_geometry::convention`), and
 //! every error names the file and the problem.
 
+mod camera_json;
 pub mod formats;
 pub mod npy;
 pub mod pfm;
@@ -17,6 +18,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
+pub use camera_json::read_camera_json;
 pub use formats::colmap::{ColmapModel, read_colmap, write_colmap_text};
 pub use formats::lightfield::{
     LightFieldCameras, light_field_cameras, light_field_image_name, write_light_field,

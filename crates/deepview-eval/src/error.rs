@@ -40,6 +40,56 @@ pub enum EvalError {
     BadRule { rule: String, msg: String },
     #[error("unknown method '{0}' (expected nearest, psv-mean, optimize or deepview)")]
     UnknownMethod(String),
+    #[error(
+        "view index {index} out of range: the scene has {views} views (0..{})",
+        .views.saturating_sub(1)
+    )]
+    ViewIndex { index: usize, views: usize },
+    #[error("input rule {rule}: it wants {wanted} views but {available} are available")]
+    TooFewViews {
+        rule: String,
+        wanted: usize,
+        available: usize,
+    },
+    #[error("an MPI needs at least one plane (got 0)")]
+    NoPlanes,
+    #[error("a plane count from the weights needs a learned model (use auto or a number)")]
+    PlanesNeedWeights,
+    #[error(
+        "{planes} planes ({how}) do not fit the memory budget: they need at least {}",
+        crate::planes::human(*.need)
+    )]
+    PlanesOverBudget {
+        planes: usize,
+        how: crate::planes::PlanesHow,
+        /// Bytes the planes need at least.
+        need: u64,
+    },
+    #[error(
+        "{what} needs about {} of memory but the budget is {}",
+        crate::planes::human(*.need),
+        crate::planes::human(*.budget)
+    )]
+    OverBudget { what: String, need: u64, budget: u64 },
+    #[error(
+        "{what} needs more than {} of memory (the MPI state alone) but the budget is {}: fewer than \
+         {fewer_than} planes fit it",
+        crate::planes::human(*.lower),
+        crate::planes::human(*.budget)
+    )]
+    StateOverBudget {
+        what: String,
+        /// A lower bound of the bytes needed.
+        lower: u64,
+        budget: u64,
+        /// The smallest plane count whose lower bound exceeds the budget.
+        fewer_than: usize,
+    },
+    #[error(
+        "no weights in {} (expected config.json and model.safetensors, or a training checkpoint)",
+        .dir.display()
+    )]
+    NoWeights { dir: std::path::PathBuf },
     #[error("method {method}: {msg}")]
     Method { method: String, msg: String },
     #[error("{0}")]
@@ -57,4 +107,10 @@ pub enum EvalError {
     Metrics(#[from] MetricsError),
     #[error(transparent)]
     Geometry(#[from] GeometryError),
+    #[error(transparent)]
+    Mpi(#[from] deepview_mpi::MpiError),
+    #[error(transparent)]
+    Weights(#[from] deepview_net::weights::WeightsError),
+    #[error(transparent)]
+    Infer(#[from] deepview_net::infer::InferError),
 }

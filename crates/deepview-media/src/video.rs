@@ -226,9 +226,7 @@ impl Mp4Sink {
         program: &str,
     ) -> Result<Self, MediaError> {
         if width % 2 == 1 || height % 2 == 1 {
-            return Err(MediaError::Config(format!(
-                "MP4 (H.264, yuv420p) needs an even frame size, got {width}x{height}; use --size or a GIF/PNG frames"
-            )));
+            return Err(MediaError::OddFrameSize { width, height });
         }
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("mp4");
         let tmp = temp_path(path).with_extension(format!("tmp.{ext}"));
