@@ -136,7 +136,7 @@ impl VggArg {
         Ok(())
     }
 
-    /// Refuse at once, before any data is loaded, a VGG loss without readable VGG weights.
+    /// Refuse a VGG loss without readable VGG weights before the training starts.
     pub fn check(&self, loss: LossKind) -> anyhow::Result<()> {
         if loss != LossKind::Vgg {
             return Ok(());
@@ -372,7 +372,6 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         let cfg: RunConfig = serde_json::from_str(&text)
             .with_context(|| format!("invalid {}", cfg_path.display()))?;
         check_fixed_on_resume(&args, &cfg)?;
-        args.vgg.check(cfg.train.loss)?;
         let paths = if args.data.is_empty() {
             cfg.train.data.clone()
         } else {
@@ -380,6 +379,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         };
         let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
         check_views(&data, cfg.train.sample.views_max)?;
+        args.vgg.check(cfg.train.loss)?;
         let mut t = Trainer::resume_on(
             &run_dir,
             data,
@@ -480,9 +480,9 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         for d in &train.devices {
             deepview_net::train::parse_device(d)?;
         }
-        args.vgg.check(train.loss)?;
         let data = load_data(&train.data, &opts, train.holdout_every)?;
         check_views(&data, train.sample.views_max)?;
+        args.vgg.check(train.loss)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
         if writer {
             eprintln!(
