@@ -56,7 +56,9 @@ fn a_copied_binary_infers_and_trains_from_another_folder() {
         "synth", "--out", "grid", "--grid", "3", "--width", "96", "--height", "64", "--planes", "8",
     ]));
     // The built-in weights are the repository's weights/cpu.
-    succeeds(&run(&["infer", "--data", "grid", "--inputs", "0,2,6,8", "--out", "a"]));
+    succeeds(&run(&[
+        "infer", "--data", "grid", "--inputs", "0,2,6,8", "--out", "a",
+    ]));
     let repo_weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../weights/cpu");
     succeeds(&run(&[
         "infer",
@@ -72,8 +74,22 @@ fn a_copied_binary_infers_and_trains_from_another_folder() {
     assert!(files(&work.join("a")) == files(&work.join("b")));
 
     // Training with the VGG loss needs its weights named: without them, a clear error before any work.
-    let train = ["train", "--data", "synthetic:two-planes", "--name", "r", "--steps", "2", "--crop", "8"];
-    let train: Vec<&str> = train.iter().copied().chain(["--planes", "4", "--quiet"]).collect();
+    let train = [
+        "train",
+        "--data",
+        "synthetic:two-planes",
+        "--name",
+        "r",
+        "--steps",
+        "2",
+        "--crop",
+        "8",
+    ];
+    let train: Vec<&str> = train
+        .iter()
+        .copied()
+        .chain(["--planes", "4", "--quiet"])
+        .collect();
     let o = run(&train);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
@@ -83,8 +99,16 @@ fn a_copied_binary_infers_and_trains_from_another_folder() {
     );
     assert!(!work.join("runs/r/config.json").exists());
     let vgg = deepview_data::data_dir().join("vgg16/vgg16_conv1_1-conv3_3.safetensors");
-    assert!(vgg.is_file(), "VGG weights missing at {} (set DEEPVIEW_DATA)", vgg.display());
-    let with: Vec<&str> = train.iter().copied().chain(["--vgg-weights", s(&vgg)]).collect();
+    assert!(
+        vgg.is_file(),
+        "VGG weights missing at {} (set DEEPVIEW_DATA)",
+        vgg.display()
+    );
+    let with: Vec<&str> = train
+        .iter()
+        .copied()
+        .chain(["--vgg-weights", s(&vgg)])
+        .collect();
     succeeds(&run(&with));
     assert!(work.join("runs/r/config.json").is_file());
 }

@@ -30,7 +30,17 @@ fn succeeds(out: &Output) -> String {
 fn grid(dir: &Path) -> PathBuf {
     let out = dir.join("grid");
     succeeds(&deepview(&[
-        "synth", "--out", s(&out), "--grid", "3", "--width", "96", "--height", "64", "--planes", "8",
+        "synth",
+        "--out",
+        s(&out),
+        "--grid",
+        "3",
+        "--width",
+        "96",
+        "--height",
+        "64",
+        "--planes",
+        "8",
     ]));
     out
 }
@@ -156,7 +166,14 @@ fn one_input_rule_with_one_default() {
     // Around a view: nearest:3@0 is view 0 and its two neighbours.
     let around = tmp.path().join("around");
     let stdout = succeeds(&deepview(&[
-        "infer", "--data", s(&scene), "--method", "nearest", "--inputs", "nearest:3@0", "--out",
+        "infer",
+        "--data",
+        s(&scene),
+        "--method",
+        "nearest",
+        "--inputs",
+        "nearest:3@0",
+        "--out",
         s(&around),
     ]));
     assert!(stdout.contains("views [0, 1, 3]"), "{stdout}");
@@ -178,10 +195,20 @@ fn one_input_rule_with_one_default() {
     }
     // More inputs than views: refused, with the flag that fixes it.
     let o = deepview(&[
-        "infer", "--data", s(&scene), "--method", "psv-mean", "--inputs", "nearest:12", "--out",
+        "infer",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--inputs",
+        "nearest:12",
+        "--out",
         s(&tmp.path().join("x")),
     ]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("9 are available") && err.contains("--inputs"), "{err}");
+    assert!(
+        err.contains("9 are available") && err.contains("--inputs"),
+        "{err}"
+    );
 }

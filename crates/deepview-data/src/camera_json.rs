@@ -24,7 +24,12 @@ mod tests {
     fn errors_name_the_file() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("cam.json");
-        assert!(read_camera_json(&p).unwrap_err().to_string().contains("cam.json"));
+        assert!(
+            read_camera_json(&p)
+                .unwrap_err()
+                .to_string()
+                .contains("cam.json")
+        );
         std::fs::write(&p, "{\"width\": 10,").unwrap();
         let e = read_camera_json(&p).unwrap_err().to_string();
         assert!(e.contains("cam.json") && e.contains("JSON"), "{e}");

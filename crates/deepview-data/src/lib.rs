@@ -80,8 +80,28 @@ pub enum DataError {
         rig: usize,
         count: usize,
     },
-    #[error("{path}: no depth bounds known for this scene; pass --near and --far{hint}")]
+    #[error("{path}: no depth bounds known for this scene; give its near and far depths{hint}")]
     NoDepthBounds { path: PathBuf, hint: String },
+    #[error(
+        "{path}: this scene has no depth bounds of its own, so a {given} depth needs a {missing} depth too"
+    )]
+    HalfDepthBounds {
+        path: PathBuf,
+        given: &'static str,
+        missing: &'static str,
+    },
+    #[error("{path}: image folder does not exist")]
+    NoImageFolder { path: PathBuf },
+    #[error(
+        "{path}: downscaling by {factor} leaves nothing of view {view}'s {width}x{height} image"
+    )]
+    DownscaleTooLarge {
+        path: PathBuf,
+        factor: u32,
+        view: String,
+        width: u32,
+        height: u32,
+    },
     #[error("{path}: cannot detect the dataset format; looked for {looked_for}")]
     NotDetected { path: PathBuf, looked_for: String },
     #[error("{path}: {msg}")]
@@ -338,13 +358,13 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
             let c = v.camera;
             let (w, h) = (c.width / factor, c.height / factor);
             if w == 0 || h == 0 {
-                return Err(DataError::invalid(
-                    path,
-                    format!(
-                        "--downscale {factor} leaves nothing of view {}'s {}x{} image",
-                        v.name, c.width, c.height
-                    ),
-                ));
+                return Err(DataError::DownscaleTooLarge {
+                    path: path.into(),
+                    factor,
+                    view: v.name.clone(),
+                    width: c.width,
+                    height: c.height,
+                });
             }
             let s = 1.0 / factor as f64;
             v.camera = Camera::new(w, h, c.intrinsics.scaled(s, s), c.pose);
@@ -363,16 +383,15 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
         (None, None, b) => b,
         (n, _, None) => {
             let (given, missing) = if n.is_some() {
-                ("--near", "--far")
+                ("near", "far")
             } else {
-                ("--far", "--near")
+                ("far", "near")
             };
-            return Err(DataError::invalid(
-                path,
-                format!(
-                    "this scene has no depth bounds of its own, so {given} needs {missing} too"
-                ),
-            ));
+            return Err(DataError::HalfDepthBounds {
+                path: path.into(),
+                given,
+                missing,
+            });
         }
     };
     if let Some((n, f)) = scene.depth_bounds
@@ -468,7 +487,7 @@ impl Scene {
         Ok(img)
     }
 
-    /// `(near, far)`: the dataset's or the options' bounds, or an error asking for `--near/--far`.
+    /// `(near, far)`: the dataset's or the options' bounds, or an error asking for them.
     pub fn near_far(&self) -> Result<(f64, f64), DataError> {
         self.depth_bounds.ok_or_else(|| DataError::NoDepthBounds {
             path: self.root.clone(),

@@ -70,7 +70,11 @@ pub enum EvalError {
         crate::planes::human(*.need),
         crate::planes::human(*.budget)
     )]
-    OverBudget { what: String, need: u64, budget: u64 },
+    OverBudget {
+        what: String,
+        need: u64,
+        budget: u64,
+    },
     #[error(
         "{what} needs more than {} of memory (the MPI state alone) but the budget is {}: fewer than \
          {fewer_than} planes fit it",

@@ -112,7 +112,9 @@ impl InputRule {
                 Some(t) => nearest(cameras[check(t)?].center(), *k),
                 None => centroid(*k),
             },
-            InputRule::NearestTo { count, view } => nearest(cameras[check(*view)?].center(), *count),
+            InputRule::NearestTo { count, view } => {
+                nearest(cameras[check(*view)?].center(), *count)
+            }
             InputRule::Centroid(k) => centroid(*k),
             InputRule::All => {
                 let cand = candidates();
@@ -254,19 +256,41 @@ mod tests {
         }
         assert_eq!(InputRule::default().to_string(), "nearest:4");
         assert_eq!(InputRule::default_for(Some(5)), InputRule::Nearest(5));
-        for bad in ["nearest:0", "nearest:x", "nearest:2@x", "centroid:", "1,1", "0,a", ""] {
+        for bad in [
+            "nearest:0",
+            "nearest:x",
+            "nearest:2@x",
+            "centroid:",
+            "1,1",
+            "0,a",
+            "",
+        ] {
             let e = bad.parse::<InputRule>().unwrap_err().to_string();
             assert!(e.contains("centroid:K") && e.contains("all"), "{bad}: {e}");
         }
-        assert!("1,1".parse::<InputRule>().unwrap_err().to_string().contains("twice"));
-        assert!("0,a".parse::<InputRule>().unwrap_err().to_string().contains("not a view index"));
+        assert!(
+            "1,1"
+                .parse::<InputRule>()
+                .unwrap_err()
+                .to_string()
+                .contains("twice")
+        );
+        assert!(
+            "0,a"
+                .parse::<InputRule>()
+                .unwrap_err()
+                .to_string()
+                .contains("not a view index")
+        );
     }
 
     #[test]
     fn selection() {
         let cams = line(9);
         let sel = |rule: &str, target, exclude: &[usize]| {
-            rule.parse::<InputRule>().unwrap().select(&cams, target, exclude)
+            rule.parse::<InputRule>()
+                .unwrap()
+                .select(&cams, target, exclude)
         };
         // Without a target, nearest:K is centroid:K (ascending).
         assert_eq!(sel("nearest:3", None, &[]).unwrap(), [3, 4, 5]);
@@ -274,11 +298,22 @@ mod tests {
         // With a target: by distance, ties to the lower index, targets left out.
         assert_eq!(sel("nearest:3", Some(4), &[4, 5]).unwrap(), [3, 2, 6]);
         assert_eq!(sel("nearest:2@8", None, &[]).unwrap(), [8, 7]);
-        assert_eq!(sel("all", Some(0), &[0, 8]).unwrap(), (1..8).collect::<Vec<_>>());
+        assert_eq!(
+            sel("all", Some(0), &[0, 8]).unwrap(),
+            (1..8).collect::<Vec<_>>()
+        );
         assert_eq!(sel("5,1", None, &[]).unwrap(), [5, 1]);
         let e = sel("4,9", None, &[]).unwrap_err().to_string();
-        assert!(e.contains("view index 9 out of range") && e.contains("9 views"), "{e}");
+        assert!(
+            e.contains("view index 9 out of range") && e.contains("9 views"),
+            "{e}"
+        );
         assert!(sel("nearest:10", None, &[]).is_err());
-        assert!(sel("1,3", Some(3), &[]).unwrap_err().to_string().contains("also an input"));
+        assert!(
+            sel("1,3", Some(3), &[])
+                .unwrap_err()
+                .to_string()
+                .contains("also an input")
+        );
     }
 }

@@ -115,8 +115,10 @@ impl MpiMethod for LearnedMethod {
             self.config.infer_planes,
             budget,
         )?;
-        let mut fits = |count: usize| learned_fits(model, &views, &reference, near_far, count, budget);
-        let mut minimum = |count: usize| learned_minimum(model, &views, &reference, near_far, count);
+        let mut fits =
+            |count: usize| learned_fits(model, &views, &reference, near_far, count, budget);
+        let mut minimum =
+            |count: usize| learned_minimum(model, &views, &reference, near_far, count);
         let choice = choose_planes(
             self.planes,
             &reference,

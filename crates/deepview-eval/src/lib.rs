@@ -28,7 +28,9 @@ pub use error::EvalError;
 pub use inputs::{DEFAULT_INPUTS, INPUT_RULES, InputRule};
 pub use learned::{LearnedMethod, WeightsSource, check_learned};
 pub use method::{MadeMpi, Method, MethodEvent, MpiMethod, MpiPredictor, MpiRequest};
-pub use methods::{Classical, MethodKind, MethodOptions, PLANES_HELP, classical_planes, make_method};
+pub use methods::{
+    Classical, MethodKind, MethodOptions, PLANES_HELP, classical_planes, make_method,
+};
 pub use optimize::{OptimizeMethod, OptimizeOptions, optimize_mpi, optimize_mpi_with_history};
 pub use planes::{PlaneChoice, Planes, PlanesHow, choose_planes, human, mpi_reference};
 pub use protocol::{

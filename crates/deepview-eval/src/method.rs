@@ -126,10 +126,7 @@ pub struct MpiPredictor<'e> {
 
 impl<'e> MpiPredictor<'e> {
     /// Score `method`, reporting its events to `events`.
-    pub fn new(
-        method: Box<dyn MpiMethod + 'e>,
-        events: impl FnMut(MethodEvent<'_>) + 'e,
-    ) -> Self {
+    pub fn new(method: Box<dyn MpiMethod + 'e>, events: impl FnMut(MethodEvent<'_>) + 'e) -> Self {
         Self {
             method,
             events: Box::new(events),

@@ -316,7 +316,14 @@ mod tests {
         );
         let e = choose(Planes::Auto, None, 2).unwrap_err();
         assert!(
-            matches!(e, EvalError::PlanesOverBudget { planes: 8, how: PlanesHow::AutoMinimum, .. }),
+            matches!(
+                e,
+                EvalError::PlanesOverBudget {
+                    planes: 8,
+                    how: PlanesHow::AutoMinimum,
+                    ..
+                }
+            ),
             "{e}"
         );
         assert!(!e.to_string().contains("--"), "{e}");

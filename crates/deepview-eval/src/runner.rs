@@ -180,7 +180,10 @@ pub fn evaluate_splits(
         Some(nf) => nf,
         None => scene.near_far()?,
     };
-    for dir in [&options.save_renders, &options.save_mpis].into_iter().flatten() {
+    for dir in [&options.save_renders, &options.save_mpis]
+        .into_iter()
+        .flatten()
+    {
         std::fs::create_dir_all(dir).map_err(|source| EvalError::Write {
             path: dir.clone(),
             source,

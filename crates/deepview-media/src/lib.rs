@@ -58,6 +58,11 @@ pub enum MediaError {
          frames instead"
     )]
     OddFrameSize { width: u32, height: u32 },
+    #[error(
+        "{path}: stereo magnification folders do not store plane depths and this one has no README naming \
+         them: give the near and far depths (its defaults are 1 and 100)"
+    )]
+    NoPlaneDepths { path: PathBuf },
 }
 
 pub(crate) fn invalid(path: impl Into<PathBuf>, msg: impl Into<String>) -> MediaError {

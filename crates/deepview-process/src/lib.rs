@@ -22,8 +22,7 @@ use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
 /// The install hint shown when COLMAP cannot be run.
-pub const INSTALL_COLMAP: &str = "install it with `apt-get install colmap` (Debian/Ubuntu; `brew install colmap` on macOS) \
-     or pass --colmap PATH";
+pub const INSTALL_COLMAP: &str = "install it with `apt-get install colmap` (Debian/Ubuntu; `brew install colmap` on macOS) or name the program";
 
 /// Marks a working folder as ours, so that a later run may reuse (clear) it.
 const MARKER: &str = ".deepview-process";
@@ -33,7 +32,7 @@ pub enum ProcessError {
     #[error("cannot run COLMAP ({program}): {reason}; {INSTALL_COLMAP}")]
     ColmapMissing { program: PathBuf, reason: String },
     #[error(
-        "cannot run ffmpeg ({program}): {reason}; install it with `apt-get install ffmpeg` or pass --ffmpeg PATH"
+        "cannot run ffmpeg ({program}): {reason}; install it with `apt-get install ffmpeg` or name the program"
     )]
     FfmpegMissing { program: PathBuf, reason: String },
     #[error("{stage} failed ({status}); the last lines of {log}:\n{tail}")]
@@ -58,7 +57,8 @@ pub enum ProcessError {
         log: PathBuf,
     },
     #[error(
-        "{path} already exists and is not empty; choose another --out or move it away (existing output is never replaced)"
+        "{path} already exists and is not empty; choose another output folder or move it away (existing output is \
+         never replaced)"
     )]
     OutputExists { path: PathBuf },
     #[error(
@@ -354,7 +354,7 @@ fn check_colmap(program: &Path) -> Result<(), ProcessError> {
 /// The folder the scene is built in, beside `out`: cleared when it is ours, refused otherwise.
 fn work_folder(out: &Path) -> Result<PathBuf, ProcessError> {
     let name = out.file_name().ok_or_else(|| {
-        ProcessError::Invalid(format!("--out {} has no folder name", out.display()))
+        ProcessError::Invalid(format!("the output {} has no folder name", out.display()))
     })?;
     let mut work_name = name.to_os_string();
     work_name.push(".incomplete");
@@ -515,7 +515,7 @@ pub fn process(
             }
             if !(fps.is_finite() && *fps > 0.0) {
                 return Err(ProcessError::Invalid(format!(
-                    "--fps must be a positive number (got {fps})"
+                    "the frame rate must be a positive number (got {fps})"
                 )));
             }
             None
@@ -759,7 +759,8 @@ pub fn process(
     let mut report = report.expect("set by the last stage");
     if report.depth_bounds.is_none() {
         progress(Event::Warning(
-            "the model has no 3D points in front of the cameras: pass --near and --far to the other commands"
+            "the model has no 3D points in front of the cameras: the scene has no depth bounds (give them to the \
+             other commands)"
                 .into(),
         ));
     }

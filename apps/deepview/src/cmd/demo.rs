@@ -4,8 +4,8 @@ use super::method::Reporter;
 use anyhow::Context;
 use deepview_data::{LoadOptions, load_scene};
 use deepview_eval::{
-    EvalOptions, EvalReport, InputRule, MethodKind, MethodOptions, MpiPredictor,
-    MpiRequest, Planes, Protocol, TargetRule, evaluate, make_method,
+    EvalOptions, EvalReport, InputRule, MethodKind, MethodOptions, MpiPredictor, MpiRequest,
+    Planes, Protocol, TargetRule, evaluate, make_method,
 };
 use deepview_synth::{Rig, SynthOptions, synthesize};
 use std::path::PathBuf;
@@ -112,11 +112,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let infer_seconds = started.elapsed().as_secs_f64();
     let mpi_dir = out.join("mpi");
     let mpi_tmp = super::safety::OutputDir::new(&mpi_dir)?;
-    deepview_mpi::write_mpi_with(
-        mpi_tmp.path(),
-        &mpi,
-        made.planes.as_ref().map(|c| &c.rule),
-    )?;
+    deepview_mpi::write_mpi_with(mpi_tmp.path(), &mpi, made.planes.as_ref().map(|c| &c.rule))?;
     mpi_tmp.commit()?;
 
     // 3. Novel views (the inner, held-out cameras) beside their ground truth, depth, a camera path.
@@ -147,7 +143,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     )?;
     let gif = out.join("spiral.gif");
-    deepview_media::render_video(&mpi_u8, &path, &gif, 24.0, true)?;
+    super::method::video(&mpi_u8, &path, &gif, 24.0)?;
 
     // 4. The evaluation table: the learned model against the baselines on the held-out views.
     eprintln!("[4/5] evaluating on the held-out views {TARGETS} against the baselines");
@@ -171,10 +167,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for (kind, steps) in kinds {
         eprintln!("      {kind}");
         let mut reporter = Reporter::new(kind, &[], None, false);
-        let mut method =
-            MpiPredictor::new(make_method(kind, &options(steps), budget)?, move |e| {
-                reporter.event(e)
-            });
+        let mut method = MpiPredictor::new(make_method(kind, &options(steps), budget)?, move |e| {
+            reporter.event(e)
+        });
         reports.push(evaluate(&scene, &protocol, &mut method, &options_eval)?);
     }
     eprintln!("      deepview");

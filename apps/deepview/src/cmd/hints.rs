@@ -2,10 +2,13 @@
 //! which of its options fixes it (printed after the error by `main`).
 
 use super::args::min_arg;
+use deepview_data::DataError;
 use deepview_eval::EvalError;
 use deepview_media::MediaError;
 use deepview_net::vgg::VggError;
 use deepview_net::weights::WeightsError;
+use deepview_process::ProcessError;
+use deepview_synth::SynthError;
 
 /// The hint for the first error in `e`'s chain that has one.
 pub fn hint(e: &anyhow::Error) -> Option<String> {
@@ -23,12 +26,17 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
                     .into(),
             );
         }
-        if let Some(MediaError::OddFrameSize { .. }) = cause.downcast_ref::<MediaError>() {
-            return Some(
-                "the frames have the size of the MPI or of --camera: pass a --camera of even width and height, \
-                 or make --out a .gif or a folder"
-                    .into(),
-            );
+        if let Some(e) = cause.downcast_ref::<DataError>() {
+            return data(e);
+        }
+        if let Some(e) = cause.downcast_ref::<MediaError>() {
+            return media(e);
+        }
+        if let Some(e) = cause.downcast_ref::<ProcessError>() {
+            return process(e);
+        }
+        if let Some(SynthError::TooFewPlanes(_)) = cause.downcast_ref::<SynthError>() {
+            return Some("--planes must be at least 2".into());
         }
         None
     })
@@ -70,4 +78,37 @@ fn weights(e: &WeightsError) -> Option<String> {
         )),
         _ => None,
     }
+}
+
+fn data(e: &DataError) -> Option<String> {
+    Some(match e {
+        DataError::NoDepthBounds { .. } => "pass --near and --far".into(),
+        DataError::HalfDepthBounds { missing, .. } => format!("pass --{missing} too"),
+        DataError::NoImageFolder { .. } => {
+            "--images names a folder inside the dataset folder (e.g. images_8)".into()
+        }
+        DataError::DownscaleTooLarge { .. } => "use a smaller --downscale".into(),
+        _ => return None,
+    })
+}
+
+fn media(e: &MediaError) -> Option<String> {
+    Some(match e {
+        MediaError::OddFrameSize { .. } => {
+            "the frames have the size of the MPI or of --camera: pass a --camera \
+            of even width and height, or make --out a .gif or a folder"
+                .into()
+        }
+        MediaError::NoPlaneDepths { .. } => "pass --near and --far".into(),
+        _ => return None,
+    })
+}
+
+fn process(e: &ProcessError) -> Option<String> {
+    Some(match e {
+        ProcessError::ColmapMissing { .. } => "or pass --colmap PATH".into(),
+        ProcessError::FfmpegMissing { .. } => "or pass --ffmpeg PATH".into(),
+        ProcessError::OutputExists { .. } => "choose another --out".into(),
+        _ => return None,
+    })
 }

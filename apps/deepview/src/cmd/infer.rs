@@ -55,10 +55,12 @@ pub enum BaselineKind {
 
 /// `deepview baseline`: `deepview infer --method psv-mean|nearest`.
 #[derive(clap::Args, Debug)]
-#[command(after_help = "The same as `deepview infer --method psv-mean|nearest`.\n\nExamples:\n  \
+#[command(
+    after_help = "The same as `deepview infer --method psv-mean|nearest`.\n\nExamples:\n  \
     deepview baseline --data ../shared/data/llff/fern --images images_8 --method psv-mean --out fern_psv/\n  \
     deepview baseline --data ../shared/data/llff/fern --images images_8 --method nearest --inputs 3,4,5 --out fern_nearest/\n  \
-    deepview render --mpi fern_psv/ --data ../shared/data/llff/fern --images images_8 --view 0 --out v0.png")]
+    deepview render --mpi fern_psv/ --data ../shared/data/llff/fern --images images_8 --view 0 --out v0.png"
+)]
 pub struct BaselineArgs {
     /// The baseline.
     #[arg(long, value_enum)]
@@ -69,9 +71,11 @@ pub struct BaselineArgs {
 
 /// `deepview optimize`: `deepview infer --method optimize`.
 #[derive(clap::Args, Debug)]
-#[command(after_help = "The same as `deepview infer --method optimize`.\n\nExamples:\n  \
+#[command(
+    after_help = "The same as `deepview infer --method optimize`.\n\nExamples:\n  \
     deepview optimize --data ../shared/data/llff/fern --images images_8 --out mpi/\n  \
-    deepview optimize --data ../shared/data/llff/fern --images images_8 --inputs 0,1,2,3 --planes 32 --steps 500 --out mpi/")]
+    deepview optimize --data ../shared/data/llff/fern --images images_8 --inputs 0,1,2,3 --planes 32 --steps 500 --out mpi/"
+)]
 pub struct OptimizeArgs {
     #[command(flatten)]
     pub mpi: MpiArgs,
@@ -129,12 +133,8 @@ fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
     )?;
     reporter.finish();
     let out = OutputDir::new(&args.out)?;
-    deepview_mpi::write_mpi_with(
-        out.path(),
-        &made.mpi,
-        made.planes.as_ref().map(|c| &c.rule),
-    )
-    .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
+    deepview_mpi::write_mpi_with(out.path(), &made.mpi, made.planes.as_ref().map(|c| &c.rule))
+        .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
     out.commit()?;
     let mpi = &made.mpi;
     let (far, near) = (mpi.depths[0], mpi.depths[mpi.planes() - 1]);

@@ -1,5 +1,5 @@
-//! What the commands that make or score MPIs share: the `--inputs` help and the display of a method's
-//! progress (the libraries report events; the binary prints them).
+//! What the commands that make, score or render MPIs share: the `--inputs` help and the display of the
+//! libraries' progress (the libraries report events; the binary prints them).
 
 use deepview_eval::{MethodEvent, MethodKind};
 
@@ -77,4 +77,27 @@ impl Reporter {
             bar.finish();
         }
     }
+}
+
+/// [`deepview_media::render_video`] with a progress bar on stderr.
+pub fn video(
+    mpi: &deepview_mpi::MpiU8,
+    cameras: &[deepview_geometry::Camera],
+    out: &std::path::Path,
+    fps: f64,
+) -> anyhow::Result<deepview_media::VideoReport> {
+    let bar = indicatif::ProgressBar::new(cameras.len() as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{msg} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})",
+        )
+        .expect("valid template")
+        .progress_chars("=> "),
+    );
+    bar.set_message(format!("rendering {}", out.display()));
+    let report = deepview_media::render_video(mpi, cameras, out, fps, &mut |done, _| {
+        bar.set_position(done as u64)
+    })?;
+    bar.finish_and_clear();
+    Ok(report)
 }

@@ -1,10 +1,10 @@
 //! `deepview psv`: the plane sweep volume of one view, written as RGBA images (alpha = validity).
 
 use super::args::{self, DataArg};
-use deepview_eval::Planes;
 use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
+use deepview_eval::Planes;
 use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
 use deepview_mpi::plane_sweep;
 use std::path::PathBuf;

@@ -405,10 +405,9 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     if let Some(folder) = &opts.images
         && !base.join(folder).is_dir()
     {
-        return Err(DataError::invalid(
-            &base.join(folder),
-            "image folder does not exist (from --images)",
-        ));
+        return Err(DataError::NoImageFolder {
+            path: base.join(folder),
+        });
     }
     let mut views = Vec::with_capacity(cams.len());
     for (i, c) in cams.iter().enumerate() {
@@ -795,7 +794,10 @@ mod tests {
             .near_far()
             .unwrap_err()
             .to_string();
-        assert!(e.contains("--near") && e.contains("transforms.json"), "{e}");
+        assert!(
+            e.contains("near and far") && e.contains("transforms.json"),
+            "{e}"
+        );
         // An aabb in front of the cameras (they look along +z of the world, roughly).
         let json = dir.path().join(TRANSFORMS_JSON);
         let mut f = parse_transforms(&std::fs::read_to_string(&json).unwrap(), &json).unwrap();
