@@ -57,18 +57,18 @@ pub enum EvalError {
     PlanesNeedWeights,
     #[error(
         "{planes} planes ({how}) do not fit the memory budget: they need at least {}",
-        crate::planes::human(*.need)
+        human(*.need)
     )]
     PlanesOverBudget {
         planes: usize,
-        how: crate::planes::PlanesHow,
+        how: PlanesHow,
         /// Bytes the planes need at least.
         need: u64,
     },
     #[error(
         "{what} needs about {} of memory but the budget is {}",
-        crate::planes::human(*.need),
-        crate::planes::human(*.budget)
+        human(*.need),
+        human(*.budget)
     )]
     OverBudget {
         what: String,
@@ -78,8 +78,8 @@ pub enum EvalError {
     #[error(
         "{what} needs more than {} of memory (the MPI state alone) but the budget is {}: fewer than \
          {fewer_than} planes fit it",
-        crate::planes::human(*.lower),
-        crate::planes::human(*.budget)
+        human(*.lower),
+        human(*.budget)
     )]
     StateOverBudget {
         what: String,
@@ -117,4 +117,34 @@ pub enum EvalError {
     Weights(#[from] deepview_net::weights::WeightsError),
     #[error(transparent)]
     Infer(#[from] deepview_net::infer::InferError),
+}
+
+/// How a refused plane count came about (in [`EvalError::PlanesOverBudget`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PlanesHow {
+    /// An explicit count.
+    Explicit,
+    /// The learned model's own count.
+    Weights,
+    /// The fewest planes the `auto` rule takes.
+    AutoMinimum,
+}
+
+impl std::fmt::Display for PlanesHow {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::Explicit => "the explicit count",
+            Self::Weights => "the weights' count",
+            Self::AutoMinimum => "the fewest the auto rule takes",
+        })
+    }
+}
+
+/// `human(bytes)`: e.g. `1.5 GiB`, `12.0 MiB`.
+pub fn human(bytes: u64) -> String {
+    if bytes >= 1 << 30 {
+        format!("{:.1} GiB", bytes as f64 / (1u64 << 30) as f64)
+    } else {
+        format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64)
+    }
 }

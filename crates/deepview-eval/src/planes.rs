@@ -3,6 +3,7 @@
 //! camera every method places its MPI in, and the memory estimates of the classical methods.
 
 use crate::error::EvalError;
+pub use crate::error::{PlanesHow, human};
 use deepview_geometry::{
     AUTO_MAX_SPACING_PX, AUTO_PLANES_MIN, Camera, ReferenceOptions, auto_planes, reference_camera,
 };
@@ -55,27 +56,6 @@ pub struct PlaneChoice {
     pub rule: PlanesRule,
     /// One line saying how the count was chosen (`planes: auto -> 33 (...)`).
     pub message: String,
-}
-
-/// How a refused plane count came about (in [`EvalError::PlanesOverBudget`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum PlanesHow {
-    /// An explicit count.
-    Explicit,
-    /// The learned model's own count.
-    Weights,
-    /// The fewest planes the `auto` rule takes.
-    AutoMinimum,
-}
-
-impl std::fmt::Display for PlanesHow {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str(match self {
-            Self::Explicit => "the explicit count",
-            Self::Weights => "the weights' count",
-            Self::AutoMinimum => "the fewest the auto rule takes",
-        })
-    }
 }
 
 /// The reference camera every method places its MPI in: the inputs' centroid and average orientation,
@@ -185,15 +165,6 @@ pub fn choose_planes(
                 message,
             })
         }
-    }
-}
-
-/// `human(bytes)`: e.g. `1.5 GiB`, `12.0 MiB`.
-pub fn human(bytes: u64) -> String {
-    if bytes >= 1 << 30 {
-        format!("{:.1} GiB", bytes as f64 / (1u64 << 30) as f64)
-    } else {
-        format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64)
     }
 }
 
