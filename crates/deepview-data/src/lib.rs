@@ -289,7 +289,8 @@ impl SceneArgs {
     }
 }
 
-/// The data folder for tests and benchmarks: env `DEEPVIEW_DATA`, else `<workspace>/../shared/data`.
+/// The data folder for tests and benchmarks: env `DEEPVIEW_DATA`, else `<workspace>/../shared/data` (the
+/// repository-relative fallback is compiled in, so no command of the program looks here).
 pub fn data_dir() -> PathBuf {
     match std::env::var_os("DEEPVIEW_DATA") {
         Some(p) if !p.is_empty() => PathBuf::from(p),
