@@ -41,16 +41,17 @@ enum Command {
     Import(cmd::import::Args),
     /// Score a method (nearest, psv-mean, optimize, deepview) on a scene under a protocol: SSIM, PSNR, JSON.
     Eval(cmd::eval::Args),
-    /// Fit an MPI to input views by classical gradient descent (no learning) and write it.
-    Optimize(cmd::optimize::Args),
+    /// Fit an MPI to input views by classical gradient descent (`infer --method optimize`).
+    Optimize(cmd::infer::OptimizeArgs),
     /// Train the network (runs/<name>/: config, metrics, checkpoints; --resume; Ctrl-C saves).
     Train(cmd::train::Args),
-    /// Infer an MPI from a few posed views with the learned network (tiled, bounded memory).
+    /// An MPI from a few posed views: the learned network (tiled, bounded memory) or --method psv-mean,
+    /// nearest, optimize.
     Infer(cmd::infer::Args),
     /// Turn a training checkpoint into a weights folder (config.json + model.safetensors).
     ExportWeights(cmd::export_weights::Args),
-    /// Write the MPI of a classical baseline (psv-mean or nearest; no weights needed).
-    Baseline(cmd::baseline::Args),
+    /// Write the MPI of a classical baseline (`infer --method psv-mean|nearest`; no weights needed).
+    Baseline(cmd::infer::BaselineArgs),
     /// Poses for your own photos (or a video): run COLMAP and write a scene folder every command reads.
     Process(cmd::process::Args),
 }
@@ -69,11 +70,11 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(a) => cmd::export::run(a),
         Command::Import(a) => cmd::import::run(a),
         Command::Eval(a) => cmd::eval::run(a),
-        Command::Optimize(a) => cmd::optimize::run(a),
+        Command::Optimize(a) => cmd::infer::run_optimize(a),
         Command::Train(a) => cmd::train::run(a),
         Command::Infer(a) => cmd::infer::run(a),
         Command::ExportWeights(a) => cmd::export_weights::run(a),
-        Command::Baseline(a) => cmd::baseline::run(a),
+        Command::Baseline(a) => cmd::infer::run_baseline(a),
         Command::Process(a) => cmd::process::run(a),
     }
 }
@@ -113,6 +114,10 @@ fn main() -> ExitCode {
                     eprintln!("  caused by: {text}");
                     shown.push_str(&text);
                 }
+            }
+            // Library errors say what is wrong; the flag that fixes it is the binary's to name.
+            if let Some(hint) = cmd::hints::hint(&e) {
+                eprintln!("  hint: {hint}");
             }
             ExitCode::from(2)
         }

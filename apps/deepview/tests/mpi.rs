@@ -2,8 +2,8 @@
 //! weights of one process on the same global batch, an error or a killed rank stops the whole job, and
 //! the run resumes on N ranks.
 //!
-//! `cargo test --release -p deepview --features mpi --test mpi` (about 30 s; VGG weights from
-//! `DEEPVIEW_DATA`).
+//! `cargo test --release -p deepview --features mpi --test mpi` (about 30 s; VGG weights passed with
+//! `--vgg-weights` from the data folder, `DEEPVIEW_DATA`).
 #![cfg(feature = "mpi")]
 
 use std::path::Path;
@@ -118,6 +118,7 @@ fn metric_steps(run: &Path) -> Vec<u64> {
 fn ranks_end_with_the_weights_of_one_process() {
     let tmp = tempfile::tempdir().unwrap();
     let runs = tmp.path().join("runs");
+    let vgg = deepview_data::data_dir().join("vgg16/vgg16_conv1_1-conv3_3.safetensors");
     let common = |batch: &'static str, name: &str| -> Vec<String> {
         [
             "train",
@@ -140,6 +141,8 @@ fn ranks_end_with_the_weights_of_one_process() {
             s(&runs),
             "--name",
             name,
+            "--vgg-weights",
+            s(&vgg),
         ]
         .iter()
         .map(|a| a.to_string())

@@ -57,8 +57,28 @@ pub enum DataError {
         rig: usize,
         count: usize,
     },
-    #[error("{path}: no depth bounds known for this scene; pass --near and --far{hint}")]
+    #[error("{path}: no depth bounds known for this scene; give its near and far depths{hint}")]
     NoDepthBounds { path: PathBuf, hint: String },
+    #[error(
+        "{path}: this scene has no depth bounds of its own, so a {given} depth needs a {missing} depth too"
+    )]
+    HalfDepthBounds {
+        path: PathBuf,
+        given: &'static str,
+        missing: &'static str,
+    },
+    #[error("{path}: image folder does not exist")]
+    NoImageFolder { path: PathBuf },
+    #[error(
+        "{path}: downscaling by {factor} leaves nothing of view {view}'s {width}x{height} image"
+    )]
+    DownscaleTooLarge {
+        path: PathBuf,
+        factor: u32,
+        view: String,
+        width: u32,
+        height: u32,
+    },
     #[error("{path}: cannot detect the dataset format; looked for {looked_for}")]
     NotDetected { path: PathBuf, looked_for: String },
     #[error("{path}: {msg}")]

@@ -10,6 +10,7 @@
 //! [`load_scene`]), `images` (a scene's image files), [`formats`] (one reader and writer per format),
 //! `files` (file helpers), [`npy`] and [`pfm`] (array and depth-map files).
 
+mod camera_json;
 pub mod formats;
 pub mod npy;
 pub mod pfm;
@@ -29,6 +30,7 @@ pub use load::{DETECTION_RULES, detect_format, load_scene};
 pub use options::{LoadOptions, SceneArgs};
 pub use scene::{Scene, SceneFormat, View};
 
+pub use camera_json::read_camera_json;
 pub use formats::colmap::{ColmapModel, read_colmap, write_colmap_text};
 pub use formats::lightfield::{
     LightFieldCameras, light_field_cameras, light_field_image_name, write_light_field,
@@ -37,7 +39,8 @@ pub use formats::llff::{read_poses_bounds, write_llff};
 pub use formats::spaces::{spaces_relative_path, write_spaces_models};
 pub use formats::transforms::{TRANSFORMS_JSON, write_transforms};
 
-/// The data folder for tests and benchmarks: env `DEEPVIEW_DATA`, else `<workspace>/../shared/data`.
+/// The data folder for tests and benchmarks: env `DEEPVIEW_DATA`, else `<workspace>/../shared/data` (the
+/// repository-relative fallback is compiled in, so no command of the program looks here).
 pub fn data_dir() -> PathBuf {
     match std::env::var_os("DEEPVIEW_DATA") {
         Some(p) if !p.is_empty() => PathBuf::from(p),

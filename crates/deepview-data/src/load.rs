@@ -66,13 +66,13 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
             let c = v.camera;
             let (w, h) = (c.width / factor, c.height / factor);
             if w == 0 || h == 0 {
-                return Err(DataError::invalid(
-                    path,
-                    format!(
-                        "--downscale {factor} leaves nothing of view {}'s {}x{} image",
-                        v.name, c.width, c.height
-                    ),
-                ));
+                return Err(DataError::DownscaleTooLarge {
+                    path: path.into(),
+                    factor,
+                    view: v.name.clone(),
+                    width: c.width,
+                    height: c.height,
+                });
             }
             let s = 1.0 / factor as f64;
             v.camera = Camera::new(w, h, c.intrinsics.scaled(s, s), c.pose);
@@ -91,16 +91,15 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
         (None, None, b) => b,
         (n, _, None) => {
             let (given, missing) = if n.is_some() {
-                ("--near", "--far")
+                ("near", "far")
             } else {
-                ("--far", "--near")
+                ("far", "near")
             };
-            return Err(DataError::invalid(
-                path,
-                format!(
-                    "this scene has no depth bounds of its own, so {given} needs {missing} too"
-                ),
-            ));
+            return Err(DataError::HalfDepthBounds {
+                path: path.into(),
+                given,
+                missing,
+            });
         }
     };
     if let Some((n, f)) = scene.depth_bounds

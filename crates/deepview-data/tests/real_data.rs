@@ -144,7 +144,7 @@ fn every_data_folder_loads() {
             .near_far()
             .unwrap_err()
             .to_string()
-            .contains("--near")
+            .contains("near and far")
     );
     let e = load_scene(
         &data("spaces/scene_000"),

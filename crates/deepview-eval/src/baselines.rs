@@ -1,9 +1,11 @@
 //! Two baselines without learning: the nearest input view reprojected through one plane, and an MPI built
 //! from the plane sweep volume's mean colour with alpha from cross-view colour agreement.
 
+use crate::check::check_inputs;
 use crate::error::EvalError;
-use crate::method::{Method, check_inputs};
-use deepview_geometry::{Camera, PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
+use crate::method::Method;
+use crate::planes::mpi_reference;
+use deepview_geometry::{Camera, PlaneSpacing, plane_depths};
 use deepview_image::ImageF32;
 use deepview_mpi::{Mpi, plane_sweep, render};
 use rayon::prelude::*;
@@ -113,13 +115,7 @@ pub(crate) fn baseline_reference(
     near_far: (f64, f64),
 ) -> Result<Camera, EvalError> {
     let cams: Vec<Camera> = inputs.iter().map(|(_, c)| *c).collect();
-    Ok(reference_camera(
-        &cams,
-        &ReferenceOptions {
-            cover: Some(near_far),
-            ..Default::default()
-        },
-    )?)
+    mpi_reference(&cams, near_far)
 }
 
 /// An MPI from the plane sweep volume by cross-view colour agreement.

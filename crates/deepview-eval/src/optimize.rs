@@ -10,8 +10,9 @@
 //! then rendered into targets at any resolution.
 
 use crate::baselines::{PsvMeanOptions, baseline_reference, sweep_statistics};
+use crate::check::check_inputs;
 use crate::error::EvalError;
-use crate::method::{Method, check_inputs};
+use crate::method::Method;
 use deepview_geometry::{Camera, PlaneSpacing, plane_depths};
 use deepview_image::ImageF32;
 use deepview_mpi::warp::{Sampler, target_to_plane_homographies};

@@ -12,6 +12,7 @@
 //!   (Kalantari: the 60 in-between views of an 8x8 grid); 16 px border crop.
 
 use crate::error::EvalError;
+use crate::inputs::{InputRule, join, parse_count, parse_list};
 use deepview_data::{Scene, SceneFormat};
 use deepview_geometry::{Camera, DMat3, DVec3, camera::orthonormalize};
 use deepview_metrics::BorderCrop;
@@ -89,49 +90,6 @@ pub enum TargetRule {
     List(Vec<usize>),
 }
 
-/// Which views are the inputs of a target (posed captures).
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub enum InputRule {
-    /// The K non-target views whose camera centres are nearest the target's (`nearest:4`).
-    Nearest(usize),
-    /// The same explicit views for every target (`0,1,2,3`).
-    List(Vec<usize>),
-}
-
-fn parse_list(rule: &str) -> Result<Vec<usize>, EvalError> {
-    let bad = |msg: String| EvalError::BadRule {
-        rule: rule.into(),
-        msg,
-    };
-    let list: Vec<usize> = rule
-        .split(',')
-        .map(|s| {
-            s.trim()
-                .parse::<usize>()
-                .map_err(|_| bad(format!("'{}' is not a view index", s.trim())))
-        })
-        .collect::<Result<_, _>>()?;
-    let mut sorted = list.clone();
-    sorted.sort_unstable();
-    if sorted.windows(2).any(|w| w[0] == w[1]) {
-        return Err(bad("a view is listed twice".into()));
-    }
-    Ok(list)
-}
-
-fn parse_count(rule: &str, prefix: &str) -> Result<Option<usize>, EvalError> {
-    match rule.strip_prefix(prefix) {
-        None => Ok(None),
-        Some(n) => match n.trim().parse::<usize>() {
-            Ok(n) if n > 0 => Ok(Some(n)),
-            _ => Err(EvalError::BadRule {
-                rule: rule.into(),
-                msg: format!("'{n}' is not a positive count"),
-            }),
-        },
-    }
-}
-
 impl FromStr for TargetRule {
     type Err = EvalError;
     fn from_str(s: &str) -> Result<Self, EvalError> {
@@ -142,37 +100,11 @@ impl FromStr for TargetRule {
     }
 }
 
-impl FromStr for InputRule {
-    type Err = EvalError;
-    fn from_str(s: &str) -> Result<Self, EvalError> {
-        match parse_count(s, "nearest:")? {
-            Some(n) => Ok(InputRule::Nearest(n)),
-            None => parse_list(s).map(InputRule::List),
-        }
-    }
-}
-
-fn join(v: &[usize]) -> String {
-    v.iter()
-        .map(|i| i.to_string())
-        .collect::<Vec<_>>()
-        .join(",")
-}
-
 impl fmt::Display for TargetRule {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             TargetRule::Every(n) => write!(f, "every:{n}"),
             TargetRule::List(v) => f.write_str(&join(v)),
-        }
-    }
-}
-
-impl fmt::Display for InputRule {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            InputRule::Nearest(n) => write!(f, "nearest:{n}"),
-            InputRule::List(v) => f.write_str(&join(v)),
         }
     }
 }
@@ -206,7 +138,7 @@ impl Protocol {
             if targets.is_some() || inputs.is_some() {
                 return Err(EvalError::BadRule {
                     rule: name.into(),
-                    msg: "this protocol fixes its views; --targets/--inputs apply to posed and light-field".into(),
+                    msg: "this protocol fixes its views; target and input rules apply to posed and light-field".into(),
                 });
             }
             Ok(p)
@@ -219,13 +151,13 @@ impl Protocol {
             "auto" if targets.is_none() && inputs.is_none() => Ok(Protocol::Auto),
             "auto" | "posed" => Ok(Protocol::Posed {
                 targets: targets.unwrap_or(TargetRule::Every(8)),
-                inputs: inputs.unwrap_or(InputRule::Nearest(4)),
+                inputs: inputs.unwrap_or_default(),
             }),
             "light_field" | "lightfield" | "kalantari" => {
                 if inputs.is_some() {
                     return Err(EvalError::BadRule {
                         rule: name.into(),
-                        msg: "the light-field protocol's inputs are the 4 corner views; --inputs does not apply".into(),
+                        msg: "the light-field protocol's inputs are the 4 corner views; an input rule does not apply".into(),
                     });
                 }
                 Ok(Protocol::LightField { targets })
@@ -243,8 +175,24 @@ impl Protocol {
                 msg: "a Spaces scene needs an explicit protocol: small_quad, medium_quad, large_quad or dense".into(),
             }),
             (Protocol::Auto, SceneFormat::LightField) => Ok(Protocol::LightField { targets: None }),
-            (Protocol::Auto, _) => Ok(Protocol::Posed { targets: TargetRule::Every(8), inputs: InputRule::Nearest(4) }),
+            (Protocol::Auto, _) => Ok(Protocol::Posed { targets: TargetRule::Every(8), inputs: InputRule::default() }),
             (p, _) => Ok(p.clone()),
+        }
+    }
+
+    /// This protocol for a method that needs exactly `views` inputs (learned weights trained for a fixed
+    /// count): the posed protocol's default `nearest:4` takes that count instead ([`InputRule::default_for`]).
+    /// Call it only when the inputs were not given explicitly.
+    pub fn with_default_inputs(self, views: Option<usize>) -> Self {
+        match self {
+            Protocol::Posed {
+                targets,
+                inputs: InputRule::Nearest(_),
+            } => Protocol::Posed {
+                targets,
+                inputs: InputRule::default_for(views),
+            },
+            p => p,
         }
     }
 
@@ -301,40 +249,24 @@ impl Protocol {
                 };
                 let mut out = Vec::with_capacity(target_set.len());
                 for &t in &target_set {
-                    let ins = match inputs {
-                        InputRule::Nearest(k) => {
-                            let mut cand: Vec<usize> =
-                                (0..n).filter(|i| !target_set.contains(i)).collect();
-                            if cand.len() < *k {
-                                return Err(EvalError::NotEnoughInputs {
-                                    protocol: name.clone(),
-                                    target: t,
-                                    wanted: *k,
-                                    available: cand.len(),
-                                });
-                            }
-                            let ct = cams[t].center();
-                            cand.sort_by(|&a, &b| {
-                                let (da, db) =
-                                    (cams[a].center().distance(ct), cams[b].center().distance(ct));
-                                da.total_cmp(&db).then(a.cmp(&b))
-                            });
-                            cand.truncate(*k);
-                            cand
-                        }
-                        InputRule::List(v) => {
-                            for &i in v {
-                                check(i)?;
-                                if i == t {
-                                    return Err(EvalError::BadRule {
-                                        rule: inputs.to_string(),
-                                        msg: format!("target view {t} is also an input"),
-                                    });
-                                }
-                            }
-                            v.clone()
-                        }
-                    };
+                    let ins = inputs
+                        .select(&cams, Some(t), &target_set)
+                        .map_err(|e| match e {
+                            EvalError::TooFewViews {
+                                wanted, available, ..
+                            } => EvalError::NotEnoughInputs {
+                                protocol: name.clone(),
+                                target: t,
+                                wanted,
+                                available,
+                            },
+                            EvalError::ViewIndex { index, views } => EvalError::ViewOutOfRange {
+                                protocol: name.clone(),
+                                index,
+                                views,
+                            },
+                            e => e,
+                        })?;
                     out.push(ViewSplit {
                         target: t,
                         inputs: ins,

@@ -27,6 +27,9 @@ pub struct EvalOptions {
     pub quantize: bool,
     /// Write `prediction | ground truth | error` images here, one PNG per target.
     pub save_renders: Option<PathBuf>,
+    /// Write the MPI each target was rendered from here, one MPI folder per target named like the
+    /// renders (`012_name/`), for methods that make one ([`Method::last_mpi`]).
+    pub save_mpis: Option<PathBuf>,
     /// Recorded in the report (the learned model's weights).
     pub checkpoint: Option<String>,
     /// Print one line per view to stderr as it is scored.
@@ -41,6 +44,7 @@ impl Default for EvalOptions {
             crop: None,
             quantize: true,
             save_renders: None,
+            save_mpis: None,
             checkpoint: None,
             verbose: false,
         }
@@ -176,7 +180,10 @@ pub fn evaluate_splits(
         Some(nf) => nf,
         None => scene.near_far()?,
     };
-    if let Some(dir) = &options.save_renders {
+    for dir in [&options.save_renders, &options.save_mpis]
+        .into_iter()
+        .flatten()
+    {
         std::fs::create_dir_all(dir).map_err(|source| EvalError::Write {
             path: dir.clone(),
             source,
@@ -201,7 +208,7 @@ pub fn evaluate_splits(
             split.inputs.iter().map(|i| cache[i].clone()).collect();
         let (gt, target_cam) = &cache[&split.target];
         let start = Instant::now();
-        let pred = method.predict(&inputs, target_cam, near_far)?;
+        let pred = method.predict_views(&inputs, &split.inputs, target_cam, near_far)?;
         let seconds = start.elapsed().as_secs_f64();
         if (pred.width, pred.height) != (target_cam.width, target_cam.height) || pred.channels < 3 {
             return Err(EvalError::Method {
@@ -248,14 +255,18 @@ pub fn evaluate_splits(
                 result.target, result.target_name, result.ssim, result.psnr, seconds
             );
         }
+        let safe: String = result
+            .target_name
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        let stem = format!("{:03}_{safe}", split.target);
         if let Some(dir) = &options.save_renders {
-            let safe: String = result
-                .target_name
-                .chars()
-                .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
-                .collect();
-            let path = dir.join(format!("{:03}_{safe}.png", split.target));
+            let path = dir.join(format!("{stem}.png"));
             deepview_image::write_png(&path, &side_by_side(&p, &g, crop))?;
+        }
+        if let (Some(dir), Some((mpi, rule))) = (&options.save_mpis, method.last_mpi()) {
+            write_mpi_folder(&dir.join(&stem), mpi, rule)?;
         }
         views.push(result);
     }
@@ -279,6 +290,28 @@ pub fn evaluate_splits(
         },
         views,
     })
+}
+
+/// Write an MPI folder at `dir` whole or not at all: into a temporary sibling, renamed when complete.
+fn write_mpi_folder(
+    dir: &Path,
+    mpi: &deepview_mpi::Mpi,
+    rule: Option<&deepview_mpi::PlanesRule>,
+) -> Result<(), EvalError> {
+    let name = dir.file_name().unwrap_or_default().to_string_lossy();
+    let tmp = dir.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    let written = deepview_mpi::write_mpi_with(&tmp, mpi, rule)
+        .map_err(EvalError::from)
+        .and_then(|()| {
+            std::fs::rename(&tmp, dir).map_err(|source| EvalError::Write {
+                path: dir.to_path_buf(),
+                source,
+            })
+        });
+    if written.is_err() {
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    written
 }
 
 /// View `i`'s RGB image and camera at `1 / downscale` resolution.

@@ -51,6 +51,11 @@ pub enum MediaError {
     Mpi(#[from] deepview_mpi::MpiError),
     #[error("{0}")]
     Ffmpeg(String),
+    #[error(
+        "MP4 (H.264, yuv420p) needs an even frame size, got {width}x{height}; write a GIF or a folder of PNG \
+         frames instead"
+    )]
+    OddFrameSize { width: u32, height: u32 },
 }
 
 pub(crate) fn invalid(path: impl Into<PathBuf>, msg: impl Into<String>) -> MediaError {

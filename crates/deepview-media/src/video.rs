@@ -226,9 +226,7 @@ impl Mp4Sink {
         program: &str,
     ) -> Result<Self, MediaError> {
         if width % 2 == 1 || height % 2 == 1 {
-            return Err(MediaError::Config(format!(
-                "MP4 (H.264, yuv420p) needs an even frame size, got {width}x{height}; use --size or a GIF/PNG frames"
-            )));
+            return Err(MediaError::OddFrameSize { width, height });
         }
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("mp4");
         let tmp = temp_path(path).with_extension(format!("tmp.{ext}"));
@@ -305,14 +303,14 @@ pub fn open_sink(
     })
 }
 
-/// Render `mpi` into every camera of `cameras` (all of one size) and write the video `out` at `fps`.
-/// Shows an indicatif progress bar on stderr when `progress` is true.
+/// Render `mpi` into every camera of `cameras` (all of one size) and write the video `out` at `fps`,
+/// calling `progress(done, total)` after every frame.
 pub fn render_video(
     mpi: &MpiU8,
     cameras: &[Camera],
     out: &Path,
     fps: f64,
-    progress: bool,
+    progress: &mut dyn FnMut(usize, usize),
 ) -> Result<VideoReport, MediaError> {
     let first = cameras
         .first()
@@ -330,31 +328,16 @@ pub fn render_video(
         )));
     }
     let mut sink = open_sink(out, w, h, fps)?;
-    let bar = if progress {
-        let b = indicatif::ProgressBar::new(cameras.len() as u64);
-        b.set_style(
-            indicatif::ProgressStyle::with_template(
-                "{msg} [{bar:40}] {pos}/{len} frames ({per_sec}, eta {eta})",
-            )
-            .expect("valid template")
-            .progress_chars("=> "),
-        );
-        b.set_message(format!("rendering {}", out.display()));
-        b
-    } else {
-        indicatif::ProgressBar::hidden()
-    };
     let start = std::time::Instant::now();
     let (mut scratch, mut rgba, mut rgb) = (Vec::new(), Vec::new(), Vec::new());
-    for cam in cameras {
+    for (i, cam) in cameras.iter().enumerate() {
         render_rgba8_into(mpi, cam, &mut scratch, &mut rgba);
         rgb.clear();
         rgb.extend(rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]));
         sink.push(&rgb)?;
-        bar.inc(1);
+        progress(i + 1, cameras.len());
     }
     sink.finish()?;
-    bar.finish_and_clear();
     Ok(VideoReport {
         format: VideoFormat::from_path(out),
         path: out.into(),

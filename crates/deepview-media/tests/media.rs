@@ -223,7 +223,7 @@ fn gif_and_png_frames_are_written_and_decodable() {
     let cams = spiral(&mpi.camera, &mpi.depths, 0.05, 7).unwrap();
     let u8mpi = mpi.to_u8();
     let gif = dir.path().join("path.gif");
-    let rep = render_video(&u8mpi, &cams, &gif, 10.0, false).unwrap();
+    let rep = render_video(&u8mpi, &cams, &gif, 10.0, &mut |_, _| {}).unwrap();
     assert_eq!(rep.frames, 7);
     use image::AnimationDecoder;
     let dec = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
@@ -249,7 +249,7 @@ fn gif_and_png_frames_are_written_and_decodable() {
     );
 
     let frames_dir = dir.path().join("frames");
-    render_video(&u8mpi, &cams[..3], &frames_dir, 10.0, false).unwrap();
+    render_video(&u8mpi, &cams[..3], &frames_dir, 10.0, &mut |_, _| {}).unwrap();
     let names: Vec<_> = (0..3)
         .map(|i| frames_dir.join(format!("frame_{i:05}.png")))
         .collect();

@@ -8,6 +8,11 @@ use std::path::{Path, PathBuf};
 pub enum MpiError {
     #[error("{path}: {msg}")]
     Invalid { path: PathBuf, msg: String },
+    #[error(
+        "{path}: stereo magnification folders do not store plane depths and this one has no README naming \
+         them: give the near and far depths (its defaults are 1 and 100)"
+    )]
+    NoPlaneDepths { path: PathBuf },
     #[error("{0}")]
     Config(String),
     #[error("cannot read {path}: {source}")]

@@ -185,7 +185,7 @@ fn stereo_mag_round_trip_is_exact_on_layers() {
     let e = interchange::import(&sm, &dir.path().join("x"), &ImportOptions::default())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("--near"), "{e}");
+    assert!(e.contains("near and far depths"), "{e}");
     interchange::import(
         &sm,
         &dir.path().join("x"),

@@ -42,6 +42,11 @@ pub const LAYERS: [(&str, usize, usize); 7] = [
 #[derive(Debug, thiserror::Error)]
 pub enum VggError {
     #[error(
+        "no VGG-16 weights given: the VGG loss needs vgg16_conv1_1-conv3_3.safetensors (see \
+         data/vgg16/README.md for how to obtain it); set DEEPVIEW_VGG_WEIGHTS to its path"
+    )]
+    NotGiven,
+    #[error(
         "cannot read VGG-16 weights {path}: {source} (see data/vgg16/README.md for how to obtain them)"
     )]
     Io {
@@ -60,17 +65,38 @@ pub enum VggError {
     },
 }
 
-/// The data folder: env `DEEPVIEW_DATA`, default `<workspace>/../shared/data` (same rule as `deepview-data`).
-pub fn data_dir() -> PathBuf {
-    match std::env::var_os("DEEPVIEW_DATA") {
-        Some(p) => PathBuf::from(p),
-        None => Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data"),
+/// The environment variable naming the weights file when no path was configured
+/// ([`set_weights_path`]).
+pub const WEIGHTS_ENV: &str = "DEEPVIEW_VGG_WEIGHTS";
+
+/// The weights file set by the program (e.g. from a command-line option); wins over [`WEIGHTS_ENV`].
+static CONFIGURED: std::sync::RwLock<Option<PathBuf>> = std::sync::RwLock::new(None);
+
+/// Configure the weights file [`Vgg16::load_default`] reads (`None`: back to [`WEIGHTS_ENV`]).
+pub fn set_weights_path(path: Option<PathBuf>) {
+    *CONFIGURED.write().unwrap_or_else(|e| e.into_inner()) = path;
+}
+
+/// The weights file [`Vgg16::load_default`] reads: the configured one ([`set_weights_path`]), else the
+/// environment's [`WEIGHTS_ENV`]; unit tests of this crate fall back to the shared data folder
+/// ([`deepview_data::data_dir`]). No path is compiled in: without either, [`VggError::NotGiven`].
+pub fn weights_path() -> Result<PathBuf, VggError> {
+    if let Some(p) = CONFIGURED.read().unwrap_or_else(|e| e.into_inner()).clone() {
+        return Ok(p);
+    }
+    match std::env::var_os(WEIGHTS_ENV) {
+        Some(p) if !p.is_empty() => Ok(PathBuf::from(p)),
+        #[cfg(test)]
+        _ => Ok(test_weights_path()),
+        #[cfg(not(test))]
+        _ => Err(VggError::NotGiven),
     }
 }
 
-/// Default location of the weights file: `<data>/vgg16/vgg16_conv1_1-conv3_3.safetensors`.
-pub fn default_weights_path() -> PathBuf {
-    data_dir().join("vgg16").join(VGG_FILE)
+/// Where the tests find the weights: `<data>/vgg16/vgg16_conv1_1-conv3_3.safetensors` in the shared
+/// data folder (`DEEPVIEW_DATA`, else the repository's `../shared/data`).
+pub fn test_weights_path() -> PathBuf {
+    deepview_data::data_dir().join("vgg16").join(VGG_FILE)
 }
 
 /// One float32 tensor read from a safetensors file.
@@ -204,9 +230,9 @@ pub struct VggFeatures {
 }
 
 impl Vgg16 {
-    /// Load from the default data folder (see [`default_weights_path`]).
+    /// Load the configured weights file (see [`weights_path`]).
     pub fn load_default(device: &Device) -> Result<Self, VggError> {
-        Self::load(&default_weights_path(), device)
+        Self::load(&weights_path()?, device)
     }
 
     /// Load the weights file at `path` onto `device` (parameters frozen).
@@ -301,7 +327,7 @@ mod tests {
     use super::*;
 
     fn weights() -> Option<PathBuf> {
-        let p = default_weights_path();
+        let p = weights_path().unwrap();
         if p.exists() {
             Some(p)
         } else {

@@ -85,15 +85,21 @@ pub fn save_model(
 /// Read `dir/config.json`.
 pub fn load_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
     let path = dir.join(CONFIG_FILE);
-    let text = std::fs::read_to_string(&path).map_err(io(&path))?;
-    let config: DeepViewConfig = serde_json::from_str(&text).map_err(|e| WeightsError::Config {
-        path: path.clone(),
-        msg: e.to_string(),
-    })?;
+    let text = std::fs::read(&path).map_err(io(&path))?;
+    parse_config(&path, &text)
+}
+
+/// A `config.json` from its bytes (`path` names it in errors).
+fn parse_config(path: &Path, bytes: &[u8]) -> Result<DeepViewConfig, WeightsError> {
+    let config: DeepViewConfig =
+        serde_json::from_slice(bytes).map_err(|e| WeightsError::Config {
+            path: path.to_path_buf(),
+            msg: e.to_string(),
+        })?;
     config
         .validate()
         .map_err(|e: ConfigError| WeightsError::Config {
-            path,
+            path: path.to_path_buf(),
             msg: e.to_string(),
         })?;
     Ok(config)
@@ -178,9 +184,41 @@ pub fn load_model(
     if is_checkpoint(dir) {
         return load_checkpoint(dir, device);
     }
-    let config = load_config(dir)?;
+    let config_path = dir.join(CONFIG_FILE);
+    let config = std::fs::read(&config_path).map_err(io(&config_path))?;
     let path = dir.join(WEIGHTS_FILE);
     let bytes = std::fs::read(&path).map_err(io(&path))?;
+    load_model_bytes(dir, &config, bytes, device)
+}
+
+/// The weights shipped with the repository (`weights/cpu`: the trained `cpu` preset, 37 KB), compiled in
+/// so that any copy of a program works without the repository.
+pub const SHIPPED_CONFIG: &[u8] = include_bytes!("../../../weights/cpu/config.json");
+/// The tensors of the shipped weights (see [`SHIPPED_CONFIG`]).
+pub const SHIPPED_MODEL: &[u8] = include_bytes!("../../../weights/cpu/model.safetensors");
+/// How the shipped weights are named in messages and reports.
+pub const SHIPPED_NAME: &str = "built-in weights/cpu";
+
+/// Load the shipped weights ([`SHIPPED_CONFIG`], [`SHIPPED_MODEL`]) from memory onto `device`.
+pub fn load_shipped(device: &Device) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    load_model_bytes(
+        Path::new(SHIPPED_NAME),
+        SHIPPED_CONFIG,
+        SHIPPED_MODEL.to_vec(),
+        device,
+    )
+}
+
+/// Load a model from the bytes of a weights folder's `config.json` and `model.safetensors`, checked as
+/// [`load_model`] checks files; `dir` names the folder in errors.
+pub fn load_model_bytes(
+    dir: &Path,
+    config: &[u8],
+    bytes: Vec<u8>,
+    device: &Device,
+) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    let config = parse_config(&dir.join(CONFIG_FILE), config)?;
+    let path = dir.join(WEIGHTS_FILE);
     let mut model = DeepViewModel::new(&config, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes))
         .allow_partial(true)
@@ -417,6 +455,21 @@ mod tests {
         std::fs::write(dir.path().join(CONFIG_FILE), "{ not json").unwrap();
         let e = load_config(dir.path()).unwrap_err().to_string();
         assert!(e.contains(CONFIG_FILE), "{e}");
+    }
+
+    /// The compiled-in weights are the repository's `weights/cpu` and load from memory.
+    #[test]
+    fn shipped_weights_are_the_repository_files() {
+        let repo = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../weights/cpu");
+        assert!(std::fs::read(repo.join(CONFIG_FILE)).unwrap() == SHIPPED_CONFIG);
+        assert!(std::fs::read(repo.join(WEIGHTS_FILE)).unwrap() == SHIPPED_MODEL);
+        let dev = Device::flex();
+        let (a, ca) = load_shipped(&dev).unwrap();
+        let (b, cb) = load_model(&repo, &dev).unwrap();
+        assert_eq!(ca, cb);
+        let x = a.nets[0].head.weight.val().into_data();
+        let y = b.nets[0].head.weight.val().into_data();
+        assert_eq!(x, y);
     }
 
     /// Untrained `cpu` weights for smoke-testing `deepview infer`:

@@ -5,15 +5,14 @@ use deepview_data::DataError;
 use std::path::{Path, PathBuf};
 
 /// The install hint shown when COLMAP cannot be run.
-pub const INSTALL_COLMAP: &str = "install it with `apt-get install colmap` (Debian/Ubuntu; `brew install colmap` on macOS) \
-     or pass --colmap PATH";
+pub const INSTALL_COLMAP: &str = "install it with `apt-get install colmap` (Debian/Ubuntu; `brew install colmap` on macOS) or name the program";
 
 #[derive(Debug, thiserror::Error)]
 pub enum ProcessError {
     #[error("cannot run COLMAP ({program}): {reason}; {INSTALL_COLMAP}")]
     ColmapMissing { program: PathBuf, reason: String },
     #[error(
-        "cannot run ffmpeg ({program}): {reason}; install it with `apt-get install ffmpeg` or pass --ffmpeg PATH"
+        "cannot run ffmpeg ({program}): {reason}; install it with `apt-get install ffmpeg` or name the program"
     )]
     FfmpegMissing { program: PathBuf, reason: String },
     #[error("{stage} failed ({status}); the last lines of {log}:\n{tail}")]
@@ -38,7 +37,8 @@ pub enum ProcessError {
         log: PathBuf,
     },
     #[error(
-        "{path} already exists and is not empty; choose another --out or move it away (existing output is never replaced)"
+        "{path} already exists and is not empty; choose another output folder or move it away (existing output is \
+         never replaced)"
     )]
     OutputExists { path: PathBuf },
     #[error(

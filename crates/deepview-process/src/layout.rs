@@ -10,7 +10,7 @@ pub(crate) const MARKER: &str = ".deepview-process";
 /// The folder the scene is built in, beside `out`: cleared when it is ours, refused otherwise.
 pub(crate) fn work_folder(out: &Path) -> Result<PathBuf, ProcessError> {
     let name = out.file_name().ok_or_else(|| {
-        ProcessError::Invalid(format!("--out {} has no folder name", out.display()))
+        ProcessError::Invalid(format!("the output {} has no folder name", out.display()))
     })?;
     let mut work_name = name.to_os_string();
     work_name.push(".incomplete");

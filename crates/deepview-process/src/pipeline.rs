@@ -41,7 +41,7 @@ pub fn process(
             }
             if !(fps.is_finite() && *fps > 0.0) {
                 return Err(ProcessError::Invalid(format!(
-                    "--fps must be a positive number (got {fps})"
+                    "the frame rate must be a positive number (got {fps})"
                 )));
             }
             None
@@ -233,7 +233,8 @@ pub fn process(
     let mut report = report.expect("set by the last stage");
     if report.depth_bounds.is_none() {
         progress(Event::Warning(
-            "the model has no 3D points in front of the cameras: pass --near and --far to the other commands"
+            "the model has no 3D points in front of the cameras: the scene has no depth bounds (give them to the \
+             other commands)"
                 .into(),
         ));
     }

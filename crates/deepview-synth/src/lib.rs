@@ -6,4 +6,4 @@ pub mod scene;
 pub mod write;
 
 pub use scene::{Layer, SynthScene};
-pub use write::{Rig, SynthOptions, SynthOutput, synthesize, synthesize_as};
+pub use write::{Rig, SynthError, SynthOptions, SynthOutput, synthesize, synthesize_as};

@@ -21,6 +21,8 @@ pub enum SynthError {
     Image(#[from] deepview_image::ImageError),
     #[error("{0}")]
     Invalid(String),
+    #[error("a synthetic scene needs at least 2 planes (got {0})")]
+    TooFewPlanes(usize),
 }
 
 /// Which cameras to render through.
@@ -102,10 +104,7 @@ pub fn synthesize_as(
     write_format: Option<SceneFormat>,
 ) -> Result<SynthOutput, SynthError> {
     if options.planes < 2 {
-        return Err(SynthError::Invalid(format!(
-            "--planes must be at least 2 (got {})",
-            options.planes
-        )));
+        return Err(SynthError::TooFewPlanes(options.planes));
     }
     std::fs::create_dir_all(out).map_err(|e| DataError::Write {
         path: out.into(),

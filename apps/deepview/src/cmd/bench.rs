@@ -68,6 +68,8 @@ pub struct TrainArgs {
     /// Recompute each net's activations in the backward pass (default: the preset's training default).
     #[arg(long)]
     pub recompute: Option<bool>,
+    #[command(flatten)]
+    pub vgg: super::train::VggArg,
 }
 
 #[derive(clap::Args, Debug)]
@@ -305,7 +307,7 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
             (DeepViewModel::new(&cfg, &device), cfg.name)
         }
     };
-    let budget = super::infer::parse_bytes(&args.max_memory)?;
+    let budget = args::parse_bytes(&args.max_memory)?;
     let px = (w as u64).saturating_mul(h as u64);
     args::check_memory(
         &format!("{} synthetic {w}x{h} views", args.views),
@@ -315,7 +317,7 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
         budget,
     )?;
     let (views, reference, depths) = synthetic_views(args.views, args.planes, w, h);
-    super::eval::check_learned(&model, &views, &reference, &depths, budget)?;
+    deepview_eval::check_learned(&model, &views, &reference, &depths, budget)?;
     let mut times = Vec::new();
     for i in 0..=args.repeats.max(1) {
         let t = Instant::now();
@@ -346,6 +348,7 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
     use deepview_net::config::DeepViewConfig;
     use deepview_net::train::{RunConfig, TrainConfig, Trainer, load_data};
     let model = DeepViewConfig::preset(&args.preset)?;
+    args.vgg.configure()?;
     let mut train = TrainConfig::defaults(&model);
     train.data = vec![PathBuf::from("synthetic:two-planes")];
     train.sample.views_min = args.views;

@@ -1,12 +1,11 @@
 //! `deepview demo`: the whole pipeline on a built-in synthetic scene, no files needed.
 
-use super::args::PlanesArg;
-use super::eval::{LearnedMethod, PlannedBaseline};
+use super::method::Reporter;
 use anyhow::Context;
 use deepview_data::{LoadOptions, load_scene};
 use deepview_eval::{
-    Baseline, EvalOptions, EvalReport, InputRule, Method, OptimizeOptions, Protocol,
-    PsvMeanOptions, TargetRule, evaluate,
+    EvalOptions, EvalReport, InputRule, MethodKind, MethodOptions, MpiPredictor, MpiRequest,
+    Planes, Protocol, TargetRule, evaluate, make_method,
 };
 use deepview_synth::{Rig, SynthOptions, synthesize};
 use std::path::PathBuf;
@@ -19,7 +18,7 @@ pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "deepview-demo")]
     pub out: PathBuf,
-    /// Weights for the learned model (default: the shipped weights/cpu).
+    /// Weights for the learned model (default: the built-in weights, the repository's weights/cpu).
     #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Scene seed (layout and textures of the synthetic scene).
@@ -29,8 +28,8 @@ pub struct Args {
     #[arg(long)]
     pub no_optimize: bool,
     /// MPI planes of every method (see `deepview infer --help`).
-    #[arg(long, default_value = "auto", help = super::args::PLANES_HELP)]
-    pub planes: PlanesArg,
+    #[arg(long, default_value = "auto", help = deepview_eval::PLANES_HELP)]
+    pub planes: Planes,
     #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
     pub max_memory: Option<String>,
 }
@@ -40,21 +39,27 @@ const TARGETS: &str = "5,10";
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let out = &args.out;
-    let weights = match &args.weights {
-        Some(w) => w.clone(),
-        None => super::infer::default_weights()?,
+    let weights = args.weights.clone().unwrap_or_default();
+    let inputs: Vec<super::safety::Input> = match &args.weights {
+        Some(_) => vec![("--weights", &weights)],
+        None => Vec::new(),
     };
-    super::safety::check_output(
-        "--out",
-        out,
-        super::safety::Kind::Demo,
-        &[("--weights", &weights)],
-    )?;
+    super::safety::check_output("--out", out, super::safety::Kind::Demo, &inputs)?;
     let created = super::safety::CreatedDirs::create(out)?;
     let budget = super::args::memory_budget(args.max_memory.as_deref())?;
-    let mut learned = LearnedMethod::load(&weights, args.planes, budget).with_context(
-        || "the demo needs the shipped weights (weights/cpu in the repository) or --weights DIR",
-    )?;
+    // The same plane rule for every method, so the comparison is fair.
+    let options = |steps: usize| MethodOptions {
+        planes: args.planes,
+        weights: args.weights.clone(),
+        steps,
+        ..MethodOptions::default()
+    };
+    let default_steps = MethodOptions::default().steps;
+    let learned_method = make_method(MethodKind::Deepview, &options(default_steps), budget)
+        .context("the demo needs the learned model's weights")?;
+    let weights_name = learned_method.weights().unwrap_or_default();
+    let mut reporter = Reporter::new(MethodKind::Deepview, &[], None, false);
+    let mut learned = MpiPredictor::new(learned_method, move |e| reporter.event(e));
 
     // 1. A synthetic scene through a 4 x 4 light-field rig, with its exact ground truth.
     let scene_dir = out.join("scene");
@@ -91,20 +96,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .collect();
 
     // 2. The MPI from the four corner views with the learned model.
-    eprintln!(
-        "[2/5] inferring an MPI from the corner views {INPUTS} with {}",
-        weights.display()
-    );
+    eprintln!("[2/5] inferring an MPI from the corner views {INPUTS} with {weights_name}");
     let views = inputs
         .iter()
         .map(|&i| Ok((scene.load_image(i)?, scene.views[i].camera)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     let started = std::time::Instant::now();
-    let mpi = learned.mpi(&views, near_far)?.clone();
+    let made = learned.mpi(&MpiRequest {
+        inputs: &views,
+        ids: &inputs,
+        near_far,
+        toward: None,
+    })?;
+    let mpi = made.mpi.clone();
     let infer_seconds = started.elapsed().as_secs_f64();
     let mpi_dir = out.join("mpi");
     let mpi_tmp = super::safety::OutputDir::new(&mpi_dir)?;
-    deepview_mpi::write_mpi_with(mpi_tmp.path(), &mpi, learned.last_choice().map(|c| &c.rule))?;
+    deepview_mpi::write_mpi_with(mpi_tmp.path(), &mpi, made.planes.as_ref().map(|c| &c.rule))?;
     mpi_tmp.commit()?;
 
     // 3. Novel views (the inner, held-out cameras) beside their ground truth, depth, a camera path.
@@ -135,7 +143,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     )?;
     let gif = out.join("spiral.gif");
-    deepview_media::render_video(&mpi_u8, &path, &gif, 24.0, true)?;
+    super::method::video(&mpi_u8, &path, &gif, 24.0)?;
 
     // 4. The evaluation table: the learned model against the baselines on the held-out views.
     eprintln!("[4/5] evaluating on the held-out views {TARGETS} against the baselines");
@@ -145,42 +153,32 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(INPUTS.parse::<InputRule>()?),
     )?;
     let mut reports: Vec<EvalReport> = Vec::new();
-    // The same plane rule as the learned model's, so the comparison is fair.
-    let planned = |kind, optimize| -> Box<dyn Method> {
-        Box::new(PlannedBaseline::new(
-            kind,
-            PsvMeanOptions::default(),
-            optimize,
-            args.planes,
-            budget,
-        ))
-    };
-    let mut methods: Vec<Box<dyn Method>> = vec![
-        planned(Baseline::Nearest, OptimizeOptions::default()),
-        planned(Baseline::PsvMean, OptimizeOptions::default()),
+    let mut kinds = vec![
+        (MethodKind::Nearest, default_steps),
+        (MethodKind::PsvMean, default_steps),
     ];
     if !args.no_optimize {
-        let opt = OptimizeOptions {
-            steps: 150,
-            ..OptimizeOptions::default()
-        };
-        methods.push(planned(Baseline::Optimize, opt));
+        kinds.push((MethodKind::Optimize, 150));
     }
-    let options = EvalOptions {
+    let options_eval = EvalOptions {
         near_far: Some(near_far),
         ..EvalOptions::default()
     };
-    for method in methods.iter_mut() {
-        eprintln!("      {}", method.name());
-        reports.push(evaluate(&scene, &protocol, method.as_mut(), &options)?);
+    for (kind, steps) in kinds {
+        eprintln!("      {kind}");
+        let mut reporter = Reporter::new(kind, &[], None, false);
+        let mut method = MpiPredictor::new(make_method(kind, &options(steps), budget)?, move |e| {
+            reporter.event(e)
+        });
+        reports.push(evaluate(&scene, &protocol, &mut method, &options_eval)?);
     }
     eprintln!("      deepview");
     let learned_options = EvalOptions {
-        checkpoint: Some(weights.display().to_string()),
+        checkpoint: Some(weights_name.clone()),
         save_renders: Some(out.join("renders")),
-        ..options.clone()
+        ..options_eval.clone()
     };
-    learned.clear_cache();
+    learned.clear();
     reports.push(evaluate(&scene, &protocol, &mut learned, &learned_options)?);
 
     // 5. Write the table and say what was made.

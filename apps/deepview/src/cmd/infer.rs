@@ -1,258 +1,167 @@
-//! `deepview infer`: an MPI from a few posed views with the learned network (tiled, bounded memory).
+//! `deepview infer`: an MPI from posed views by any method ([`MethodKind`]; the learned network by
+//! default), exactly the MPI `deepview eval --method M` scores from the same inputs. `baseline` and
+//! `optimize` are short spellings of `infer --method psv-mean|nearest` and `infer --method optimize`.
 
-use super::args::{self, DataArg, PlanesArg, ViewList};
-use super::safety::{Kind, OutputDir, check_output};
-use anyhow::{Context, bail};
+use super::args::{self, DataArg};
+use super::method::{INPUTS_HELP, Reporter};
+use super::safety::{Input, Kind, OutputDir, check_output};
+use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
-use deepview_geometry::{PlaneSpacing, plane_depths};
-use deepview_net::infer::infer_mpi;
-use deepview_net::weights::{check_views, load_model};
+use deepview_eval::{InputRule, MethodKind, MethodOptions, MpiRequest, make_method};
 use std::path::PathBuf;
 
-/// The weights shipped with the repository (trained `cpu` preset).
-pub const DEFAULT_WEIGHTS: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../weights/cpu");
-
-/// The shipped weights, also compiled into the binary (37 KB) so an installed or copied `deepview` works
-/// without the repository.
-const EMBEDDED_CONFIG: &[u8] = include_bytes!("../../../../weights/cpu/config.json");
-const EMBEDDED_MODEL: &[u8] = include_bytes!("../../../../weights/cpu/model.safetensors");
-
-/// The folder of the default weights: the repository's `weights/cpu` when it is there, otherwise the copy
-/// compiled into the binary, unpacked once into the temporary folder (atomically: a half-written copy is
-/// never used).
-pub fn default_weights() -> anyhow::Result<PathBuf> {
-    let repo = PathBuf::from(DEFAULT_WEIGHTS);
-    if repo.join(deepview_net::weights::CONFIG_FILE).is_file()
-        && repo.join(deepview_net::weights::WEIGHTS_FILE).is_file()
-    {
-        return Ok(repo);
-    }
-    unpack_embedded_weights()
-}
-
-/// Unpack the weights compiled into the binary (see [`default_weights`]).
-fn unpack_embedded_weights() -> anyhow::Result<PathBuf> {
-    // FNV-1a over both files names the unpacked copy, so different builds never share a folder.
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in EMBEDDED_CONFIG.iter().chain(EMBEDDED_MODEL) {
-        h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
-    }
-    let dir = std::env::temp_dir().join(format!("deepview-weights-cpu-{h:016x}"));
-    if dir.join(deepview_net::weights::CONFIG_FILE).is_file() {
-        return Ok(dir);
-    }
-    let tmp = std::env::temp_dir().join(format!(
-        "deepview-weights-cpu-{h:016x}.{}.tmp",
-        std::process::id()
-    ));
-    let write = || -> std::io::Result<()> {
-        std::fs::create_dir_all(&tmp)?;
-        std::fs::write(
-            tmp.join(deepview_net::weights::WEIGHTS_FILE),
-            EMBEDDED_MODEL,
-        )?;
-        std::fs::write(
-            tmp.join(deepview_net::weights::CONFIG_FILE),
-            EMBEDDED_CONFIG,
-        )?;
-        std::fs::rename(&tmp, &dir)
-    };
-    if let Err(e) = write() {
-        let _ = std::fs::remove_dir_all(&tmp);
-        // Another process may have unpacked the same weights meanwhile.
-        if !dir.join(deepview_net::weights::CONFIG_FILE).is_file() {
-            return Err(e).with_context(|| {
-                format!("cannot unpack the built-in weights into {}", dir.display())
-            });
-        }
-    }
-    Ok(dir)
-}
-
+/// What every MPI-making command takes besides the method.
 #[derive(clap::Args, Debug)]
-#[command(after_help = "Examples:\n  \
-    deepview infer --data ../shared/data/llff/fern --images images_8 --out fern_mpi/\n  \
-    deepview infer --data ../shared/data/llff/fern --images images_4 --inputs 1,2,3,4 --planes 64 --out fern_mpi/\n  \
-    deepview infer --data my_scene --downscale 2 --weights runs/mine/checkpoints/step-0005000 --planes weights --out mpi/")]
-pub struct Args {
+pub struct MpiArgs {
     #[command(flatten)]
     pub data: DataArg,
-    /// Input view indices, comma-separated. Default: the views nearest the centroid of all camera centres
-    /// (as many as the weights need; 4 for weights that take any number).
-    #[arg(long)]
-    pub inputs: Option<ViewList>,
-    #[arg(long, default_value = "auto", help = args::PLANES_HELP)]
-    pub planes: PlanesArg,
-    /// Weights folder (config.json + model.safetensors) or a training checkpoint folder
-    /// (runs/<name>/checkpoints/step-N). Default: the shipped weights/cpu.
-    #[arg(long, visible_alias = "checkpoint")]
-    pub weights: Option<PathBuf>,
+    #[arg(long, value_name = "RULE", help = INPUTS_HELP)]
+    pub inputs: Option<InputRule>,
+    #[command(flatten)]
+    pub options: MethodOptions,
     #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
     pub max_memory: Option<String>,
-    /// Output MPI folder.
+    /// Output MPI folder (mpi.json + layer PNGs).
     #[arg(long)]
     pub out: PathBuf,
     #[command(flatten)]
     pub scene: SceneArgs,
 }
 
-/// Parse a byte count with an optional unit (B, K/KB/KiB, M/MB/MiB, G/GB/GiB; binary multiples).
-pub fn parse_bytes(text: &str) -> anyhow::Result<u64> {
-    let t = text.trim();
-    let split = t
-        .find(|c: char| !(c.is_ascii_digit() || c == '.'))
-        .unwrap_or(t.len());
-    let (num, unit) = t.split_at(split);
-    let value: f64 = num
-        .parse()
-        .with_context(|| format!("{text:?} is not a memory size (e.g. 2GiB)"))?;
-    let mult: u64 = match unit.trim().to_ascii_lowercase().as_str() {
-        "" | "b" => 1,
-        "k" | "kb" | "kib" => 1 << 10,
-        "m" | "mb" | "mib" => 1 << 20,
-        "g" | "gb" | "gib" => 1 << 30,
-        "t" | "tb" | "tib" => 1 << 40,
-        u => bail!("unknown memory unit {u:?} in {text:?} (use B, KiB, MiB or GiB)"),
-    };
-    if !value.is_finite() || value <= 0.0 {
-        bail!("memory size must be positive, got {text:?}");
-    }
-    Ok((value * mult as f64) as u64)
+#[derive(clap::Args, Debug)]
+#[command(after_help = "Examples:\n  \
+    deepview infer --data ../shared/data/llff/fern --images images_8 --out fern_mpi/\n  \
+    deepview infer --data ../shared/data/llff/fern --images images_4 --inputs 1,2,3,4 --planes 64 --out fern_mpi/\n  \
+    deepview infer --data ../shared/data/llff/fern --images images_8 --method psv-mean --inputs nearest:4@12 --out psv/\n  \
+    deepview infer --data my_scene --downscale 2 --weights runs/mine/checkpoints/step-0005000 --planes weights --out mpi/")]
+pub struct Args {
+    /// How to make the MPI: deepview (the learned network), psv-mean, nearest or optimize (see `deepview
+    /// eval --help`).
+    #[arg(long, value_enum, default_value_t = MethodKind::Deepview)]
+    pub method: MethodKind,
+    #[command(flatten)]
+    pub mpi: MpiArgs,
+}
+
+/// The classical methods `deepview baseline` writes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BaselineKind {
+    /// Plane sweep volume mean colour per plane, alpha from cross-view colour agreement.
+    PsvMean,
+    /// One opaque plane holding the input view nearest the inputs' centroid, at the inverse-depth
+    /// midpoint of near/far.
+    Nearest,
+}
+
+/// `deepview baseline`: `deepview infer --method psv-mean|nearest`.
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "The same as `deepview infer --method psv-mean|nearest`.\n\nExamples:\n  \
+    deepview baseline --data ../shared/data/llff/fern --images images_8 --method psv-mean --out fern_psv/\n  \
+    deepview baseline --data ../shared/data/llff/fern --images images_8 --method nearest --inputs 3,4,5 --out fern_nearest/\n  \
+    deepview render --mpi fern_psv/ --data ../shared/data/llff/fern --images images_8 --view 0 --out v0.png"
+)]
+pub struct BaselineArgs {
+    /// The baseline.
+    #[arg(long, value_enum)]
+    pub method: BaselineKind,
+    #[command(flatten)]
+    pub mpi: MpiArgs,
+}
+
+/// `deepview optimize`: `deepview infer --method optimize`.
+#[derive(clap::Args, Debug)]
+#[command(
+    after_help = "The same as `deepview infer --method optimize`.\n\nExamples:\n  \
+    deepview optimize --data ../shared/data/llff/fern --images images_8 --out mpi/\n  \
+    deepview optimize --data ../shared/data/llff/fern --images images_8 --inputs 0,1,2,3 --planes 32 --steps 500 --out mpi/"
+)]
+pub struct OptimizeArgs {
+    #[command(flatten)]
+    pub mpi: MpiArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let weights = match &args.weights {
-        Some(w) => w.clone(),
-        None => default_weights()?,
-    };
-    if !weights.join(deepview_net::weights::CONFIG_FILE).is_file()
-        && !deepview_net::weights::is_checkpoint(&weights)
-    {
-        bail!(
-            "no weights in {} (expected {} and {}, or a training checkpoint); train some with `deepview train` or pass --weights",
-            weights.display(),
-            deepview_net::weights::CONFIG_FILE,
-            deepview_net::weights::WEIGHTS_FILE
-        );
-    }
-    let data = args.data.path();
-    check_output(
-        "--out",
-        &args.out,
-        Kind::Mpi,
-        &[("--data", data), ("--weights", &weights)],
-    )?;
-    let budget = args::memory_budget(args.max_memory.as_deref())?;
-    let device = deepview_net::burn::tensor::Device::flex();
-    let (model, config) = load_model(&weights, &device)
-        .with_context(|| format!("cannot load weights from {}", weights.display()))?;
-    let scene = load_scene(data, &args.scene.load_options())
-        .with_context(|| format!("cannot load scene {}", data.display()))?;
-    let n = scene.views.len();
-    let inputs = match &args.inputs {
-        Some(list) => list.check(n)?,
-        None => super::views_nearest_centroid(&scene.cameras(), config.views.unwrap_or(4)),
-    };
-    check_views(&config, inputs.len())?;
-    let (near, far) = scene.near_far()?;
-    let cams: Vec<_> = inputs.iter().map(|&i| scene.views[i].camera).collect();
-    let reference = args::mpi_reference(&cams, (near, far))?;
-    let views = inputs
-        .iter()
-        .map(|&i| Ok((scene.load_image(i)?.to_rgb(), scene.views[i].camera)))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    // `auto` takes the largest count up to the rule's that the inference can plan within the budget.
-    super::eval::precheck_planes(
-        &model,
-        &views,
-        &reference,
-        args.planes,
-        config.infer_planes,
-        budget,
-    )?;
-    let mut fits = |count: usize| {
-        super::eval::learned_fits(&model, &views, &reference, (near, far), count, budget)
-    };
-    let mut minimum =
-        |count: usize| super::eval::learned_minimum(&model, &views, &reference, (near, far), count);
-    let choice = args::choose_planes(
-        args.planes,
-        &reference,
-        &cams,
-        &inputs,
-        (near, far),
-        Some(config.infer_planes),
-        &mut fits,
-        &mut minimum,
-    )?;
-    eprintln!("{}", choice.message);
-    let depths = plane_depths(near, far, choice.count, PlaneSpacing::InverseDepth)?;
-    eprintln!(
-        "inferring a {}-plane {}x{} MPI from views {:?} (weights {}, config {})",
-        depths.len(),
-        reference.width,
-        reference.height,
-        inputs,
-        weights.display(),
-        config.name
-    );
-    super::eval::check_learned(&model, &views, &reference, &depths, budget)?;
-    let bar = indicatif::ProgressBar::new(1);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{bar:40} {pos}/{len} tiles x nets ({elapsed}, eta {eta}) {msg}",
-        )
-        .expect("valid template"),
-    );
-    let mpi = infer_mpi(&model, &views, &reference, &depths, budget, &mut |p| {
-        bar.set_length(p.total as u64);
-        bar.set_position(p.done as u64);
-        bar.set_message(format!("net {}", p.net));
-    })?;
-    bar.finish();
-    let out = OutputDir::new(&args.out)?;
-    deepview_mpi::write_mpi_with(out.path(), &mpi, Some(&choice.rule))
-        .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
-    out.commit()?;
-    println!(
-        "wrote {} ({} planes, {}x{})",
-        args.out.display(),
-        depths.len(),
-        reference.width,
-        reference.height
-    );
-    Ok(())
+    make(args.method, args.mpi)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::{DEFAULT_WEIGHTS, parse_bytes, unpack_embedded_weights};
-    use deepview_net::weights::{CONFIG_FILE, WEIGHTS_FILE};
-    use std::path::Path;
+pub fn run_baseline(args: BaselineArgs) -> anyhow::Result<()> {
+    let kind = match args.method {
+        BaselineKind::PsvMean => MethodKind::PsvMean,
+        BaselineKind::Nearest => MethodKind::Nearest,
+    };
+    make(kind, args.mpi)
+}
 
-    #[test]
-    fn embedded_weights_unpack_to_the_repository_files() {
-        // Twice: the second call reuses the unpacked folder.
-        for _ in 0..2 {
-            let dir = unpack_embedded_weights().unwrap();
-            for f in [CONFIG_FILE, WEIGHTS_FILE] {
-                let a = std::fs::read(dir.join(f)).unwrap();
-                let b = std::fs::read(Path::new(DEFAULT_WEIGHTS).join(f)).unwrap();
-                assert!(a == b, "{f} differs from the repository's copy");
-            }
+pub fn run_optimize(args: OptimizeArgs) -> anyhow::Result<()> {
+    make(MethodKind::Optimize, args.mpi)
+}
+
+/// Make the MPI of `kind` from the inputs `args` name and write it.
+fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
+    let data = args.data.path();
+    let mut inputs: Vec<Input> = vec![("--data", data)];
+    let weights = args.options.weights.clone().unwrap_or_default();
+    if kind == MethodKind::Deepview && args.options.weights.is_some() {
+        inputs.push(("--weights", &weights));
+    }
+    check_output("--out", &args.out, Kind::Mpi, &inputs)?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
+    let mut method = make_method(kind, &args.options, budget)?;
+    let scene = load_scene(data, &args.scene.load_options())
+        .with_context(|| format!("cannot load scene {}", data.display()))?;
+    let near_far = scene.near_far()?;
+    let rule = args
+        .inputs
+        .clone()
+        .unwrap_or_else(|| InputRule::default_for(method.views()));
+    let ids = rule.select(&scene.cameras(), None, &[])?;
+    let views = ids
+        .iter()
+        .map(|&i| Ok((scene.load_image(i)?, scene.views[i].camera)))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let start = std::time::Instant::now();
+    let mut reporter = Reporter::new(kind, &ids, method.weights(), true);
+    let made = method.make_mpi(
+        &MpiRequest {
+            inputs: &views,
+            ids: &ids,
+            near_far,
+            toward: None,
+        },
+        &mut |e| reporter.event(e),
+    )?;
+    reporter.finish();
+    let out = OutputDir::new(&args.out)?;
+    deepview_mpi::write_mpi_with(out.path(), &made.mpi, made.planes.as_ref().map(|c| &c.rule))
+        .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
+    out.commit()?;
+    let mpi = &made.mpi;
+    let (far, near) = (mpi.depths[0], mpi.depths[mpi.planes() - 1]);
+    let planes = if mpi.planes() == 1 {
+        format!(
+            "1 plane of {}x{} at depth {near:.4}",
+            mpi.camera.width, mpi.camera.height
+        )
+    } else {
+        format!(
+            "{} planes of {}x{}, depth {near:.4}..{far:.4}",
+            mpi.planes(),
+            mpi.camera.width,
+            mpi.camera.height
+        )
+    };
+    let note = match (&made.note, kind) {
+        (Some(n), MethodKind::Nearest) if ids.len() > 1 => {
+            format!(" ({n}, the one nearest their centroid)")
         }
-        let dev = deepview_net::burn::tensor::Device::flex();
-        deepview_net::weights::load_model(&unpack_embedded_weights().unwrap(), &dev).unwrap();
-    }
-
-    #[test]
-    fn memory_sizes() {
-        assert_eq!(parse_bytes("2GiB").unwrap(), 2 << 30);
-        assert_eq!(parse_bytes("512 MiB").unwrap(), 512 << 20);
-        assert_eq!(parse_bytes("1000").unwrap(), 1000);
-        assert_eq!(parse_bytes("1.5g").unwrap(), 3 << 29);
-        assert!(parse_bytes("lots").is_err());
-        assert!(parse_bytes("2XB").is_err());
-        assert!(parse_bytes("0").is_err());
-    }
+        (Some(n), _) => format!(" ({n})"),
+        (None, _) => String::new(),
+    };
+    println!(
+        "wrote {}: {kind} MPI of views {ids:?}{note}, {planes} ({:.1} s)",
+        args.out.display(),
+        start.elapsed().as_secs_f64()
+    );
+    Ok(())
 }

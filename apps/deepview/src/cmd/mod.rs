@@ -1,7 +1,6 @@
 //! One module per subcommand: `Args` (clap) and `run`.
 
 pub mod args;
-pub mod baseline;
 pub mod bench;
 pub mod demo;
 pub mod depth;
@@ -9,10 +8,11 @@ pub mod eval;
 pub mod export;
 pub mod export_web;
 pub mod export_weights;
+pub mod hints;
 pub mod import;
 pub mod infer;
 pub mod info;
-pub mod optimize;
+pub mod method;
 pub mod process;
 pub mod psv;
 pub mod render;
@@ -22,18 +22,11 @@ pub mod synth;
 pub mod train;
 pub mod view;
 
-use anyhow::Context;
-use deepview_geometry::{Camera, CameraJson};
-use std::path::Path;
+use deepview_geometry::Camera;
 
 /// Read a camera JSON file (`{"width","height","fx","fy","cx","cy","camera_from_world":[16]}`).
-pub fn read_camera_json(path: &Path) -> anyhow::Result<Camera> {
-    let text = std::fs::read_to_string(path)
-        .with_context(|| format!("cannot read camera file {}", path.display()))?;
-    let json: CameraJson = serde_json::from_str(&text)
-        .with_context(|| format!("{} is not a valid camera JSON", path.display()))?;
-    json.to_camera()
-        .with_context(|| format!("invalid camera in {}", path.display()))
+pub fn read_camera_json(path: &std::path::Path) -> anyhow::Result<Camera> {
+    Ok(deepview_data::read_camera_json(path)?)
 }
 
 /// Parse a comma-separated list of view indices (no duplicates), checking them against the view count.
@@ -41,28 +34,6 @@ pub fn parse_indices(text: &str, views: usize) -> anyhow::Result<Vec<usize>> {
     text.parse::<args::ViewList>()
         .map_err(anyhow::Error::msg)?
         .check(views)
-}
-
-/// The indices (ascending) of the `count` cameras whose centres are nearest the centroid of all the cameras'
-/// centres (all of them when there are fewer); ties keep the lower index.
-pub fn views_nearest_centroid(cameras: &[Camera], count: usize) -> Vec<usize> {
-    if cameras.is_empty() {
-        return Vec::new();
-    }
-    let centres: Vec<_> = cameras.iter().map(|c| c.center()).collect();
-    let centroid = centres
-        .iter()
-        .fold(deepview_geometry::DVec3::ZERO, |a, &c| a + c)
-        / cameras.len() as f64;
-    let mut order: Vec<usize> = (0..cameras.len()).collect();
-    order.sort_by(|&a, &b| {
-        centres[a]
-            .distance(centroid)
-            .total_cmp(&centres[b].distance(centroid))
-    });
-    order.truncate(count);
-    order.sort_unstable();
-    order
 }
 
 /// Where a camera comes from: a camera JSON file, or a view of a dataset.

@@ -20,7 +20,7 @@ pub struct Args {
     #[arg(long)]
     pub video: Option<PathBuf>,
     /// Frames per second taken from --video.
-    #[arg(long, default_value_t = 2.0, requires = "video")]
+    #[arg(long, default_value_t = 2.0, requires = "video", value_parser = super::args::parse_positive_f64)]
     pub fps: f64,
     /// The scene folder to write; must not exist yet (or be empty).
     #[arg(long)]

@@ -1,9 +1,10 @@
 //! `deepview psv`: the plane sweep volume of one view, written as RGBA images (alpha = validity).
 
-use super::args::{self, DataArg, PlanesArg};
+use super::args::{self, DataArg};
 use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
+use deepview_eval::Planes;
 use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
 use deepview_mpi::plane_sweep;
 use std::path::PathBuf;
@@ -25,7 +26,7 @@ pub struct Args {
     /// Number of planes, equally spaced in inverse depth between near and far, or `auto`: at most 1 px of
     /// disparity apart between the reference camera and the swept view (8..=256; see `deepview infer --help`).
     #[arg(long, default_value = "32")]
-    pub planes: PlanesArg,
+    pub planes: Planes,
     /// Output folder for psv_NNN.png (far plane first).
     #[arg(long)]
     pub out: PathBuf,
@@ -54,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let (near, far) = scene.near_far()?;
     let view_camera = scene.views[args.view].camera;
-    let choice = args::choose_planes(
+    let choice = deepview_eval::choose_planes(
         args.planes,
         &reference,
         &[view_camera],
@@ -64,7 +65,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &mut |n| args::psv_bytes(&reference, &view_camera, n) <= budget,
         &mut |n| args::psv_bytes(&reference, &view_camera, n),
     )?;
-    if args.planes == PlanesArg::Auto {
+    if args.planes == Planes::Auto {
         eprintln!("{}", choice.message);
     }
     let depths = plane_depths(near, far, choice.count, PlaneSpacing::InverseDepth)?;

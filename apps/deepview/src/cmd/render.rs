@@ -145,7 +145,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
     };
     let report = if kind == Kind::Frames {
         let out = OutputDir::new(&args.out)?;
-        let r = deepview_media::render_video(&mpi, &cameras, out.path(), fps, true)?;
+        let r = super::method::video(&mpi, &cameras, out.path(), fps)?;
         out.commit()?;
         r
     } else {
@@ -158,9 +158,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
         let mp4_tmp = deepview_image::temp_path(&args.out).with_extension(format!("tmp.{ext}"));
         super::signals::register(&mp4_tmp);
         let r = write_file(&args.out, |out| {
-            Ok(deepview_media::render_video(
-                &mpi, &cameras, out, fps, true,
-            )?)
+            super::method::video(&mpi, &cameras, out, fps)
         });
         super::signals::unregister(&mp4_tmp);
         r?

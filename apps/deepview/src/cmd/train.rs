@@ -29,7 +29,9 @@ mod mpi;
     deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
     deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
-    --steps, --devices, --data and the scene options may be given: the others are the run's own."
+    --steps, --devices, --data, --vgg-weights and the scene options may be given: the others are the run's own.\n\n\
+    The VGG loss (the default) reads the VGG-16 weights from --vgg-weights FILE or the environment variable \
+    DEEPVIEW_VGG_WEIGHTS."
 )]
 pub struct Args {
     /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
@@ -121,7 +123,50 @@ pub struct Args {
     #[arg(long)]
     pub no_recompute: bool,
     #[command(flatten)]
+    pub vgg: VggArg,
+    #[command(flatten)]
     pub scene: deepview_data::SceneArgs,
+}
+
+/// `--vgg-weights`: the VGG-16 weights of the training loss.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct VggArg {
+    /// The VGG-16 weights the VGG loss needs (vgg16_conv1_1-conv3_3.safetensors; see the data folder's
+    /// vgg16/README.md). Default: the file named by the environment variable DEEPVIEW_VGG_WEIGHTS.
+    #[arg(long, value_name = "FILE")]
+    pub vgg_weights: Option<PathBuf>,
+}
+
+impl VggArg {
+    /// Make `--vgg-weights` the file the VGG loss reads (else `DEEPVIEW_VGG_WEIGHTS`).
+    pub fn configure(&self) -> anyhow::Result<()> {
+        if let Some(p) = &self.vgg_weights {
+            deepview_net::vgg::set_weights_path(Some(p.clone()));
+        }
+        Ok(())
+    }
+
+    /// Refuse a VGG loss without readable VGG weights before the training starts.
+    pub fn check(&self, loss: LossKind) -> anyhow::Result<()> {
+        if loss != LossKind::Vgg {
+            return Ok(());
+        }
+        let path = deepview_net::vgg::weights_path()?;
+        if !path.is_file() {
+            let from = if self.vgg_weights.is_some() {
+                "--vgg-weights"
+            } else {
+                deepview_net::vgg::WEIGHTS_ENV
+            };
+            bail!(
+                "the VGG-16 weights {} ({from}) are not a readable file: pass --vgg-weights FILE or set {} to \
+                 vgg16_conv1_1-conv3_3.safetensors, or train with --loss l1",
+                path.display(),
+                deepview_net::vgg::WEIGHTS_ENV
+            );
+        }
+        Ok(())
+    }
 }
 
 /// `--data`: a folder, or one of the built-in synthetic scenes.
@@ -333,7 +378,11 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     if let Some(init) = &args.init {
         inputs.push(("--init", init));
     }
+    if let Some(v) = &args.vgg.vgg_weights {
+        inputs.push(("--vgg-weights", v));
+    }
     check_output("--runs/--name", &run_dir, Kind::Run, &inputs)?;
+    args.vgg.configure()?;
     let opts = args.scene.load_options();
     let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
     // `--resume` of a run without config.json (killed before it wrote anything, or never started).
@@ -377,6 +426,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         };
         let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
         check_views(&data, cfg.train.sample.views_max)?;
+        args.vgg.check(cfg.train.loss)?;
         let mut t = Trainer::resume_on(
             &run_dir,
             data,
@@ -424,6 +474,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         if let Some(d) = device_list(&args.devices) {
             cfg.train.devices = d;
         }
+        args.vgg.check(cfg.train.loss)?;
         let data = load_data(&cfg.train.data, &opts, cfg.train.holdout_every)?;
         if writer {
             eprintln!(
@@ -480,6 +531,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
         check_views(&data, train.sample.views_max)?;
+        args.vgg.check(train.loss)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
         if writer {
             eprintln!(

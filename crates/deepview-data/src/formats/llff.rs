@@ -63,10 +63,7 @@ fn choose_image_dir(root: &Path, opts: &LoadOptions) -> Result<PathBuf, DataErro
     if let Some(name) = &opts.images {
         let d = root.join(name);
         if !d.is_dir() {
-            return Err(DataError::invalid(
-                &d,
-                "image folder does not exist (from --images)",
-            ));
+            return Err(DataError::NoImageFolder { path: d });
         }
         return Ok(d);
     }

@@ -293,7 +293,7 @@ mod tests {
             "{e}"
         );
         let e = s.near_far().unwrap_err().to_string();
-        assert!(e.contains("--near") && e.contains("--far"), "{e}");
+        assert!(e.contains("near and far"), "{e}");
         let s = load_scene(
             dir.path(),
             &LoadOptions {
@@ -315,7 +315,8 @@ mod tests {
         .unwrap_err()
         .to_string();
         assert!(
-            e.contains(&dir.path().display().to_string()) && e.contains("--near needs --far"),
+            e.contains(&dir.path().display().to_string())
+                && e.contains("a near depth needs a far depth"),
             "{e}"
         );
         // A wrongly sized image is refused with both file names.

@@ -179,9 +179,9 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Mpi
             Pose::IDENTITY,
         );
         camera.validate().map_err(|e| invalid(&ip, e.to_string()))?;
-        let (near, far) = near_far.or_else(|| readme_depths(dir)).ok_or_else(|| {
-            invalid(dir, "stereo magnification folders do not store plane depths: give --near and --far (its defaults are 1 and 100)")
-        })?;
+        let (near, far) = near_far
+            .or_else(|| readme_depths(dir))
+            .ok_or_else(|| MpiError::NoPlaneDepths { path: dir.into() })?;
         let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth)
             .map_err(|e| invalid(dir, e.to_string()))?;
         (camera, depths)

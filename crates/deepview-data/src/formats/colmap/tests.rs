@@ -160,7 +160,7 @@ fn text_writer_round_trip_and_bounds() {
     write_colmap_text(&dir.path().join("sparse/0"), &names, &cams, &[]).unwrap();
     let s = load_scene(dir.path(), &LoadOptions::default()).unwrap();
     let e = s.near_far().unwrap_err().to_string();
-    assert!(e.contains("--near") && e.contains("--far"), "{e}");
+    assert!(e.contains("near and far") && e.contains("3D points"), "{e}");
 }
 
 // A tiny binary model writer for fixtures.

@@ -84,10 +84,9 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     if let Some(folder) = &opts.images
         && !base.join(folder).is_dir()
     {
-        return Err(DataError::invalid(
-            &base.join(folder),
-            "image folder does not exist (from --images)",
-        ));
+        return Err(DataError::NoImageFolder {
+            path: base.join(folder),
+        });
     }
     let mut views = Vec::with_capacity(cams.len());
     for (i, c) in cams.iter().enumerate() {

@@ -225,7 +225,10 @@ fn bounds_from_aabb_or_required() {
         .near_far()
         .unwrap_err()
         .to_string();
-    assert!(e.contains("--near") && e.contains("transforms.json"), "{e}");
+    assert!(
+        e.contains("near and far") && e.contains("transforms.json"),
+        "{e}"
+    );
     // An aabb in front of the cameras (they look along +z of the world, roughly).
     let json = dir.path().join(TRANSFORMS_JSON);
     let mut f = parse_transforms(&std::fs::read_to_string(&json).unwrap(), &json).unwrap();

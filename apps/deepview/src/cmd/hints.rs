@@ -1,0 +1,118 @@
+//! The flag hints of library errors: the libraries say what is wrong in their own terms, the binary adds
+//! which of its options fixes it (printed after the error by `main`).
+
+use super::args::min_arg;
+use deepview_data::DataError;
+use deepview_eval::EvalError;
+use deepview_media::MediaError;
+use deepview_net::vgg::VggError;
+use deepview_net::weights::WeightsError;
+use deepview_process::ProcessError;
+use deepview_synth::SynthError;
+
+/// The hint for the first error in `e`'s chain that has one.
+pub fn hint(e: &anyhow::Error) -> Option<String> {
+    e.chain().find_map(|cause| {
+        if let Some(e) = cause.downcast_ref::<EvalError>() {
+            return eval(e);
+        }
+        if let Some(e) = cause.downcast_ref::<WeightsError>() {
+            return weights(e);
+        }
+        if let Some(VggError::NotGiven) = cause.downcast_ref::<VggError>() {
+            return Some(
+                "pass --vgg-weights PATH (vgg16_conv1_1-conv3_3.safetensors) or set DEEPVIEW_VGG_WEIGHTS, or \
+                 train with --loss l1"
+                    .into(),
+            );
+        }
+        if let Some(e) = cause.downcast_ref::<DataError>() {
+            return data(e);
+        }
+        if let Some(deepview_mpi::MpiError::NoPlaneDepths { .. }) =
+            cause.downcast_ref::<deepview_mpi::MpiError>()
+        {
+            return Some("pass --near and --far".into());
+        }
+        if let Some(e) = cause.downcast_ref::<MediaError>() {
+            return media(e);
+        }
+        if let Some(e) = cause.downcast_ref::<ProcessError>() {
+            return process(e);
+        }
+        if let Some(SynthError::TooFewPlanes(_)) = cause.downcast_ref::<SynthError>() {
+            return Some("--planes must be at least 2".into());
+        }
+        None
+    })
+}
+
+fn eval(e: &EvalError) -> Option<String> {
+    Some(match e {
+        EvalError::PlanesOverBudget { need, .. } => format!(
+            "use fewer planes (--planes), smaller images (--downscale) or --max-memory {}",
+            min_arg(*need)
+        ),
+        EvalError::OverBudget { need, .. } => {
+            format!("make it smaller or pass --max-memory {}", min_arg(*need))
+        }
+        EvalError::StateOverBudget { fewer_than, .. } => format!(
+            "use fewer than {fewer_than} planes (--planes), smaller images (--downscale) or far more \
+             --max-memory"
+        ),
+        EvalError::PlanesNeedWeights => {
+            "--planes weights needs a learned model (--method deepview): use --planes auto or a number"
+                .into()
+        }
+        EvalError::NoPlanes => "--planes takes auto, weights or a count of at least 1".into(),
+        EvalError::NoWeights { .. } => {
+            "train some with `deepview train`, or pass --weights DIR (default: the built-in weights)".into()
+        }
+        EvalError::TooFewViews { wanted, .. } | EvalError::NotEnoughInputs { wanted, .. } => {
+            format!("ask for fewer than {wanted} inputs (--inputs nearest:K, all, or a list)")
+        }
+        EvalError::Weights(w) => return weights(w),
+        _ => return None,
+    })
+}
+
+fn weights(e: &WeightsError) -> Option<String> {
+    match e {
+        WeightsError::WrongViews { expected, .. } => Some(format!(
+            "pass --inputs nearest:{expected} (or a list of {expected} views)"
+        )),
+        _ => None,
+    }
+}
+
+fn data(e: &DataError) -> Option<String> {
+    Some(match e {
+        DataError::NoDepthBounds { .. } => "pass --near and --far".into(),
+        DataError::HalfDepthBounds { missing, .. } => format!("pass --{missing} too"),
+        DataError::NoImageFolder { .. } => {
+            "--images names a folder inside the dataset folder (e.g. images_8)".into()
+        }
+        DataError::DownscaleTooLarge { .. } => "use a smaller --downscale".into(),
+        _ => return None,
+    })
+}
+
+fn media(e: &MediaError) -> Option<String> {
+    Some(match e {
+        MediaError::OddFrameSize { .. } => {
+            "the frames have the size of the MPI or of --camera: pass a --camera \
+            of even width and height, or make --out a .gif or a folder"
+                .into()
+        }
+        _ => return None,
+    })
+}
+
+fn process(e: &ProcessError) -> Option<String> {
+    Some(match e {
+        ProcessError::ColmapMissing { .. } => "or pass --colmap PATH".into(),
+        ProcessError::FfmpegMissing { .. } => "or pass --ffmpeg PATH".into(),
+        ProcessError::OutputExists { .. } => "choose another --out".into(),
+        _ => return None,
+    })
+}

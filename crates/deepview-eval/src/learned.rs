@@ -1,0 +1,308 @@
+//! The learned model (`deepview`) as an [`MpiMethod`]: tiled inference from the inputs with a bounded
+//! memory budget, the plane count by the shared rule ([`choose_planes`]), and the memory checks that refuse
+//! a plane count before anything is allocated.
+
+use crate::error::EvalError;
+use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
+use crate::planes::{Planes, choose_planes, mpi_reference};
+use deepview_geometry::{Camera, PlaneSpacing, plane_depths};
+use deepview_image::ImageF32;
+use deepview_net::config::DeepViewConfig;
+use deepview_net::infer::{InferError, infer_mpi, plan_inference};
+use deepview_net::network::DeepViewModel;
+use deepview_net::weights::{self, SHIPPED_NAME};
+use std::path::Path;
+
+/// Where the weights of a [`LearnedMethod`] come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum WeightsSource {
+    /// The weights compiled into the program ([`weights::load_shipped`]).
+    Shipped,
+    /// A weights folder or a training checkpoint folder.
+    Folder(std::path::PathBuf),
+}
+
+impl std::fmt::Display for WeightsSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            WeightsSource::Shipped => f.write_str(SHIPPED_NAME),
+            WeightsSource::Folder(p) => write!(f, "{}", p.display()),
+        }
+    }
+}
+
+/// The learned model: weights, the plane rule and the memory budget of its inference.
+pub struct LearnedMethod {
+    model: DeepViewModel,
+    config: DeepViewConfig,
+    source: WeightsSource,
+    planes: Planes,
+    budget: u64,
+}
+
+impl LearnedMethod {
+    /// Load the weights in `weights` (a weights folder or a checkpoint folder; `None`: the built-in
+    /// ones); `budget` bounds the inference's memory (bytes).
+    pub fn load(weights: Option<&Path>, planes: Planes, budget: u64) -> Result<Self, EvalError> {
+        let device = deepview_net::burn::tensor::Device::flex();
+        let (source, (model, config)) = match weights {
+            None => (WeightsSource::Shipped, weights::load_shipped(&device)?),
+            Some(dir) => {
+                if !dir.join(weights::CONFIG_FILE).is_file() && !weights::is_checkpoint(dir) {
+                    return Err(EvalError::NoWeights {
+                        dir: dir.to_path_buf(),
+                    });
+                }
+                (
+                    WeightsSource::Folder(dir.to_path_buf()),
+                    weights::load_model(dir, &device)?,
+                )
+            }
+        };
+        Ok(Self {
+            model,
+            config,
+            source,
+            planes,
+            budget,
+        })
+    }
+
+    /// The model configuration saved with the weights.
+    pub fn config(&self) -> &DeepViewConfig {
+        &self.config
+    }
+
+    /// Where the weights came from.
+    pub fn source(&self) -> &WeightsSource {
+        &self.source
+    }
+}
+
+impl MpiMethod for LearnedMethod {
+    fn name(&self) -> &str {
+        "deepview"
+    }
+
+    fn views(&self) -> Option<usize> {
+        self.config.views
+    }
+
+    fn weights(&self) -> Option<String> {
+        Some(self.source.to_string())
+    }
+
+    fn make_mpi(
+        &mut self,
+        request: &MpiRequest<'_>,
+        events: &mut dyn FnMut(MethodEvent<'_>),
+    ) -> Result<MadeMpi, EvalError> {
+        let near_far = request.near_far;
+        let cams: Vec<Camera> = request.inputs.iter().map(|(_, c)| *c).collect();
+        weights::check_views(&self.config, cams.len())?;
+        let reference = mpi_reference(&cams, near_far)?;
+        let views: Vec<(ImageF32, Camera)> = request
+            .inputs
+            .iter()
+            .map(|(img, cam)| (img.to_rgb(), *cam))
+            .collect();
+        let (model, budget) = (&self.model, self.budget);
+        precheck_planes(
+            model,
+            &views,
+            &reference,
+            self.planes,
+            self.config.infer_planes,
+            budget,
+        )?;
+        let mut fits =
+            |count: usize| learned_fits(model, &views, &reference, near_far, count, budget);
+        let mut minimum =
+            |count: usize| learned_minimum(model, &views, &reference, near_far, count);
+        let choice = choose_planes(
+            self.planes,
+            &reference,
+            &cams,
+            request.ids,
+            near_far,
+            Some(self.config.infer_planes),
+            &mut fits,
+            &mut minimum,
+        )?;
+        events(MethodEvent::Planes(&choice));
+        let depths = plane_depths(
+            near_far.0,
+            near_far.1,
+            choice.count,
+            PlaneSpacing::InverseDepth,
+        )?;
+        check_learned(model, &views, &reference, &depths, budget)?;
+        events(MethodEvent::Start {
+            planes: depths.len(),
+            width: reference.width,
+            height: reference.height,
+        });
+        let mpi = infer_mpi(model, &views, &reference, &depths, budget, &mut |p| {
+            events(MethodEvent::Progress {
+                done: p.done,
+                total: p.total,
+            })
+        })?;
+        Ok(MadeMpi {
+            mpi,
+            planes: Some(choice),
+            note: None,
+        })
+    }
+}
+
+/// A quick lower bound of the inference's memory for `planes` planes (the MPI state at half precision,
+/// twice when there are several nets, and the input images): larger counts are refused without planning.
+pub fn learned_lower_bound(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    planes: usize,
+) -> u64 {
+    let store = (reference.width as u64 * reference.height as u64)
+        .saturating_mul(planes as u64)
+        .saturating_mul(model.state_channels as u64)
+        .saturating_mul(2);
+    let stores = if model.nets.len() > 1 { 2 } else { 1 };
+    let images: u64 = views
+        .iter()
+        .map(|(i, _)| 24 * i.width as u64 * i.height as u64)
+        .sum();
+    store.saturating_mul(stores).saturating_add(images)
+}
+
+/// The smallest memory budget the tiled inference of `depths` plans within: from below, each refusal of
+/// the planner names what its net needs, until a plan fits.
+pub fn learned_minimum_depths(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+) -> u64 {
+    let mut b = learned_lower_bound(model, views, reference, depths.len()).max(1);
+    for _ in 0..64 {
+        match plan_inference(model, views, reference, depths, b) {
+            Ok(_) => return b,
+            Err(InferError::BudgetTooSmall {
+                fixed, min_tile, ..
+            }) => {
+                let need = fixed.saturating_add(min_tile);
+                b = if need > b { need } else { b + b / 32 + 1 };
+            }
+            Err(_) => return b,
+        }
+    }
+    b
+}
+
+/// [`learned_minimum_depths`] for `count` planes between `near_far`.
+pub fn learned_minimum(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    near_far: (f64, f64),
+    count: usize,
+) -> u64 {
+    match plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth) {
+        Ok(depths) => learned_minimum_depths(model, views, reference, &depths),
+        Err(_) => 0,
+    }
+}
+
+/// Whether `count` planes fit `budget`: the quick lower bound first, then the planner.
+pub fn learned_fits(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    near_far: (f64, f64),
+    count: usize,
+    budget: u64,
+) -> bool {
+    learned_lower_bound(model, views, reference, count) <= budget
+        && plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth)
+            .is_ok_and(|d| plan_inference(model, views, reference, &d, budget).is_ok())
+}
+
+/// Refuse at once an explicit plane count (`Count(n)` or `Weights`) whose quick lower bound is far over
+/// the budget (planning so many planes would itself take long).
+pub fn precheck_planes(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    rule: Planes,
+    weights_planes: usize,
+    budget: u64,
+) -> Result<(), EvalError> {
+    let n = match rule {
+        Planes::Count(n) => n,
+        Planes::Weights => weights_planes,
+        Planes::Auto => return Ok(()),
+    };
+    if learned_lower_bound(model, views, reference, n) > budget {
+        too_many_planes(model, views, reference, n, budget, &mut |_| 0)?;
+    }
+    Ok(())
+}
+
+/// Refuse an inference that cannot be planned within `budget`, naming the smallest budget that can.
+pub fn check_learned(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    budget: u64,
+) -> Result<(), EvalError> {
+    let lower = learned_lower_bound(model, views, reference, depths.len());
+    if lower <= budget && plan_inference(model, views, reference, depths, budget).is_ok() {
+        return Ok(());
+    }
+    too_many_planes(model, views, reference, depths.len(), budget, &mut |_| {
+        learned_minimum_depths(model, views, reference, depths)
+    })
+}
+
+/// The refusal of `planes` planes that do not fit `budget`. When even the quick lower bound is over the
+/// budget (planning itself would take long), it names the plane count that no longer fits
+/// ([`EvalError::StateOverBudget`]); otherwise the smallest budget that does ([`EvalError::OverBudget`]).
+fn too_many_planes(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    planes: usize,
+    budget: u64,
+    minimum: &mut dyn FnMut(usize) -> u64,
+) -> Result<(), EvalError> {
+    let what = format!(
+        "inferring {planes} planes of {}x{}",
+        reference.width, reference.height
+    );
+    let lower = learned_lower_bound(model, views, reference, planes);
+    if lower > budget {
+        // The most planes whose lower bound fits (the plan may need a little more).
+        let (mut lo, mut hi) = (0usize, planes);
+        while lo + 1 < hi {
+            let mid = lo + (hi - lo) / 2;
+            if learned_lower_bound(model, views, reference, mid) <= budget {
+                lo = mid
+            } else {
+                hi = mid
+            }
+        }
+        return Err(EvalError::StateOverBudget {
+            what,
+            lower,
+            budget,
+            fewer_than: lo + 1,
+        });
+    }
+    Err(EvalError::OverBudget {
+        what,
+        need: minimum(planes).max(budget + 1),
+        budget,
+    })
+}

@@ -1,0 +1,302 @@
+//! The methods by name, their settings, and the classical ones (`nearest`, `psv-mean`, `optimize`) as
+//! [`MpiMethod`]s whose plane count follows the same rule as the learned model's.
+
+use crate::baselines::{PsvMeanOptions, agreement_mpi, nearest_view_mpi};
+use crate::check::check_inputs;
+use crate::error::EvalError;
+use crate::learned::LearnedMethod;
+use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
+use crate::optimize::{OptimizeOptions, optimize_mpi_with_history};
+use crate::planes::{
+    PlaneChoice, Planes, check_memory, choose_planes, fits_estimate, mpi_bytes, mpi_reference,
+    optimize_bytes, psv_mean_bytes,
+};
+use deepview_geometry::{Camera, DVec3};
+use std::path::PathBuf;
+use std::str::FromStr;
+
+/// The ways of making an MPI.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum MethodKind {
+    /// The learned network (weights: --weights, default the built-in ones).
+    Deepview,
+    /// Plane sweep volume mean colour per plane, alpha from cross-view colour agreement.
+    #[value(alias = "psvmean", alias = "psv_mean")]
+    PsvMean,
+    /// One opaque plane holding the input view nearest the target (without a target: nearest the
+    /// inputs' centroid) at the inverse-depth midpoint of near/far.
+    Nearest,
+    /// An MPI fitted to the inputs by classical gradient descent (Adam; no learning).
+    #[value(alias = "optimise")]
+    Optimize,
+}
+
+impl MethodKind {
+    pub const ALL: [MethodKind; 4] = [
+        MethodKind::Deepview,
+        MethodKind::PsvMean,
+        MethodKind::Nearest,
+        MethodKind::Optimize,
+    ];
+
+    pub fn name(&self) -> &'static str {
+        match self {
+            MethodKind::Deepview => "deepview",
+            MethodKind::PsvMean => "psv-mean",
+            MethodKind::Nearest => "nearest",
+            MethodKind::Optimize => "optimize",
+        }
+    }
+}
+
+impl std::fmt::Display for MethodKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for MethodKind {
+    type Err = EvalError;
+    fn from_str(s: &str) -> Result<Self, EvalError> {
+        match s.trim().to_ascii_lowercase().replace('_', "-").as_str() {
+            "deepview" => Ok(MethodKind::Deepview),
+            "nearest" => Ok(MethodKind::Nearest),
+            "psv-mean" | "psvmean" => Ok(MethodKind::PsvMean),
+            "optimize" | "optimise" => Ok(MethodKind::Optimize),
+            _ => Err(EvalError::UnknownMethod(s.into())),
+        }
+    }
+}
+
+/// The help text of `--planes`.
+pub const PLANES_HELP: &str = "Number of MPI planes, equally spaced in inverse depth between near and far: \
+    `auto` (default) chooses them from the cameras so that neighbouring planes are at most 1 px of disparity \
+    apart between the reference camera and the input view farthest from it (clamped to 8..=256 and to what \
+    --max-memory allows); `weights` takes the learned model's own inference count; a number is used as given.";
+
+fn positive(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!("{s:?} is not a positive whole number")),
+    }
+}
+
+fn positive_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(_) => Err(format!("{s:?} must be a finite number above 0")),
+        Err(_) => Err(format!("{s:?} is not a number")),
+    }
+}
+
+/// The settings of every method, as the commands that make or score MPIs take them.
+#[derive(clap::Args, Clone, Debug, PartialEq)]
+pub struct MethodOptions {
+    #[arg(long, default_value = "auto", help = PLANES_HELP)]
+    pub planes: Planes,
+    /// Trained weights of the learned method (deepview): a weights folder (config.json +
+    /// model.safetensors) or a training checkpoint folder (runs/<name>/checkpoints/step-N). Default: the
+    /// weights built into the program (the repository's weights/cpu).
+    #[arg(long, visible_alias = "checkpoint")]
+    pub weights: Option<PathBuf>,
+    /// Colour variance treated as disagreement, s in exp(-variance / s) (psv-mean).
+    #[arg(long, default_value_t = PsvMeanOptions::default().temperature, value_parser = positive_f64)]
+    pub temperature: f64,
+    /// Adam steps (optimize).
+    #[arg(long, default_value_t = 300, value_parser = positive)]
+    pub steps: usize,
+    /// Adam learning rate on the RGBA logits (optimize).
+    #[arg(long, default_value_t = 0.1, value_parser = positive_f64)]
+    pub lr: f64,
+    /// Working width of the optimisation: inputs are box-downscaled by an integer factor to at most this
+    /// width (optimize).
+    #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(1..))]
+    pub max_width: u32,
+}
+
+impl Default for MethodOptions {
+    fn default() -> Self {
+        let o = OptimizeOptions::default();
+        Self {
+            planes: Planes::Auto,
+            weights: None,
+            temperature: PsvMeanOptions::default().temperature,
+            steps: o.steps,
+            lr: o.learning_rate,
+            max_width: o.max_width,
+        }
+    }
+}
+
+/// The method `kind` with `options`; `budget` bounds its memory (bytes).
+pub fn make_method(
+    kind: MethodKind,
+    options: &MethodOptions,
+    budget: u64,
+) -> Result<Box<dyn MpiMethod>, EvalError> {
+    Ok(match kind {
+        MethodKind::Deepview => Box::new(LearnedMethod::load(
+            options.weights.as_deref(),
+            options.planes,
+            budget,
+        )?),
+        _ => Box::new(Classical {
+            kind,
+            psv: PsvMeanOptions {
+                temperature: options.temperature,
+                ..Default::default()
+            },
+            optimize: OptimizeOptions {
+                planes: 0,
+                steps: options.steps,
+                learning_rate: options.lr,
+                max_width: options.max_width,
+            },
+            planes: options.planes,
+            budget,
+        }),
+    })
+}
+
+/// A classical method whose plane count follows `planes` per input set, by the same rule as the learned
+/// model (the memory clamp from a simple bytes estimate).
+#[derive(Clone, Copy, Debug)]
+pub struct Classical {
+    pub kind: MethodKind,
+    pub psv: PsvMeanOptions,
+    /// `planes` is replaced by the chosen count.
+    pub optimize: OptimizeOptions,
+    pub planes: Planes,
+    pub budget: u64,
+}
+
+/// The plane count of a classical method (`psv-mean` or `optimize`, whose working width is
+/// `max_width`) for input cameras `cams` (dataset indices `ids`, may be empty).
+pub fn classical_planes(
+    kind: MethodKind,
+    planes: Planes,
+    budget: u64,
+    cams: &[Camera],
+    ids: &[usize],
+    near_far: (f64, f64),
+    max_width: u32,
+) -> Result<PlaneChoice, EvalError> {
+    let reference = mpi_reference(cams, near_far)?;
+    let (fixed, per_plane) = match kind {
+        MethodKind::Optimize => optimize_bytes(&reference, cams, max_width),
+        _ => psv_mean_bytes(&reference, cams),
+    };
+    let mut fits = fits_estimate(fixed, per_plane, budget);
+    let mut minimum = |n: usize| fixed.saturating_add(per_plane.saturating_mul(n as u64));
+    choose_planes(
+        planes,
+        &reference,
+        cams,
+        ids,
+        near_far,
+        None,
+        &mut fits,
+        &mut minimum,
+    )
+}
+
+/// The index of the input nearest `toward`, or (without) the inputs' centroid; ties: the first.
+fn nearest_input(cams: &[Camera], toward: Option<&Camera>) -> usize {
+    let anchor = match toward {
+        Some(t) => t.center(),
+        None => cams.iter().fold(DVec3::ZERO, |a, c| a + c.center()) / cams.len().max(1) as f64,
+    };
+    (0..cams.len())
+        .min_by(|&a, &b| {
+            cams[a]
+                .center()
+                .distance(anchor)
+                .total_cmp(&cams[b].center().distance(anchor))
+        })
+        .unwrap_or(0)
+}
+
+impl MpiMethod for Classical {
+    fn name(&self) -> &str {
+        self.kind.name()
+    }
+
+    fn uses_target(&self) -> bool {
+        self.kind == MethodKind::Nearest
+    }
+
+    fn make_mpi(
+        &mut self,
+        request: &MpiRequest<'_>,
+        events: &mut dyn FnMut(MethodEvent<'_>),
+    ) -> Result<MadeMpi, EvalError> {
+        let (inputs, near_far) = (request.inputs, request.near_far);
+        check_inputs(self.kind.name(), inputs, near_far)?;
+        let cams: Vec<Camera> = inputs.iter().map(|(_, c)| *c).collect();
+        if self.kind == MethodKind::Nearest {
+            let k = nearest_input(&cams, request.toward);
+            let c = &cams[k];
+            check_memory(
+                "the nearest-view MPI",
+                mpi_bytes(c.width, c.height, 1, false).saturating_mul(2),
+                self.budget,
+            )?;
+            events(MethodEvent::Start {
+                planes: 1,
+                width: c.width,
+                height: c.height,
+            });
+            let mpi = nearest_view_mpi(&inputs[k], near_far)?;
+            let note = match request.ids.get(k) {
+                Some(i) => format!("view {i}"),
+                None => format!("input {k}"),
+            };
+            return Ok(MadeMpi {
+                mpi,
+                planes: None,
+                note: Some(note),
+            });
+        }
+        let choice = classical_planes(
+            self.kind,
+            self.planes,
+            self.budget,
+            &cams,
+            request.ids,
+            near_far,
+            self.optimize.max_width,
+        )?;
+        events(MethodEvent::Planes(&choice));
+        let (mpi, note) = if self.kind == MethodKind::Optimize {
+            let options = OptimizeOptions {
+                planes: choice.count,
+                ..self.optimize
+            };
+            let (mpi, history) = optimize_mpi_with_history(inputs, near_far, &options)?;
+            let note = format!(
+                "loss {:.5} -> {:.5}",
+                history.first().copied().unwrap_or(f64::NAN),
+                history.last().copied().unwrap_or(f64::NAN)
+            );
+            (mpi, Some(note))
+        } else {
+            let options = PsvMeanOptions {
+                planes: choice.count,
+                ..self.psv
+            };
+            let reference = mpi_reference(&cams, near_far)?;
+            events(MethodEvent::Start {
+                planes: choice.count,
+                width: reference.width,
+                height: reference.height,
+            });
+            (agreement_mpi(inputs, near_far, &options)?, None)
+        };
+        Ok(MadeMpi {
+            mpi,
+            planes: Some(choice),
+            note,
+        })
+    }
+}
