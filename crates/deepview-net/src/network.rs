@@ -529,11 +529,13 @@ mod tests {
         // With many features and views, a feature of two views can agree to f32 rounding somewhere,
         // and the max over views may then pick either (both right): its gradient then flows through
         // the other view and spreads over the receptive field. Gradients are compared where that has
-        // negligible probability (<= 16 features, or one view); outputs everywhere.
+        // negligible probability (8 features with 12 views, or one view; a 12-view U-Net with 16 features
+        // failed 1 run in 6 by such a tie, at 3e-3); outputs everywhere.
         for (cin, f, stages, unet, k, d, h, w, grads) in [
             (4, 8, 1, false, 4, 3, 17, 23, true),
             (19, 8, 1, false, 1, 2, 9, 12, true),
-            (19, 16, 3, true, 12, 2, 15, 11, true),
+            (19, 8, 1, false, 12, 2, 15, 11, true),
+            (19, 16, 3, true, 12, 2, 15, 11, false),
             (4, 64, 3, true, 1, 2, 13, 18, true),
             (19, 64, 3, false, 1, 2, 13, 18, true),
             (4, 64, 3, true, 4, 2, 13, 18, false),
