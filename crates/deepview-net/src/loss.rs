@@ -1,4 +1,10 @@
-//! The training loss: the paper's VGG-16 feature loss (supplement, "Training hyperparameters"), or plain L1.
+//! The training loss: the paper's VGG-16 feature loss (supplement, "Training hyperparameters"), the same
+//! plus an SSIM term (`vgg+ssim`), or plain L1.
+//!
+//! SSIM term (`vgg+ssim`): `SSIM_LOSS_WEIGHT * (1 - SSIM)` per example, SSIM exactly as the evaluation
+//! computes it (`deepview_metrics::ssim`: 11-tap Gaussian, sigma 1.5, 'valid' windows, K1 0.01, K2 0.03,
+//! data range 1, mean over RGB), as separable convolutions so that autodiff gives its gradient. The weight
+//! puts the term on the scale of the feature loss (a VGG loss of 1e4..1e5 per crop; 1 - SSIM of 0.05..0.3).
 //!
 //! Feature loss, as written in the supplement:
 //! 1. reflect-pad the 32x32 prediction and target crops to 40x40 (conv3_3's receptive field is 40x40);
@@ -29,7 +35,13 @@ pub enum LossKind {
     Vgg,
     /// Mean absolute colour difference (cheap; for smoke tests and quick runs).
     L1,
+    /// The feature loss plus `SSIM_LOSS_WEIGHT * (1 - SSIM)` (the evaluation metric).
+    #[serde(rename = "vgg+ssim")]
+    VggSsim,
 }
+
+/// Weight of `1 - SSIM` in the `vgg+ssim` loss.
+pub const SSIM_LOSS_WEIGHT: f32 = 1.0e5;
 
 impl std::str::FromStr for LossKind {
     type Err = String;
@@ -37,7 +49,10 @@ impl std::str::FromStr for LossKind {
         match s.to_ascii_lowercase().as_str() {
             "vgg" => Ok(Self::Vgg),
             "l1" => Ok(Self::L1),
-            other => Err(format!("unknown loss `{other}` (expected vgg or l1)")),
+            "vgg+ssim" => Ok(Self::VggSsim),
+            other => Err(format!(
+                "unknown loss `{other}` (expected vgg, vgg+ssim or l1)"
+            )),
         }
     }
 }
@@ -46,6 +61,7 @@ impl std::str::FromStr for LossKind {
 #[derive(Clone, Debug)]
 pub enum Loss {
     Vgg(Box<Vgg16>),
+    VggSsim(Box<Vgg16>),
     L1,
 }
 
@@ -53,6 +69,7 @@ impl Loss {
     pub fn kind(&self) -> LossKind {
         match self {
             Loss::Vgg(_) => LossKind::Vgg,
+            Loss::VggSsim(_) => LossKind::VggSsim,
             Loss::L1 => LossKind::L1,
         }
     }
@@ -67,6 +84,10 @@ impl Loss {
                 .mean_dim(1)
                 .reshape([n]),
             Loss::Vgg(vgg) => vgg_feature_loss(vgg, pred, target, h, w),
+            Loss::VggSsim(vgg) => {
+                let s = ssim_per_example(pred.clone(), target.clone());
+                vgg_feature_loss(vgg, pred, target, h, w) + (s.neg() + 1.0) * SSIM_LOSS_WEIGHT
+            }
         }
     }
 
@@ -91,6 +112,46 @@ pub(crate) fn pad_for_feature_loss(t: Tensor<4>) -> Tensor<4> {
     } else {
         t
     }
+}
+
+/// SSIM of each example, shape [n], with autodiff: `deepview_metrics::ssim` (see the module docs) on
+/// `[n, c, h, w]` tensors (h, w >= 11).
+pub fn ssim_per_example(x: Tensor<4>, y: Tensor<4>) -> Tensor<1> {
+    use burn::tensor::TensorData;
+    use burn::tensor::module::conv2d;
+    use burn::tensor::ops::ConvOptions;
+    const SIGMA: f64 = 1.5;
+    const RADIUS: i32 = 5;
+    let [n, c, h, w] = x.dims();
+    let device = x.device();
+    let taps: Vec<f64> = (-RADIUS..=RADIUS)
+        .map(|k| (-(k * k) as f64 / (2.0 * SIGMA * SIGMA)).exp())
+        .collect();
+    let total: f64 = taps.iter().sum();
+    let g: Vec<f32> = taps.iter().map(|t| (t / total) as f32).collect();
+    let t = g.len();
+    let gx = Tensor::<4>::from_data(TensorData::new(g.clone(), [1, 1, 1, t]), &device);
+    let gy = Tensor::<4>::from_data(TensorData::new(g, [1, 1, t, 1]), &device);
+    let opts = || ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
+    // Every channel of every example as its own single-channel image.
+    let blur = |v: Tensor<4>| {
+        let v = v.reshape([(n * c) as i32, 1, h as i32, w as i32]);
+        conv2d(
+            conv2d(v, gx.clone(), None, opts()),
+            gy.clone(),
+            None,
+            opts(),
+        )
+    };
+    let (c1, c2) = (0.01f32 * 0.01, 0.03f32 * 0.03);
+    let mx = blur(x.clone());
+    let my = blur(y.clone());
+    let sxx = blur(x.clone() * x.clone()) - mx.clone() * mx.clone();
+    let syy = blur(y.clone() * y.clone()) - my.clone() * my.clone();
+    let sxy = blur(x * y) - mx.clone() * my.clone();
+    let num = (mx.clone() * my.clone() * 2.0 + c1) * (sxy * 2.0 + c2);
+    let den = (mx.clone() * mx + my.clone() * my + c1) * (sxx + syy + c2);
+    (num / den).reshape([n as i32, -1]).mean_dim(1).reshape([n])
 }
 
 fn vgg_feature_loss(
@@ -127,10 +188,76 @@ mod tests {
     fn losses(device: &Device) -> Vec<Loss> {
         let mut v = vec![Loss::L1];
         match Vgg16::load_default(device) {
-            Ok(vgg) => v.push(Loss::Vgg(Box::new(vgg))),
+            Ok(vgg) => {
+                v.push(Loss::VggSsim(Box::new(vgg.clone())));
+                v.push(Loss::Vgg(Box::new(vgg)));
+            }
             Err(e) => eprintln!("SKIP vgg loss: {e}"),
         }
         v
+    }
+
+    /// The differentiable SSIM equals the evaluation's (`deepview_metrics`, an independent f64
+    /// implementation) on random and on related images, and its gradient matches central differences.
+    #[test]
+    fn ssim_term_matches_the_metric_and_its_gradient() {
+        let device = Device::flex().autodiff();
+        let (h, w) = (19usize, 23usize);
+        let mut state = 12345u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let a: Vec<f32> = (0..3 * h * w).map(|_| next()).collect();
+        // b: a blurred, shifted, noisy version of a (SSIM well inside (0, 1)).
+        let b: Vec<f32> = (0..3 * h * w)
+            .map(|i| {
+                (0.6 * a[i] + 0.4 * a[(i + 1) % a.len()] + 0.1 * (next() - 0.5)).clamp(0.0, 1.0)
+            })
+            .collect();
+        let to_tensor = |v: &[f32]| {
+            Tensor::<4>::from_data(
+                burn::tensor::TensorData::new(v.to_vec(), [1, 3, h, w]),
+                &device,
+            )
+        };
+        let to_image = |v: &[f32]| {
+            // planar -> interleaved
+            let mut img = deepview_image::ImageF32::new(w as u32, h as u32, 3);
+            for c in 0..3 {
+                for p in 0..h * w {
+                    img.data[p * 3 + c] = v[c * h * w + p];
+                }
+            }
+            img
+        };
+        let want = deepview_metrics::ssim(&to_image(&a), &to_image(&b)).unwrap();
+        let x = to_tensor(&a).require_grad();
+        let got = ssim_per_example(x.clone(), to_tensor(&b));
+        let v: f32 = got.clone().into_scalar();
+        assert!((v as f64 - want).abs() < 2e-5, "{v} vs {want}");
+        assert!(v > 0.2 && v < 0.95, "{v}");
+        let same: f32 = ssim_per_example(to_tensor(&a), to_tensor(&a)).into_scalar();
+        assert!((same - 1.0).abs() < 1e-5, "{same}");
+        // Gradient against central differences of the f64 metric at a few pixels.
+        let grads = got.sum().backward();
+        let g = x.grad(&grads).unwrap().into_data().to_vec::<f32>().unwrap();
+        for &i in &[0usize, 77, 3 * h * w / 2, 3 * h * w - 5] {
+            let eps = 1e-3f32;
+            let (mut p, mut m) = (a.clone(), a.clone());
+            p[i] += eps;
+            m[i] -= eps;
+            let fd = (deepview_metrics::ssim(&to_image(&p), &to_image(&b)).unwrap()
+                - deepview_metrics::ssim(&to_image(&m), &to_image(&b)).unwrap())
+                / (2.0 * eps as f64);
+            assert!(
+                (g[i] as f64 - fd).abs() < 1e-3 * fd.abs().max(1e-2),
+                "pixel {i}: autodiff {} vs finite difference {fd}",
+                g[i]
+            );
+        }
     }
 
     #[test]
@@ -297,7 +424,7 @@ mod tests {
             let analytic = (g * dir.clone().inner()).sum().into_scalar::<f32>() as f64;
             let eps = match loss.kind() {
                 LossKind::L1 => 1e-2,
-                LossKind::Vgg => 1e-4,
+                LossKind::Vgg | LossKind::VggSsim => 1e-4,
             };
             let lp = loss
                 .sum(p.clone() + dir.clone() * eps, t.clone())

@@ -70,7 +70,8 @@ pub struct Args {
     /// between planes), from 8 to MAX (default 64).
     #[arg(long, value_parser = parse_train_planes)]
     pub planes: Option<(bool, usize)>,
-    /// Training loss: vgg (the paper's feature loss, default) or l1.
+    /// Training loss: vgg (the paper's feature loss, default), vgg+ssim (plus 1e5 x (1 - SSIM), the
+    /// evaluation metric) or l1.
     #[arg(long)]
     pub loss: Option<LossKind>,
     /// Learning rate (paper and default: 1.5e-4).
@@ -148,7 +149,7 @@ impl VggArg {
 
     /// Refuse a VGG loss without readable VGG weights before the training starts.
     pub fn check(&self, loss: LossKind) -> anyhow::Result<()> {
-        if loss != LossKind::Vgg {
+        if loss == LossKind::L1 {
             return Ok(());
         }
         let path = deepview_net::vgg::weights_path()?;

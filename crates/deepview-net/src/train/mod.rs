@@ -560,11 +560,18 @@ fn adam() -> ModuleOptimizer {
 fn make_losses(kind: LossKind, devices: &[Device]) -> Result<Vec<Loss>, TrainError> {
     match kind {
         LossKind::L1 => Ok(devices.iter().map(|_| Loss::L1).collect()),
-        LossKind::Vgg => {
+        LossKind::Vgg | LossKind::VggSsim => {
             let vgg = Vgg16::load_default(&devices[0])?;
             Ok(devices
                 .iter()
-                .map(|d| Loss::Vgg(Box::new(vgg.clone().to_device(d))))
+                .map(|d| {
+                    let v = Box::new(vgg.clone().to_device(d));
+                    if kind == LossKind::Vgg {
+                        Loss::Vgg(v)
+                    } else {
+                        Loss::VggSsim(v)
+                    }
+                })
                 .collect())
         }
     }
