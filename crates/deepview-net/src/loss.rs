@@ -243,7 +243,12 @@ mod tests {
         assert!((same - 1.0).abs() < 1e-5, "{same}");
         // Gradient against central differences of the f64 metric at a few pixels.
         let grads = got.sum().backward();
-        let g = x.grad(&grads).unwrap().into_data().to_vec::<f32>().unwrap();
+        let g = x
+            .grad(&grads)
+            .unwrap()
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
         for &i in &[0usize, 77, 3 * h * w / 2, 3 * h * w - 5] {
             let eps = 1e-3f32;
             let (mut p, mut m) = (a.clone(), a.clone());
