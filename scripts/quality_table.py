@@ -17,9 +17,12 @@ for path in sorted(glob.glob(os.path.join(folder, "*.json"))):
         r = json.load(f)
     key = parts[0]
     rows.setdefault(key, {})[parts[1]] = r["results"]
+    planes = [v["planes"] for v in r.get("views", []) if v.get("planes")]
+    if planes:
+        rows[key]["planes"] = planes
 
-print("| scene / protocol | views | " + " | ".join(f"{m} SSIM / PSNR" for m in methods) + " |")
-print("|---|---|" + "---|" * len(methods))
+print("| scene / protocol | views | planes | " + " | ".join(f"{m} SSIM / PSNR" for m in methods) + " |")
+print("|---|---|---|" + "---|" * len(methods))
 for key in sorted(rows):
     cells = []
     n = ""
@@ -31,4 +34,5 @@ for key in sorted(rows):
         n = res.get("num_views", n)
         psnr = res.get("psnr")
         cells.append(f"{res['ssim']:.4f} / {psnr:.2f}" if psnr is not None else f"{res['ssim']:.4f} / inf")
-    print(f"| {key.replace('_', ' ')} | {n} | " + " | ".join(cells) + " |")
+    planes = ", ".join(str(p) for p in rows[key].get("planes", [])) or "-"
+    print(f"| {key.replace('_', ' ')} | {n} | {planes} | " + " | ".join(cells) + " |")

@@ -63,6 +63,9 @@ pub struct ViewResult {
     pub seconds: f64,
     /// Pixels cropped `[left, top, right, bottom]` at the evaluated resolution.
     pub crop: [u32; 4],
+    /// Planes of the MPI the prediction was rendered from (methods that make one).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub planes: Option<usize>,
 }
 
 /// Means and sample standard deviations (n - 1, as nerfstudio's `torch.std`; 0 for one view) over the views.
@@ -248,6 +251,7 @@ pub fn evaluate_splits(
             psnr: psnr(&pc, &gc)?,
             seconds,
             crop: [crop.left, crop.top, crop.right, crop.bottom],
+            planes: method.last_mpi().map(|(m, _)| m.depths.len()),
         };
         if options.verbose {
             eprintln!(
