@@ -346,7 +346,7 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
 
 fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
     use deepview_net::config::DeepViewConfig;
-    use deepview_net::train::{RunConfig, TrainConfig, Trainer, load_data};
+    use deepview_train::{RunConfig, TrainConfig, Trainer, load_data};
     let model = DeepViewConfig::preset(&args.preset)?;
     args.vgg.configure()?;
     let mut train = TrainConfig::defaults(&model);

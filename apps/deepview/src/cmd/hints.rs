@@ -5,7 +5,7 @@ use super::args::min_arg;
 use deepview_data::DataError;
 use deepview_eval::EvalError;
 use deepview_media::MediaError;
-use deepview_net::vgg::VggError;
+use deepview_train::vgg::VggError;
 use deepview_net::weights::WeightsError;
 use deepview_process::ProcessError;
 use deepview_synth::SynthError;

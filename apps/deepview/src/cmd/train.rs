@@ -5,8 +5,8 @@ use super::safety::{Input, Kind, check_output, parse_component};
 use super::signals;
 use anyhow::{Context, bail};
 use deepview_net::config::DeepViewConfig;
-use deepview_net::loss::LossKind;
-use deepview_net::train::{
+use deepview_train::loss::LossKind;
+use deepview_train::{
     Collective, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data,
 };
 use std::path::PathBuf;
@@ -82,8 +82,8 @@ pub struct Args {
     /// Continue the run from its latest checkpoint (optimizer and RNG state included).
     #[arg(long)]
     pub resume: bool,
-    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], cuda[:N] (GPU ones need the
-    /// deepview-net features `wgpu` / `cuda`). Example: cpu,cpu.
+    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], cuda[:N] (GPU ones need a
+    /// build with the features `wgpu` / `cuda`). Example: cpu,cpu.
     #[arg(long)]
     pub devices: Option<String>,
     /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.
@@ -141,7 +141,7 @@ impl VggArg {
     /// Make `--vgg-weights` the file the VGG loss reads (else `DEEPVIEW_VGG_WEIGHTS`).
     pub fn configure(&self) -> anyhow::Result<()> {
         if let Some(p) = &self.vgg_weights {
-            deepview_net::vgg::set_weights_path(Some(p.clone()));
+            deepview_train::vgg::set_weights_path(Some(p.clone()));
         }
         Ok(())
     }
@@ -151,18 +151,18 @@ impl VggArg {
         if loss != LossKind::Vgg {
             return Ok(());
         }
-        let path = deepview_net::vgg::weights_path()?;
+        let path = deepview_train::vgg::weights_path()?;
         if !path.is_file() {
             let from = if self.vgg_weights.is_some() {
                 "--vgg-weights"
             } else {
-                deepview_net::vgg::WEIGHTS_ENV
+                deepview_train::vgg::WEIGHTS_ENV
             };
             bail!(
                 "the VGG-16 weights {} ({from}) are not a readable file: pass --vgg-weights FILE or set {} to \
                  vgg16_conv1_1-conv3_3.safetensors, or train with --loss l1",
                 path.display(),
-                deepview_net::vgg::WEIGHTS_ENV
+                deepview_train::vgg::WEIGHTS_ENV
             );
         }
         Ok(())
@@ -302,7 +302,7 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
 }
 
 /// Every scene must have more training views than the largest input count (the target is one of them).
-fn check_views(data: &deepview_net::train::TrainData, views_max: usize) -> anyhow::Result<()> {
+fn check_views(data: &deepview_train::TrainData, views_max: usize) -> anyhow::Result<()> {
     for s in &data.scenes {
         let n = s.train_views.len();
         if views_max + 1 > n {
@@ -527,7 +527,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             train.devices = d;
         }
         for d in &train.devices {
-            deepview_net::train::parse_device(d)?;
+            deepview_train::parse_device(d)?;
         }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
         check_views(&data, train.sample.views_max)?;

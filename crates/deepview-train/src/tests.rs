@@ -1,7 +1,7 @@
-//! Training tests (release: `cargo test --release -p deepview-net train::`).
+//! Training tests (release: `cargo test --release -p deepview-train`).
 
 use super::*;
-use crate::train::synthetic::two_plane_scene;
+use crate::synthetic::two_plane_scene;
 
 /// A tiny network (2 nets, 1 max-pool stage, 8 features: receptive-field margin 6 px per net) so tests
 /// run in seconds.
@@ -454,7 +454,7 @@ fn overfits_a_tiny_scene() {
 /// Throughput on 32x32 crops with 4 views and the VGG loss, batch 1: the `cpu` preset as is, and
 /// `paper-spaces-4view` with 8 instead of 64 planes (at 64 planes one tuple needs over 20 GB here; the
 /// conv cost is linear in the plane count, so multiply its time by ~8)
-/// (`cargo test --release -p deepview-net train::tests::throughput -- --ignored --nocapture`).
+/// (`cargo test --release -p deepview-train tests::throughput -- --ignored --nocapture`).
 #[test]
 #[ignore]
 fn throughput() {
@@ -689,7 +689,7 @@ fn recompute_training_resumes_skips_and_splits() {
 /// `RC_UPDATES` (default 3) update nets (paper-kalantari architecture, `RC_FEATURES` (64) / 16 features,
 /// `RC_PLANES` (4) planes, 4 views, 16x16 crops, VGG loss). `RC_MODE`: `full`, `recompute` or `both`
 /// (alternating, for timing); peak RSS per mode from separate processes, e.g.
-/// `RC_MODE=full /usr/bin/time -v cargo test --release -p deepview-net recompute_bench -- --ignored --nocapture`
+/// `RC_MODE=full /usr/bin/time -v cargo test --release -p deepview-train recompute_bench -- --ignored --nocapture`
 /// (subtract the same command's RSS with `RC_REPS=0` for the baseline).
 #[test]
 #[ignore]

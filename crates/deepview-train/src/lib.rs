@@ -1,4 +1,4 @@
-//! Training (`deepview train`): Adam (lr 1.5e-4), global-norm gradient clipping at 8.0, the VGG feature
+//! Training the DeepView network (`deepview train`; the model itself is `deepview_net`): Adam (lr 1.5e-4), global-norm gradient clipping at 8.0, the VGG feature
 //! loss (or L1) on `crop x crop` target crops, checkpoints with optimizer and RNG state, exact resume,
 //! data parallelism across devices.
 //!
@@ -35,16 +35,18 @@
 pub mod clip;
 pub mod data;
 pub mod dist;
+pub mod loss;
 pub mod recompute;
 pub mod synthetic;
+pub mod vgg;
 
 pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
 pub use dist::Collective;
 
-use crate::config::DeepViewConfig;
-use crate::forward::{Hom, crop_output, image_tensor, invert, render_view};
+use deepview_net::config::DeepViewConfig;
+use deepview_net::forward::{Hom, crop_output, image_tensor, invert, render_view};
 use crate::loss::{Loss, LossKind};
-use crate::network::{DeepViewModel, ModelInputs};
+use deepview_net::network::{DeepViewModel, ModelInputs};
 use crate::vgg::{Vgg16, VggError};
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::{AdamConfig, GradientsParams, ModuleOptimizer};
@@ -669,7 +671,7 @@ impl Trainer {
         let model = match &config.train.init {
             Some(init) => {
                 let (model, init_config) =
-                    crate::weights::load_model(init, &devices[0]).map_err(|e| run_err(init, e))?;
+                    deepview_net::weights::load_model(init, &devices[0]).map_err(|e| run_err(init, e))?;
                 if init_config != config.model {
                     return Err(run_err(
                         init,

@@ -145,7 +145,7 @@ pub fn unflatten_grads<M: Module>(module: &M, flat: &[f32], device: &Device) -> 
 }
 
 /// A module with its float parameters replaced by `values` (in visiting order, as
-/// [`crate::train::parameter_values`] lists them), keeping ids and gradient requirements.
+/// [`crate::parameter_values`] lists them), keeping ids and gradient requirements.
 pub fn with_parameter_values<M: Module>(module: M, values: &[f32]) -> M {
     struct Set<'a> {
         values: &'a [f32],

@@ -32,9 +32,9 @@
 //! `recompute_loss_equals_model_forward` pins the two together bit for bit.
 
 use super::{Example, example_inputs, loss_tail};
-use crate::forward::{Hom, crop_output, gradient_components};
+use deepview_net::forward::{Hom, crop_output, gradient_components};
 use crate::loss::Loss;
-use crate::network::{DeepViewModel, ModelInputs, state_to_rgba};
+use deepview_net::network::{DeepViewModel, ModelInputs, state_to_rgba};
 use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor};

@@ -11,7 +11,7 @@
 //! The parameters never receive gradients (`no_grad`), but gradients do flow through the network to its
 //! input, which is what the feature loss needs.
 
-use crate::kernels::conv3x3_act;
+use deepview_net::kernels::conv3x3_act;
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
