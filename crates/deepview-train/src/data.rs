@@ -26,12 +26,12 @@
 //! volumes and validity are those of the whole image. (The gradient components render the views from the
 //! current window only: the approximation documented in `network.rs`.)
 
-use deepview_net::config::DeepViewConfig;
-use deepview_net::forward::{Hom, crop_output, crop_source};
 use deepview_geometry::{
     Camera, DVec2, PlaneSpacing, ReferenceOptions, plane_homography, reference_camera,
 };
 use deepview_image::ImageF32;
+use deepview_net::config::DeepViewConfig;
+use deepview_net::forward::{Hom, crop_output, crop_source};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

@@ -1,7 +1,17 @@
 //! Training tests (release: `cargo test --release -p deepview-train`).
 
 use super::*;
+use crate::loss::{Loss, LossKind};
 use crate::synthetic::two_plane_scene;
+use crate::vgg::Vgg16;
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::GradientsParams;
+use burn::tensor::{Device, Tensor};
+use deepview_net::config::DeepViewConfig;
+use deepview_net::network::DeepViewModel;
+use std::rc::Rc;
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
 
 /// A tiny network (2 nets, 1 max-pool stage, 8 features: receptive-field margin 6 px per net) so tests
 /// run in seconds.

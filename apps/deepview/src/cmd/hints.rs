@@ -5,10 +5,10 @@ use super::args::min_arg;
 use deepview_data::DataError;
 use deepview_eval::EvalError;
 use deepview_media::MediaError;
-use deepview_train::vgg::VggError;
 use deepview_net::weights::WeightsError;
 use deepview_process::ProcessError;
 use deepview_synth::SynthError;
+use deepview_train::vgg::VggError;
 
 /// The hint for the first error in `e`'s chain that has one.
 pub fn hint(e: &anyhow::Error) -> Option<String> {

@@ -6,9 +6,7 @@ use super::signals;
 use anyhow::{Context, bail};
 use deepview_net::config::DeepViewConfig;
 use deepview_train::loss::LossKind;
-use deepview_train::{
-    Collective, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data,
-};
+use deepview_train::{Collective, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data};
 use std::path::PathBuf;
 use std::rc::Rc;
 
