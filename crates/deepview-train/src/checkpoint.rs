@@ -4,6 +4,7 @@
 
 use crate::data::Rng;
 use crate::error::{TrainError, io_err, run_err};
+use crate::events::Notice;
 use crate::files::{record_message, sync_dir, sync_file};
 use burn::module::Module;
 use burn::optim::{AdamConfig, ModuleOptimizer};
@@ -59,11 +60,12 @@ pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainErro
 
 pub(crate) type Loaded = (DeepViewModel, ModuleOptimizer, CheckpointState);
 
-/// The latest checkpoint of `run_dir` that loads (a damaged one is reported and skipped).
+/// The latest checkpoint of `run_dir` that loads (a damaged one is skipped, said in `notices`).
 pub(crate) fn latest_loadable(
     run_dir: &Path,
     model: &DeepViewConfig,
     device: &Device,
+    notices: &mut Vec<Notice>,
 ) -> Result<(u64, Loaded), TrainError> {
     let checkpoints = list_checkpoints(run_dir)?;
     if checkpoints.is_empty() {
@@ -72,13 +74,23 @@ pub(crate) fn latest_loadable(
             "no complete checkpoint to resume from (checkpoints/step-*)",
         ));
     }
+    let mut reasons = Vec::new();
     for (step, ck) in checkpoints.iter().rev() {
         match load_checkpoint(ck, *step, model, device) {
-            Ok(l) => return Ok((*step, l)),
-            Err(e) => eprintln!("warning: skipping checkpoint {}: {e}", ck.display()),
+            Ok(l) => {
+                notices.extend(reasons.into_iter().map(|(ck, e): (&PathBuf, TrainError)| {
+                    Notice::Warning(format!("skipping checkpoint {}: {e}", ck.display()))
+                }));
+                return Ok((*step, l));
+            }
+            Err(e) => reasons.push((ck, e)),
         }
     }
-    Err(run_err(run_dir, "no checkpoint of this run loads"))
+    let reasons: Vec<String> = reasons.iter().map(|(_, e)| e.to_string()).collect();
+    Err(run_err(
+        run_dir,
+        format!("no checkpoint of this run loads ({})", reasons.join("; ")),
+    ))
 }
 
 /// Load the model, optimizer and state of checkpoint `ck` (the folder of step `step`).
@@ -166,9 +178,9 @@ pub(crate) fn write_checkpoint(
     std::fs::rename(tmp, done).map_err(io_err(done))
 }
 
-/// Remove all but the last `keep_checkpoints` checkpoints (failures are warnings: the new checkpoint
+/// Remove all but the last `keep` checkpoints (failures are warnings in `notices`: the new checkpoint
 /// is complete either way).
-pub(crate) fn prune_checkpoints(run_dir: &Path, keep: usize) {
+pub(crate) fn prune_checkpoints(run_dir: &Path, keep: usize, notices: &mut Vec<Notice>) {
     let Ok(all) = list_checkpoints(run_dir) else {
         return;
     };
@@ -177,18 +189,19 @@ pub(crate) fn prune_checkpoints(run_dir: &Path, keep: usize) {
         let trash = p.with_file_name(format!(".old-step-{step:07}-{}", std::process::id()));
         let r = std::fs::rename(p, &trash).and_then(|_| std::fs::remove_dir_all(&trash));
         if let Err(e) = r {
-            eprintln!(
-                "warning: cannot remove the old checkpoint {}: {e}",
+            notices.push(Notice::Warning(format!(
+                "cannot remove the old checkpoint {}: {e}",
                 p.display()
-            );
+            )));
         }
     }
 }
 
 /// Remove what a killed process left behind: temporary checkpoint folders (`.tmp-step-*`),
-/// half-removed old ones (`.old-step-*`) and temporary files of atomic writes.
-pub(crate) fn remove_leftovers(run_dir: &Path) {
-    let remove = |dir: &Path, is_leftover: &dyn Fn(&str) -> bool| {
+/// half-removed old ones (`.old-step-*`) and temporary files of atomic writes; each one said in
+/// `notices`.
+pub(crate) fn remove_leftovers(run_dir: &Path, notices: &mut Vec<Notice>) {
+    let mut remove = |dir: &Path, is_leftover: &dyn Fn(&str) -> bool| {
         let Ok(entries) = std::fs::read_dir(dir) else {
             return;
         };
@@ -203,10 +216,10 @@ pub(crate) fn remove_leftovers(run_dir: &Path) {
             } else {
                 std::fs::remove_file(&p)
             };
-            match r {
-                Ok(()) => eprintln!("removed {} (left by an interrupted run)", p.display()),
-                Err(err) => eprintln!("warning: cannot remove {}: {err}", p.display()),
-            }
+            notices.push(match r {
+                Ok(()) => Notice::Removed(p),
+                Err(err) => Notice::Warning(format!("cannot remove {}: {err}", p.display())),
+            });
         }
     };
     remove(&run_dir.join("checkpoints"), &|n| {

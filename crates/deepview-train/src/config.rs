@@ -3,6 +3,7 @@
 use crate::clip;
 use crate::data::SampleConfig;
 use crate::error::TrainError;
+use crate::load::DataSpec;
 use crate::loss::LossKind;
 use deepview_net::config::DeepViewConfig;
 use serde::{Deserialize, Serialize};
@@ -14,8 +15,9 @@ pub const PAPER_LEARNING_RATE: f64 = 1.5e-4;
 /// Everything about how to train (saved in `config.json` beside the model config).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
-    /// Dataset folders (`synthetic:two-planes` for the built-in analytic scene).
-    pub data: Vec<PathBuf>,
+    /// The datasets: folders (`synthetic:two-planes` for the built-in analytic scene) with their load
+    /// options (bare paths in older `config.json` files, see [`DataSpec`]).
+    pub data: Vec<DataSpec>,
     /// Total number of steps of the run.
     pub steps: u64,
     /// Tuples per step (over all devices).

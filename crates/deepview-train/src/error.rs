@@ -25,15 +25,19 @@ pub enum TrainError {
     /// The ranks of a distributed run disagree (weights out of sync, no common checkpoint).
     #[error("rank {rank}: {message}")]
     Rank { rank: usize, message: String },
+    /// A new run in a folder that already holds checkpoints (resume it instead, or use another
+    /// folder).
+    #[error("{path}: this run already has checkpoints")]
+    HasCheckpoints { path: PathBuf },
     /// A write of the run folder failed (disk full, read-only or removed folder): the run stops, its
     /// last complete checkpoint is untouched.
-    #[error("step {step}: cannot write {what}: {source}; {kept}")]
+    #[error("step {step}: cannot write {what}: {source}; {}", kept_text(.kept))]
     Write {
         step: u64,
         what: String,
         source: Box<TrainError>,
-        /// Which checkpoint a `--resume` continues from.
-        kept: String,
+        /// The checkpoint a resumed run continues from (step and folder), if any.
+        kept: Option<(u64, PathBuf)>,
     },
 }
 
@@ -48,5 +52,15 @@ pub(crate) fn run_err(path: &Path, message: impl std::fmt::Display) -> TrainErro
     TrainError::Run {
         path: path.to_path_buf(),
         message: message.to_string(),
+    }
+}
+
+fn kept_text(kept: &Option<(u64, PathBuf)>) -> String {
+    match kept {
+        Some((step, p)) => format!(
+            "the last complete checkpoint {} (step {step}) is kept",
+            p.display()
+        ),
+        None => "the run has no complete checkpoint yet".into(),
     }
 }

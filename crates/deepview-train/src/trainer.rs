@@ -11,6 +11,7 @@ use crate::data::{Example, Rng, TrainData};
 use crate::device::parse_device;
 use crate::dist::{self, Collective};
 use crate::error::{TrainError, io_err, run_err};
+use crate::events::{Notice, TrainEvent};
 use crate::example::{loss_and_grads_full, parameter_values};
 use crate::files::{lock_run, sync_dir, write_atomic};
 use crate::loss::{Loss, LossKind};
@@ -81,6 +82,8 @@ pub struct Trainer {
     /// (agreed at the step's reduction, so that every rank stops after the same step).
     stop_requested: bool,
     stop_agreed: bool,
+    /// What the run said in passing and nobody has taken yet ([`Trainer::take_notices`]).
+    notices: Vec<Notice>,
 }
 
 fn make_losses(kind: LossKind, devices: &[Device]) -> Result<Vec<Loss>, TrainError> {
@@ -120,10 +123,9 @@ impl Trainer {
         let mut lock = None;
         if writer {
             if !list_checkpoints(run_dir)?.is_empty() {
-                return Err(run_err(
-                    run_dir,
-                    "this run already has checkpoints: pass --resume to continue it, or choose another --name",
-                ));
+                return Err(TrainError::HasCheckpoints {
+                    path: run_dir.to_path_buf(),
+                });
             }
             std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
             lock = Some(lock_run(run_dir)?);
@@ -183,6 +185,7 @@ impl Trainer {
             comm,
             stop_requested: false,
             stop_agreed: false,
+            notices: Vec::new(),
         })
     }
 
@@ -221,10 +224,11 @@ impl Trainer {
         let rank = comm.as_ref().map_or(0, |c| c.rank());
         let devices = Self::devices(&config.train.devices)?;
         let mut lock = None;
+        let mut notices = Vec::new();
         let loaded = if rank == 0 {
             let found = lock_run(run_dir).and_then(|l| {
                 lock = Some(l);
-                latest_loadable(run_dir, &config.model, &devices[0])
+                latest_loadable(run_dir, &config.model, &devices[0], &mut notices)
             });
             if let Some(c) = &comm {
                 let mut step = [found.as_ref().map_or(u64::MAX, |f| f.0)];
@@ -251,7 +255,7 @@ impl Trainer {
         };
         let (step, (model, optim, state)) = loaded;
         let losses = make_losses(config.train.loss, &devices)?;
-        let trainer = Self {
+        let mut trainer = Self {
             run_dir: run_dir.to_path_buf(),
             config,
             model,
@@ -268,10 +272,11 @@ impl Trainer {
             comm,
             stop_requested: false,
             stop_agreed: false,
+            notices,
         };
         trainer.check_replicas()?;
         if trainer.is_writer() {
-            remove_leftovers(&trainer.run_dir);
+            remove_leftovers(&trainer.run_dir, &mut trainer.notices);
             truncate_metrics(&trainer.run_dir, trainer.step)?;
         }
         Ok(trainer)
@@ -286,6 +291,13 @@ impl Trainer {
 
     pub fn run_dir(&self) -> &Path {
         &self.run_dir
+    }
+
+    /// What the run said in passing since the last call (on resume: checkpoints skipped because they
+    /// do not load, leftovers of an interrupted run removed; after a checkpoint: old ones that cannot
+    /// be removed). [`Trainer::run`] reports them as [`TrainEvent::Notice`] as they come.
+    pub fn take_notices(&mut self) -> Vec<Notice> {
+        std::mem::take(&mut self.notices)
     }
 
     /// Whether this process writes the run folder and prints (rank 0, or a run without ranks).
@@ -476,7 +488,7 @@ impl Trainer {
     ///
     /// With ranks every rank calls it (the ranks first check that their weights agree); only rank 0
     /// writes.
-    pub fn save_checkpoint(&self) -> Result<PathBuf, TrainError> {
+    pub fn save_checkpoint(&mut self) -> Result<PathBuf, TrainError> {
         let dir = self.run_dir.join("checkpoints");
         let done = dir.join(format!("step-{:07}", self.step));
         self.check_replicas()?;
@@ -486,7 +498,11 @@ impl Trainer {
         if checkpoint_is_complete(&done) {
             // Already written (a run resumed at a checkpoint it had saved but maybe not pruned after,
             // when it was killed in between): prune now.
-            prune_checkpoints(&self.run_dir, self.config.train.keep_checkpoints);
+            prune_checkpoints(
+                &self.run_dir,
+                self.config.train.keep_checkpoints,
+                &mut self.notices,
+            );
             return Ok(done);
         }
         let tmp = dir.join(format!(".tmp-step-{:07}-{}", self.step, std::process::id()));
@@ -500,23 +516,19 @@ impl Trainer {
             return Err(self.write_error(format!("the checkpoint {}", done.display()), e));
         }
         sync_dir(&dir);
-        prune_checkpoints(&self.run_dir, self.config.train.keep_checkpoints);
+        prune_checkpoints(
+            &self.run_dir,
+            self.config.train.keep_checkpoints,
+            &mut self.notices,
+        );
         Ok(done)
     }
 
     /// A [`TrainError::Write`] for a failed write of `what` at the current step.
     fn write_error(&self, what: String, source: TrainError) -> TrainError {
-        let kept = match list_checkpoints(&self.run_dir)
+        let kept = list_checkpoints(&self.run_dir)
             .ok()
-            .and_then(|mut v| v.pop())
-        {
-            Some((step, p)) => format!(
-                "the last complete checkpoint {} (step {step}) is kept: free space or fix the folder, then \
-                 --resume",
-                p.display()
-            ),
-            None => "the run has no complete checkpoint yet".into(),
-        };
+            .and_then(|mut v| v.pop());
         TrainError::Write {
             step: self.step,
             what,
@@ -525,30 +537,22 @@ impl Trainer {
         }
     }
 
-    /// Train until `config.train.steps` or until `stop` is set (Ctrl-C), checkpointing every
-    /// `checkpoint_every` steps and at the end. Returns the reports of this session's steps.
+    /// Train until `config.train.steps` or until `stop` is set (the program sets it on Ctrl-C or
+    /// SIGTERM), checkpointing every `checkpoint_every` steps and at the end; `on_event` hears of each
+    /// step, checkpoint and notice ([`TrainEvent`]). Returns the reports of this session's steps.
     pub fn run(
         &mut self,
         stop: &AtomicBool,
-        progress: bool,
+        on_event: &mut dyn FnMut(TrainEvent<'_>),
     ) -> Result<Vec<StepReport>, TrainError> {
         let total = self.config.train.steps;
         let writer = self.is_writer();
-        let pb = if progress && writer {
-            let pb = indicatif::ProgressBar::new(total);
-            pb.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "{bar:30.cyan/blue} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
-                )
-                .expect("valid template"),
-            );
-            pb.set_position(self.step);
-            pb
-        } else {
-            indicatif::ProgressBar::hidden()
-        };
+        self.tell_notices(on_event);
+        on_event(TrainEvent::Start {
+            step: self.step,
+            total,
+        });
         let mut reports = Vec::new();
-        let mut ema: Option<f64> = None;
         // With ranks, a stop (Ctrl-C on any rank) is agreed at the next step's reduction so that all
         // ranks stop after the same step.
         let stopping = |t: &Self| match t.comm {
@@ -562,30 +566,38 @@ impl Trainer {
                 append_metrics(&self.run_dir, &r, self.steps_per_second(), self.wall_time())
                     .map_err(|e| self.write_error("metrics.jsonl".into(), e))?;
             }
-            if let Some(msg) = &r.skipped {
-                if !writer {
-                } else if progress {
-                    pb.println(format!("warning: {msg}"));
-                } else {
-                    eprintln!("warning: {msg}");
-                }
-            } else {
-                ema = Some(ema.map_or(r.loss, |e| 0.9 * e + 0.1 * r.loss));
-            }
-            pb.set_position(self.step);
-            pb.set_message(format!(
-                "loss {:.4} (avg {:.4}) {:.2} steps/s",
-                r.loss,
-                ema.unwrap_or(f64::NAN),
-                self.steps_per_second()
-            ));
+            on_event(TrainEvent::Step {
+                report: &r,
+                steps_per_s: self.steps_per_second(),
+            });
             if self.step.is_multiple_of(self.config.train.checkpoint_every) {
-                self.save_checkpoint()?;
+                self.checkpoint_and_tell(on_event)?;
             }
             reports.push(r);
         }
-        self.save_checkpoint()?;
-        pb.finish_and_clear();
+        self.checkpoint_and_tell(on_event)?;
         Ok(reports)
+    }
+
+    /// [`Trainer::save_checkpoint`], then tell `on_event` (the checkpoint, and the notices).
+    fn checkpoint_and_tell(
+        &mut self,
+        on_event: &mut dyn FnMut(TrainEvent<'_>),
+    ) -> Result<(), TrainError> {
+        let dir = self.save_checkpoint()?;
+        if self.is_writer() {
+            on_event(TrainEvent::Checkpoint {
+                step: self.step,
+                dir: &dir,
+            });
+        }
+        self.tell_notices(on_event);
+        Ok(())
+    }
+
+    fn tell_notices(&mut self, on_event: &mut dyn FnMut(TrainEvent<'_>)) {
+        for n in self.take_notices() {
+            on_event(TrainEvent::Notice(&n));
+        }
     }
 }

@@ -4,9 +4,12 @@ use super::args;
 use super::safety::{Input, Kind, check_output, parse_component};
 use super::signals;
 use anyhow::{Context, bail};
+use deepview_data::LoadOptions;
 use deepview_net::config::DeepViewConfig;
 use deepview_train::loss::LossKind;
-use deepview_train::{Collective, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data};
+use deepview_train::{
+    Collective, DataSpec, RunConfig, TrainConfig, TrainEvent, Trainer, list_checkpoints, load_data,
+};
 use std::path::PathBuf;
 use std::rc::Rc;
 
@@ -27,13 +30,15 @@ mod mpi;
     deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
     deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
-    --steps, --devices, --data, --vgg-weights and the scene options may be given: the others are the run's own.\n\n\
+    --steps, --devices, --data, --keep-checkpoints and --vgg-weights may be given: the others are the run's own, \
+    and its datasets load with the scene options they were first loaded with (kept in its config.json).\n\n\
     The VGG loss (the default) reads the VGG-16 weights from --vgg-weights FILE or the environment variable \
     DEEPVIEW_VGG_WEIGHTS."
 )]
 pub struct Args {
     /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
-    /// built-in analytic scene. With --resume, defaults to the run's own list.
+    /// built-in analytic scene. With --resume, defaults to the run's own list (each with the scene options
+    /// it was loaded with).
     #[arg(long = "data", value_name = "DIR", value_parser = parse_data)]
     pub data: Vec<PathBuf>,
     /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view (default: cpu).
@@ -286,8 +291,7 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
     if !fixed.is_empty() {
         bail!(
             "--resume keeps the run's own {}: {} differ from the run's config.json and cannot change on \
-             resume (only --steps, --devices, --data, --keep-checkpoints and the scene options can); start a \
-             new --name instead",
+             resume (only --steps, --devices, --data and --keep-checkpoints can); start a new --name instead",
             if fixed.len() == 1 {
                 "setting"
             } else {
@@ -297,6 +301,73 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
         );
     }
     Ok(())
+}
+
+/// `--downscale` 0 and 1 both mean full size.
+fn normalised(o: &LoadOptions) -> LoadOptions {
+    LoadOptions {
+        downscale: o.downscale.max(1),
+        ..o.clone()
+    }
+}
+
+/// The scene flags given on the command line (those that differ from their defaults), with their values
+/// in `opts` and in `other`.
+fn scene_flags_differing(given: &LoadOptions, other: &LoadOptions) -> Vec<&'static str> {
+    let (g, o) = (normalised(given), normalised(other));
+    [
+        (g.format.is_some() && g.format != o.format, "--format"),
+        (g.images.is_some() && g.images != o.images, "--images"),
+        (g.rig != 0 && g.rig != o.rig, "--rig"),
+        (g.near.is_some() && g.near != o.near, "--near"),
+        (g.far.is_some() && g.far != o.far, "--far"),
+        (
+            g.downscale != 1 && g.downscale != o.downscale,
+            "--downscale",
+        ),
+    ]
+    .iter()
+    .filter(|f| f.0)
+    .map(|f| f.1)
+    .collect()
+}
+
+/// The datasets of a run resumed (or started over) from its config.json: `--data` if given, else the
+/// run's own; each loads with the options the run keeps for it (a scene flag given now must agree with
+/// them), or, for runs whose config.json has bare paths (older ones) and data the run did not have,
+/// with the scene flags given now.
+fn resumed_data(args: &Args, cfg: &RunConfig, opts: &LoadOptions) -> anyhow::Result<Vec<DataSpec>> {
+    let paths: Vec<PathBuf> = if args.data.is_empty() {
+        cfg.train.data.iter().map(|d| d.path.clone()).collect()
+    } else {
+        args.data.clone()
+    };
+    paths
+        .into_iter()
+        .map(|path| {
+            let kept = cfg
+                .train
+                .data
+                .iter()
+                .find(|d| d.path == path)
+                .and_then(|d| d.load.clone());
+            match kept {
+                Some(load) => {
+                    let differ = scene_flags_differing(opts, &load);
+                    if !differ.is_empty() {
+                        bail!(
+                            "--resume loads {} as the run first did (its config.json): {} differ and cannot \
+                             change on resume; start a new --name instead",
+                            path.display(),
+                            differ.join(", ")
+                        );
+                    }
+                    Ok(DataSpec::new(path, load))
+                }
+                None => Ok(DataSpec::new(path, opts.clone())),
+            }
+        })
+        .collect()
 }
 
 /// Every scene must have more training views than the largest input count (the target is one of them).
@@ -417,12 +488,8 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         let cfg: RunConfig = serde_json::from_str(&text)
             .with_context(|| format!("invalid {}", cfg_path.display()))?;
         check_fixed_on_resume(&args, &cfg)?;
-        let paths = if args.data.is_empty() {
-            cfg.train.data.clone()
-        } else {
-            args.data.clone()
-        };
-        let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
+        let specs = resumed_data(&args, &cfg, &opts)?;
+        let data = load_data(&specs, &opts, cfg.train.holdout_every)?;
         check_views(&data, cfg.train.sample.views_max)?;
         args.vgg.check(cfg.train.loss)?;
         let mut t = Trainer::resume_on(
@@ -436,6 +503,9 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             t.config.train.keep_checkpoints = k;
         }
         if writer {
+            for n in t.take_notices() {
+                eprintln!("{n}");
+            }
             eprintln!(
                 "resuming {} at step {} of {}{}",
                 run_dir.display(),
@@ -466,9 +536,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         if let Some(k) = args.keep_checkpoints {
             cfg.train.keep_checkpoints = k;
         }
-        if !args.data.is_empty() {
-            cfg.train.data = args.data.clone();
-        }
+        cfg.train.data = resumed_data(&args, &cfg, &opts)?;
         if let Some(d) = device_list(&args.devices) {
             cfg.train.devices = d;
         }
@@ -492,7 +560,11 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         };
         let mut train = TrainConfig::defaults(&model);
         train.init = args.init.clone();
-        train.data = args.data.clone();
+        train.data = args
+            .data
+            .iter()
+            .map(|p| DataSpec::new(p, opts.clone()))
+            .collect();
         train.steps = args.steps.unwrap_or(train.steps);
         train.batch = args.batch.unwrap_or(train.batch);
         if let Some(c) = args.crop {
@@ -544,7 +616,10 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         Trainer::create_on(&run_dir, RunConfig { model, train }, data, comm.clone())?
     };
     let start_step = trainer.step;
-    let reports = trainer.run(&stop, !args.quiet)?;
+    let mut progress = Progress::new(writer && !args.quiet, writer);
+    let result = trainer.run(&stop, &mut |e| progress.event(e));
+    progress.finish();
+    let reports = result?;
     let last: Vec<f64> = reports
         .iter()
         .rev()
@@ -576,6 +651,86 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         return Err(signals::Interrupted(signals::received().unwrap_or(signals::SIGINT)).into());
     }
     Ok(())
+}
+
+/// Shows the training loop's events on stderr: a progress bar with the loss and its running mean (unless
+/// `--quiet`), skipped steps and notices; nothing on ranks other than the writer.
+struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    writer: bool,
+    /// Exponential moving average of the loss of the steps not skipped.
+    ema: Option<f64>,
+}
+
+impl Progress {
+    fn new(bar: bool, writer: bool) -> Self {
+        let bar = bar.then(|| {
+            let pb = indicatif::ProgressBar::new(0);
+            pb.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{bar:30.cyan/blue} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
+                )
+                .expect("valid template"),
+            );
+            pb
+        });
+        Self {
+            bar,
+            writer,
+            ema: None,
+        }
+    }
+
+    fn say(&self, line: String) {
+        if !self.writer {
+            return;
+        }
+        match &self.bar {
+            Some(pb) => pb.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+
+    fn event(&mut self, e: TrainEvent<'_>) {
+        match e {
+            TrainEvent::Start { step, total } => {
+                if let Some(pb) = &self.bar {
+                    pb.set_length(total);
+                    pb.set_position(step);
+                }
+            }
+            TrainEvent::Step {
+                report,
+                steps_per_s,
+            } => {
+                match &report.skipped {
+                    Some(why) => self.say(format!("warning: {why}")),
+                    None => {
+                        self.ema = Some(
+                            self.ema
+                                .map_or(report.loss, |e| 0.9 * e + 0.1 * report.loss),
+                        )
+                    }
+                }
+                if let Some(pb) = &self.bar {
+                    pb.set_position(report.step);
+                    pb.set_message(format!(
+                        "loss {:.4} (avg {:.4}) {steps_per_s:.2} steps/s",
+                        report.loss,
+                        self.ema.unwrap_or(f64::NAN),
+                    ));
+                }
+            }
+            TrainEvent::Checkpoint { .. } => {}
+            TrainEvent::Notice(n) => self.say(n.to_string()),
+        }
+    }
+
+    fn finish(&mut self) {
+        if let Some(pb) = self.bar.take() {
+            pb.finish_and_clear();
+        }
+    }
 }
 
 /// ` on each of N MPI ranks ...` for a run across processes.

@@ -9,3 +9,4 @@ mod demo;
 mod help;
 mod psv;
 mod render;
+mod train;
