@@ -8,7 +8,7 @@ use deepview_data::LoadOptions;
 use deepview_net::config::DeepViewConfig;
 use deepview_train::loss::LossKind;
 use deepview_train::{
-    Collective, DataSpec, RunConfig, TrainConfig, TrainEvent, Trainer, list_checkpoints, load_data,
+    Collective, DataSpec, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data,
 };
 use std::path::PathBuf;
 use std::rc::Rc;
@@ -16,6 +16,9 @@ use std::rc::Rc;
 #[cfg(feature = "mpi")]
 #[path = "train_mpi.rs"]
 mod mpi;
+#[path = "train_progress.rs"]
+mod progress;
+use progress::Progress;
 
 /// Train the network (Adam, lr 1.5e-4, global gradient clipping at 8, VGG feature loss on 32x32 target
 /// crops, as in the paper). A run lives in `<runs>/<name>/`: config.json, metrics.jsonl and
@@ -651,86 +654,6 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         return Err(signals::Interrupted(signals::received().unwrap_or(signals::SIGINT)).into());
     }
     Ok(())
-}
-
-/// Shows the training loop's events on stderr: a progress bar with the loss and its running mean (unless
-/// `--quiet`), skipped steps and notices; nothing on ranks other than the writer.
-struct Progress {
-    bar: Option<indicatif::ProgressBar>,
-    writer: bool,
-    /// Exponential moving average of the loss of the steps not skipped.
-    ema: Option<f64>,
-}
-
-impl Progress {
-    fn new(bar: bool, writer: bool) -> Self {
-        let bar = bar.then(|| {
-            let pb = indicatif::ProgressBar::new(0);
-            pb.set_style(
-                indicatif::ProgressStyle::with_template(
-                    "{bar:30.cyan/blue} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
-                )
-                .expect("valid template"),
-            );
-            pb
-        });
-        Self {
-            bar,
-            writer,
-            ema: None,
-        }
-    }
-
-    fn say(&self, line: String) {
-        if !self.writer {
-            return;
-        }
-        match &self.bar {
-            Some(pb) => pb.println(line),
-            None => eprintln!("{line}"),
-        }
-    }
-
-    fn event(&mut self, e: TrainEvent<'_>) {
-        match e {
-            TrainEvent::Start { step, total } => {
-                if let Some(pb) = &self.bar {
-                    pb.set_length(total);
-                    pb.set_position(step);
-                }
-            }
-            TrainEvent::Step {
-                report,
-                steps_per_s,
-            } => {
-                match &report.skipped {
-                    Some(why) => self.say(format!("warning: {why}")),
-                    None => {
-                        self.ema = Some(
-                            self.ema
-                                .map_or(report.loss, |e| 0.9 * e + 0.1 * report.loss),
-                        )
-                    }
-                }
-                if let Some(pb) = &self.bar {
-                    pb.set_position(report.step);
-                    pb.set_message(format!(
-                        "loss {:.4} (avg {:.4}) {steps_per_s:.2} steps/s",
-                        report.loss,
-                        self.ema.unwrap_or(f64::NAN),
-                    ));
-                }
-            }
-            TrainEvent::Checkpoint { .. } => {}
-            TrainEvent::Notice(n) => self.say(n.to_string()),
-        }
-    }
-
-    fn finish(&mut self) {
-        if let Some(pb) = self.bar.take() {
-            pb.finish_and_clear();
-        }
-    }
 }
 
 /// ` on each of N MPI ranks ...` for a run across processes.
