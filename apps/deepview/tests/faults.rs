@@ -6,17 +6,12 @@
 //! `cargo test --release -p deepview --test faults` (about 40 s). The disk tests mount small tmpfs
 //! folders when run as root (CI); otherwise they take away write permissions instead.
 
+mod common;
+
+use common::{bin, metric_steps, s, succeeds};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant, SystemTime};
-
-fn bin() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_deepview"))
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 /// A tiny training run: the cpu preset on 8x8 crops with 4 planes, L1 loss, a checkpoint every 2 steps
 /// (about 20 steps per second).
@@ -55,15 +50,6 @@ fn train_args(runs: &Path, name: &str, steps: u64) -> Vec<String> {
 
 fn run(args: &[String]) -> Output {
     bin().args(args).output().expect("binary runs")
-}
-
-fn succeeds(out: &Output) {
-    assert!(
-        out.status.success(),
-        "exit {:?}: {}",
-        out.status,
-        String::from_utf8_lossy(&out.stderr)
-    );
 }
 
 fn spawn(args: &[String]) -> Child {
@@ -122,17 +108,6 @@ fn kill_after(args: &[String], delay: Duration) -> bool {
     child.kill().ok(); // SIGKILL
     child.wait().unwrap();
     killed
-}
-
-fn metric_steps(run: &Path) -> Vec<u64> {
-    let text = std::fs::read_to_string(run.join("metrics.jsonl")).unwrap();
-    text.lines()
-        .map(|l| {
-            let v: serde_json::Value =
-                serde_json::from_str(l).unwrap_or_else(|e| panic!("bad metrics line {l:?}: {e}"));
-            v["step"].as_u64().unwrap()
-        })
-        .collect()
 }
 
 fn folder_names(dir: &Path) -> Vec<String> {

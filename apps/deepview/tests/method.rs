@@ -2,64 +2,10 @@
 //! M` scores from the same inputs (same plane rule, budget and input views), for the classical `psv-mean`
 //! and the learned `deepview`; `baseline` and `optimize` are its aliases.
 
+mod common;
+
+use common::{deepview, files, s, succeeds, synth_grid as grid};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn deepview(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deepview"))
-        .args(args)
-        .output()
-        .expect("binary runs")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-fn succeeds(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "exit {:?}: {}",
-        out.status.code(),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
-
-/// A 3 x 3 light-field grid of 96 x 64 views with its ground truth.
-fn grid(dir: &Path) -> PathBuf {
-    let out = dir.join("grid");
-    succeeds(&deepview(&[
-        "synth",
-        "--out",
-        s(&out),
-        "--grid",
-        "3",
-        "--width",
-        "96",
-        "--height",
-        "64",
-        "--planes",
-        "8",
-    ]));
-    out
-}
-
-/// The files of an MPI folder, by name.
-fn files(dir: &Path) -> Vec<(String, Vec<u8>)> {
-    let mut v: Vec<_> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| {
-            let p = e.unwrap().path();
-            (
-                p.file_name().unwrap().to_string_lossy().into_owned(),
-                std::fs::read(&p).unwrap(),
-            )
-        })
-        .collect();
-    v.sort();
-    v
-}
 
 /// `infer --method M --inputs 0,2,6,8` and `eval --method M --targets 4 --inputs 0,2,6,8 --save-mpi` write the
 /// same MPI folder, byte for byte (layers and mpi.json with its plane rule).

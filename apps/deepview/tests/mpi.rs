@@ -6,15 +6,14 @@
 //! `--vgg-weights` from the data folder, `DEEPVIEW_DATA`).
 #![cfg(feature = "mpi")]
 
+mod common;
+
+use common::{metric_steps, s, succeeds_err};
 use std::path::Path;
 use std::process::{Command, Output, Stdio};
 use std::time::{Duration, Instant};
 
 const BIN: &str = env!("CARGO_BIN_EXE_deepview");
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
 
 fn mpirun(np: usize, args: &[&str]) -> Command {
     let mut c = Command::new("mpirun");
@@ -45,12 +44,6 @@ fn output_within(mut c: Command, limit: Duration) -> Output {
         std::thread::sleep(Duration::from_millis(20));
     }
     child.wait_with_output().unwrap()
-}
-
-fn succeeds(out: &Output) -> String {
-    let err = String::from_utf8_lossy(&out.stderr).to_string();
-    assert!(out.status.success(), "exit {:?}: {err}", out.status);
-    err
 }
 
 /// name -> f32 values of a safetensors file.
@@ -86,7 +79,7 @@ fn exported(run: &Path) -> std::collections::BTreeMap<String, Vec<f32>> {
         .args(["export-weights", "--checkpoint", s(run), "--out", s(&out)])
         .output()
         .unwrap();
-    succeeds(&o);
+    succeeds_err(&o);
     weights(&out.join("model.safetensors"))
 }
 
@@ -98,18 +91,6 @@ fn max_abs_diff(
     a.iter()
         .flat_map(|(k, va)| va.iter().zip(&b[k]).map(|(x, y)| (x - y).abs()))
         .fold(0.0, f32::max)
-}
-
-fn metric_steps(run: &Path) -> Vec<u64> {
-    std::fs::read_to_string(run.join("metrics.jsonl"))
-        .unwrap()
-        .lines()
-        .map(|l| {
-            serde_json::from_str::<serde_json::Value>(l).unwrap()["step"]
-                .as_u64()
-                .unwrap()
-        })
-        .collect()
 }
 
 /// The judged commands: `--steps 3 --batch B --crop 16 --planes 8 --seed 5` (VGG loss) on 2 and 3
@@ -154,13 +135,13 @@ fn ranks_end_with_the_weights_of_one_process() {
             .args(common(batch, &one))
             .output()
             .unwrap();
-        succeeds(&o);
+        succeeds_err(&o);
         let reference = exported(&runs.join(&one));
         for &np in nps {
             let name = format!("np{np}-b{batch}");
             let args = common(batch, &name);
             let args: Vec<&str> = args.iter().map(|a| a.as_str()).collect();
-            let err = succeeds(&output_within(mpirun(np, &args), Duration::from_secs(120)));
+            let err = succeeds_err(&output_within(mpirun(np, &args), Duration::from_secs(120)));
             assert!(err.contains(&format!("on each of {np} MPI ranks")), "{err}");
             let run = runs.join(&name);
             let max = max_abs_diff(&reference, &exported(&run));
@@ -271,7 +252,7 @@ fn a_killed_rank_ends_the_job_and_the_run_resumes_on_all_ranks() {
     let mut resume = small(tmp.path(), "k", "40");
     resume.push("--resume".into());
     let resume: Vec<&str> = resume.iter().map(|a| a.as_str()).collect();
-    let err = succeeds(&output_within(mpirun(2, &resume), Duration::from_secs(120)));
+    let err = succeeds_err(&output_within(mpirun(2, &resume), Duration::from_secs(120)));
     assert!(err.contains("on 2 MPI ranks"), "{err}");
     assert_eq!(metric_steps(&run), (1..=40).collect::<Vec<_>>());
     exported(&run);

@@ -1,17 +1,13 @@
 //! `deepview process` on real photos (fern's `images_8` without their poses), run with Debian's COLMAP.
 //! COLMAP runs once for fern (shared by the tests through a `OnceLock`), and one run at a time.
 
+mod common;
+
+use common::{deepview, s};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
-
-fn deepview(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deepview"))
-        .args(args)
-        .output()
-        .expect("binary runs")
-}
 
 /// Run `deepview CMD --data DIR ARGS` (the new spelling), else with the folder after `old_flag`
 /// (`""` = positional), for branches where a command does not take `--data` yet.
@@ -27,10 +23,6 @@ fn with_data(cmd: &str, dir: &Path, old_flag: &str, args: &[&str]) -> Output {
         vec![cmd, old_flag, d]
     };
     deepview(&[&old[..], args].concat())
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 static COLMAP: Mutex<()> = Mutex::new(());

@@ -2,70 +2,16 @@
 //! commands (SIGTERM), sizes beyond the memory budget, truncated images, arguments refused where parsed.
 //! Every failure must be exit 2 (130 / 143 for signals), no panic, no abort, with the file or option named.
 
+mod common;
+
+use common::{bin, copy_dir, deepview, deepview_in, fails_with as refused, s, succeeds as ok};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output, Stdio};
+use std::process::Stdio;
 use std::time::{Duration, Instant};
-
-fn bin() -> Command {
-    let mut c = Command::new(env!("CARGO_BIN_EXE_deepview"));
-    c.env("DEEPVIEW_DATA", deepview_data::data_dir());
-    c
-}
-
-fn deepview(args: &[&str]) -> Output {
-    bin().args(args).output().expect("binary runs")
-}
-
-fn deepview_in(dir: &Path, args: &[&str]) -> Output {
-    bin()
-        .current_dir(dir)
-        .args(args)
-        .output()
-        .expect("binary runs")
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
-/// Exit code 2, no panic or abort, every needle in stderr.
-fn refused(out: &Output, needles: &[&str]) {
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert_eq!(out.status.code(), Some(2), "stderr: {err}");
-    for bad in ["panicked", "memory allocation", "RUST_BACKTRACE"] {
-        assert!(!err.contains(bad), "{bad}: {err}");
-    }
-    for n in needles {
-        assert!(err.contains(n), "{n:?} not in: {err}");
-    }
-}
-
-fn ok(out: &Output) -> String {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 /// A small synthetic light-field scene (3 x 3 views of 64 x 48, 8 planes) with its ground-truth MPI.
 fn grid(dir: &Path, name: &str) -> PathBuf {
-    let out = dir.join(name);
-    ok(&deepview(&[
-        "synth",
-        "--out",
-        s(&out),
-        "--grid",
-        "3",
-        "--width",
-        "64",
-        "--height",
-        "48",
-        "--planes",
-        "8",
-    ]));
-    out
+    common::grid(dir, name, 64, 48)
 }
 
 /// Every file under `dir` with its bytes (for "unchanged" checks).
@@ -808,19 +754,6 @@ fn truncated_and_corrupt_images_are_refused_with_their_name() {
         &["layer_003.png"],
     );
     assert!(!tmp.path().join("e").exists());
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for e in std::fs::read_dir(from).unwrap() {
-        let e = e.unwrap();
-        let p = e.path();
-        if p.is_dir() {
-            copy_dir(&p, &to.join(e.file_name()));
-        } else {
-            std::fs::copy(&p, to.join(e.file_name())).unwrap();
-        }
-    }
 }
 
 // 5. Arguments validated where parsed.

@@ -4,15 +4,11 @@
 //! `poses_bounds.npy` (no project conversion code): LLFF's [down, right, back] rotation columns become
 //! OpenGL's [right, up, back] = [right, -down, back].
 
-use std::path::Path;
-use std::process::{Command, Output};
+mod common;
 
-fn deepview(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_deepview"))
-        .args(args)
-        .output()
-        .expect("binary runs")
-}
+use common::deepview;
+use std::path::Path;
+use std::process::Output;
 
 /// `deepview info --data DIR ARGS` (the new spelling), else `deepview info DIR ARGS` (positional).
 fn info(dir: &Path, args: &[&str]) -> Output {

@@ -1,9 +1,12 @@
 //! How to load a scene: [`LoadOptions`], and [`SceneArgs`], the command-line flags that build them.
 
 use crate::SceneFormat;
+use serde::{Deserialize, Serialize};
 
-/// How to load a scene; [`SceneArgs`] builds this from command-line flags.
-#[derive(Clone, Debug, Default, PartialEq)]
+/// How to load a scene; [`SceneArgs`] builds this from command-line flags. Serialised with every field
+/// (a training run keeps them in its `config.json`); missing fields read as their defaults.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct LoadOptions {
     /// Force a format instead of detecting it from the folder contents.
     pub format: Option<SceneFormat>,

@@ -26,8 +26,8 @@ pub const CPU_PRIOR_TEMPERATURE: f64 = 0.0005;
 ///
 /// Memory: the paper discards activations inside each per-iteration net and recomputes them on the
 /// backward pass. burn's `.gradient_checkpointing()` does not drop conv activations, so `deepview train
-/// --recompute` does it by hand (`train/recompute.rs`: segment-wise VJPs, one net's activations live at
-/// a time; gradients equal the full backward).
+/// --recompute` does it by hand (`deepview-train/src/recompute.rs`: segment-wise VJPs, one net's
+/// activations live at a time; gradients equal the full backward).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct DeepViewConfig {
     /// Preset name (informational).

@@ -1,6 +1,7 @@
 //! The learned-gradient-descent network of DeepView (Flynn et al., CVPR 2019) on burn: the differentiable
 //! forward model ([`forward`]), the network and its presets ([`network`], [`config`]), weights I/O
-//! ([`weights`]) and tiled inference ([`infer`]); training lives in [`train`], [`vgg`] and [`loss`].
+//! ([`weights`]), tiled inference ([`infer`]), the CPU kernels ([`kernels`]) and the whole-image CPU
+//! engine ([`engine`]). Training (the loss, VGG, the trainer) is the `deepview-train` crate.
 
 pub mod config;
 pub mod engine;
@@ -9,10 +10,6 @@ pub mod infer;
 pub mod kernels;
 pub mod network;
 pub mod weights;
-
-pub mod loss;
-pub mod train;
-pub mod vgg;
 
 /// burn, re-exported so dependants use the same version (e.g. `deepview_net::burn::tensor::Device::flex()`).
 pub use burn;

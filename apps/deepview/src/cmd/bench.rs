@@ -346,11 +346,13 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
 
 fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
     use deepview_net::config::DeepViewConfig;
-    use deepview_net::train::{RunConfig, TrainConfig, Trainer, load_data};
+    use deepview_train::{
+        DataSpec, RunConfig, SYNTHETIC_TWO_PLANES, TrainConfig, Trainer, load_data,
+    };
     let model = DeepViewConfig::preset(&args.preset)?;
     args.vgg.configure()?;
     let mut train = TrainConfig::defaults(&model);
-    train.data = vec![PathBuf::from("synthetic:two-planes")];
+    train.data = vec![DataSpec::new(SYNTHETIC_TWO_PLANES, Default::default())];
     train.sample.views_min = args.views;
     train.sample.views_max = args.views;
     train.sample.planes = args.planes;

@@ -39,7 +39,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &[("--checkpoint", &given)],
     )?;
     let ck = if given.join("checkpoints").is_dir() {
-        deepview_net::train::list_checkpoints(&given)?
+        deepview_train::list_checkpoints(&given)?
             .pop()
             .map(|(_, p)| p)
             .with_context(|| format!("{}: the run has no checkpoints", given.display()))?

@@ -5,10 +5,11 @@ use super::args::min_arg;
 use deepview_data::DataError;
 use deepview_eval::EvalError;
 use deepview_media::MediaError;
-use deepview_net::vgg::VggError;
 use deepview_net::weights::WeightsError;
 use deepview_process::ProcessError;
 use deepview_synth::SynthError;
+use deepview_train::TrainError;
+use deepview_train::vgg::VggError;
 
 /// The hint for the first error in `e`'s chain that has one.
 pub fn hint(e: &anyhow::Error) -> Option<String> {
@@ -19,12 +20,11 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
         if let Some(e) = cause.downcast_ref::<WeightsError>() {
             return weights(e);
         }
-        if let Some(VggError::NotGiven) = cause.downcast_ref::<VggError>() {
-            return Some(
-                "pass --vgg-weights PATH (vgg16_conv1_1-conv3_3.safetensors) or set DEEPVIEW_VGG_WEIGHTS, or \
-                 train with --loss l1"
-                    .into(),
-            );
+        if let Some(e) = cause.downcast_ref::<VggError>() {
+            return vgg(e);
+        }
+        if let Some(e) = cause.downcast_ref::<TrainError>() {
+            return train(e);
         }
         if let Some(e) = cause.downcast_ref::<DataError>() {
             return data(e);
@@ -72,6 +72,35 @@ fn eval(e: &EvalError) -> Option<String> {
             format!("ask for fewer than {wanted} inputs (--inputs nearest:K, all, or a list)")
         }
         EvalError::Weights(w) => return weights(w),
+        _ => return None,
+    })
+}
+
+fn vgg(e: &VggError) -> Option<String> {
+    match e {
+        VggError::NotGiven => Some(
+            "pass --vgg-weights PATH (vgg16_conv1_1-conv3_3.safetensors) or set DEEPVIEW_VGG_WEIGHTS, or \
+             train with --loss l1"
+                .into(),
+        ),
+        _ => None,
+    }
+}
+
+fn train(e: &TrainError) -> Option<String> {
+    Some(match e {
+        // Transparent: the VGG error itself is not in the chain.
+        TrainError::Vgg(v) => return vgg(v),
+        TrainError::HasCheckpoints { .. } => {
+            "pass --resume to continue it, or choose another --name".into()
+        }
+        TrainError::Write { kept: Some(_), .. } => {
+            "free space or fix the folder, then continue the run with --resume".into()
+        }
+        TrainError::Write { kept: None, .. } => {
+            "free space or fix the folder, then start the run again (--resume starts it over)"
+                .into()
+        }
         _ => return None,
     })
 }

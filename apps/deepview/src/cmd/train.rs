@@ -4,10 +4,11 @@ use super::args;
 use super::safety::{Input, Kind, check_output, parse_component};
 use super::signals;
 use anyhow::{Context, bail};
+use deepview_data::LoadOptions;
 use deepview_net::config::DeepViewConfig;
-use deepview_net::loss::LossKind;
-use deepview_net::train::{
-    Collective, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data,
+use deepview_train::loss::LossKind;
+use deepview_train::{
+    Collective, DataSpec, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data,
 };
 use std::path::PathBuf;
 use std::rc::Rc;
@@ -15,6 +16,9 @@ use std::rc::Rc;
 #[cfg(feature = "mpi")]
 #[path = "train_mpi.rs"]
 mod mpi;
+#[path = "train_progress.rs"]
+mod progress;
+use progress::Progress;
 
 /// Train the network (Adam, lr 1.5e-4, global gradient clipping at 8, VGG feature loss on 32x32 target
 /// crops, as in the paper). A run lives in `<runs>/<name>/`: config.json, metrics.jsonl and
@@ -29,13 +33,15 @@ mod mpi;
     deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
     deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
-    --steps, --devices, --data, --vgg-weights and the scene options may be given: the others are the run's own.\n\n\
+    --steps, --devices, --data, --keep-checkpoints and --vgg-weights may be given: the others are the run's own, \
+    and its datasets load with the scene options they were first loaded with (kept in its config.json).\n\n\
     The VGG loss (the default) reads the VGG-16 weights from --vgg-weights FILE or the environment variable \
     DEEPVIEW_VGG_WEIGHTS."
 )]
 pub struct Args {
     /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
-    /// built-in analytic scene. With --resume, defaults to the run's own list.
+    /// built-in analytic scene. With --resume, defaults to the run's own list (each with the scene options
+    /// it was loaded with).
     #[arg(long = "data", value_name = "DIR", value_parser = parse_data)]
     pub data: Vec<PathBuf>,
     /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view (default: cpu).
@@ -83,8 +89,8 @@ pub struct Args {
     /// Continue the run from its latest checkpoint (optimizer and RNG state included).
     #[arg(long)]
     pub resume: bool,
-    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], cuda[:N] (GPU ones need the
-    /// deepview-net features `wgpu` / `cuda`). Example: cpu,cpu.
+    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], cuda[:N] (GPU ones need a
+    /// build with the features `wgpu` / `cuda`). Example: cpu,cpu.
     #[arg(long)]
     pub devices: Option<String>,
     /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.
@@ -142,7 +148,7 @@ impl VggArg {
     /// Make `--vgg-weights` the file the VGG loss reads (else `DEEPVIEW_VGG_WEIGHTS`).
     pub fn configure(&self) -> anyhow::Result<()> {
         if let Some(p) = &self.vgg_weights {
-            deepview_net::vgg::set_weights_path(Some(p.clone()));
+            deepview_train::vgg::set_weights_path(Some(p.clone()));
         }
         Ok(())
     }
@@ -152,18 +158,18 @@ impl VggArg {
         if loss == LossKind::L1 {
             return Ok(());
         }
-        let path = deepview_net::vgg::weights_path()?;
+        let path = deepview_train::vgg::weights_path()?;
         if !path.is_file() {
             let from = if self.vgg_weights.is_some() {
                 "--vgg-weights"
             } else {
-                deepview_net::vgg::WEIGHTS_ENV
+                deepview_train::vgg::WEIGHTS_ENV
             };
             bail!(
                 "the VGG-16 weights {} ({from}) are not a readable file: pass --vgg-weights FILE or set {} to \
                  vgg16_conv1_1-conv3_3.safetensors, or train with --loss l1",
                 path.display(),
-                deepview_net::vgg::WEIGHTS_ENV
+                deepview_train::vgg::WEIGHTS_ENV
             );
         }
         Ok(())
@@ -289,8 +295,7 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
     if !fixed.is_empty() {
         bail!(
             "--resume keeps the run's own {}: {} differ from the run's config.json and cannot change on \
-             resume (only --steps, --devices, --data, --keep-checkpoints and the scene options can); start a \
-             new --name instead",
+             resume (only --steps, --devices, --data and --keep-checkpoints can); start a new --name instead",
             if fixed.len() == 1 {
                 "setting"
             } else {
@@ -302,8 +307,75 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--downscale` 0 and 1 both mean full size.
+fn normalised(o: &LoadOptions) -> LoadOptions {
+    LoadOptions {
+        downscale: o.downscale.max(1),
+        ..o.clone()
+    }
+}
+
+/// The scene flags given on the command line (those that differ from their defaults), with their values
+/// in `opts` and in `other`.
+fn scene_flags_differing(given: &LoadOptions, other: &LoadOptions) -> Vec<&'static str> {
+    let (g, o) = (normalised(given), normalised(other));
+    [
+        (g.format.is_some() && g.format != o.format, "--format"),
+        (g.images.is_some() && g.images != o.images, "--images"),
+        (g.rig != 0 && g.rig != o.rig, "--rig"),
+        (g.near.is_some() && g.near != o.near, "--near"),
+        (g.far.is_some() && g.far != o.far, "--far"),
+        (
+            g.downscale != 1 && g.downscale != o.downscale,
+            "--downscale",
+        ),
+    ]
+    .iter()
+    .filter(|f| f.0)
+    .map(|f| f.1)
+    .collect()
+}
+
+/// The datasets of a run resumed (or started over) from its config.json: `--data` if given, else the
+/// run's own; each loads with the options the run keeps for it (a scene flag given now must agree with
+/// them), or, for runs whose config.json has bare paths (older ones) and data the run did not have,
+/// with the scene flags given now.
+fn resumed_data(args: &Args, cfg: &RunConfig, opts: &LoadOptions) -> anyhow::Result<Vec<DataSpec>> {
+    let paths: Vec<PathBuf> = if args.data.is_empty() {
+        cfg.train.data.iter().map(|d| d.path.clone()).collect()
+    } else {
+        args.data.clone()
+    };
+    paths
+        .into_iter()
+        .map(|path| {
+            let kept = cfg
+                .train
+                .data
+                .iter()
+                .find(|d| d.path == path)
+                .and_then(|d| d.load.clone());
+            match kept {
+                Some(load) => {
+                    let differ = scene_flags_differing(opts, &load);
+                    if !differ.is_empty() {
+                        bail!(
+                            "--resume loads {} as the run first did (its config.json): {} differ and cannot \
+                             change on resume; start a new --name instead",
+                            path.display(),
+                            differ.join(", ")
+                        );
+                    }
+                    Ok(DataSpec::new(path, load))
+                }
+                None => Ok(DataSpec::new(path, opts.clone())),
+            }
+        })
+        .collect()
+}
+
 /// Every scene must have more training views than the largest input count (the target is one of them).
-fn check_views(data: &deepview_net::train::TrainData, views_max: usize) -> anyhow::Result<()> {
+fn check_views(data: &deepview_train::TrainData, views_max: usize) -> anyhow::Result<()> {
     for s in &data.scenes {
         let n = s.train_views.len();
         if views_max + 1 > n {
@@ -420,12 +492,8 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         let cfg: RunConfig = serde_json::from_str(&text)
             .with_context(|| format!("invalid {}", cfg_path.display()))?;
         check_fixed_on_resume(&args, &cfg)?;
-        let paths = if args.data.is_empty() {
-            cfg.train.data.clone()
-        } else {
-            args.data.clone()
-        };
-        let data = load_data(&paths, &opts, cfg.train.holdout_every)?;
+        let specs = resumed_data(&args, &cfg, &opts)?;
+        let data = load_data(&specs, &opts, cfg.train.holdout_every)?;
         check_views(&data, cfg.train.sample.views_max)?;
         args.vgg.check(cfg.train.loss)?;
         let mut t = Trainer::resume_on(
@@ -439,6 +507,9 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             t.config.train.keep_checkpoints = k;
         }
         if writer {
+            for n in t.take_notices() {
+                eprintln!("{n}");
+            }
             eprintln!(
                 "resuming {} at step {} of {}{}",
                 run_dir.display(),
@@ -469,9 +540,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         if let Some(k) = args.keep_checkpoints {
             cfg.train.keep_checkpoints = k;
         }
-        if !args.data.is_empty() {
-            cfg.train.data = args.data.clone();
-        }
+        cfg.train.data = resumed_data(&args, &cfg, &opts)?;
         if let Some(d) = device_list(&args.devices) {
             cfg.train.devices = d;
         }
@@ -495,7 +564,11 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         };
         let mut train = TrainConfig::defaults(&model);
         train.init = args.init.clone();
-        train.data = args.data.clone();
+        train.data = args
+            .data
+            .iter()
+            .map(|p| DataSpec::new(p, opts.clone()))
+            .collect();
         train.steps = args.steps.unwrap_or(train.steps);
         train.batch = args.batch.unwrap_or(train.batch);
         if let Some(c) = args.crop {
@@ -528,7 +601,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             train.devices = d;
         }
         for d in &train.devices {
-            deepview_net::train::parse_device(d)?;
+            deepview_train::parse_device(d)?;
         }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
         check_views(&data, train.sample.views_max)?;
@@ -547,7 +620,10 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         Trainer::create_on(&run_dir, RunConfig { model, train }, data, comm.clone())?
     };
     let start_step = trainer.step;
-    let reports = trainer.run(&stop, !args.quiet)?;
+    let mut progress = Progress::new(writer && !args.quiet, writer);
+    let result = trainer.run(&stop, &mut |e| progress.event(e));
+    progress.finish();
+    let reports = result?;
     let last: Vec<f64> = reports
         .iter()
         .rev()

@@ -1,11 +1,11 @@
 //! `mpirun -np N deepview train ...` (feature `mpi`): one training replica per MPI rank, through the
-//! `mpi` crate (Open MPI, MPICH, ...). The training side is `deepview_net::train::dist`.
+//! `mpi` crate (Open MPI, MPICH, ...). The training side is `deepview_train::dist`.
 //!
 //! An error or a panic on any rank prints `error: rank R of N: <reason>` and calls `MPI_Abort`, which
 //! stops every rank of the job (instead of leaving the others waiting in a collective call).
 
 use anyhow::Context;
-use deepview_net::train::Collective;
+use deepview_train::Collective;
 use mpi::collective::SystemOperation;
 use mpi::environment::Threading;
 use mpi::topology::SimpleCommunicator;

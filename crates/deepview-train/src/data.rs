@@ -26,12 +26,12 @@
 //! volumes and validity are those of the whole image. (The gradient components render the views from the
 //! current window only: the approximation documented in `network.rs`.)
 
-use crate::config::DeepViewConfig;
-use crate::forward::{Hom, crop_output, crop_source};
 use deepview_geometry::{
     Camera, DVec2, PlaneSpacing, ReferenceOptions, plane_homography, reference_camera,
 };
 use deepview_image::ImageF32;
+use deepview_net::config::DeepViewConfig;
+use deepview_net::forward::{Hom, crop_output, crop_source};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
@@ -499,7 +499,7 @@ impl TrainData {
             .collect();
         let mut pts = Vec::new();
         for h in &ref_to_target {
-            let inv = crate::forward::invert(h);
+            let inv = deepview_net::forward::invert(h);
             for &(x, y) in &corners {
                 pts.push(apply(&inv, x, y).unwrap_or(DVec2::NAN));
             }
@@ -605,7 +605,7 @@ impl TrainData {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::train::synthetic::two_plane_scene;
+    use crate::synthetic::two_plane_scene;
 
     #[test]
     fn jitter_keeps_spacing_and_bounds() {
@@ -826,7 +826,7 @@ mod tests {
             assert!(ww % 2 == 0 && wh % 2 == 0);
             // Target-crop pixel centres land inside the shrunk window (with 1 px for bilinear taps).
             for h in &ex.window_to_target {
-                let inv = crate::forward::invert(h);
+                let inv = deepview_net::forward::invert(h);
                 for (x, y) in [
                     (0.5, 0.5),
                     (15.5, 0.5),

@@ -1,7 +1,17 @@
-//! Training tests (release: `cargo test --release -p deepview-net train::`).
+//! Training tests (release: `cargo test --release -p deepview-train`).
 
 use super::*;
-use crate::train::synthetic::two_plane_scene;
+use crate::loss::{Loss, LossKind};
+use crate::synthetic::two_plane_scene;
+use crate::vgg::Vgg16;
+use burn::module::{Module, ModuleVisitor, Param};
+use burn::optim::GradientsParams;
+use burn::tensor::{Device, Tensor};
+use deepview_net::config::DeepViewConfig;
+use deepview_net::network::DeepViewModel;
+use std::rc::Rc;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Instant;
 
 /// A tiny network (2 nets, 1 max-pool stage, 8 features: receptive-field margin 6 px per net) so tests
 /// run in seconds.
@@ -42,7 +52,7 @@ fn small_config(steps: u64, devices: &[&str], batch: usize) -> RunConfig {
     train.checkpoint_every = 1000;
     train.seed = 7;
     train.devices = devices.iter().map(|s| s.to_string()).collect();
-    train.data = vec!["synthetic:two-planes".into()];
+    train.data = vec![DataSpec::new(SYNTHETIC_TWO_PLANES, Default::default())];
     RunConfig { model, train }
 }
 
@@ -68,19 +78,19 @@ fn resume_continues_exactly() {
     let straight = dir.path().join("straight");
     let mut a = Trainer::create(&straight, small_config(4, &["cpu"], 1), small_data()).unwrap();
     let a_init = a.model.clone();
-    a.run(&never(), false).unwrap();
+    a.run(&never(), &mut |_| {}).unwrap();
     assert_eq!(a.step, 4);
 
     let split = dir.path().join("split");
     let mut b = Trainer::create(&split, small_config(2, &["cpu"], 1), small_data()).unwrap();
     same_start(&a_init, &mut b);
-    b.run(&never(), false).unwrap();
+    b.run(&never(), &mut |_| {}).unwrap();
     drop(b);
     // A second `create` on a run with checkpoints is refused.
     assert!(Trainer::create(&split, small_config(2, &["cpu"], 1), small_data()).is_err());
     let mut b = Trainer::resume(&split, small_data(), Some(4), None).unwrap();
     assert_eq!(b.step, 2);
-    b.run(&never(), false).unwrap();
+    b.run(&never(), &mut |_| {}).unwrap();
     assert_eq!(b.step, 4);
 
     let (wa, wb) = (parameter_values(&a.model), parameter_values(&b.model));
@@ -127,7 +137,7 @@ fn checkpoints_are_pruned_to_the_last_three_and_atomic() {
     cfg.train.checkpoint_every = 1;
     cfg.train.sample.planes = 2;
     let mut t = Trainer::create(dir.path(), cfg, small_data()).unwrap();
-    t.run(&never(), false).unwrap();
+    t.run(&never(), &mut |_| {}).unwrap();
     let cks: Vec<u64> = list_checkpoints(dir.path())
         .unwrap()
         .into_iter()
@@ -154,9 +164,62 @@ fn stop_flag_saves_and_returns() {
     let dir = tempfile::tempdir().unwrap();
     let mut t = Trainer::create(dir.path(), small_config(100, &["cpu"], 1), small_data()).unwrap();
     let stop = AtomicBool::new(true);
-    let reports = t.run(&stop, false).unwrap();
+    let reports = t.run(&stop, &mut |_| {}).unwrap();
     assert!(reports.is_empty());
     assert_eq!(list_checkpoints(dir.path()).unwrap().len(), 1);
+}
+
+/// The loop reports its start, each step and each checkpoint; a stop flag set while it runs (as the
+/// program's signal handler does) ends it after the current step, with a checkpoint of that step.
+#[test]
+fn events_report_the_run_and_a_stop_during_it_saves_the_last_step() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let mut cfg = small_config(100, &["cpu"], 1);
+    cfg.train.checkpoint_every = 2;
+    cfg.train.sample.planes = 2;
+    let mut t = Trainer::create(&run, cfg, small_data()).unwrap();
+    let stop = AtomicBool::new(false);
+    let mut seen = Vec::new();
+    let reports = t
+        .run(&stop, &mut |e| {
+            seen.push(match e {
+                TrainEvent::Start { step, total } => format!("start {step}/{total}"),
+                TrainEvent::Step { report, .. } => {
+                    if report.step == 3 {
+                        stop.store(true, Ordering::SeqCst);
+                    }
+                    format!("step {}", report.step)
+                }
+                TrainEvent::Checkpoint { step, dir } => {
+                    assert!(checkpoint_is_complete(dir));
+                    format!("checkpoint {step}")
+                }
+                TrainEvent::Notice(n) => format!("{n}"),
+            })
+        })
+        .unwrap();
+    assert_eq!(reports.len(), 3);
+    assert_eq!(
+        seen,
+        [
+            "start 0/100",
+            "step 1",
+            "step 2",
+            "checkpoint 2",
+            "step 3",
+            "checkpoint 3"
+        ]
+    );
+    drop(t);
+    // Resuming says what it removed: the leftovers of an interrupted checkpoint write.
+    let leftover = run.join("checkpoints/.tmp-step-0000004-1");
+    std::fs::create_dir_all(&leftover).unwrap();
+    let mut t = Trainer::resume(&run, small_data(), None, None).unwrap();
+    assert_eq!(t.step, 3);
+    assert_eq!(t.take_notices(), vec![Notice::Removed(leftover.clone())]);
+    assert!(!leftover.exists());
+    assert!(t.take_notices().is_empty());
 }
 
 #[test]
@@ -210,8 +273,8 @@ fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
 fn two_cpu_replicas_match_one_device() {
     let dir = tempfile::tempdir().unwrap();
     let (mut one, mut two) = one_and_replicated(dir.path(), &["cpu", "cpu"]);
-    let ra = one.run(&never(), false).unwrap();
-    let rb = two.run(&never(), false).unwrap();
+    let ra = one.run(&never(), &mut |_| {}).unwrap();
+    let rb = two.run(&never(), &mut |_| {}).unwrap();
     for (a, b) in ra.iter().zip(&rb) {
         assert!(
             (a.loss - b.loss).abs() <= 1e-6 * a.loss.abs(),
@@ -253,14 +316,14 @@ fn ranks_run(
                     )
                     .unwrap();
                     same_start(init, &mut t);
-                    reports.extend(t.run(&never(), false).unwrap());
+                    reports.extend(t.run(&never(), &mut |_| {}).unwrap());
                     if resume_at.is_some() {
                         drop(t);
                         let mut t =
                             Trainer::resume_on(dir, small_data(), Some(steps), None, Some(comm))
                                 .unwrap();
                         assert_eq!(Some(t.step), resume_at);
-                        reports.extend(t.run(&never(), false).unwrap());
+                        reports.extend(t.run(&never(), &mut |_| {}).unwrap());
                         return (parameter_values(&t.model), reports);
                     }
                     (parameter_values(&t.model), reports)
@@ -287,7 +350,7 @@ fn ranks_match_one_process() {
         let mut one =
             Trainer::create(&one_dir, small_config(3, &["cpu"], batch), small_data()).unwrap();
         let init = one.model.clone();
-        let ra = one.run(&never(), false).unwrap();
+        let ra = one.run(&never(), &mut |_| {}).unwrap();
         let wa = parameter_values(&one.model);
         let run_dir = dir.path().join(format!("ranks-{ranks}-{batch}"));
         let out = ranks_run(&run_dir, &init, ranks, &devices, batch, 3, None);
@@ -317,7 +380,7 @@ fn ranks_match_one_process() {
     )
     .unwrap();
     let init = one.model.clone();
-    one.run(&never(), false).unwrap();
+    one.run(&never(), &mut |_| {}).unwrap();
     let out = ranks_run(
         &dir.path().join("resumed"),
         &init,
@@ -338,7 +401,7 @@ fn ranks_match_one_process() {
     )
     .unwrap();
     let init = one.model.clone();
-    one.run(&never(), false).unwrap();
+    one.run(&never(), &mut |_| {}).unwrap();
     let out = ranks_run(&dir.path().join("small"), &init, 3, &[1, 1, 1], 2, 2, None);
     for (w, _) in &out {
         assert!(
@@ -371,8 +434,8 @@ fn cpu_and_wgpu_replicas_match_one_device() {
     let (mut one, mut two) = one_and_replicated(dir.path(), &["cpu", "wgpu"]);
     same_start(&one.model, &mut two);
     let w0 = parameter_values(&one.model);
-    let ra = one.run(&never(), false).unwrap();
-    let rb = two.run(&never(), false).unwrap();
+    let ra = one.run(&never(), &mut |_| {}).unwrap();
+    let rb = two.run(&never(), &mut |_| {}).unwrap();
     for (a, b) in ra.iter().zip(&rb) {
         eprintln!(
             "loss {} vs {}, grad norm {} vs {}",
@@ -436,7 +499,7 @@ fn overfits_a_tiny_scene() {
     let data = TrainData::new(vec![two_plane_scene(3, 3, 32, 0.12)]).unwrap();
     let mut t = Trainer::create(dir.path(), cfg, data).unwrap();
     let start = Instant::now();
-    let reports = t.run(&never(), false).unwrap();
+    let reports = t.run(&never(), &mut |_| {}).unwrap();
     let mean = |r: &[StepReport]| r.iter().map(|x| x.loss).sum::<f64>() / r.len() as f64;
     let curve: Vec<String> = reports
         .chunks(20)
@@ -454,7 +517,7 @@ fn overfits_a_tiny_scene() {
 /// Throughput on 32x32 crops with 4 views and the VGG loss, batch 1: the `cpu` preset as is, and
 /// `paper-spaces-4view` with 8 instead of 64 planes (at 64 planes one tuple needs over 20 GB here; the
 /// conv cost is linear in the plane count, so multiply its time by ~8)
-/// (`cargo test --release -p deepview-net train::tests::throughput -- --ignored --nocapture`).
+/// (`cargo test --release -p deepview-train tests::throughput -- --ignored --nocapture`).
 #[test]
 #[ignore]
 fn throughput() {
@@ -638,15 +701,15 @@ fn recompute_training_resumes_skips_and_splits() {
     let mut a =
         Trainer::create(&dir.path().join("a"), config(3, &["cpu"], 2), small_data()).unwrap();
     let init = a.model.clone();
-    a.run(&never(), false).unwrap();
+    a.run(&never(), &mut |_| {}).unwrap();
     let split = dir.path().join("b");
     let mut b = Trainer::create(&split, config(2, &["cpu"], 2), small_data()).unwrap();
     same_start(&init, &mut b);
-    b.run(&never(), false).unwrap();
+    b.run(&never(), &mut |_| {}).unwrap();
     drop(b);
     let mut b = Trainer::resume(&split, small_data(), Some(3), None).unwrap();
     assert!(b.config.train.recompute);
-    b.run(&never(), false).unwrap();
+    b.run(&never(), &mut |_| {}).unwrap();
     let (wa, wb) = (parameter_values(&a.model), parameter_values(&b.model));
     assert!(wa.iter().zip(&wb).all(|(x, y)| x.to_bits() == y.to_bits()));
     assert_ne!(wa, parameter_values(&init));
@@ -689,7 +752,7 @@ fn recompute_training_resumes_skips_and_splits() {
 /// `RC_UPDATES` (default 3) update nets (paper-kalantari architecture, `RC_FEATURES` (64) / 16 features,
 /// `RC_PLANES` (4) planes, 4 views, 16x16 crops, VGG loss). `RC_MODE`: `full`, `recompute` or `both`
 /// (alternating, for timing); peak RSS per mode from separate processes, e.g.
-/// `RC_MODE=full /usr/bin/time -v cargo test --release -p deepview-net recompute_bench -- --ignored --nocapture`
+/// `RC_MODE=full /usr/bin/time -v cargo test --release -p deepview-train recompute_bench -- --ignored --nocapture`
 /// (subtract the same command's RSS with `RC_REPS=0` for the baseline).
 #[test]
 #[ignore]
@@ -735,4 +798,128 @@ fn recompute_bench() {
             );
         }
     }
+}
+
+/// The `config.json` of runs from before the dataset load options were kept (this repository's
+/// `runs/gen1`, and `runs/gen2` with the later sampling fields) still load: bare dataset paths, which
+/// take the program's load options.
+#[test]
+fn old_run_configs_still_load() {
+    const GEN1: &str = r#"{
+  "model": {
+    "name": "cpu-large",
+    "views": null,
+    "train_planes": 32,
+    "infer_planes": 32,
+    "updates": 2,
+    "features_large": 12,
+    "features_small": 12,
+    "large_nets": 3,
+    "unet_nets": 0,
+    "extra_channels": 4,
+    "max_pool_stages": 1,
+    "init_prior": 0.0005
+  },
+  "train": {
+    "data": [
+      "../shared/data/llff/fern",
+      "../shared/data/llff/flower",
+      "../shared/data/llff/statue",
+      "../shared/data/llff/canclip",
+      "synthetic:two-planes"
+    ],
+    "steps": 100000,
+    "batch": 1,
+    "sample": {
+      "crop": 16,
+      "views_min": 2,
+      "views_max": 6,
+      "planes": 32,
+      "jitter": true
+    },
+    "loss": "vgg",
+    "learning_rate": 0.00015,
+    "clip_norm": 8.0,
+    "checkpoint_every": 100,
+    "keep_checkpoints": 2,
+    "seed": 0,
+    "devices": [
+      "cpu"
+    ],
+    "holdout_every": 8,
+    "recompute": false,
+    "init": null
+  }
+}"#;
+    const GEN2: &str = r#"{
+  "model": {
+    "name": "cpu",
+    "views": null,
+    "train_planes": 32,
+    "infer_planes": 32,
+    "updates": 1,
+    "features_large": 8,
+    "features_small": 8,
+    "large_nets": 2,
+    "unet_nets": 0,
+    "extra_channels": 4,
+    "max_pool_stages": 1,
+    "init_prior": 0.0005
+  },
+  "train": {
+    "data": [
+      "../shared/data/llff/fern",
+      "../shared/data/llff/flower",
+      "../shared/data/llff/statue",
+      "synthetic:two-planes",
+      "runs/synth/grid-7",
+      "runs/synth/grid-8"
+    ],
+    "steps": 100000,
+    "batch": 1,
+    "sample": {
+      "crop": 24,
+      "views_min": 2,
+      "views_max": 6,
+      "planes": 64,
+      "jitter": true,
+      "auto_planes": true,
+      "colour_jitter": true,
+      "wide_inputs": 0.3
+    },
+    "loss": "vgg",
+    "learning_rate": 0.00015,
+    "clip_norm": 8.0,
+    "checkpoint_every": 100,
+    "keep_checkpoints": 2,
+    "seed": 0,
+    "devices": [
+      "cpu"
+    ],
+    "holdout_every": 8,
+    "recompute": false,
+    "init": "weights/cpu"
+  }
+}"#;
+    let gen1: RunConfig = serde_json::from_str(GEN1).unwrap();
+    assert_eq!(gen1.model.name, "cpu-large");
+    assert_eq!(gen1.train.data.len(), 5);
+    assert!(gen1.train.data.iter().all(|d| d.load.is_none()));
+    assert_eq!(
+        gen1.train.data[0].path,
+        std::path::Path::new("../shared/data/llff/fern")
+    );
+    assert!(!gen1.train.sample.auto_planes && !gen1.train.sample.colour_jitter);
+    let gen2: RunConfig = serde_json::from_str(GEN2).unwrap();
+    assert_eq!(gen2.train.data[3].path.to_str(), Some(SYNTHETIC_TWO_PLANES));
+    assert!(gen2.train.data.iter().all(|d| d.load.is_none()));
+    assert!(gen2.train.sample.auto_planes && gen2.train.sample.colour_jitter);
+    assert_eq!(gen2.train.sample.wide_inputs, 0.3);
+    assert_eq!(
+        gen2.train.init.as_deref(),
+        Some(std::path::Path::new("weights/cpu"))
+    );
+    // Written back, a new-style config keeps the bare paths bare.
+    let again: RunConfig = serde_json::from_str(&serde_json::to_string(&gen2).unwrap()).unwrap();
+    assert_eq!(again, gen2);
 }

@@ -12,7 +12,7 @@
 //! `--resume` rank 0 chooses the checkpoint and every rank loads that one.
 //!
 //! Within one process, replicas on several devices (`--devices`) are still summed by
-//! [`super::clip::sum_on_device`]. burn 0.22's collective ops (`burn::tensor::distributed`:
+//! [`crate::clip::sum_on_device`]. burn 0.22's collective ops (`burn::tensor::distributed`:
 //! `DistributedContext::init(devices, config)`, `all_reduce(tensor, op, device_ids)` returning a
 //! `CollectiveTensor` to `resolve()`) are implemented by its cubecl backends (wgpu, cuda) only; the
 //! default `DistributedOps` of other backends, burn-flex (`cpu`) among them, is `unimplemented!()`, so
@@ -145,7 +145,7 @@ pub fn unflatten_grads<M: Module>(module: &M, flat: &[f32], device: &Device) -> 
 }
 
 /// A module with its float parameters replaced by `values` (in visiting order, as
-/// [`crate::train::parameter_values`] lists them), keeping ids and gradient requirements.
+/// [`crate::example::parameter_values`] lists them), keeping ids and gradient requirements.
 pub fn with_parameter_values<M: Module>(module: M, values: &[f32]) -> M {
     struct Set<'a> {
         values: &'a [f32],

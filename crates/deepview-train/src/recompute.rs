@@ -31,13 +31,14 @@
 //! `gradient_components`, `run_net`, `margin`, the same crop rule); the test
 //! `recompute_loss_equals_model_forward` pins the two together bit for bit.
 
-use super::{Example, example_inputs, loss_tail};
-use crate::forward::{Hom, crop_output, gradient_components};
+use crate::data::Example;
+use crate::example::{example_inputs, loss_tail};
 use crate::loss::Loss;
-use crate::network::{DeepViewModel, ModelInputs, state_to_rgba};
 use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor};
+use deepview_net::forward::{Hom, crop_output, gradient_components};
+use deepview_net::network::{DeepViewModel, ModelInputs, state_to_rgba};
 
 /// Geometry of a window: its size and the homographies from its pixels (per view, per plane).
 #[derive(Clone, Debug)]
@@ -174,7 +175,7 @@ pub fn loss_and_grads(
         let grads = (out * g_next.autodiff()).sum().backward();
         g = s_in.and_then(|s| s.grad(&grads));
         let new = GradientsParams::from_grads(grads, model);
-        acc = super::clip::sum_on_device(model, vec![acc, new], &inner);
+        acc = crate::clip::sum_on_device(model, vec![acc, new], &inner);
     }
     (value, Some(acc))
 }

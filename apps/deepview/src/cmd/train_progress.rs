@@ -1,0 +1,83 @@
+//! The display of `deepview train`: the trainer's events ([`TrainEvent`]) on stderr.
+
+use deepview_train::TrainEvent;
+
+/// Shows the training loop's events on stderr: a progress bar with the loss and its running mean (unless
+/// `--quiet`), skipped steps and notices; nothing on ranks other than the writer.
+pub struct Progress {
+    bar: Option<indicatif::ProgressBar>,
+    writer: bool,
+    /// Exponential moving average of the loss of the steps not skipped.
+    ema: Option<f64>,
+}
+
+impl Progress {
+    pub fn new(bar: bool, writer: bool) -> Self {
+        let bar = bar.then(|| {
+            let pb = indicatif::ProgressBar::new(0);
+            pb.set_style(
+                indicatif::ProgressStyle::with_template(
+                    "{bar:30.cyan/blue} {pos}/{len} {msg} [{elapsed_precise} < {eta_precise}]",
+                )
+                .expect("valid template"),
+            );
+            pb
+        });
+        Self {
+            bar,
+            writer,
+            ema: None,
+        }
+    }
+
+    fn say(&self, line: String) {
+        if !self.writer {
+            return;
+        }
+        match &self.bar {
+            Some(pb) => pb.println(line),
+            None => eprintln!("{line}"),
+        }
+    }
+
+    pub fn event(&mut self, e: TrainEvent<'_>) {
+        match e {
+            TrainEvent::Start { step, total } => {
+                if let Some(pb) = &self.bar {
+                    pb.set_length(total);
+                    pb.set_position(step);
+                }
+            }
+            TrainEvent::Step {
+                report,
+                steps_per_s,
+            } => {
+                match &report.skipped {
+                    Some(why) => self.say(format!("warning: {why}")),
+                    None => {
+                        self.ema = Some(
+                            self.ema
+                                .map_or(report.loss, |e| 0.9 * e + 0.1 * report.loss),
+                        )
+                    }
+                }
+                if let Some(pb) = &self.bar {
+                    pb.set_position(report.step);
+                    pb.set_message(format!(
+                        "loss {:.4} (avg {:.4}) {steps_per_s:.2} steps/s",
+                        report.loss,
+                        self.ema.unwrap_or(f64::NAN),
+                    ));
+                }
+            }
+            TrainEvent::Checkpoint { .. } => {}
+            TrainEvent::Notice(n) => self.say(n.to_string()),
+        }
+    }
+
+    pub fn finish(&mut self) {
+        if let Some(pb) = self.bar.take() {
+            pb.finish_and_clear();
+        }
+    }
+}

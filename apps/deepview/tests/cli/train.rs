@@ -1,0 +1,126 @@
+//! `deepview train --resume` needs nothing repeated: the run's config.json keeps each dataset with the
+//! options it was loaded with.
+
+use crate::common::{deepview, fails_with, s, succeeds, synth_grid};
+use std::path::Path;
+
+/// A tiny run on `grid`: the cpu preset, L1 loss, 8x8 crops, 4 planes, a checkpoint every step.
+fn train(runs: &Path, name: &str, steps: u32, extra: &[&str]) -> String {
+    let steps = steps.to_string();
+    let mut args = vec![
+        "train",
+        "--runs",
+        s(runs),
+        "--name",
+        name,
+        "--steps",
+        &steps,
+        "--quiet",
+    ];
+    args.extend_from_slice(extra);
+    let o = deepview(&args);
+    succeeds(&o);
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn start_args(grid: &Path) -> Vec<&str> {
+    vec![
+        "--data",
+        s(grid),
+        "--preset",
+        "cpu",
+        "--loss",
+        "l1",
+        "--crop",
+        "8",
+        "--planes",
+        "4",
+        "--checkpoint-every",
+        "1",
+        "--seed",
+        "4",
+    ]
+}
+
+/// The losses of `metrics.jsonl` by step.
+fn losses(run: &Path) -> Vec<(u64, f64)> {
+    std::fs::read_to_string(run.join("metrics.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            (v["step"].as_u64().unwrap(), v["loss"].as_f64().unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn resume_reads_the_data_with_the_options_of_the_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    let mut half = start_args(&grid);
+    half.extend(["--downscale", "2"]);
+
+    // Two steps straight, at half size.
+    train(&runs, "straight", 2, &half);
+    let straight = losses(&runs.join("straight"));
+    assert_eq!(straight.len(), 2);
+
+    // One step at half size, then resumed with nothing but the name: the same images, so the same step 2.
+    train(&runs, "resumed", 1, &half);
+    let cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(runs.join("resumed/config.json")).unwrap())
+            .unwrap();
+    let spec = &cfg["train"]["data"][0];
+    assert_eq!(spec["path"], s(&grid));
+    assert_eq!(spec["downscale"], 2);
+    let err = train(&runs, "resumed", 2, &["--resume"]);
+    assert!(err.contains("resuming"), "{err}");
+    assert_eq!(losses(&runs.join("resumed")), straight);
+
+    // A scene flag that disagrees with the run's is refused; the same value is fine.
+    let grid_dir = s(&grid);
+    let refused = deepview(&[
+        "train",
+        "--runs",
+        s(&runs),
+        "--name",
+        "resumed",
+        "--resume",
+        "--steps",
+        "3",
+        "--downscale",
+        "4",
+    ]);
+    fails_with(
+        &refused,
+        &["--downscale", grid_dir, "cannot change on resume"],
+    );
+    train(&runs, "resumed", 3, &["--resume", "--downscale", "2"]);
+
+    // A config.json from before the options were kept (bare dataset paths) takes the scene flags given
+    // now, as it always did: without --downscale, full-size images and another step 2...
+    for (name, extra) in [
+        ("old-full", &[][..]),
+        ("old-half", &["--downscale", "2"][..]),
+    ] {
+        train(&runs, name, 1, &half);
+        let path = runs.join(name).join("config.json");
+        let mut cfg: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+        cfg["train"]["data"] = serde_json::json!([s(&grid)]);
+        std::fs::write(&path, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
+        let mut args = vec!["--resume"];
+        args.extend_from_slice(extra);
+        train(&runs, name, 2, &args);
+    }
+    let full = losses(&runs.join("old-full"));
+    assert_eq!(full[0], straight[0]);
+    assert_ne!(
+        full[1], straight[1],
+        "full-size images gave the half-size step"
+    );
+    // ... and with it, the same step as the run that kept its options.
+    assert_eq!(losses(&runs.join("old-half")), straight);
+}

@@ -1,0 +1,130 @@
+//! Over-compositing with net transmittance `T` and accumulated over `A`, renders into views, plane sweep
+//! volumes, the gradient components, and images as tensors.
+
+use super::warp::{Hom, WarpTable, crop_output, invert};
+use burn::tensor::{Device, Tensor, TensorData};
+
+/// The over-composite of `rgba` `[D, 4, h, w]` (premultiplied, back to front) and its per-plane gradient
+/// components.
+#[derive(Clone, Debug)]
+pub struct Composite {
+    /// `[3, h, w]`: `sum_d c_d T_d`.
+    pub render: Tensor<3>,
+    /// `[D, 1, h, w]`: net transmittance `T_d = prod_{i>d} (1 - a_i)`.
+    pub transmittance: Tensor<4>,
+    /// `[D, 3, h, w]`: accumulated over `A_d = sum_{i<d} c_i prod_{i<j<d} (1 - a_j)`.
+    pub accumulated: Tensor<4>,
+}
+
+/// Over-composite `rgba` `[D, 4, h, w]` (premultiplied colour, plane 0 the farthest). A loop over planes
+/// (no division, so alpha = 1 is safe); `d render / d c_d = T_d` and `d render / d a_d = -A_d T_d`.
+pub fn composite(rgba: Tensor<4>) -> Composite {
+    let [d, _, h, w] = rgba.dims();
+    let device = rgba.device();
+    let colour = rgba.clone().narrow(1, 0, 3);
+    let one_minus = rgba.narrow(1, 3, 1).neg().add_scalar(1.0);
+    // Accumulated over, back to front.
+    let mut acc: Vec<Tensor<4>> = Vec::with_capacity(d);
+    let mut a = Tensor::<4>::zeros([1, 3, h, w], &device);
+    for p in 0..d {
+        acc.push(a.clone());
+        a = a * one_minus.clone().narrow(0, p, 1) + colour.clone().narrow(0, p, 1);
+    }
+    let render = a.reshape([3, h, w]);
+    // Transmittance, front to back.
+    let mut trans: Vec<Tensor<4>> = vec![Tensor::zeros([1, 1, 1, 1], &device); d];
+    let mut t = Tensor::<4>::ones([1, 1, h, w], &device);
+    for p in (0..d).rev() {
+        trans[p] = t.clone();
+        if p > 0 {
+            t = t * one_minus.clone().narrow(0, p, 1);
+        }
+    }
+    Composite {
+        render,
+        transmittance: Tensor::cat(trans, 0),
+        accumulated: Tensor::cat(acc, 0),
+    }
+}
+
+/// Render an MPI `rgba` `[D, 4, H, W]` into a view: `view_to_mpi[d]` maps view pixels to MPI pixels of
+/// plane `d`; the output is `out_w x out_h` view pixels. Returns the composite with its `T` and `A`.
+pub fn render_view(rgba: Tensor<4>, view_to_mpi: &[Hom], out_h: usize, out_w: usize) -> Composite {
+    let [_, _, h, w] = rgba.dims();
+    composite(WarpTable::new(view_to_mpi, w, h, out_w, out_h).apply(rgba))
+}
+
+/// The plane sweep volume of `image` `[3, hv, wv]` on a `w x h` MPI window: `mpi_to_view[d]` maps MPI
+/// window pixels to view pixels. Returns `[D, 4, h, w]`: RGB and a validity channel (1 where the sample
+/// falls inside the image).
+pub fn plane_sweep_volume(image: Tensor<3>, mpi_to_view: &[Hom], h: usize, w: usize) -> Tensor<4> {
+    let [c, hv, wv] = image.dims();
+    let table = WarpTable::new(mpi_to_view, wv, hv, w, h);
+    let device = image.device();
+    let psv = table.apply(image.reshape([1, c, hv, wv]));
+    Tensor::cat(vec![psv, table.valid(&device)], 1)
+}
+
+/// Number of channels of [`gradient_components`]: `[I (3), R (3), A (3), T (1), validity (1)]`.
+pub const GRADIENT_CHANNELS: usize = 11;
+
+/// The gradient components of one view on an MPI region, `[D, 11, h, w]`, channels
+/// `[I_k (3), R_k (3), A_k (3), T_k (1), validity (1)]`, all inverse-warped into MPI space.
+///
+/// - `rgba` `[D, 4, Hm, Wm]`: the MPI (premultiplied) that is rendered into the view; its pixel frame is
+///   the one `mpi_to_view` starts from;
+/// - `image` `[3, hv, wv]`: the view's image (or a crop of it, with `mpi_to_view` mapping to crop pixels);
+/// - `region = (x0, y0, w, h)`: the MPI pixels (in `rgba`'s frame) where the components are wanted.
+///
+/// `R_k`, `A_k`, `T_k` are computed at every pixel of `image` from the whole of `rgba` (outside `rgba`
+/// the MPI is transparent).
+pub fn gradient_components(
+    rgba: Tensor<4>,
+    image: Tensor<3>,
+    mpi_to_view: &[Hom],
+    region: (usize, usize, usize, usize),
+) -> Tensor<4> {
+    let [_, hv, wv] = image.dims();
+    let view_to_mpi: Vec<Hom> = mpi_to_view.iter().map(invert).collect();
+    let comp = render_view(rgba, &view_to_mpi, hv, wv);
+    let (x0, y0, w, h) = region;
+    let region_homs: Vec<Hom> = mpi_to_view
+        .iter()
+        .map(|m| crop_output(m, x0 as f64, y0 as f64))
+        .collect();
+    let table = WarpTable::new(&region_homs, wv, hv, w, h);
+    let images = Tensor::cat(
+        vec![
+            image.reshape([1, 3, hv, wv]),
+            comp.render.reshape([1, 3, hv, wv]),
+        ],
+        1,
+    );
+    let planes = Tensor::cat(vec![comp.accumulated, comp.transmittance], 1);
+    let device = planes.device();
+    Tensor::cat(
+        vec![
+            table.apply(images),
+            table.apply(planes),
+            table.valid(&device),
+        ],
+        1,
+    )
+}
+
+/// Tensor `[3, h, w]` from an interleaved RGB(A...) image (first three channels).
+pub fn image_tensor(
+    data: &[f32],
+    width: usize,
+    height: usize,
+    channels: usize,
+    device: &Device,
+) -> Tensor<3> {
+    let mut out = vec![0f32; 3 * width * height];
+    for p in 0..width * height {
+        for c in 0..3 {
+            out[c * width * height + p] = data[p * channels + c];
+        }
+    }
+    Tensor::from_data(TensorData::new(out, [3, height, width]), device)
+}

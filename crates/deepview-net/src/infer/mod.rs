@@ -1,0 +1,99 @@
+//! Tiled inference: a whole MPI from posed images with bounded memory.
+//!
+//! Each net runs tile by tile over the MPI (paper supplement, "Reducing Memory Usage"): for a tile the
+//! net's input is computed on the tile grown by the net's receptive-field margin
+//! ([`DeepViewModel::margin`]) and only the tile's centre is kept. A tile needs, per view,
+//! - the view-image crop that the grown region maps to on any plane (`view_crop`), and
+//! - for update nets, the view's renders `R`, `A`, `T` on that crop, computed from the *MPI sub-window*
+//!   that can reach the crop on any plane (`mpi_window`: the crop mapped back by every plane's inverse
+//!   homography, grown by the bilinear taps, clamped to the MPI). Every MPI texel that reaches a needed
+//!   view pixel is in the sub-window, so the renders equal those of the whole MPI.
+//!
+//! The result therefore equals the untiled [`DeepViewModel::forward`] on the whole reference image (to f32
+//! rounding of the shifted homographies) whatever the tiling, and the work per tile depends on the tile
+//! and the parallax, not on the MPI's size. The nets treat planes independently (except net 0's
+//! agreement prior), so a tile's net can also run a chunk of planes at a time ([`NetPlan::plane_chunk`]).
+//!
+//! Memory: the only whole-MPI data is the state between nets (the previous state and the one being
+//! written, `D x H x W x state_channels` each; the last net writes the RGBA result instead). A sub-window's
+//! RGBA is recomputed from the state when a tile needs it. When the f32 state would take more than half
+//! of the budget it is stored as IEEE half floats ([`StatePrecision::F16`]): the nets still compute in
+//! f32, but the stored state is rounded to 11 significant bits (relative error <= 2^-11 ~ 4.9e-4, so
+//! <= 5e-3 on logits of magnitude <= 10 and, through the sigmoid (slope <= 1/4), ~1e-3 on RGBA; values
+//! beyond +-65504 saturate). The final RGBA comes from the last net's f32 output (no rounding there).
+//! [`plan_inference`] picks the precision and, per net, the tile and plane chunk from calibrated
+//! estimates of the peak resident memory.
+
+mod error;
+mod plan;
+mod progress;
+mod run;
+mod state;
+mod synthetic;
+mod tiling;
+
+pub use error::InferError;
+pub use plan::{InferPlan, MIN_TILE, NetPlan, plan_inference};
+pub use progress::InferProgress;
+pub use run::infer_mpi_planned;
+pub use state::StatePrecision;
+pub use synthetic::synthetic_views;
+
+use crate::network::DeepViewModel;
+use deepview_geometry::Camera;
+use deepview_image::ImageF32;
+use deepview_mpi::Mpi;
+use error::validate;
+use run::model_device;
+
+/// Infer an MPI with planes at `depths` (back to front, decreasing) in front of `reference` from posed
+/// images, keeping peak memory within `max_memory_bytes` (see [`plan_inference`]). Runs on the model's
+/// device; use a model on a non-autodiff device.
+pub fn infer_mpi(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    max_memory_bytes: u64,
+    progress: &mut dyn FnMut(InferProgress),
+) -> Result<Mpi, InferError> {
+    validate(model, views, depths)?;
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    if crate::kernels::fast_device(&model_device(model))
+        && crate::engine::supported(model)
+        && crate::engine::engine_bytes(model, views, w, h, depths.len()) <= max_memory_bytes
+    {
+        // Whole image at once on the CPU kernels (see `engine`): the same result as the tiled path.
+        let total = model.nets.len();
+        let layers = crate::engine::infer_engine(model, views, reference, depths, &mut |n| {
+            progress(InferProgress {
+                done: n + 1,
+                total,
+                net: n,
+            })
+        });
+        return Ok(Mpi {
+            camera: *reference,
+            depths: depths.to_vec(),
+            layers,
+        });
+    }
+    let plan = plan_inference(model, views, reference, depths, max_memory_bytes)?;
+    infer_mpi_planned(model, views, reference, depths, &plan, progress)
+}
+
+/// [`infer_mpi`] with an explicit (even) tile side in MPI pixels, all planes at once and an f32 state.
+pub fn infer_mpi_tiled(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    tile: usize,
+    progress: &mut dyn FnMut(InferProgress),
+) -> Result<Mpi, InferError> {
+    let plan = InferPlan::uniform(model.nets.len(), tile, depths.len(), StatePrecision::F32);
+    infer_mpi_planned(model, views, reference, depths, &plan, progress)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,160 @@
+//! The tiled inference loop: net after net, tile after tile (a chunk of planes at a time), the state
+//! between nets in a [`StateStore`].
+
+use super::error::{InferError, validate};
+use super::plan::{InferPlan, plane_separable};
+use super::progress::InferProgress;
+use super::state::StateStore;
+use super::tiling::{Geometry, Rect};
+use crate::forward::{Hom, crop_output, gradient_components, image_tensor};
+use crate::network::{DeepViewModel, state_to_rgba};
+use burn::tensor::{Device, Tensor};
+use deepview_geometry::Camera;
+use deepview_image::ImageF32;
+use deepview_mpi::Mpi;
+
+pub(super) fn model_device(model: &DeepViewModel) -> Device {
+    model.nets[0].out.weight.val().device()
+}
+
+/// [`super::infer_mpi`] with an explicit plan (`plan.nets` has one entry per net).
+pub fn infer_mpi_planned(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    plan: &InferPlan,
+    progress: &mut dyn FnMut(InferProgress),
+) -> Result<Mpi, InferError> {
+    validate(model, views, depths)?;
+    if plan.nets.len() != model.nets.len() {
+        return Err(InferError::PlanMismatch {
+            plan: plan.nets.len(),
+            model: model.nets.len(),
+        });
+    }
+    let device = model_device(model);
+    let geom = Geometry::new(views, reference, depths);
+    let (w, h, d) = (geom.w, geom.h, geom.d);
+    let s = model.state_channels;
+    let nets = model.nets.len();
+    let images: Vec<Tensor<3>> = views
+        .iter()
+        .map(|(img, _)| {
+            image_tensor(
+                &img.data,
+                img.width as usize,
+                img.height as usize,
+                img.channels,
+                &device,
+            )
+        })
+        .collect();
+    let tiles: Vec<Vec<Rect>> = plan
+        .nets
+        .iter()
+        .map(|p| geom.tiles(p.tile.max(2).next_multiple_of(2)))
+        .collect();
+    let total: usize = tiles.iter().map(Vec::len).sum();
+    let mut done = 0;
+    // Premultiplied RGBA result `[D][H][W][4]`, written by the last net.
+    let mut layers = Vec::new();
+    let mut state: Option<StateStore> = None;
+    for n in 0..nets {
+        let last = n + 1 == nets;
+        let m = model.margin(n);
+        let chunk = if plane_separable(model, n) {
+            plan.nets[n].plane_chunk.clamp(1, d)
+        } else {
+            d
+        };
+        let mut next = (!last).then(|| StateStore::new(d, s, h, w, plan.precision));
+        if last {
+            layers = vec![0f32; d * h * w * 4];
+        }
+        for &(tx, ty, tw, th) in &tiles[n] {
+            let region = geom.region((tx, ty, tw, th), m);
+            let (rx0, ry0, rw, rh) = region;
+            let per_view: Vec<Tensor<4>> = (0..views.len())
+                .map(|k| {
+                    let win = geom.view_window(k, region, state.is_some());
+                    let (cx, cy, cw, ch) = win.crop;
+                    let crop = images[k].clone().narrow(1, cy, ch).narrow(2, cx, cw);
+                    match &state {
+                        None => DeepViewModel::init_input(crop, &win.mpi_to_crop, region),
+                        Some(st) => {
+                            let (sx, sy, _, _) = win.sub;
+                            let rgba = state_to_rgba(st.tensor(0, 4, win.sub, &device));
+                            let homs: Vec<Hom> = win
+                                .mpi_to_crop
+                                .iter()
+                                .map(|hm| crop_output(hm, sx as f64, sy as f64))
+                                .collect();
+                            gradient_components(rgba, crop, &homs, (rx0 - sx, ry0 - sy, rw, rh))
+                        }
+                    }
+                })
+                .collect();
+            let region_state = state.as_ref().map(|st| st.tensor(0, s, region, &device));
+            // With one chunk the inputs move into the net (and are freed as it goes).
+            let mut per_view = Some(per_view);
+            for p0 in (0..d).step_by(chunk) {
+                let np = chunk.min(d - p0);
+                let (inputs, chunk_state) = if np == d {
+                    (per_view.take().expect("one chunk"), region_state.clone())
+                } else {
+                    (
+                        per_view
+                            .iter()
+                            .flatten()
+                            .map(|v| v.clone().narrow(0, p0, np))
+                            .collect(),
+                        region_state.as_ref().map(|rs| rs.clone().narrow(0, p0, np)),
+                    )
+                };
+                let out = model.run_net(n, inputs, chunk_state.clone());
+                let out = match chunk_state {
+                    Some(rs) => rs + out,
+                    None => out,
+                };
+                let out = out.narrow(2, ty - ry0, th).narrow(3, tx - rx0, tw);
+                match next.as_mut() {
+                    Some(next) => {
+                        let vals: Vec<f32> = out.into_data().try_to_vec().expect("f32 tensor");
+                        next.write(&vals, p0, np, (tx, ty, tw, th));
+                    }
+                    None => {
+                        let vals: Vec<f32> = state_to_rgba(out)
+                            .into_data()
+                            .try_to_vec()
+                            .expect("f32 tensor");
+                        // [np][4][th][tw] -> [D][H][W][4]
+                        for p in 0..np {
+                            for c in 0..4 {
+                                for y in 0..th {
+                                    let src = &vals[((p * 4 + c) * th + y) * tw..][..tw];
+                                    let row = ((p0 + p) * h + ty + y) * w + tx;
+                                    for (x, &v) in src.iter().enumerate() {
+                                        layers[(row + x) * 4 + c] = v;
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+            done += 1;
+            progress(InferProgress {
+                done,
+                total,
+                net: n,
+            });
+        }
+        state = next;
+    }
+    Ok(Mpi {
+        camera: *reference,
+        depths: depths.to_vec(),
+        layers,
+    })
+}

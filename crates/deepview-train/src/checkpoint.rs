@@ -1,0 +1,232 @@
+//! Checkpoints: `checkpoints/step-N/` with the model, the optimizer state and `state.json`, written
+//! into a temporary folder and renamed when complete; listing, loading, pruning, and the leftovers of an
+//! interrupted write.
+
+use crate::data::Rng;
+use crate::error::{TrainError, io_err, run_err};
+use crate::events::Notice;
+use crate::files::{record_message, sync_dir, sync_file};
+use burn::module::Module;
+use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::tensor::Device;
+use deepview_net::config::DeepViewConfig;
+use deepview_net::network::DeepViewModel;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+/// `state.json` of a checkpoint.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct CheckpointState {
+    pub step: u64,
+    pub rng: Rng,
+    /// Training wall time up to this checkpoint (seconds, over all sessions).
+    pub wall_time_s: f64,
+}
+
+/// The files of a complete checkpoint folder.
+pub const CHECKPOINT_FILES: [&str; 3] = ["model.bpk", "optimizer.bpk", "state.json"];
+
+/// Whether `dir` holds all the files of a checkpoint (a folder named `step-N` only appears once it is
+/// complete, see [`crate::trainer::Trainer::save_checkpoint`]; this also rejects one damaged by hand or by the disk).
+pub fn checkpoint_is_complete(dir: &Path) -> bool {
+    CHECKPOINT_FILES
+        .iter()
+        .all(|f| std::fs::metadata(dir.join(f)).is_ok_and(|m| m.is_file() && m.len() > 0))
+}
+
+/// The complete checkpoints of a run folder, sorted by step (`checkpoints/step-N` folders holding every
+/// file of [`CHECKPOINT_FILES`]; temporary folders of an interrupted write are not listed).
+pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainError> {
+    let dir = run_dir.join("checkpoints");
+    if !dir.is_dir() {
+        return Ok(Vec::new());
+    }
+    let mut out = Vec::new();
+    for e in std::fs::read_dir(&dir).map_err(io_err(&dir))? {
+        let e = e.map_err(io_err(&dir))?;
+        let name = e.file_name().to_string_lossy().to_string();
+        if let Some(n) = name
+            .strip_prefix("step-")
+            .and_then(|s| s.parse::<u64>().ok())
+            && checkpoint_is_complete(&e.path())
+        {
+            out.push((n, e.path()));
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+pub(crate) type Loaded = (DeepViewModel, ModuleOptimizer, CheckpointState);
+
+/// The latest checkpoint of `run_dir` that loads (a damaged one is skipped, said in `notices`).
+pub(crate) fn latest_loadable(
+    run_dir: &Path,
+    model: &DeepViewConfig,
+    device: &Device,
+    notices: &mut Vec<Notice>,
+) -> Result<(u64, Loaded), TrainError> {
+    let checkpoints = list_checkpoints(run_dir)?;
+    if checkpoints.is_empty() {
+        return Err(run_err(
+            run_dir,
+            "no complete checkpoint to resume from (checkpoints/step-*)",
+        ));
+    }
+    let mut reasons = Vec::new();
+    for (step, ck) in checkpoints.iter().rev() {
+        match load_checkpoint(ck, *step, model, device) {
+            Ok(l) => {
+                notices.extend(reasons.into_iter().map(|(ck, e): (&PathBuf, TrainError)| {
+                    Notice::Warning(format!("skipping checkpoint {}: {e}", ck.display()))
+                }));
+                return Ok((*step, l));
+            }
+            Err(e) => reasons.push((ck, e)),
+        }
+    }
+    let reasons: Vec<String> = reasons.iter().map(|(_, e)| e.to_string()).collect();
+    Err(run_err(
+        run_dir,
+        format!("no checkpoint of this run loads ({})", reasons.join("; ")),
+    ))
+}
+
+/// Load the model, optimizer and state of checkpoint `ck` (the folder of step `step`).
+pub(crate) fn load_checkpoint(
+    ck: &Path,
+    step: u64,
+    model: &DeepViewConfig,
+    device: &Device,
+) -> Result<Loaded, TrainError> {
+    let state_path = ck.join("state.json");
+    let text = std::fs::read_to_string(&state_path).map_err(io_err(&state_path))?;
+    let state: CheckpointState =
+        serde_json::from_str(&text).map_err(|e| run_err(&state_path, e))?;
+    if state.step != step {
+        return Err(run_err(
+            &state_path,
+            format!("says step {} but the folder is step {step}", state.step),
+        ));
+    }
+    let model_path = ck.join("model.bpk");
+    if !model_path.is_file() {
+        return Err(run_err(&model_path, "missing"));
+    }
+    let model = DeepViewModel::new(model, device)
+        .try_load_file(&model_path)
+        .map_err(|e| run_err(&model_path, format!("{e:?}")))?;
+    let optim_path = ck.join("optimizer.bpk");
+    if !optim_path.is_file() {
+        return Err(run_err(&optim_path, "missing"));
+    }
+    let optim = adam()
+        .load(&optim_path)
+        .map_err(|e| run_err(&optim_path, format!("{e:?}")))?;
+    Ok((model, optim, state))
+}
+
+pub(crate) fn adam() -> ModuleOptimizer {
+    // TensorFlow's Adam defaults (the paper's framework): beta 0.9 / 0.999, epsilon 1e-8.
+    AdamConfig::new().with_epsilon(1e-8).init()
+}
+
+pub(crate) fn write_checkpoint(
+    model: &DeepViewModel,
+    optim: &ModuleOptimizer,
+    state: &CheckpointState,
+    dir: &Path,
+    tmp: &Path,
+    done: &Path,
+) -> Result<(), TrainError> {
+    std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+    if tmp.exists() {
+        std::fs::remove_dir_all(tmp).map_err(io_err(tmp))?;
+    }
+    std::fs::create_dir(tmp).map_err(io_err(tmp))?;
+    let model_path = tmp.join("model.bpk");
+    model
+        .clone()
+        .save_file(&model_path)
+        .map_err(|e| run_err(&model_path, record_message(&e)))?;
+    sync_file(&model_path)?;
+    let optim_path = tmp.join("optimizer.bpk");
+    optim
+        .save(&optim_path)
+        .map_err(|e| run_err(&optim_path, record_message(&e)))?;
+    sync_file(&optim_path)?;
+    let state_path = tmp.join("state.json");
+    let bytes = serde_json::to_string_pretty(state).expect("serialisable");
+    std::fs::File::create(&state_path)
+        .and_then(|mut f| {
+            f.write_all(bytes.as_bytes())?;
+            f.sync_all()
+        })
+        .map_err(io_err(&state_path))?;
+    sync_dir(tmp);
+    if done.exists() {
+        // A `step-N` without all its files (damaged by hand or by the disk): replace it.
+        let stale = dir.join(format!(
+            ".old-step-{:07}-{}",
+            state.step,
+            std::process::id()
+        ));
+        std::fs::rename(done, &stale).map_err(io_err(done))?;
+        let _ = std::fs::remove_dir_all(&stale);
+    }
+    std::fs::rename(tmp, done).map_err(io_err(done))
+}
+
+/// Remove all but the last `keep` checkpoints (failures are warnings in `notices`: the new checkpoint
+/// is complete either way).
+pub(crate) fn prune_checkpoints(run_dir: &Path, keep: usize, notices: &mut Vec<Notice>) {
+    let Ok(all) = list_checkpoints(run_dir) else {
+        return;
+    };
+    let keep = keep.max(1);
+    for (step, p) in all.iter().take(all.len().saturating_sub(keep)) {
+        let trash = p.with_file_name(format!(".old-step-{step:07}-{}", std::process::id()));
+        let r = std::fs::rename(p, &trash).and_then(|_| std::fs::remove_dir_all(&trash));
+        if let Err(e) = r {
+            notices.push(Notice::Warning(format!(
+                "cannot remove the old checkpoint {}: {e}",
+                p.display()
+            )));
+        }
+    }
+}
+
+/// Remove what a killed process left behind: temporary checkpoint folders (`.tmp-step-*`),
+/// half-removed old ones (`.old-step-*`) and temporary files of atomic writes; each one said in
+/// `notices`.
+pub(crate) fn remove_leftovers(run_dir: &Path, notices: &mut Vec<Notice>) {
+    let mut remove = |dir: &Path, is_leftover: &dyn Fn(&str) -> bool| {
+        let Ok(entries) = std::fs::read_dir(dir) else {
+            return;
+        };
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().to_string();
+            if !is_leftover(&name) {
+                continue;
+            }
+            let p = e.path();
+            let r = if p.is_dir() {
+                std::fs::remove_dir_all(&p)
+            } else {
+                std::fs::remove_file(&p)
+            };
+            notices.push(match r {
+                Ok(()) => Notice::Removed(p),
+                Err(err) => Notice::Warning(format!("cannot remove {}: {err}", p.display())),
+            });
+        }
+    };
+    remove(&run_dir.join("checkpoints"), &|n| {
+        n.starts_with(".tmp-step-") || n.starts_with(".old-step-")
+    });
+    remove(run_dir, &|n| {
+        // `deepview_image::temp_path` of metrics.jsonl and config.json.
+        (n.starts_with(".metrics.jsonl.") || n.starts_with(".config.json.")) && n.ends_with(".tmp")
+    });
+}

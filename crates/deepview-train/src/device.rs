@@ -1,0 +1,73 @@
+//! Training devices by name: `cpu`, `wgpu[:N]`, `cuda[:N]`.
+
+use crate::dist;
+use crate::error::TrainError;
+use burn::tensor::Device;
+
+/// A wgpu device, initialised once per name (burn refuses a second initialisation of the same runtime)
+/// through the options API, which reports a missing adapter as an error instead of panicking at the
+/// first tensor operation. `wgpu` is the default adapter (a GPU, or a CPU Vulkan driver such as Mesa's
+/// lavapipe), `wgpu:N` the N-th discrete GPU.
+#[cfg(feature = "wgpu")]
+fn wgpu_device(name: &str, index: Option<usize>) -> Result<Device, String> {
+    use burn::tensor::DeviceKind;
+    use std::sync::{Mutex, OnceLock};
+    static DEVICES: OnceLock<Mutex<Vec<(String, Device)>>> = OnceLock::new();
+    let mut cache = DEVICES
+        .get_or_init(Default::default)
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    if let Some((_, d)) = cache.iter().find(|(n, _)| n == name) {
+        return Ok(d.clone());
+    }
+    let kind = match index {
+        Some(i) => DeviceKind::DiscreteGpu(i),
+        None => DeviceKind::DefaultDevice,
+    };
+    let device = Device::wgpu_options()
+        .device_kind(kind)
+        .init()
+        .map_err(|e| format!("cannot initialise the wgpu device: {e}"))?;
+    cache.push((name.to_string(), device.clone()));
+    Ok(device)
+}
+
+/// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N` (feature `wgpu`), `cuda`/`cuda:N`
+/// (feature `cuda`). The index `local` is the process's rank on its machine under an MPI launcher
+/// (`cuda:local`: one GPU per rank), see [`dist::local_rank`].
+pub fn parse_device(name: &str) -> Result<Device, TrainError> {
+    let err = |m: &str| TrainError::Device {
+        name: name.to_string(),
+        message: m.to_string(),
+    };
+    let (kind, index) = match name.split_once(':') {
+        Some((k, "local")) => (k, Some(dist::local_rank())),
+        Some((k, i)) => (
+            k,
+            Some(
+                i.parse::<usize>()
+                    .map_err(|_| err("the index after ':' must be a number or `local`"))?,
+            ),
+        ),
+        None => (name, None),
+    };
+    match kind {
+        "cpu" | "flex" => Ok(Device::flex()),
+        #[cfg(feature = "wgpu")]
+        "wgpu" => wgpu_device(name, index).map_err(|m| err(&m)),
+        #[cfg(not(feature = "wgpu"))]
+        "wgpu" => {
+            let _ = index;
+            Err(err(
+                "this build has no wgpu support (rebuild with `--features wgpu`)",
+            ))
+        }
+        #[cfg(feature = "cuda")]
+        "cuda" => Ok(Device::cuda(index.unwrap_or(0))),
+        #[cfg(not(feature = "cuda"))]
+        "cuda" => Err(err(
+            "this build has no CUDA support (rebuild with `--features cuda`)",
+        )),
+        _ => Err(err("unknown device (expected cpu, wgpu[:N] or cuda[:N])")),
+    }
+}

@@ -1,0 +1,51 @@
+//! File operations of the run folder: the run lock, atomic writes, flushes.
+
+use crate::error::{TrainError, io_err, run_err};
+use std::path::Path;
+
+/// The message of a burn store error, without its `Record I/O error:` prefix.
+pub(crate) fn record_message(e: &impl std::fmt::Display) -> String {
+    let m = e.to_string();
+    m.strip_prefix("Record I/O error: ")
+        .unwrap_or(&m)
+        .to_string()
+}
+
+/// Lock `run_dir/.lock` so that two processes never train the same run at once (the file is held open
+/// read-only: the folder can still be remounted read-only under a running trainer).
+pub(crate) fn lock_run(run_dir: &Path) -> Result<std::fs::File, TrainError> {
+    let path = run_dir.join(".lock");
+    if !path.exists() {
+        std::fs::File::create(&path).map_err(io_err(&path))?;
+    }
+    let f = std::fs::File::open(&path).map_err(io_err(&path))?;
+    match f.try_lock() {
+        Ok(()) => Ok(f),
+        Err(std::fs::TryLockError::WouldBlock) => Err(run_err(
+            run_dir,
+            "another `deepview train` is training this run right now",
+        )),
+        Err(std::fs::TryLockError::Error(e)) => Err(io_err(&path)(e)),
+    }
+}
+
+/// Write `bytes` to `path` atomically: a temporary file in the same folder, flushed to disk, then
+/// renamed over `path` (a crash leaves either the old or the new content, never a torn file).
+pub(crate) fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), TrainError> {
+    deepview_image::write_atomic_with(path, bytes, deepview_image::Durability::Synced)
+        .map_err(io_err(path))
+}
+
+/// Flush a folder's entries (renames, new files) to disk; best effort (not every filesystem allows it).
+pub(crate) fn sync_dir(dir: &Path) {
+    if let Ok(f) = std::fs::File::open(dir) {
+        let _ = f.sync_all();
+    }
+}
+
+/// Flush a file's content to disk.
+pub(crate) fn sync_file(path: &Path) -> Result<(), TrainError> {
+    std::fs::File::open(path)
+        .and_then(|f| f.sync_all())
+        .map_err(io_err(path))
+}

@@ -1,0 +1,69 @@
+//! `metrics.jsonl`: one line per step ([`StepReport`] with the speed and wall time).
+
+use crate::error::{TrainError, io_err};
+use crate::files::write_atomic;
+use std::io::Write;
+use std::path::Path;
+
+/// What one step did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepReport {
+    pub step: u64,
+    /// Mean loss of the batch (NaN if skipped because of it).
+    pub loss: f64,
+    /// Global gradient norm before clipping (NaN when not computed).
+    pub grad_norm: f64,
+    pub views: usize,
+    /// Why the step was skipped (weights untouched), if it was.
+    pub skipped: Option<String>,
+}
+
+/// Drop metric lines after the current step (written after the checkpoint we resume from).
+pub(crate) fn truncate_metrics(run_dir: &Path, step: u64) -> Result<(), TrainError> {
+    let path = run_dir.join("metrics.jsonl");
+    let Ok(text) = std::fs::read_to_string(&path) else {
+        return Ok(());
+    };
+    let kept: String = text
+        .lines()
+        .filter(|l| {
+            serde_json::from_str::<serde_json::Value>(l)
+                .ok()
+                .and_then(|v| v.get("step").and_then(|s| s.as_u64()))
+                .is_some_and(|s| s <= step)
+        })
+        .map(|l| format!("{l}\n"))
+        .collect();
+    write_atomic(&path, kept.as_bytes())
+}
+
+pub(crate) fn append_metrics(
+    run_dir: &Path,
+    r: &StepReport,
+    steps_per_s: f64,
+    wall_time_s: f64,
+) -> Result<(), TrainError> {
+    let path = run_dir.join("metrics.jsonl");
+    let num = |v: f64| {
+        if v.is_finite() {
+            serde_json::json!(v)
+        } else {
+            serde_json::Value::Null
+        }
+    };
+    let line = serde_json::json!({
+        "step": r.step,
+        "loss": num(r.loss),
+        "grad_norm": num(r.grad_norm),
+        "views": r.views,
+        "steps_per_s": num(steps_per_s),
+        "wall_time_s": wall_time_s,
+        "skipped": r.skipped.is_some(),
+    });
+    let mut f = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&path)
+        .map_err(io_err(&path))?;
+    writeln!(f, "{line}").map_err(io_err(&path))
+}
