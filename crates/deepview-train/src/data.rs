@@ -422,13 +422,8 @@ impl TrainData {
         others.iter().take(views.max(1)).map(|x| x.1).collect()
     }
 
-    /// The inference plane rule ([`deepview_geometry::auto_plane_count`]) for the tuple of `target` with
-    /// `views` inputs: the count `infer --planes auto` would use for those inputs (before clamping).
-    pub fn auto_planes(&self, si: usize, target: usize, views: usize) -> Result<usize, DataError> {
-        self.auto_planes_for(si, &self.nearest_inputs(si, target, views))
-    }
-
-    /// The inference plane rule for these input views of scene `si`.
+    /// The inference plane rule ([`deepview_geometry::auto_plane_count`]) for these input views of scene
+    /// `si`: the count `infer --planes auto` would use for them (before clamping).
     fn auto_planes_for(&self, si: usize, inputs: &[usize]) -> Result<usize, DataError> {
         let s = &self.scenes[si];
         let cams: Vec<Camera> = inputs.iter().map(|&i| s.cameras[i]).collect();
