@@ -76,11 +76,14 @@ pub unsafe fn conv_block(
                 end,
                 taps,
                 act,
+                half == 0,
             )
         };
     }
 }
 
+/// One pass of `CO_PASS` output channels, `STEP` outputs (`R` registers) per step in `R * CO_PASS`
+/// accumulators (3 registers, 12 accumulators, spill: measured 40% slower).
 #[target_feature(enable = "avx2,fma")]
 unsafe fn conv_pass(
     ins: &[*const f32],
@@ -91,15 +94,27 @@ unsafe fn conv_pass(
     end: usize,
     taps: &[isize; 9],
     act: Act,
+    prefetch: bool,
 ) {
+    const R: usize = STEP / 8;
+    // The leading row of the taps (`taps[8]`: one row below) is new data at every step of the first
+    // pass: fetch it a few steps ahead into L1 (the hardware prefetcher does not follow as many streams
+    // as there are input channels).
+    // Measured as an A/B in one run (one thread, 575x412 planes, 4..64 channels): 10-25% faster.
+    let lead = taps[8] + 4 * STEP as isize;
     let mut bias = [_mm256_setzero_ps(); CO_PASS];
     for j in 0..CO_PASS {
         bias[j] = _mm256_set1_ps(b[j]);
     }
     let mut i = start;
     while i < end {
-        let mut a0 = bias;
-        let mut a1 = bias;
+        let mut a = [bias; R];
+        if prefetch {
+            for &inp in ins {
+                // A prefetch never faults; the address is not dereferenced.
+                _mm_prefetch::<_MM_HINT_T0>(inp.wrapping_add(i).wrapping_offset(lead) as *const i8);
+            }
+        }
         for (ci, &inp) in ins.iter().enumerate() {
             // SAFETY: in bounds by the caller's contract (every tap of this step).
             unsafe {
@@ -107,30 +122,26 @@ unsafe fn conv_pass(
                 let wc = w.add(ci * 9 * CO_BLOCK);
                 for (t, &off) in taps.iter().enumerate() {
                     let p = base.offset(off);
-                    let x0 = _mm256_loadu_ps(p);
-                    let x1 = _mm256_loadu_ps(p.add(8));
+                    let x: [__m256; R] = std::array::from_fn(|r| _mm256_loadu_ps(p.add(8 * r)));
                     let wt = wc.add(t * CO_BLOCK);
                     for j in 0..CO_PASS {
                         let wv = _mm256_broadcast_ss(&*wt.add(j));
-                        a0[j] = _mm256_fmadd_ps(x0, wv, a0[j]);
-                        a1[j] = _mm256_fmadd_ps(x1, wv, a1[j]);
+                        for r in 0..R {
+                            a[r][j] = _mm256_fmadd_ps(x[r], wv, a[r][j]);
+                        }
                     }
                 }
             }
         }
         for (j, &o) in outs.iter().enumerate() {
-            let v = match act {
-                Act::Linear => [a0[j], a1[j]],
-                Act::Elu => [elu8(a0[j]), elu8(a1[j])],
-                Act::Relu => {
-                    let z = _mm256_setzero_ps();
-                    [_mm256_max_ps(a0[j], z), _mm256_max_ps(a1[j], z)]
-                }
-            };
-            // SAFETY: in bounds by the caller's contract.
-            unsafe {
-                _mm256_storeu_ps(o.add(i), v[0]);
-                _mm256_storeu_ps(o.add(i + 8), v[1]);
+            for r in 0..R {
+                let v = match act {
+                    Act::Linear => a[r][j],
+                    Act::Elu => elu8(a[r][j]),
+                    Act::Relu => _mm256_max_ps(a[r][j], _mm256_setzero_ps()),
+                };
+                // SAFETY: in bounds by the caller's contract.
+                unsafe { _mm256_storeu_ps(o.add(i + 8 * r), v) };
             }
         }
         i += STEP;

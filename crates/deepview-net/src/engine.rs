@@ -429,51 +429,56 @@ fn render_row_portable(
     d: usize,
 ) {
     let (vw, vh) = (img.width as usize, img.height as usize);
-    {
-        {
-            let rows: Vec<_> = samplers.iter().map(|s| s.row(y as u32)).collect();
-            let mut acc_all = vec![[0f32; 4]; d];
-            for x in 0..vw {
-                // Back to front: A_p before adding plane p; then T front to back.
-                let mut acc = [0f32; 3];
-                for p in 0..d {
-                    let (c, a) = match rows[p].tap(x as u32) {
-                        None => ([0f32; 3], 0f32),
-                        Some(t) => {
-                            let mut s = [0f32; 4];
-                            for j in 0..4 {
-                                let q = &rgba[(p * h * w + t.idx[j] as usize) * 4..][..4];
-                                for c in 0..4 {
-                                    s[c] += t.w[j] * q[c];
-                                }
-                            }
-                            ([s[0], s[1], s[2]], s[3])
+    // Plane by plane (each plane's row is one sequential stream of taps and of `A`/`T` writes; a
+    // pixel-major order would follow `2 d` streams at once), back to front: `acc[x]` is the
+    // composite of the planes behind `p` (`A_p`), stored with plane `p`'s alpha, which the front-to-back
+    // pass then replaces by the transmittance `T_p` of the planes in front. Per pixel the arithmetic
+    // and its order are those of the composite's definition.
+    let mut acc = vec![[0f32; 3]; vw];
+    // SAFETY (for every write through `at_ptr` below): row `y` of every plane of the store, `[D][vh][vw][4]`,
+    // is written by this task only.
+    let at_row = |p: usize| unsafe {
+        std::slice::from_raw_parts_mut((at_ptr as *mut f32).add((p * vh + y) * vw * 4), vw * 4)
+    };
+    for (p, sampler) in samplers.iter().enumerate().take(d) {
+        let rs = sampler.row(y as u32);
+        let plane = &rgba[p * h * w * 4..][..h * w * 4];
+        let out = at_row(p);
+        for x in 0..vw {
+            let (c, a) = match rs.tap(x as u32) {
+                None => ([0f32; 3], 0f32),
+                Some(t) => {
+                    let mut s = [0f32; 4];
+                    for j in 0..4 {
+                        let q = &plane[t.idx[j] as usize * 4..][..4];
+                        for c in 0..4 {
+                            s[c] += t.w[j] * q[c];
                         }
-                    };
-                    acc_all[p] = [acc[0], acc[1], acc[2], a];
-                    let om = 1.0 - a;
-                    for ch in 0..3 {
-                        acc[ch] = acc[ch] * om + c[ch];
                     }
+                    ([s[0], s[1], s[2]], s[3])
                 }
-                let src = &img.data[(y * vw + x) * img.channels..];
-                row[x * 6..x * 6 + 3].copy_from_slice(&src[..3]);
-                row[x * 6 + 3..x * 6 + 6].copy_from_slice(&acc);
-                let mut t = 1f32;
-                for p in (0..d).rev() {
-                    let [a0, a1, a2, alpha] = acc_all[p];
-                    // SAFETY: row `y` of every plane is written by this task only.
-                    unsafe {
-                        let q = (at_ptr as *mut f32).add(((p * vh + y) * vw + x) * 4);
-                        *q = a0;
-                        *q.add(1) = a1;
-                        *q.add(2) = a2;
-                        *q.add(3) = t;
-                    }
-                    if p > 0 {
-                        t *= 1.0 - alpha;
-                    }
-                }
+            };
+            let ax = &mut acc[x];
+            out[x * 4..x * 4 + 4].copy_from_slice(&[ax[0], ax[1], ax[2], a]);
+            let om = 1.0 - a;
+            for ch in 0..3 {
+                ax[ch] = ax[ch] * om + c[ch];
+            }
+        }
+    }
+    for x in 0..vw {
+        let src = &img.data[(y * vw + x) * img.channels..];
+        row[x * 6..x * 6 + 3].copy_from_slice(&src[..3]);
+        row[x * 6 + 3..x * 6 + 6].copy_from_slice(&acc[x]);
+    }
+    let mut t = vec![1f32; vw];
+    for p in (0..d).rev() {
+        let out = at_row(p);
+        for x in 0..vw {
+            let alpha = out[x * 4 + 3];
+            out[x * 4 + 3] = t[x];
+            if p > 0 {
+                t[x] *= 1.0 - alpha;
             }
         }
     }
