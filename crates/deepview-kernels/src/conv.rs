@@ -38,6 +38,24 @@ impl PackedConv {
         Self::pack(cout, cin, bias, |co, ci, t| w_oihw[(co * cin + ci) * 9 + t])
     }
 
+    /// The part of `[cout, cin, 3, 3]` weights that reads input channels `inputs` (a convolution of
+    /// `inputs.len()` inputs), with the bias or without it: a convolution's sum split over groups of
+    /// input channels (see [`conv3x3_from`]).
+    pub fn input_range(
+        w_oihw: &[f32],
+        bias: Option<&[f32]>,
+        cout: usize,
+        cin: usize,
+        inputs: std::ops::Range<usize>,
+    ) -> Self {
+        assert_eq!(w_oihw.len(), cout * cin * 9, "3x3 weights of {cout}x{cin}");
+        assert!(inputs.end <= cin, "input channels {inputs:?} of {cin}");
+        let c0 = inputs.start;
+        Self::pack(cout, inputs.len(), bias, |co, ci, t| {
+            w_oihw[(co * cin + c0 + ci) * 9 + t]
+        })
+    }
+
     /// The convolution whose output is the input gradient of `[cout, cin, 3, 3]` weights: `cin` outputs
     /// from `cout` inputs, each tap flipped, no bias.
     pub fn transposed(w_oihw: &[f32], cout: usize, cin: usize) -> Self {
@@ -100,6 +118,34 @@ pub fn conv3x3(
     act: Act,
     outputs: &mut [&mut [f32]],
 ) {
+    conv3x3_init(plane, inputs, conv, act, None, outputs)
+}
+
+/// `outputs[co] = act(init[co][.] + sum_ci sum_t w[co][ci][t] * inputs[ci][. + tap_t])`: [`conv3x3`]
+/// with the sums starting from the planes `init` instead of the bias (which is not added). With `init`
+/// the [`Act::Linear`] output of another part of the same convolution (see
+/// [`PackedConv::input_range`]), this is the convolution of the concatenated inputs: a part shared by
+/// several calls (channels equal for every view) is then computed once.
+pub fn conv3x3_from(
+    plane: Plane,
+    inputs: &[&[f32]],
+    conv: &PackedConv,
+    act: Act,
+    init: &[&[f32]],
+    outputs: &mut [&mut [f32]],
+) {
+    check(plane, init, conv.cout, "conv3x3 initial sums");
+    conv3x3_init(plane, inputs, conv, act, Some(init), outputs)
+}
+
+fn conv3x3_init(
+    plane: Plane,
+    inputs: &[&[f32]],
+    conv: &PackedConv,
+    act: Act,
+    init: Option<&[&[f32]]>,
+    outputs: &mut [&mut [f32]],
+) {
     check(plane, inputs, conv.cin, "conv3x3 inputs");
     assert_eq!(outputs.len(), conv.cout, "conv3x3: {} outputs", conv.cout);
     for o in outputs.iter() {
@@ -113,6 +159,7 @@ pub fn conv3x3(
     }
     let taps = plane.taps();
     let ins: Vec<*const f32> = inputs.iter().map(|b| b.as_ptr()).collect();
+    let init: Option<Vec<*const f32>> = init.map(|i| i.iter().map(|b| b.as_ptr()).collect());
     // Row bands of the plane, every output block within a band: the band's input rows stay in the
     // L2 cache while the output blocks (passes of the kernel) reread them.
     let band = ROWS_PER_BAND * plane.pitch();
@@ -130,16 +177,17 @@ pub fn conv3x3(
             for j in 0..n {
                 outs[j] = outputs[co0 + j].as_mut_ptr();
             }
+            let init = init.as_ref().map(|i| &i[co0..co0 + n]);
             #[cfg(target_arch = "x86_64")]
             if simd() {
                 // SAFETY: every input and output holds `plane.len()` floats (checked above), which
                 // covers the kernel's reads (taps of one step past `end`) and writes (one step past
                 // `end`); outputs are distinct buffers from the inputs (they are `&mut`).
-                unsafe { crate::x86::conv_block(&ins, w, b, &outs[..n], b0, b1, &taps, act) };
+                unsafe { crate::x86::conv_block(&ins, w, b, init, &outs[..n], b0, b1, &taps, act) };
                 continue;
             }
             // SAFETY: as above.
-            unsafe { scalar::conv_block(&ins, w, b, &outs[..n], b0, b1, &taps, act) };
+            unsafe { scalar::conv_block(&ins, w, b, init, &outs[..n], b0, b1, &taps, act) };
         }
         b0 = b1;
     }

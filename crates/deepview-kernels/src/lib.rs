@@ -19,7 +19,8 @@ mod scalar;
 mod x86;
 
 pub use conv::{
-    Act, PackedConv, conv3x3, conv3x3_input_grad, conv3x3_weight_grad, elu_backward, relu_backward,
+    Act, PackedConv, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
+    relu_backward,
 };
 
 /// Floats before the padded image in a plane buffer (so the top-left tap of the first output is in

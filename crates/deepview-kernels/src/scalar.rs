@@ -3,15 +3,18 @@
 use crate::conv::{Act, CO_BLOCK};
 use crate::elu::elu;
 
-/// One block of up to 8 output channels over flat indices `start..end`.
+/// One block of up to 8 output channels over flat indices `start..end`; the sums start from the bias
+/// `b`, or from the planes `init` (one per output) when given.
 ///
 /// # Safety
-/// Inputs and outputs must cover `start + tap .. end + tap` for every tap, and outputs must not alias
-/// the inputs.
+/// Inputs and outputs must cover `start + tap .. end + tap` for every tap, `init` planes `start..end`,
+/// and outputs must not alias the inputs.
+#[allow(clippy::too_many_arguments)]
 pub unsafe fn conv_block(
     ins: &[*const f32],
     w: &[f32],
     b: &[f32],
+    init: Option<&[*const f32]>,
     outs: &[*mut f32],
     start: usize,
     end: usize,
@@ -21,7 +24,15 @@ pub unsafe fn conv_block(
     let cin = ins.len();
     for i in start..end {
         let mut acc = [0f32; CO_BLOCK];
-        acc.copy_from_slice(&b[..CO_BLOCK]);
+        match init {
+            // SAFETY: in bounds by the caller's contract.
+            Some(init) => {
+                for (a, &p) in acc.iter_mut().zip(init) {
+                    *a = unsafe { *p.add(i) };
+                }
+            }
+            None => acc.copy_from_slice(&b[..CO_BLOCK]),
+        }
         for ci in 0..cin {
             for (t, &off) in taps.iter().enumerate() {
                 // SAFETY: in bounds by the caller's contract.

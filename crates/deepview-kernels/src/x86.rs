@@ -47,13 +47,15 @@ fn elu8(x: __m256) -> __m256 {
 }
 
 /// # Safety
-/// As `scalar::conv_block`, for reads up to one step (16) past `end` plus the taps and writes up to one
-/// step past `end`; requires AVX2 and FMA.
+/// As `scalar::conv_block`, for reads up to one step (16) past `end` plus the taps (and of `init`) and
+/// writes up to one step past `end`; requires AVX2 and FMA.
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 pub unsafe fn conv_block(
     ins: &[*const f32],
     w: &[f32],
     b: &[f32],
+    init: Option<&[*const f32]>,
     outs: &[*mut f32],
     start: usize,
     end: usize,
@@ -71,6 +73,7 @@ pub unsafe fn conv_block(
                 ins,
                 w.as_ptr().add(j0),
                 &b[j0..j0 + CO_PASS],
+                init.map(|p| &p[j0..p.len().min(j0 + CO_PASS)]),
                 outs,
                 start,
                 end,
@@ -85,10 +88,12 @@ pub unsafe fn conv_block(
 /// One pass of `CO_PASS` output channels, `STEP` outputs (`R` registers) per step in `R * CO_PASS`
 /// accumulators (3 registers, 12 accumulators, spill: measured 40% slower).
 #[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
 unsafe fn conv_pass(
     ins: &[*const f32],
     w: *const f32,
     b: &[f32],
+    init: Option<&[*const f32]>,
     outs: &[*mut f32],
     start: usize,
     end: usize,
@@ -109,6 +114,14 @@ unsafe fn conv_pass(
     let mut i = start;
     while i < end {
         let mut a = [bias; R];
+        if let Some(init) = init {
+            for (j, &p) in init.iter().enumerate() {
+                for r in 0..R {
+                    // SAFETY: in bounds by the caller's contract.
+                    a[r][j] = unsafe { _mm256_loadu_ps(p.add(i + 8 * r)) };
+                }
+            }
+        }
         if prefetch {
             for &inp in ins {
                 // A prefetch never faults; the address is not dereferenced.

@@ -1,7 +1,8 @@
 //! The kernels against direct f64 evaluations of the convolution's definition (zero padding).
 
 use deepview_kernels::{
-    Act, PackedConv, Plane, conv3x3, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
+    Act, PackedConv, Plane, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad,
+    elu_backward,
 };
 
 /// Deterministic values in [-1, 1).
@@ -146,6 +147,52 @@ fn forward_check() {
             assert!(
                 e < 1e-5,
                 "{cin}->{cout} {h}x{w} {act:?}: relative error {e}"
+            );
+        }
+    }
+}
+
+#[test]
+fn split_sums_match_the_definition() {
+    split_check();
+    deepview_kernels::with_portable(split_check);
+}
+
+/// A convolution computed in two parts, the input channels `split..` first (with the bias, linear) and
+/// then `..split` from those sums ([`conv3x3_from`]), against the definition of the whole convolution.
+fn split_check() {
+    for (n, &(cin, cout, h, w)) in SHAPES.iter().enumerate() {
+        if cin < 2 {
+            continue;
+        }
+        let split = cin / 2 + 1;
+        let plane = Plane::new(h, w);
+        let x = noise(cin * h * w, 300 + n as u64);
+        let wt = noise(cout * cin * 9, 400 + n as u64);
+        let b = noise(cout, 500 + n as u64);
+        let shared = PackedConv::input_range(&wt, Some(&b), cout, cin, split..cin);
+        let own = PackedConv::input_range(&wt, None, cout, cin, 0..split);
+        assert_eq!((own.cin, shared.cin), (split, cin - split));
+        let xin = padded(plane, &x, cin);
+        let ins: Vec<&[f32]> = xin.iter().map(|v| v.as_slice()).collect();
+        let mut part: Vec<Vec<f32>> = (0..cout).map(|_| plane.zeroed()).collect();
+        {
+            let mut os: Vec<&mut [f32]> = part.iter_mut().map(|v| v.as_mut_slice()).collect();
+            conv3x3(plane, &ins[split..], &shared, Act::Linear, &mut os);
+        }
+        let init: Vec<&[f32]> = part.iter().map(|v| v.as_slice()).collect();
+        for act in [Act::Linear, Act::Elu, Act::Relu] {
+            let mut outs: Vec<Vec<f32>> = (0..cout).map(|_| plane.zeroed()).collect();
+            {
+                let mut os: Vec<&mut [f32]> = outs.iter_mut().map(|v| v.as_mut_slice()).collect();
+                conv3x3_from(plane, &ins[..split], &own, act, &init, &mut os);
+            }
+            let got = unpadded(plane, &outs);
+            let want = reference(&x, &wt, &b, cin, cout, h, w, act);
+            let e = max_rel(&got, &want);
+            assert!(
+                e < 1e-5,
+                "split {cin}->{cout} {h}x{w} {act:?}: relative error {e}"
             );
         }
     }

@@ -515,7 +515,17 @@ pub fn infer_engine(
     let nets: Vec<PackedNet> = model
         .nets
         .iter()
-        .map(|n| PackedNet::new(&n.input, &n.stages, &n.head, &n.out))
+        .enumerate()
+        // An update net's last `S` inputs are the state, the same for every view.
+        .map(|(i, n)| {
+            PackedNet::new(
+                &n.input,
+                &n.stages,
+                &n.head,
+                &n.out,
+                if i == 0 { 0 } else { s },
+            )
+        })
         .collect();
     // The state `[D][S][H*W]`.
     let mut state = vec![0f32; d * s * hw];
@@ -606,11 +616,14 @@ pub fn infer_engine(
                             (ir, atp),
                             valid[0],
                         );
-                        for (c, dst) in st_planes.iter_mut().enumerate() {
-                            plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
+                        // The net reads the shared state from view 0's planes only.
+                        if v == 0 {
+                            for (c, dst) in st_planes.iter_mut().enumerate() {
+                                plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
+                            }
                         }
                     }
-                    debug_assert_eq!(cin, 11 + s);
+                    debug_assert_eq!((cin, net.shared_inputs()), (11 + s, s));
                     sc.run(net);
                     let out = sc.output_planes();
                     for c in 0..s {

@@ -18,8 +18,8 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::{elu, relu};
 use burn::tensor::{Device, Shape, Tensor, TensorData};
 use deepview_kernels::{
-    Act, PackedConv, Plane, conv3x3, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
-    relu_backward,
+    Act, PackedConv, Plane, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad,
+    elu_backward, relu_backward,
 };
 use rayon::prelude::*;
 
@@ -364,15 +364,29 @@ where
     });
 }
 
+/// A convolution split by input channels into a per-view part and a part whose inputs are the same for
+/// every view (computed once per plane; the per-view sums start from it: [`conv3x3_from`]).
+struct SplitConv {
+    /// Input channels `..own.cin`, no bias.
+    own: PackedConv,
+    /// The remaining input channels, with the bias.
+    shared: PackedConv,
+}
+
 /// A core net's convolutions packed for the kernels.
 pub(crate) struct PackedNet {
     input: Vec<PackedConv>,
     stages: Vec<PackedConv>,
     head: PackedConv,
     out: PackedConv,
+    /// The first input conv split, when the last input channels are shared by the views.
+    input_split: Option<SplitConv>,
+    /// The first conv of every stage (inputs `concat(B_k, max over views)`) split: the max is shared.
+    stage_splits: Vec<SplitConv>,
 }
 
-fn pack(conv: &Conv2d) -> PackedConv {
+/// `[cout, cin, 3, 3]` weights and bias of a conv.
+fn weights(conv: &Conv2d) -> (Vec<f32>, Option<Vec<f32>>, usize, usize) {
     let [cout, cin, kh, kw] = conv.weight.dims();
     assert_eq!((kh, kw), (3, 3), "3x3 convolutions expected");
     let w: Vec<f32> = conv
@@ -385,20 +399,55 @@ fn pack(conv: &Conv2d) -> PackedConv {
         .bias
         .as_ref()
         .map(|b| b.val().into_data().try_to_vec().expect("f32 bias"));
+    (w, b, cout, cin)
+}
+
+fn pack(conv: &Conv2d) -> PackedConv {
+    let (w, b, cout, cin) = weights(conv);
     PackedConv::new(&w, b.as_deref(), cout, cin)
 }
 
+/// `conv` split at input channel `at`: `..at` per view, `at..` shared.
+fn split(conv: &Conv2d, at: usize) -> SplitConv {
+    let (w, b, cout, cin) = weights(conv);
+    SplitConv {
+        own: PackedConv::input_range(&w, None, cout, cin, 0..at),
+        shared: PackedConv::input_range(&w, b.as_deref(), cout, cin, at..cin),
+    }
+}
+
 impl PackedNet {
-    pub(crate) fn new(input: &[Conv2d], stages: &[Conv2d], head: &Conv2d, out: &Conv2d) -> Self {
+    /// The net's convs; `shared_inputs`: how many of the last input channels are the same for every
+    /// view (the state of an update net; 0: none), which [`NetScratch::run`] then reads from view 0's
+    /// input planes only.
+    pub(crate) fn new(
+        input: &[Conv2d],
+        stages: &[Conv2d],
+        head: &Conv2d,
+        out: &Conv2d,
+        shared_inputs: usize,
+    ) -> Self {
+        let f = head.weight.dims()[1];
+        let cin = input[0].weight.dims()[1];
+        assert!(
+            shared_inputs < cin,
+            "{shared_inputs} shared of {cin} inputs"
+        );
         Self {
             input: input.iter().map(pack).collect(),
             stages: stages.iter().map(pack).collect(),
             head: pack(head),
             out: pack(out),
+            input_split: (shared_inputs > 0).then(|| split(&input[0], cin - shared_inputs)),
+            stage_splits: stages.iter().step_by(2).map(|c| split(c, f)).collect(),
         }
     }
     pub(crate) fn in_channels(&self) -> usize {
         self.input[0].cin
+    }
+    /// The input channels the views share (see [`Self::new`]).
+    pub(crate) fn shared_inputs(&self) -> usize {
+        self.input_split.as_ref().map_or(0, |s| s.shared.cin)
     }
     pub(crate) fn features(&self) -> usize {
         self.head.cin
@@ -419,7 +468,8 @@ fn max_into(dst: &mut [f32], srcs: &[&[f32]]) {
 }
 
 /// One thread's activations of a core net on the `K` slices of one plane: per view `[in (Cin) | A (F) |
-/// B (F)]`, then the max over views (F), the head (F) and the output (S) planes.
+/// B (F)]`, then the max over views (F), the head (F), the output (S) planes and the shared partial
+/// sums (F) of a split conv.
 pub(crate) struct NetScratch {
     planes: Planes,
     views: usize,
@@ -432,7 +482,7 @@ impl NetScratch {
     pub(crate) fn new(net: &PackedNet, plane: Plane, views: usize) -> Self {
         let (cin, f, so) = (net.in_channels(), net.features(), net.out_channels());
         Self {
-            planes: Planes::new(plane, views * (cin + 2 * f) + 2 * f + so),
+            planes: Planes::new(plane, views * (cin + 2 * f) + 3 * f + so),
             views,
             cin,
             f,
@@ -493,9 +543,51 @@ impl NetScratch {
             };
         let a = |k: usize| k * per_view + cin;
         let b = |k: usize| k * per_view + cin + f;
+        // The shared partial sums of a split conv.
+        let sh = m0 + 2 * f + self.so;
+        // `split` of the planes `own(k)` and `shared` into A_k for every view: the shared part once, into
+        // the planes from `sh` on, then each view's part from those sums.
+        let split_layer = |bufs: &mut Vec<Vec<f32>>,
+                           own: &dyn Fn(usize) -> Vec<usize>,
+                           shared: &[usize],
+                           split: &SplitConv| {
+            layer(bufs, shared, sh, &split.shared, Act::Linear);
+            for k in 0..views {
+                // A_k lies before the inputs and the sums: move its planes out meanwhile.
+                let mut a_planes: Vec<Vec<f32>> = (0..f)
+                    .map(|c| std::mem::take(&mut bufs[a(k) + c]))
+                    .collect();
+                {
+                    let ins: Vec<&[f32]> = own(k).iter().map(|&i| bufs[i].as_slice()).collect();
+                    let init: Vec<&[f32]> = (sh..sh + f).map(|i| bufs[i].as_slice()).collect();
+                    let mut outs: Vec<&mut [f32]> =
+                        a_planes.iter_mut().map(|v| v.as_mut_slice()).collect();
+                    conv3x3_from(plane, &ins, &split.own, Act::Elu, &init, &mut outs);
+                }
+                for (c, v) in a_planes.into_iter().enumerate() {
+                    bufs[a(k) + c] = v;
+                }
+            }
+        };
+        match &net.input_split {
+            Some(split) => {
+                let own_cin = split.own.cin;
+                let shared: Vec<usize> = (own_cin..cin).collect();
+                split_layer(
+                    bufs,
+                    &|k| (k * per_view..k * per_view + own_cin).collect(),
+                    &shared,
+                    split,
+                );
+            }
+            None => {
+                for k in 0..views {
+                    let from: Vec<usize> = (k * per_view..k * per_view + cin).collect();
+                    layer(bufs, &from, a(k), &net.input[0], Act::Elu);
+                }
+            }
+        }
         for k in 0..views {
-            let from: Vec<usize> = (k * per_view..k * per_view + cin).collect();
-            layer(bufs, &from, a(k), &net.input[0], Act::Elu);
             let from: Vec<usize> = (a(k)..a(k) + f).collect();
             layer(bufs, &from, b(k), &net.input[1], Act::Elu);
         }
@@ -506,25 +598,12 @@ impl NetScratch {
                 max_into(&mut hi[c], &srcs);
             }
         };
-        for pair in net.stages.chunks(2) {
+        for (pair, split) in net.stages.chunks(2).zip(&net.stage_splits) {
             max_views(bufs);
+            // concat(B_k, m) -> A_k, the max's part once.
+            let shared: Vec<usize> = (m0..m0 + f).collect();
+            split_layer(bufs, &|k| (b(k)..b(k) + f).collect(), &shared, split);
             for k in 0..views {
-                // concat(B_k, m) -> A_k: A lies before B and m, so move A's planes out meanwhile.
-                let mut a_planes: Vec<Vec<f32>> = (0..f)
-                    .map(|c| std::mem::take(&mut bufs[a(k) + c]))
-                    .collect();
-                {
-                    let ins: Vec<&[f32]> = (b(k)..b(k) + f)
-                        .chain(m0..m0 + f)
-                        .map(|i| bufs[i].as_slice())
-                        .collect();
-                    let mut outs: Vec<&mut [f32]> =
-                        a_planes.iter_mut().map(|v| v.as_mut_slice()).collect();
-                    conv3x3(plane, &ins, &pair[0], Act::Elu, &mut outs);
-                }
-                for (c, v) in a_planes.into_iter().enumerate() {
-                    bufs[a(k) + c] = v;
-                }
                 let from: Vec<usize> = (a(k)..a(k) + f).collect();
                 layer(bufs, &from, b(k), &pair[1], Act::Elu);
             }
@@ -552,7 +631,7 @@ pub fn core_net_inference(
     let device = x.device();
     let [kd, cin, h, w] = x.dims();
     let d = kd / views;
-    let net = PackedNet::new(input, stages, head, out);
+    let net = PackedNet::new(input, stages, head, out, 0);
     let so = net.out_channels();
     let x: Vec<f32> = x.into_data().try_to_vec().expect("f32 tensor");
     let plane = Plane::new(h, w);
