@@ -196,7 +196,24 @@ fn warp_pair_into(
     dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
     valid: &mut [f32],
 ) {
-    with_fma(|| warp_pair_into_portable(src, size, hom, plane, dst, valid))
+    #[cfg(target_arch = "x86_64")]
+    if deepview_kernels::simd() {
+        #[target_feature(enable = "avx2,fma")]
+        unsafe fn warp_pair_fma(
+            src: (&[f32], &[f32]),
+            size: (u32, u32),
+            hom: &Hom,
+            plane: Plane,
+            dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
+            valid: &mut [f32],
+        ) {
+            warp_pair_into_portable(src, size, hom, plane, dst, valid)
+        }
+        // SAFETY: AVX2 and FMA are present (checked).
+        unsafe { warp_pair_fma(src, size, hom, plane, dst, valid) };
+        return;
+    }
+    warp_pair_into_portable(src, size, hom, plane, dst, valid)
 }
 
 #[inline(always)]
