@@ -27,4 +27,4 @@ pub use mpi::{Mpi, MpiU8, Texel};
 pub use psv::{PlaneSweepVolume, plane_sweep};
 pub use render::{render, render_rgba8_into, render_rgba8_with};
 pub use simd::Occupancy;
-pub use warp::{Sampler, target_to_plane_homographies};
+pub use warp::{RowTaps, Sampler, target_to_plane_homographies};

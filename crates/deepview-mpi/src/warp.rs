@@ -124,6 +124,144 @@ impl RowSampler {
     }
 }
 
+/// The taps of a whole output row, structure of arrays: column `x` is inside when `ok[x]`, with texel
+/// indices `idx[x]` and weights `w[x]` exactly as [`RowSampler::tap`] gives them.
+#[derive(Clone, Debug, Default)]
+pub struct RowTaps {
+    pub idx: Vec<[u32; 4]>,
+    pub w: Vec<[f32; 4]>,
+    pub ok: Vec<bool>,
+}
+
+impl RowTaps {
+    /// The tap of column `x` (as [`RowSampler::tap`]).
+    #[inline(always)]
+    pub fn tap(&self, x: usize) -> Option<Tap> {
+        self.ok[x].then(|| Tap {
+            idx: self.idx[x],
+            w: self.w[x],
+        })
+    }
+}
+
+impl RowSampler {
+    /// The taps of columns `0..n` into `out` (resized), 8 columns at a time with AVX2 where the CPU has
+    /// it (the same IEEE operations as [`Self::tap`], so the same bits), else one by one.
+    pub fn taps_into(&self, n: usize, out: &mut RowTaps) {
+        out.idx.resize(n, [0; 4]);
+        out.w.resize(n, [0.0; 4]);
+        out.ok.resize(n, false);
+        #[cfg(target_arch = "x86_64")]
+        if crate::simd::available() {
+            // SAFETY: AVX2 and FMA are present (checked); `out` holds `n` columns.
+            unsafe { self.taps_avx2(n, out) };
+            return;
+        }
+        for x in 0..n {
+            match self.tap(x as u32) {
+                Some(t) => {
+                    out.idx[x] = t.idx;
+                    out.w[x] = t.w;
+                    out.ok[x] = true;
+                }
+                None => out.ok[x] = false,
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn taps_avx2(&self, n: usize, out: &mut RowTaps) {
+        use std::arch::x86_64::*;
+        let ax = _mm256_set1_ps(self.a[0]);
+        let ay = _mm256_set1_ps(self.a[1]);
+        let aw = _mm256_set1_ps(self.a[2]);
+        let bx = _mm256_set1_ps(self.b[0]);
+        let by = _mm256_set1_ps(self.b[1]);
+        let bw = _mm256_set1_ps(self.b[2]);
+        let wf = _mm256_set1_ps(self.wf);
+        let hf = _mm256_set1_ps(self.hf);
+        let zero = _mm256_setzero_ps();
+        let half = _mm256_set1_ps(0.5);
+        let one = _mm256_set1_ps(1.0);
+        let wmax = _mm256_set1_epi32(self.wmax);
+        let hmax = _mm256_set1_epi32(self.hmax);
+        let izero = _mm256_setzero_si256();
+        let ione = _mm256_set1_epi32(1);
+        let stride = _mm256_set1_epi32(self.stride as i32);
+        let lane = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
+        let mut x = 0usize;
+        while x < n {
+            // u = x + 0.5 as in `tap` (x + lane is exact in f32 for any row width here).
+            let u = _mm256_add_ps(_mm256_add_ps(_mm256_set1_ps(x as f32), lane), half);
+            let wn = _mm256_fmadd_ps(aw, u, bw);
+            let inv = _mm256_div_ps(one, wn);
+            let sx = _mm256_mul_ps(_mm256_fmadd_ps(ax, u, bx), inv);
+            let sy = _mm256_mul_ps(_mm256_fmadd_ps(ay, u, by), inv);
+            let mut m = _mm256_and_ps(
+                _mm256_cmp_ps::<_CMP_GT_OQ>(wn, zero),
+                _mm256_cmp_ps::<_CMP_GE_OQ>(sx, zero),
+            );
+            m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(sx, wf));
+            m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_GE_OQ>(sy, zero));
+            m = _mm256_and_ps(m, _mm256_cmp_ps::<_CMP_LE_OQ>(sy, hf));
+            let fx = _mm256_sub_ps(sx, half);
+            let fy = _mm256_sub_ps(sy, half);
+            let x0f = _mm256_floor_ps(fx);
+            let y0f = _mm256_floor_ps(fy);
+            let tx = _mm256_sub_ps(fx, x0f);
+            let ty = _mm256_sub_ps(fy, y0f);
+            // Masked-out lanes may hold garbage (NaN, huge): their indices are never used.
+            let x0 = _mm256_cvttps_epi32(x0f);
+            let y0 = _mm256_cvttps_epi32(y0f);
+            let clamp = |v: __m256i, hi: __m256i| _mm256_min_epi32(_mm256_max_epi32(v, izero), hi);
+            let xa = clamp(x0, wmax);
+            let xb = clamp(_mm256_add_epi32(x0, ione), wmax);
+            let ya = _mm256_mullo_epi32(clamp(y0, hmax), stride);
+            let yb = _mm256_mullo_epi32(clamp(_mm256_add_epi32(y0, ione), hmax), stride);
+            let omx = _mm256_sub_ps(one, tx);
+            let omy = _mm256_sub_ps(one, ty);
+            let mut idx = [[0u32; 8]; 4];
+            let mut w = [[0f32; 8]; 4];
+            // SAFETY (stores): each array holds 8 lanes.
+            unsafe {
+                for (j, v) in [
+                    _mm256_add_epi32(ya, xa),
+                    _mm256_add_epi32(ya, xb),
+                    _mm256_add_epi32(yb, xa),
+                    _mm256_add_epi32(yb, xb),
+                ]
+                .into_iter()
+                .enumerate()
+                {
+                    _mm256_storeu_si256(idx[j].as_mut_ptr() as *mut __m256i, v);
+                }
+                for (j, v) in [
+                    _mm256_mul_ps(omx, omy),
+                    _mm256_mul_ps(tx, omy),
+                    _mm256_mul_ps(omx, ty),
+                    _mm256_mul_ps(tx, ty),
+                ]
+                .into_iter()
+                .enumerate()
+                {
+                    _mm256_storeu_ps(w[j].as_mut_ptr(), v);
+                }
+            }
+            let bits = _mm256_movemask_ps(m);
+            for l in 0..(n - x).min(8) {
+                let ok = bits >> l & 1 != 0;
+                out.ok[x + l] = ok;
+                if ok {
+                    out.idx[x + l] = [idx[0][l], idx[1][l], idx[2][l], idx[3][l]];
+                    out.w[x + l] = [w[0][l], w[1][l], w[2][l], w[3][l]];
+                }
+            }
+            x += 8;
+        }
+    }
+}
+
 /// Warp a `channels`-channel interleaved source into an `out_w x out_h` image; invalid samples are 0.
 /// `valid`, when given, receives 1 where the sample was inside the source and 0 elsewhere.
 pub fn warp_image(
@@ -170,6 +308,38 @@ pub fn warp_image(
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn row_taps_equal_the_taps() {
+        // Homographies with zoom, shear, perspective (some rows behind the camera) and sources the
+        // samples leave on every side.
+        let homs = [
+            [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+            [0.93, 0.05, 3.7, -0.04, 1.07, -2.2, 0.0, 0.0, 1.0],
+            [1.3, 0.2, -11.0, 0.1, 0.8, 5.0, 0.002, -0.001, 0.9],
+            [0.7, -0.3, 40.0, 0.25, 1.2, -30.0, -0.004, 0.003, 1.1],
+            [2.5, 0.0, -60.0, 0.0, 2.5, -40.0, 0.01, 0.0, -0.2],
+        ];
+        for h in homs {
+            for (sw, sh) in [(37u32, 29u32), (64, 48), (1, 1)] {
+                let sampler = super::Sampler::new(h, sw, sh);
+                let mut taps = super::RowTaps::default();
+                for y in 0..31u32 {
+                    let row = sampler.row(y);
+                    for n in [0usize, 5, 8, 43] {
+                        row.taps_into(n, &mut taps);
+                        for x in 0..n {
+                            assert_eq!(
+                                taps.tap(x),
+                                row.tap(x as u32),
+                                "{h:?} {sw}x{sh} row {y} col {x}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     use super::*;
 
     const IDENTITY: [f64; 9] = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0];

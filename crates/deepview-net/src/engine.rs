@@ -14,7 +14,7 @@ use crate::network::{DeepViewModel, PRIOR_EPS, PRIOR_SINGLE_VIEW_VARIANCE};
 use deepview_geometry::{Camera, plane_homography};
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
-use deepview_mpi::warp::Sampler;
+use deepview_mpi::warp::{RowTaps, Sampler};
 use rayon::prelude::*;
 
 /// Whether the engine can run `model` (every net without U-Net; any view and plane count).
@@ -150,12 +150,13 @@ fn warp_into_c<const C: usize>(
     let ptrs: [*mut f32; C] = std::array::from_fn(|c| dst[c].as_mut_ptr());
     let vptr = valid.map(|v| v.as_mut_ptr());
     let sampler = Sampler::new(*hom, src_w, src_h);
+    let mut taps = RowTaps::default();
     for y in 0..plane.h {
-        let row = sampler.row(y as u32);
+        sampler.row(y as u32).taps_into(plane.w, &mut taps);
         let base = plane.index(y, 0);
         for x in 0..plane.w {
             let i = base + x;
-            let (vals, ok) = match row.tap(x as u32) {
+            let (vals, ok) = match taps.tap(x) {
                 None => ([0f32; C], 0.0),
                 Some(t) => {
                     // The taps are texels of the source (clamped into it by the sampler).
@@ -198,22 +199,88 @@ fn warp_pair_into(
 ) {
     #[cfg(target_arch = "x86_64")]
     if deepview_kernels::simd() {
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn warp_pair_fma(
-            src: (&[f32], &[f32]),
-            size: (u32, u32),
-            hom: &Hom,
-            plane: Plane,
-            dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
-            valid: &mut [f32],
-        ) {
-            warp_pair_into_portable(src, size, hom, plane, dst, valid)
-        }
         // SAFETY: AVX2 and FMA are present (checked).
-        unsafe { warp_pair_fma(src, size, hom, plane, dst, valid) };
+        unsafe { warp_pair_avx2(src, size, hom, plane, dst, valid) };
         return;
     }
     warp_pair_into_portable(src, size, hom, plane, dst, valid)
+}
+
+/// [`warp_pair_into_portable`] with each tap's channels in one vector (the same products and sums in the
+/// same order, so the same bits).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn warp_pair_avx2(
+    (a, b): (&[f32], &[f32]),
+    (src_w, src_h): (u32, u32),
+    hom: &Hom,
+    plane: Plane,
+    (da, db): (&mut [&mut [f32]], &mut [&mut [f32]]),
+    valid: &mut [f32],
+) {
+    use std::arch::x86_64::*;
+    const A: usize = 6;
+    const B: usize = 4;
+    let n = src_w as usize * src_h as usize;
+    assert!(a.len() >= n * A && b.len() >= n * B && da.len() == A && db.len() == B);
+    assert!(
+        da.iter().chain(db.iter()).all(|d| d.len() >= plane.len()) && valid.len() >= plane.len()
+    );
+    let pa: [*mut f32; A] = std::array::from_fn(|c| da[c].as_mut_ptr());
+    let pb: [*mut f32; B] = std::array::from_fn(|c| db[c].as_mut_ptr());
+    let sampler = Sampler::new(*hom, src_w, src_h);
+    let mut taps = RowTaps::default();
+    let (ap, bp) = (a.as_ptr(), b.as_ptr());
+    for y in 0..plane.h {
+        sampler.row(y as u32).taps_into(plane.w, &mut taps);
+        let base = plane.index(y, 0);
+        for x in 0..plane.w {
+            let i = base + x;
+            let mut va = [0f32; 8];
+            let mut vb = [0f32; 4];
+            let ok = taps.ok[x];
+            if ok {
+                let (ix, w) = (taps.idx[x], taps.w[x]);
+                // SAFETY: the taps are texels of the source (`< n`), whose channels are in bounds
+                // (asserted); the 2-float load reads channels 4 and 5 of the texel.
+                unsafe {
+                    let mut lo = _mm_setzero_ps();
+                    let mut hi = _mm_setzero_ps();
+                    let mut sb = _mm_setzero_ps();
+                    for j in 0..4 {
+                        let wj = _mm_set1_ps(w[j]);
+                        let ta = ap.add(ix[j] as usize * A);
+                        let pl = _mm_mul_ps(wj, _mm_loadu_ps(ta));
+                        let ph =
+                            _mm_mul_ps(wj, _mm_castpd_ps(_mm_load_sd(ta.add(4) as *const f64)));
+                        let pbv = _mm_mul_ps(wj, _mm_loadu_ps(bp.add(ix[j] as usize * B)));
+                        // `w0 s0 + w1 s1 + w2 s2 + w3 s3`, left to right as the scalar sum.
+                        if j == 0 {
+                            (lo, hi, sb) = (pl, ph, pbv);
+                        } else {
+                            lo = _mm_add_ps(lo, pl);
+                            hi = _mm_add_ps(hi, ph);
+                            sb = _mm_add_ps(sb, pbv);
+                        }
+                    }
+                    _mm_storeu_ps(va.as_mut_ptr(), lo);
+                    _mm_storeu_ps(va.as_mut_ptr().add(4), hi);
+                    _mm_storeu_ps(vb.as_mut_ptr(), sb);
+                }
+            }
+            // SAFETY: `i < plane.len()` (an interior index) and the planes hold `plane.len()` floats
+            // (asserted); they are distinct buffers.
+            unsafe {
+                for c in 0..A {
+                    *pa[c].add(i) = va[c];
+                }
+                for c in 0..B {
+                    *pb[c].add(i) = vb[c];
+                }
+            }
+            valid[i] = if ok { 1.0 } else { 0.0 };
+        }
+    }
 }
 
 #[inline(always)]
@@ -235,12 +302,13 @@ fn warp_pair_into_portable(
     let pa: [*mut f32; A] = std::array::from_fn(|c| da[c].as_mut_ptr());
     let pb: [*mut f32; B] = std::array::from_fn(|c| db[c].as_mut_ptr());
     let sampler = Sampler::new(*hom, src_w, src_h);
+    let mut taps = RowTaps::default();
     for y in 0..plane.h {
-        let row = sampler.row(y as u32);
+        sampler.row(y as u32).taps_into(plane.w, &mut taps);
         let base = plane.index(y, 0);
         for x in 0..plane.w {
             let i = base + x;
-            let (va, vb, ok) = match row.tap(x as u32) {
+            let (va, vb, ok) = match taps.tap(x) {
                 None => ([0f32; A], [0f32; B], 0.0),
                 Some(t) => {
                     let ix: [usize; 4] = std::array::from_fn(|j| t.idx[j] as usize);
@@ -452,17 +520,18 @@ fn render_row_portable(
     // pass then replaces by the transmittance `T_p` of the planes in front. Per pixel the arithmetic
     // and its order are those of the composite's definition.
     let mut acc = vec![[0f32; 3]; vw];
+    let mut taps = RowTaps::default();
     // SAFETY (for every write through `at_ptr` below): row `y` of every plane of the store, `[D][vh][vw][4]`,
     // is written by this task only.
     let at_row = |p: usize| unsafe {
         std::slice::from_raw_parts_mut((at_ptr as *mut f32).add((p * vh + y) * vw * 4), vw * 4)
     };
     for (p, sampler) in samplers.iter().enumerate().take(d) {
-        let rs = sampler.row(y as u32);
+        sampler.row(y as u32).taps_into(vw, &mut taps);
         let plane = &rgba[p * h * w * 4..][..h * w * 4];
         let out = at_row(p);
         for x in 0..vw {
-            let (c, a) = match rs.tap(x as u32) {
+            let (c, a) = match taps.tap(x) {
                 None => ([0f32; 3], 0f32),
                 Some(t) => {
                     let mut s = [0f32; 4];
