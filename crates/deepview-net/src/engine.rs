@@ -17,9 +17,10 @@ use deepview_kernels::Plane;
 use deepview_mpi::warp::{RowTaps, Sampler};
 use rayon::prelude::*;
 
-/// Whether the engine can run `model` (every net without U-Net; any view and plane count).
-pub fn supported(model: &DeepViewModel) -> bool {
-    model.nets.iter().all(|n| !n.unet)
+/// Whether the engine can run `model`: every model (any view and plane count; U-Net nets run their core
+/// at half resolution between a 2x2 average pool and a bilinear upsampling, as `CoreNet::forward`).
+pub fn supported(_model: &DeepViewModel) -> bool {
+    true
 }
 
 /// Estimated peak bytes of [`infer_engine`] (besides the inputs' images).
@@ -39,17 +40,23 @@ pub fn engine_bytes(
     let s = model.state_channels as u64;
     let plane = Plane::new(h, w).len() as u64;
     let threads = rayon::current_num_threads() as u64;
+    let half = Plane::new(h.div_ceil(2), w.div_ceil(2)).len() as u64;
     let scratch = model
         .nets
         .iter()
         .map(|n| {
             let cin = n.input[0].weight.dims()[1] as u64;
             let f = n.head.weight.dims()[1] as u64;
-            k * (cin + 2 * f) + 2 * f + s
+            let planes = k * (cin + 2 * f) + 3 * f + s;
+            // A U-Net net's scratch is at half resolution, beside its full-resolution inputs.
+            if n.unet {
+                planes * half + k * cin * plane
+            } else {
+                planes * plane
+            }
         })
         .max()
-        .unwrap_or(0)
-        * plane;
+        .unwrap_or(0);
     let renders = if model.nets.len() > 1 {
         view_px * (4 * d64 + 6)
     } else {
@@ -570,6 +577,88 @@ fn render_row_portable(
     }
 }
 
+/// The full-resolution input planes of a U-Net net's `K` views (`Cin` each), pooled into its scratch.
+struct FullInputs {
+    bufs: Vec<Vec<f32>>,
+    cin: usize,
+}
+
+impl FullInputs {
+    fn new(plane: Plane, views: usize, cin: usize) -> Self {
+        Self {
+            bufs: (0..views * cin).map(|_| plane.zeroed()).collect(),
+            cin,
+        }
+    }
+    fn view_mut(&mut self, v: usize) -> Vec<&mut [f32]> {
+        self.bufs[v * self.cin..(v + 1) * self.cin]
+            .iter_mut()
+            .map(|b| b.as_mut_slice())
+            .collect()
+    }
+    fn all_mut(&mut self) -> Vec<&mut [f32]> {
+        self.bufs.iter_mut().map(|b| b.as_mut_slice()).collect()
+    }
+    /// Pool every plane into `sc` (skipping the views' copies of shared channels, which the net reads
+    /// from view 0 only).
+    fn pool_into(&self, full: Plane, half: Plane, sc: &mut NetScratch, shared: usize) {
+        for (i, b) in self.bufs.iter().enumerate() {
+            let (v, c) = (i / self.cin, i % self.cin);
+            if v > 0 && c >= self.cin - shared {
+                continue;
+            }
+            avg_pool_into(full, b, half, sc.input_mut(v, c));
+        }
+    }
+}
+
+/// The U-Net's input pooling (`avg_pool2d`, 2x2, stride 2, an odd last row / column padded with zeros
+/// that count in the mean) of the padded plane `src` of `full` into the padded plane `dst` of `half`
+/// (`ceil(h / 2) x ceil(w / 2)`): the padding is the planes' own zero border.
+fn avg_pool_into(full: Plane, src: &[f32], half: Plane, dst: &mut [f32]) {
+    for y in 0..half.h {
+        let (r0, r1) = (full.index(2 * y, 0), full.index(2 * y + 1, 0));
+        let o = half.index(y, 0);
+        for x in 0..half.w {
+            let (a, b) = (r0 + 2 * x, r1 + 2 * x);
+            dst[o + x] = (src[a] + src[a + 1] + src[b] + src[b + 1]) / 4.0;
+        }
+    }
+}
+
+/// The U-Net's output upsampling (`interpolate` bilinear, `align_corners = false`, to twice the half
+/// size, cropped to `full`): padded plane `src` of `half` into (`add`: onto) the unpadded `dst` of
+/// `full`, with burn's coordinates and weights.
+fn upsample_into(half: Plane, src: &[f32], full: Plane, dst: &mut [f32], add: bool) {
+    // Source coordinate, low index, high index and weight along one axis (`in_size` -> `2 in_size`).
+    let axis = |out: usize, in_size: usize| {
+        let c = (out as f64 + 0.5) * (in_size as f64 / (2 * in_size) as f64) - 0.5;
+        let lo = c.floor().max(0.0) as usize;
+        (
+            lo,
+            (lo + 1).min(in_size - 1),
+            (c - lo as f64).max(0.0) as f32,
+        )
+    };
+    let xs: Vec<(usize, usize, f32)> = (0..full.w).map(|x| axis(x, half.w)).collect();
+    for y in 0..full.h {
+        let (y0, y1, wy) = axis(y, half.h);
+        let (ra, rb) = (half.index(y0, 0), half.index(y1, 0));
+        let row = &mut dst[y * full.w..(y + 1) * full.w];
+        for (o, &(x0, x1, wx)) in row.iter_mut().zip(&xs) {
+            let v = src[ra + x0] * (1.0 - wx) * (1.0 - wy)
+                + src[ra + x1] * wx * (1.0 - wy)
+                + src[rb + x0] * (1.0 - wx) * wy
+                + src[rb + x1] * wx * wy;
+            if add {
+                *o += v;
+            } else {
+                *o = v;
+            }
+        }
+    }
+}
+
 /// Infer the MPI (premultiplied RGBA `[D][H][W][4]`) of `reference` at `depths` from `views` with the
 /// kernels; `progress(net)` after each net. The model must be [`supported`].
 pub fn infer_engine(
@@ -579,7 +668,6 @@ pub fn infer_engine(
     depths: &[f64],
     progress: &mut dyn FnMut(usize),
 ) -> Vec<f32> {
-    assert!(supported(model), "the engine runs nets without U-Net");
     let (w, h, d) = (
         reference.width as usize,
         reference.height as usize,
@@ -617,48 +705,81 @@ pub fn infer_engine(
     let mut state = vec![0f32; d * s * hw];
     for (n, net) in nets.iter().enumerate() {
         let cin = net.in_channels();
+        // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch.
+        let unet = model.nets[n].unet;
+        let np = if unet {
+            Plane::new(h.div_ceil(2), w.div_ceil(2))
+        } else {
+            plane
+        };
+        let scratch = || {
+            (
+                NetScratch::new(net, np, k),
+                unet.then(|| FullInputs::new(plane, k, cin)),
+            )
+        };
+        // The net's output channel `c` into (`add`: onto) the unpadded state plane `dst`.
+        let take_output = |sc: &NetScratch, c: usize, dst: &mut [f32], add: bool| {
+            if unet {
+                upsample_into(np, sc.output(c), plane, dst, add);
+            } else if add {
+                let out = sc.output(c);
+                for (y, row) in dst.chunks_exact_mut(w).enumerate() {
+                    let i = plane.index(y, 0);
+                    for (x, &u) in row.iter_mut().zip(&out[i..i + w]) {
+                        *x += u;
+                    }
+                }
+            } else {
+                plane.unpad_into(sc.output(c), dst);
+            }
+        };
         if n == 0 {
             // The plane sweeps feed both the net and the agreement prior's first pass.
             let temperature = model.prior_temperature;
             let mut prior = vec![0f32; if temperature > 0.0 { d * 4 * hw } else { 0 }];
             let prior_ptr = prior.as_mut_ptr() as usize;
-            for_each_chunk_with(
-                &mut state,
-                s * hw,
-                || NetScratch::new(net, plane, k),
-                |sc, (p, st)| {
-                    for (v, (img, _)) in views.iter().enumerate() {
-                        let mut ins = sc.view_inputs_mut(v);
-                        let (rgb, rest) = ins.split_at_mut(3);
-                        let valid = &mut *rest[0];
-                        warp_into(
-                            &img.data,
-                            img.channels,
-                            img.width,
-                            img.height,
-                            &homs[v][p],
-                            plane,
-                            rgb,
-                            Some(valid),
-                        );
-                    }
-                    if temperature > 0.0 {
-                        let psv = sc.inputs_mut();
-                        // SAFETY: plane p's `4 * hw` values of the prior, written by this task only.
-                        let o = unsafe {
-                            std::slice::from_raw_parts_mut(
-                                (prior_ptr as *mut f32).add(p * 4 * hw),
-                                4 * hw,
-                            )
-                        };
-                        prior_stats(&psv, plane, temperature, o);
-                    }
-                    sc.run(net);
-                    for c in 0..s {
-                        plane.unpad_into(sc.output(c), &mut st[c * hw..(c + 1) * hw]);
-                    }
-                },
-            );
+            for_each_chunk_with(&mut state, s * hw, scratch, |(sc, full), (p, st)| {
+                for (v, (img, _)) in views.iter().enumerate() {
+                    let mut ins = match full {
+                        Some(f) => f.view_mut(v),
+                        None => sc.view_inputs_mut(v),
+                    };
+                    let (rgb, rest) = ins.split_at_mut(3);
+                    let valid = &mut *rest[0];
+                    warp_into(
+                        &img.data,
+                        img.channels,
+                        img.width,
+                        img.height,
+                        &homs[v][p],
+                        plane,
+                        rgb,
+                        Some(valid),
+                    );
+                }
+                if temperature > 0.0 {
+                    let psv = match full {
+                        Some(f) => f.all_mut(),
+                        None => sc.inputs_mut(),
+                    };
+                    // SAFETY: plane p's `4 * hw` values of the prior, written by this task only.
+                    let o = unsafe {
+                        std::slice::from_raw_parts_mut(
+                            (prior_ptr as *mut f32).add(p * 4 * hw),
+                            4 * hw,
+                        )
+                    };
+                    prior_stats(&psv, plane, temperature, o);
+                }
+                if let Some(f) = full {
+                    f.pool_into(plane, np, sc, 0);
+                }
+                sc.run(net);
+                for c in 0..s {
+                    take_output(sc, c, &mut st[c * hw..(c + 1) * hw], false);
+                }
+            });
             if temperature > 0.0 {
                 prior_logits(&mut prior, d, hw);
                 state
@@ -680,49 +801,43 @@ pub fn infer_engine(
             let renders = render_views(&rgba, views, &homs, w, h, d);
             drop(rgba);
             // In place: plane p's update reads only its own state and the renders (made before).
-            for_each_chunk_with(
-                &mut state,
-                s * hw,
-                || NetScratch::new(net, plane, k),
-                |sc, (p, st)| {
-                    for (v, (img, _)) in views.iter().enumerate() {
-                        let (vw, vh) = (img.width, img.height);
-                        let vpx = vw as usize * vh as usize;
-                        let mut ins = sc.view_inputs_mut(v);
-                        // [I (3), R (3), A (3), T (1), validity (1), state (S)].
-                        let (ir, rest) = ins.split_at_mut(6);
-                        let (atp, rest) = rest.split_at_mut(4);
-                        let (valid, st_planes) = rest.split_at_mut(1);
-                        let at_plane = &renders.at[v][p * vpx * 4..][..vpx * 4];
-                        warp_pair_into(
-                            (&renders.ir[v], at_plane),
-                            (vw, vh),
-                            &homs[v][p],
-                            plane,
-                            (ir, atp),
-                            valid[0],
-                        );
-                        // The net reads the shared state from view 0's planes only.
-                        if v == 0 {
-                            for (c, dst) in st_planes.iter_mut().enumerate() {
-                                plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
-                            }
+            for_each_chunk_with(&mut state, s * hw, scratch, |(sc, full), (p, st)| {
+                for (v, (img, _)) in views.iter().enumerate() {
+                    let (vw, vh) = (img.width, img.height);
+                    let vpx = vw as usize * vh as usize;
+                    let mut ins = match full {
+                        Some(f) => f.view_mut(v),
+                        None => sc.view_inputs_mut(v),
+                    };
+                    // [I (3), R (3), A (3), T (1), validity (1), state (S)].
+                    let (ir, rest) = ins.split_at_mut(6);
+                    let (atp, rest) = rest.split_at_mut(4);
+                    let (valid, st_planes) = rest.split_at_mut(1);
+                    let at_plane = &renders.at[v][p * vpx * 4..][..vpx * 4];
+                    warp_pair_into(
+                        (&renders.ir[v], at_plane),
+                        (vw, vh),
+                        &homs[v][p],
+                        plane,
+                        (ir, atp),
+                        valid[0],
+                    );
+                    // The net reads the shared state from view 0's planes only.
+                    if v == 0 {
+                        for (c, dst) in st_planes.iter_mut().enumerate() {
+                            plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
                         }
                     }
-                    debug_assert_eq!((cin, net.shared_inputs()), (11 + s, s));
-                    sc.run(net);
-                    let out = sc.output_planes();
-                    for c in 0..s {
-                        let o = &mut st[c * hw..(c + 1) * hw];
-                        for (y, row) in o.chunks_exact_mut(w).enumerate() {
-                            let i = plane.index(y, 0);
-                            for (x, &u) in row.iter_mut().zip(&out[c][i..i + w]) {
-                                *x += u;
-                            }
-                        }
-                    }
-                },
-            );
+                }
+                debug_assert_eq!((cin, net.shared_inputs()), (11 + s, s));
+                if let Some(f) = full {
+                    f.pool_into(plane, np, sc, s);
+                }
+                sc.run(net);
+                for c in 0..s {
+                    take_output(sc, c, &mut st[c * hw..(c + 1) * hw], true);
+                }
+            });
         }
         progress(n);
     }
@@ -773,17 +888,20 @@ mod tests {
     #[test]
     fn engine_equals_model_forward() {
         let dev = Device::flex();
-        for (k, d, updates, prior) in [
-            (3, 5, 1, true),
-            (4, 4, 2, false),
-            (1, 3, 0, true),
-            (5, 6, 1, false),
+        for (k, d, updates, prior, unet_nets) in [
+            (3, 5, 1, true, 0),
+            (4, 4, 2, false, 0),
+            (1, 3, 0, true, 0),
+            (5, 6, 1, false, 0),
+            // U-Net nets (the paper-spaces presets' first two) on odd sizes (29 x 37).
+            (3, 4, 2, false, 2),
+            (2, 3, 1, true, 1),
         ] {
             let cfg = DeepViewConfig {
                 features_large: 6,
                 features_small: 5,
                 updates,
-                unet_nets: 0,
+                unet_nets,
                 init_prior: None,
                 ..DeepViewConfig::preset("cpu").unwrap()
             };
@@ -834,7 +952,7 @@ mod tests {
             }
             assert!(
                 max < 2e-5,
-                "{k} views, {d} planes, {updates} updates, prior {prior}: {max}"
+                "{k} views, {d} planes, {updates} updates, prior {prior}, {unet_nets} U-Net: {max}"
             );
         }
     }

@@ -520,11 +520,6 @@ impl NetScratch {
         &self.planes.bufs[self.views * (self.cin + 2 * self.f) + 2 * self.f + c]
     }
 
-    /// The padded output planes after [`Self::run`].
-    pub(crate) fn output_planes(&self) -> Vec<&[f32]> {
-        (0..self.so).map(|c| self.output(c)).collect()
-    }
-
     /// Run `net` on the inputs (see [`CoreNet::forward`](crate::network::CoreNet::forward)).
     pub(crate) fn run(&mut self, net: &PackedNet) {
         let plane = self.planes.plane;
