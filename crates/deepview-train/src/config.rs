@@ -30,7 +30,7 @@ pub struct TrainConfig {
     pub checkpoint_every: u64,
     pub keep_checkpoints: usize,
     pub seed: u64,
-    /// Devices (`cpu`, `wgpu`, `wgpu:N`, `cuda:N`); the first one holds the master weights.
+    /// Devices (`cpu`, `wgpu`, `wgpu:N`, `wgpu:cpu`, `cuda:N`); the first one holds the master weights.
     pub devices: Vec<String>,
     /// Hold out every n-th view of LLFF/COLMAP/light-field scenes (0 or 1: none).
     pub holdout_every: usize,

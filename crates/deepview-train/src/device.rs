@@ -1,4 +1,4 @@
-//! Training devices by name: `cpu`, `wgpu[:N]`, `cuda[:N]`.
+//! Training devices by name: `cpu`, `wgpu[:N]`, `wgpu:cpu`, `cuda[:N]`.
 
 use crate::dist;
 use crate::error::TrainError;
@@ -7,9 +7,11 @@ use burn::tensor::Device;
 /// A wgpu device, initialised once per name (burn refuses a second initialisation of the same runtime)
 /// through the options API, which reports a missing adapter as an error instead of panicking at the
 /// first tensor operation. `wgpu` is the default adapter (a GPU, or a CPU Vulkan driver such as Mesa's
-/// lavapipe), `wgpu:N` the N-th discrete GPU.
+/// lavapipe), `wgpu:N` the N-th discrete GPU, `wgpu:cpu` the CPU adapter (lavapipe): on a machine with
+/// lavapipe alone, `wgpu` and `wgpu:cpu` are two distinct devices (two wgpu devices, queues and burn
+/// servers) on the same adapter, which is how the tests run two wgpu replicas without a GPU.
 #[cfg(feature = "wgpu")]
-fn wgpu_device(name: &str, index: Option<usize>) -> Result<Device, String> {
+fn wgpu_device(name: &str, index: Option<WgpuIndex>) -> Result<Device, String> {
     use burn::tensor::DeviceKind;
     use std::sync::{Mutex, OnceLock};
     static DEVICES: OnceLock<Mutex<Vec<(String, Device)>>> = OnceLock::new();
@@ -21,7 +23,8 @@ fn wgpu_device(name: &str, index: Option<usize>) -> Result<Device, String> {
         return Ok(d.clone());
     }
     let kind = match index {
-        Some(i) => DeviceKind::DiscreteGpu(i),
+        Some(WgpuIndex::Discrete(i)) => DeviceKind::DiscreteGpu(i),
+        Some(WgpuIndex::Cpu) => DeviceKind::Cpu,
         None => DeviceKind::DefaultDevice,
     };
     let device = Device::wgpu_options()
@@ -32,14 +35,52 @@ fn wgpu_device(name: &str, index: Option<usize>) -> Result<Device, String> {
     Ok(device)
 }
 
-/// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N` (feature `wgpu`), `cuda`/`cuda:N`
-/// (feature `cuda`). The index `local` is the process's rank on its machine under an MPI launcher
+#[cfg(not(feature = "wgpu"))]
+const NO_WGPU: &str = "this build has no wgpu support (rebuild with `--features wgpu`)";
+
+/// The part of a wgpu device name after `wgpu:`.
+#[cfg(feature = "wgpu")]
+#[derive(Clone, Copy)]
+enum WgpuIndex {
+    Discrete(usize),
+    Cpu,
+}
+
+/// What kind of device a name (as [`parse_device`] accepts it) is, without initialising it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DeviceFamily {
+    /// `cpu`: burn-flex.
+    Cpu,
+    /// `wgpu[:N|:cpu]`: cubecl's wgpu runtime.
+    Wgpu,
+    /// `cuda[:N]`: cubecl's CUDA runtime.
+    Cuda,
+}
+
+/// The family of a device name, or `None` for a name [`parse_device`] rejects as unknown.
+pub fn device_family(name: &str) -> Option<DeviceFamily> {
+    match name.split_once(':').map_or(name, |(k, _)| k) {
+        "cpu" | "flex" => Some(DeviceFamily::Cpu),
+        "wgpu" => Some(DeviceFamily::Wgpu),
+        "cuda" => Some(DeviceFamily::Cuda),
+        _ => None,
+    }
+}
+
+/// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N`/`wgpu:cpu` (feature `wgpu`),
+/// `cuda`/`cuda:N` (feature `cuda`). The index `local` is the process's rank on its machine under an MPI launcher
 /// (`cuda:local`: one GPU per rank), see [`dist::local_rank`].
 pub fn parse_device(name: &str) -> Result<Device, TrainError> {
     let err = |m: &str| TrainError::Device {
         name: name.to_string(),
         message: m.to_string(),
     };
+    if name == "wgpu:cpu" {
+        #[cfg(feature = "wgpu")]
+        return wgpu_device(name, Some(WgpuIndex::Cpu)).map_err(|m| err(&m));
+        #[cfg(not(feature = "wgpu"))]
+        return Err(err(NO_WGPU));
+    }
     let (kind, index) = match name.split_once(':') {
         Some((k, "local")) => (k, Some(dist::local_rank())),
         Some((k, i)) => (
@@ -54,13 +95,11 @@ pub fn parse_device(name: &str) -> Result<Device, TrainError> {
     match kind {
         "cpu" | "flex" => Ok(Device::flex()),
         #[cfg(feature = "wgpu")]
-        "wgpu" => wgpu_device(name, index).map_err(|m| err(&m)),
+        "wgpu" => wgpu_device(name, index.map(WgpuIndex::Discrete)).map_err(|m| err(&m)),
         #[cfg(not(feature = "wgpu"))]
         "wgpu" => {
             let _ = index;
-            Err(err(
-                "this build has no wgpu support (rebuild with `--features wgpu`)",
-            ))
+            Err(err(NO_WGPU))
         }
         #[cfg(feature = "cuda")]
         "cuda" => Ok(Device::cuda(index.unwrap_or(0))),
@@ -68,6 +107,8 @@ pub fn parse_device(name: &str) -> Result<Device, TrainError> {
         "cuda" => Err(err(
             "this build has no CUDA support (rebuild with `--features cuda`)",
         )),
-        _ => Err(err("unknown device (expected cpu, wgpu[:N] or cuda[:N])")),
+        _ => Err(err(
+            "unknown device (expected cpu, wgpu[:N], wgpu:cpu or cuda[:N])",
+        )),
     }
 }

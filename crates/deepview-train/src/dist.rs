@@ -11,12 +11,15 @@
 //! checkpoint). Only rank 0 writes the run folder (config, metrics, checkpoints) and prints; on
 //! `--resume` rank 0 chooses the checkpoint and every rank loads that one.
 //!
-//! Within one process, replicas on several devices (`--devices`) are still summed by
-//! [`crate::clip::sum_on_device`]. burn 0.22's collective ops (`burn::tensor::distributed`:
-//! `DistributedContext::init(devices, config)`, `all_reduce(tensor, op, device_ids)` returning a
-//! `CollectiveTensor` to `resolve()`) are implemented by its cubecl backends (wgpu, cuda) only; the
-//! default `DistributedOps` of other backends, burn-flex (`cpu`) among them, is `unimplemented!()`, so
-//! they could serve only all-GPU device sets and are not used yet.
+//! Within one process, the replicas on several devices (`--devices`) are summed first, by
+//! [`crate::reduce`] onto the first device, and that sum is what enters the reduction across ranks
+//! above: burn 0.22's collective ops (`burn::tensor::distributed`: a `DistributedContext` over the
+//! devices, `all_reduce(gradient, Sum, devices)` per parameter and device) where every device is a
+//! cubecl device whose runtime has a transport between its devices (in cubecl 0.11.3: CUDA with
+//! NCCL), otherwise [`crate::clip::sum_on_device`] (copies to the first device, added in device
+//! order): for any `cpu` device (burn-flex has no collective ops) and for wgpu (cubecl's wgpu runtime
+//! has no transport and panics on `all_reduce`; file and line evidence in [`crate::reduce`]). The
+//! ranks themselves always reduce through [`Collective`] (MPI), on the host.
 
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param};
 use burn::optim::GradientsParams;

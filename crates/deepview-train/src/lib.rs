@@ -9,7 +9,7 @@
 //!
 //! Modules: [`config`] (what a run is), [`load`] (its datasets), [`data`] (tuple sampling),
 //! [`synthetic`] (a built-in scene), [`example`] (one tuple through the model), [`recompute`],
-//! [`clip`], [`dist`] (ranks), [`device`], [`trainer`] (the loop), [`checkpoint`], [`metrics`],
+//! [`clip`], [`reduce`] (replicas of one process), [`dist`] (ranks), [`device`], [`trainer`] (the loop), [`checkpoint`], [`metrics`],
 //! [`events`], [`error`].
 //!
 //! A run lives in `runs/<name>/`:
@@ -31,8 +31,9 @@
 //!
 //! A step: draw K (per batch) and `batch` tuples ([`data`]); split them across the devices; each replica
 //! (a copy of the model on its device) runs forward, loss and backward per example (loss divided by the
-//! batch size) and sums its gradients; the sums are moved to the first device and added (= the gradient
-//! of the batch-mean loss); a non-finite loss or gradient norm skips the step (weights and optimizer state
+//! batch size) and sums its gradients; the replicas' sums are added onto the first device (= the
+//! gradient of the batch-mean loss) by burn's collective `all_reduce` where the devices' runtime
+//! supports it (CUDA), else by copies ([`reduce`]), then across ranks ([`dist`]); a non-finite loss or gradient norm skips the step (weights and optimizer state
 //! untouched, the reason in the step's report, `skipped` in the metrics); otherwise the global norm is clipped and Adam
 //! steps. With one device the replicas run in turn; with several, one thread per device.
 //!
@@ -56,6 +57,7 @@ pub mod load;
 pub mod loss;
 pub mod metrics;
 pub mod recompute;
+pub mod reduce;
 pub mod synthetic;
 pub mod trainer;
 pub mod vgg;
@@ -70,6 +72,7 @@ pub use events::{Notice, TrainEvent};
 pub use example::{example_inputs, example_loss, loss_and_grads_full, loss_tail, parameter_values};
 pub use load::{DataSpec, SYNTHETIC_TWO_PLANES, load_data};
 pub use metrics::StepReport;
+pub use reduce::LocalReduction;
 pub use trainer::Trainer;
 
 #[cfg(test)]

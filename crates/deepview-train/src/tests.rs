@@ -2,6 +2,7 @@
 
 use super::*;
 use crate::loss::{Loss, LossKind};
+use crate::reduce;
 use crate::synthetic::two_plane_scene;
 use crate::vgg::Vgg16;
 use burn::module::{Module, ModuleVisitor, Param};
@@ -284,6 +285,14 @@ fn two_cpu_replicas_match_one_device() {
     let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
     let max = max_abs_diff(&wa, &wb);
     assert!(max < 1e-6, "replicas diverge from one device by {max}");
+    // Two CPU replicas are summed by copies (burn-flex has no collective ops).
+    assert_eq!(one.local_reduction(), &LocalReduction::Single);
+    assert!(
+        matches!(two.local_reduction(), LocalReduction::Copy { why } if why.contains("`cpu`")),
+        "{:?}",
+        two.local_reduction()
+    );
+    assert_eq!(two.all_reduce_calls(), 0);
 }
 
 /// Run `steps` steps of the small configuration with `batch` tuples per step as `ranks` ranks (threads
@@ -432,6 +441,12 @@ fn cpu_and_wgpu_replicas_match_one_device() {
     });
     let dir = tempfile::tempdir().unwrap();
     let (mut one, mut two) = one_and_replicated(dir.path(), &["cpu", "wgpu"]);
+    // A set with a `cpu` device keeps the copies (burn-flex has no collective ops).
+    assert!(
+        matches!(two.local_reduction(), LocalReduction::Copy { why } if why.contains("`cpu`")),
+        "{:?}",
+        two.local_reduction()
+    );
     same_start(&one.model, &mut two);
     let w0 = parameter_values(&one.model);
     let ra = one.run(&never(), &mut |_| {}).unwrap();
@@ -460,6 +475,174 @@ fn cpu_and_wgpu_replicas_match_one_device() {
     assert!(
         max < 1e-5,
         "cpu+wgpu replicas diverge from one device by {max}"
+    );
+}
+
+/// Two wgpu replicas on a machine whose only Vulkan driver is Mesa's lavapipe: `wgpu` (the default
+/// adapter) and `wgpu:cpu` (the CPU adapter) are two distinct wgpu devices (each its own wgpu device,
+/// queue and burn server) on the one lavapipe adapter. Trained for 2 steps with a batch of 2 (one tuple
+/// per replica), they end with the weights of `wgpu` alone on the same batches.
+///
+/// Path: burn's collective ops when cubecl's wgpu runtime reports a transport between its devices,
+/// which cubecl 0.11.3 never does ([`reduce`]; `wgpu_collectives_are_refused_by_cubecl` pins that),
+/// so here the copies; the test checks which path ran (`local_reduction`, and the trainer's count of
+/// `all_reduce` calls: one per parameter and device of each step on the collective path, 0 on copies).
+///
+/// Tolerance: both runs execute the same lavapipe kernels on the same tuples, and the sum of two
+/// gradient sets is the same either way (`a + b`, one addition per value, whether the second set is
+/// summed on its own device first and copied, or added in turn on one device; a collective sum of two
+/// is the same single addition), so the weights agree bit for bit here (measured: 0). 1e-6 absolute is
+/// allowed for a collective on real GPUs (NCCL may reduce in another order with more devices); a
+/// replica whose gradients were dropped or mis-summed changes the update by about the learning rate
+/// (1.5e-4 per step, Adam), over 100x more.
+#[cfg(feature = "wgpu")]
+#[test]
+fn two_wgpu_replicas_match_one_device() {
+    for name in ["wgpu", "wgpu:cpu"] {
+        parse_device(name).unwrap_or_else(|e| {
+            panic!("no wgpu device `{name}` on this machine (needs a GPU or lavapipe): {e}")
+        });
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let create = |name: &str, devices: &[&str]| {
+        Trainer::create(
+            &dir.path().join(name),
+            small_config(2, devices, 2),
+            small_data(),
+        )
+        .unwrap()
+    };
+    let mut one = create("one", &["wgpu"]);
+    let mut two = create("two", &["wgpu", "wgpu:cpu"]);
+    same_start(&one.model, &mut two);
+    let w0 = parameter_values(&one.model);
+    let collective = match two.local_reduction() {
+        LocalReduction::Collective => true,
+        LocalReduction::Copy { why } => {
+            assert!(why.contains("no transport"), "{why}");
+            false
+        }
+        other => panic!("{other:?}"),
+    };
+    eprintln!("two wgpu replicas: {:?}", two.local_reduction());
+    // The same batches for both (the runs share the seed; drawn once here to be sure).
+    for _ in 0..2 {
+        let batch = one.draw_batch().unwrap();
+        let a = one.step_on(batch.clone());
+        let b = two.step_on(batch);
+        eprintln!(
+            "loss {} vs {}, grad norm {} vs {}",
+            a.loss, b.loss, a.grad_norm, b.grad_norm
+        );
+        assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
+        assert!(
+            (a.loss - b.loss).abs() <= 1e-6 * a.loss.abs(),
+            "{a:?} vs {b:?}"
+        );
+        assert!(
+            (a.grad_norm - b.grad_norm).abs() <= 1e-6 * a.grad_norm.abs(),
+            "{a:?} vs {b:?}"
+        );
+    }
+    let params = dist::flat_len(&two.model) as u64; // values + one per parameter
+    let calls = two.all_reduce_calls();
+    eprintln!("all_reduce calls: {calls} (flat length {params})");
+    if collective {
+        assert!(calls > 0, "the collective path made no all_reduce call");
+    } else {
+        assert_eq!(calls, 0);
+    }
+    let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
+    let max = max_abs_diff(&wa, &wb);
+    let moved = max_abs_diff(&wa, &w0);
+    eprintln!("max |w_wgpu - w_wgpu+wgpu:cpu| = {max:e}; max move = {moved:e}");
+    assert!(moved > 1e-4, "the weights hardly moved ({moved})");
+    assert!(
+        max <= 1e-6,
+        "two wgpu replicas diverge from one device by {max}"
+    );
+}
+
+/// burn 0.22.1's collective ops on two wgpu devices (lavapipe's `wgpu` and `wgpu:cpu`), through the
+/// code the trainer's collective path runs ([`reduce::collective_sum`]): cubecl 0.11.3 refuses
+/// `all_reduce` on its wgpu runtime with a panic on the caller ("Can't use `all_reduce` on wgpu, which
+/// has no transport between its devices", cubecl-runtime `src/client.rs:948-958`), which is why wgpu
+/// device sets take the copies. If this test fails because the sum comes out, cubecl's wgpu runtime
+/// has gained a transport: `reduce::choose` then picks the collective path for wgpu by itself, and
+/// `two_wgpu_replicas_match_one_device` checks it.
+#[cfg(feature = "wgpu")]
+#[test]
+fn wgpu_collectives_are_refused_by_cubecl() {
+    use burn::nn::{Linear, LinearConfig};
+    let a = parse_device("wgpu").unwrap();
+    let b = parse_device("wgpu:cpu").unwrap();
+    assert_ne!(a, b, "`wgpu` and `wgpu:cpu` must be two devices");
+    let (reducer, reduction) =
+        reduce::choose(&["wgpu".into(), "wgpu:cpu".into()], &[a.clone(), b.clone()]);
+    assert!(
+        matches!(&reduction, LocalReduction::Copy { why } if why.contains("no transport")),
+        "{reduction:?} {reducer:?}"
+    );
+    let m: Linear = LinearConfig::new(3, 2).init(&a);
+    let grads = |d: &Device, v: f32| {
+        let mut g = GradientsParams::new();
+        g.register::<2>(m.weight.id, Tensor::<2>::full([3, 2], v, d));
+        g
+    };
+    let sets = vec![Some(grads(&a, 1.0)), Some(grads(&b, 2.0))];
+    let out = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+        let (sum, calls) = reduce::collective_sum(&m, sets, &[a.clone(), b.clone()]);
+        let w = sum
+            .get::<2>(m.weight.id)
+            .map(|t| t.into_data().try_to_vec::<f32>());
+        (w, calls)
+    }));
+    let message = match out {
+        Ok(r) => {
+            panic!("burn's all_reduce on two wgpu devices returned {r:?}: wgpu has collectives now")
+        }
+        Err(e) => e
+            .downcast_ref::<String>()
+            .cloned()
+            .or_else(|| e.downcast_ref::<&str>().map(|s| s.to_string()))
+            .unwrap_or_default(),
+    };
+    eprintln!("all_reduce on wgpu: {message}");
+    assert!(
+        message.contains("all_reduce") && message.contains("no transport"),
+        "{message}"
+    );
+}
+
+/// Which way the replicas of one process are summed, by device set (without initialising GPUs).
+#[test]
+fn local_reduction_by_device_set() {
+    use crate::device::{DeviceFamily, device_family};
+    for (name, family) in [
+        ("cpu", Some(DeviceFamily::Cpu)),
+        ("wgpu", Some(DeviceFamily::Wgpu)),
+        ("wgpu:1", Some(DeviceFamily::Wgpu)),
+        ("wgpu:cpu", Some(DeviceFamily::Wgpu)),
+        ("cuda:local", Some(DeviceFamily::Cuda)),
+        ("tpu", None),
+    ] {
+        assert_eq!(device_family(name), family, "{name}");
+    }
+    let cpu = Device::flex().autodiff();
+    let names = |n: &[&str]| n.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+    let (_, r) = reduce::choose(&names(&["cpu"]), std::slice::from_ref(&cpu));
+    assert_eq!(r, LocalReduction::Single);
+    let (_, r) = reduce::choose(&names(&["cpu", "cpu"]), &[cpu.clone(), cpu.clone()]);
+    assert!(
+        matches!(&r, LocalReduction::Copy { why } if why.contains("`cpu`")),
+        "{r:?}"
+    );
+    #[cfg(not(feature = "wgpu"))]
+    assert!(
+        parse_device("wgpu:cpu")
+            .unwrap_err()
+            .to_string()
+            .contains("--features wgpu")
     );
 }
 

@@ -17,6 +17,7 @@ use crate::files::{lock_run, sync_dir, write_atomic};
 use crate::loss::{Loss, LossKind};
 use crate::metrics::{StepReport, append_metrics, truncate_metrics};
 use crate::recompute;
+use crate::reduce::{self, LocalReduction, Reducer};
 use crate::vgg::Vgg16;
 use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};
@@ -70,6 +71,9 @@ pub struct Trainer {
     devices: Vec<Device>,
     /// One loss (VGG copy) per device.
     losses: Vec<Loss>,
+    /// How the replicas' gradients are summed ([`reduce`]), and what that is.
+    reducer: Reducer,
+    local_reduction: LocalReduction,
     wall_offset: f64,
     session_start: Instant,
     session_steps: u64,
@@ -175,6 +179,7 @@ impl Trainer {
             None => model,
         };
         let losses = make_losses(config.train.loss, &devices)?;
+        let (reducer, local_reduction) = reduce::choose(&config.train.devices, &devices);
         Ok(Self {
             run_dir: run_dir.to_path_buf(),
             rng: Rng::new(config.train.seed),
@@ -185,6 +190,8 @@ impl Trainer {
             data,
             devices,
             losses,
+            reducer,
+            local_reduction,
             wall_offset: 0.0,
             session_start: Instant::now(),
             session_steps: 0,
@@ -262,6 +269,7 @@ impl Trainer {
         };
         let (step, (model, optim, state)) = loaded;
         let losses = make_losses(config.train.loss, &devices)?;
+        let (reducer, local_reduction) = reduce::choose(&config.train.devices, &devices);
         let mut trainer = Self {
             run_dir: run_dir.to_path_buf(),
             config,
@@ -272,6 +280,8 @@ impl Trainer {
             data,
             devices,
             losses,
+            reducer,
+            local_reduction,
             wall_offset: state.wall_time_s,
             session_start: Instant::now(),
             session_steps: 0,
@@ -310,6 +320,18 @@ impl Trainer {
     /// Whether this process writes the run folder and prints (rank 0, or a run without ranks).
     pub fn is_writer(&self) -> bool {
         self.comm.as_ref().is_none_or(|c| c.rank() == 0)
+    }
+
+    /// How this process sums the gradients of its replicas (`--devices`): burn's collective ops or
+    /// copies to the first device ([`reduce`]).
+    pub fn local_reduction(&self) -> &LocalReduction {
+        &self.local_reduction
+    }
+
+    /// How many burn `all_reduce` calls this trainer has made to sum its replicas (0 unless
+    /// [`LocalReduction::Collective`]).
+    pub fn all_reduce_calls(&self) -> u64 {
+        self.reducer.all_reduce_calls()
     }
 
     /// `(rank, number of ranks)`: `(0, 1)` without a communicator.
@@ -429,9 +451,10 @@ impl Trainer {
         for (r, (_, l)) in ranges.iter().zip(&results) {
             losses[mine.start + r.start..][..l.len()].copy_from_slice(l);
         }
+        // Within the process first (burn's all_reduce or copies, [`reduce`]), then across ranks.
         let main = self.devices[0].clone().inner();
-        let sets: Vec<GradientsParams> = results.into_iter().filter_map(|r| r.0).collect();
-        let mut grads = clip::sum_on_device(&self.model, sets, &main);
+        let sets: Vec<Option<GradientsParams>> = results.into_iter().map(|r| r.0).collect();
+        let mut grads = self.reducer.reduce(&self.model, sets, &main);
         if let Some(c) = &self.comm {
             // One reduction: gradient sums, has-gradient flags, the tuples' losses, the stop flag.
             let mut flat = dist::flatten_grads(&self.model, Some(&grads));

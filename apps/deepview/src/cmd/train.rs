@@ -89,8 +89,8 @@ pub struct Args {
     /// Continue the run from its latest checkpoint (optimizer and RNG state included).
     #[arg(long)]
     pub resume: bool,
-    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], cuda[:N] (GPU ones need a
-    /// build with the features `wgpu` / `cuda`). Example: cpu,cpu.
+    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], wgpu:cpu (the CPU Vulkan
+    /// adapter), cuda[:N] (GPU ones need a build with the features `wgpu` / `cuda`). Example: cpu,cpu.
     #[arg(long)]
     pub devices: Option<String>,
     /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.
