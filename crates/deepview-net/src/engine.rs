@@ -698,6 +698,7 @@ pub fn infer_engine(
                 &n.head,
                 &n.out,
                 if i == 0 { 0 } else { s },
+                true,
             )
         })
         .collect();

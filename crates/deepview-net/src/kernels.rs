@@ -381,7 +381,8 @@ pub(crate) struct PackedNet {
     out: PackedConv,
     /// The first input conv split, when the last input channels are shared by the views.
     input_split: Option<SplitConv>,
-    /// The first conv of every stage (inputs `concat(B_k, max over views)`) split: the max is shared.
+    /// The first conv of every stage (inputs `concat(B_k, max over views)`) split: the max is shared
+    /// (empty: not split).
     stage_splits: Vec<SplitConv>,
 }
 
@@ -419,13 +420,16 @@ fn split(conv: &Conv2d, at: usize) -> SplitConv {
 impl PackedNet {
     /// The net's convs; `shared_inputs`: how many of the last input channels are the same for every
     /// view (the state of an update net; 0: none), which [`NetScratch::run`] then reads from view 0's
-    /// input planes only.
+    /// input planes only; `split_stages`: compute each stage's max-over-views part once per plane
+    /// (fewer FLOPs, other rounding). Without either, the arithmetic is the per-layer
+    /// [`KernelOps::conv3x3_act`] path's, bit for bit.
     pub(crate) fn new(
         input: &[Conv2d],
         stages: &[Conv2d],
         head: &Conv2d,
         out: &Conv2d,
         shared_inputs: usize,
+        split_stages: bool,
     ) -> Self {
         let f = head.weight.dims()[1];
         let cin = input[0].weight.dims()[1];
@@ -439,7 +443,11 @@ impl PackedNet {
             head: pack(head),
             out: pack(out),
             input_split: (shared_inputs > 0).then(|| split(&input[0], cin - shared_inputs)),
-            stage_splits: stages.iter().step_by(2).map(|c| split(c, f)).collect(),
+            stage_splits: if split_stages {
+                stages.iter().step_by(2).map(|c| split(c, f)).collect()
+            } else {
+                Vec::new()
+            },
         }
     }
     pub(crate) fn in_channels(&self) -> usize {
@@ -593,11 +601,36 @@ impl NetScratch {
                 max_into(&mut hi[c], &srcs);
             }
         };
-        for (pair, split) in net.stages.chunks(2).zip(&net.stage_splits) {
+        for (i, pair) in net.stages.chunks(2).enumerate() {
             max_views(bufs);
-            // concat(B_k, m) -> A_k, the max's part once.
-            let shared: Vec<usize> = (m0..m0 + f).collect();
-            split_layer(bufs, &|k| (b(k)..b(k) + f).collect(), &shared, split);
+            match net.stage_splits.get(i) {
+                // concat(B_k, m) -> A_k, the max's part once.
+                Some(split) => {
+                    let shared: Vec<usize> = (m0..m0 + f).collect();
+                    split_layer(bufs, &|k| (b(k)..b(k) + f).collect(), &shared, split);
+                }
+                // concat(B_k, m) -> A_k as one conv per view.
+                None => {
+                    for k in 0..views {
+                        // A lies before B and m: move A's planes out meanwhile.
+                        let mut a_planes: Vec<Vec<f32>> = (0..f)
+                            .map(|c| std::mem::take(&mut bufs[a(k) + c]))
+                            .collect();
+                        {
+                            let ins: Vec<&[f32]> = (b(k)..b(k) + f)
+                                .chain(m0..m0 + f)
+                                .map(|i| bufs[i].as_slice())
+                                .collect();
+                            let mut outs: Vec<&mut [f32]> =
+                                a_planes.iter_mut().map(|v| v.as_mut_slice()).collect();
+                            conv3x3(plane, &ins, &pair[0], Act::Elu, &mut outs);
+                        }
+                        for (c, v) in a_planes.into_iter().enumerate() {
+                            bufs[a(k) + c] = v;
+                        }
+                    }
+                }
+            }
             for k in 0..views {
                 let from: Vec<usize> = (a(k)..a(k) + f).collect();
                 layer(bufs, &from, b(k), &pair[1], Act::Elu);
@@ -626,7 +659,9 @@ pub fn core_net_inference(
     let device = x.device();
     let [kd, cin, h, w] = x.dims();
     let d = kd / views;
-    let net = PackedNet::new(input, stages, head, out, 0);
+    // Not split: the same arithmetic as the per-layer path under autodiff (training's recompute relies on
+    // it: `recompute_gradients_match_full_backward`).
+    let net = PackedNet::new(input, stages, head, out, 0, false);
     let so = net.out_channels();
     let x: Vec<f32> = x.into_data().try_to_vec().expect("f32 tensor");
     let plane = Plane::new(h, w);
