@@ -8,20 +8,14 @@
 //! activations. [`engine_bytes`] estimates it; `infer` falls back to the tiled burn path
 //! ([`crate::infer`]) when it exceeds the budget or the model has U-Net nets.
 
-use crate::forward::{Hom, invert};
+use crate::forward::{Hom, invert, mpi_to_view_homographies};
 use crate::kernels::{NetScratch, PackedNet, for_each_chunk_with};
 use crate::network::{DeepViewModel, PRIOR_EPS, PRIOR_SINGLE_VIEW_VARIANCE};
-use deepview_geometry::{Camera, plane_homography};
+use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
 use deepview_mpi::warp::{RowTaps, Sampler};
 use rayon::prelude::*;
-
-/// Whether the engine can run `model`: every model (any view and plane count; U-Net nets run their core
-/// at half resolution between a 2x2 average pool and a bilinear upsampling, as `CoreNet::forward`).
-pub fn supported(_model: &DeepViewModel) -> bool {
-    true
-}
 
 /// Estimated peak bytes of [`infer_engine`] (besides the inputs' images).
 pub fn engine_bytes(
@@ -210,104 +204,112 @@ fn warp_pair_into(
         unsafe { warp_pair_avx2(src, size, hom, plane, dst, valid) };
         return;
     }
-    warp_pair_into_portable(src, size, hom, plane, dst, valid)
+    warp_pair_rows(src, size, hom, plane, dst, valid, tap_sums)
 }
 
-/// [`warp_pair_into_portable`] with each tap's channels in one vector (the same products and sums in the
-/// same order, so the same bits).
+/// Channels of the gradient components' two sources: `[I, R]` and `[A, T]`.
+const PAIR_A: usize = 6;
+const PAIR_B: usize = 4;
+
+/// [`warp_pair_rows`] with each tap's channels summed in vectors (the same products and sums in the same
+/// order as [`tap_sums`], so the same bits).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 unsafe fn warp_pair_avx2(
-    (a, b): (&[f32], &[f32]),
-    (src_w, src_h): (u32, u32),
+    src: (&[f32], &[f32]),
+    size: (u32, u32),
     hom: &Hom,
     plane: Plane,
-    (da, db): (&mut [&mut [f32]], &mut [&mut [f32]]),
+    dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
     valid: &mut [f32],
 ) {
-    use std::arch::x86_64::*;
-    const A: usize = 6;
-    const B: usize = 4;
-    let n = src_w as usize * src_h as usize;
-    assert!(a.len() >= n * A && b.len() >= n * B && da.len() == A && db.len() == B);
-    assert!(
-        da.iter().chain(db.iter()).all(|d| d.len() >= plane.len()) && valid.len() >= plane.len()
-    );
-    let pa: [*mut f32; A] = std::array::from_fn(|c| da[c].as_mut_ptr());
-    let pb: [*mut f32; B] = std::array::from_fn(|c| db[c].as_mut_ptr());
-    let sampler = Sampler::new(*hom, src_w, src_h);
-    let mut taps = RowTaps::default();
-    let (ap, bp) = (a.as_ptr(), b.as_ptr());
-    for y in 0..plane.h {
-        sampler.row(y as u32).taps_into(plane.w, &mut taps);
-        let base = plane.index(y, 0);
-        for x in 0..plane.w {
-            let i = base + x;
-            let mut va = [0f32; 8];
-            let mut vb = [0f32; 4];
-            let ok = taps.ok[x];
-            if ok {
-                let (ix, w) = (taps.idx[x], taps.w[x]);
-                // SAFETY: the taps are texels of the source (`< n`), whose channels are in bounds
-                // (asserted); the 2-float load reads channels 4 and 5 of the texel.
-                unsafe {
-                    let mut lo = _mm_setzero_ps();
-                    let mut hi = _mm_setzero_ps();
-                    let mut sb = _mm_setzero_ps();
-                    for j in 0..4 {
-                        let wj = _mm_set1_ps(w[j]);
-                        let ta = ap.add(ix[j] as usize * A);
-                        let pl = _mm_mul_ps(wj, _mm_loadu_ps(ta));
-                        let ph =
-                            _mm_mul_ps(wj, _mm_castpd_ps(_mm_load_sd(ta.add(4) as *const f64)));
-                        let pbv = _mm_mul_ps(wj, _mm_loadu_ps(bp.add(ix[j] as usize * B)));
-                        // `w0 s0 + w1 s1 + w2 s2 + w3 s3`, left to right as the scalar sum.
-                        if j == 0 {
-                            (lo, hi, sb) = (pl, ph, pbv);
-                        } else {
-                            lo = _mm_add_ps(lo, pl);
-                            hi = _mm_add_ps(hi, ph);
-                            sb = _mm_add_ps(sb, pbv);
-                        }
-                    }
-                    _mm_storeu_ps(va.as_mut_ptr(), lo);
-                    _mm_storeu_ps(va.as_mut_ptr().add(4), hi);
-                    _mm_storeu_ps(vb.as_mut_ptr(), sb);
-                }
-            }
-            // SAFETY: `i < plane.len()` (an interior index) and the planes hold `plane.len()` floats
-            // (asserted); they are distinct buffers.
-            unsafe {
-                for c in 0..A {
-                    *pa[c].add(i) = va[c];
-                }
-                for c in 0..B {
-                    *pb[c].add(i) = vb[c];
-                }
-            }
-            valid[i] = if ok { 1.0 } else { 0.0 };
-        }
-    }
+    // SAFETY (the closure): AVX2 and FMA are enabled here; `warp_pair_rows` passes in-bounds taps.
+    warp_pair_rows(src, size, hom, plane, dst, valid, |a, b, ix, w| unsafe {
+        tap_sums_avx2(a, b, ix, w)
+    })
 }
 
+/// `[I, R]` and `[A, T]` at one bilinear tap: `w0 s0 + w1 s1 + w2 s2 + w3 s3` per channel, left to right.
 #[inline(always)]
-fn warp_pair_into_portable(
+fn tap_sums(a: &[f32], b: &[f32], ix: [u32; 4], w: [f32; 4]) -> ([f32; 8], [f32; 4]) {
+    let ix: [usize; 4] = ix.map(|i| i as usize);
+    let mut va = [0f32; 8];
+    let mut vb = [0f32; PAIR_B];
+    for c in 0..PAIR_A {
+        va[c] = w[0] * a[ix[0] * PAIR_A + c]
+            + w[1] * a[ix[1] * PAIR_A + c]
+            + w[2] * a[ix[2] * PAIR_A + c]
+            + w[3] * a[ix[3] * PAIR_A + c];
+    }
+    for c in 0..PAIR_B {
+        vb[c] = w[0] * b[ix[0] * PAIR_B + c]
+            + w[1] * b[ix[1] * PAIR_B + c]
+            + w[2] * b[ix[2] * PAIR_B + c]
+            + w[3] * b[ix[3] * PAIR_B + c];
+    }
+    (va, vb)
+}
+
+/// [`tap_sums`] with a texel's channels in one vector each (4 + 2 of `[I, R]`, 4 of `[A, T]`).
+///
+/// # Safety
+/// AVX2 and FMA; the taps `ix` are texels of both sources.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2,fma")]
+unsafe fn tap_sums_avx2(a: &[f32], b: &[f32], ix: [u32; 4], w: [f32; 4]) -> ([f32; 8], [f32; 4]) {
+    use std::arch::x86_64::*;
+    let (ap, bp) = (a.as_ptr(), b.as_ptr());
+    let mut va = [0f32; 8];
+    let mut vb = [0f32; PAIR_B];
+    // SAFETY: the taps are texels of the sources (the caller's contract); the 2-float load reads
+    // channels 4 and 5 of the texel.
+    unsafe {
+        let mut lo = _mm_setzero_ps();
+        let mut hi = _mm_setzero_ps();
+        let mut sb = _mm_setzero_ps();
+        for j in 0..4 {
+            let wj = _mm_set1_ps(w[j]);
+            let ta = ap.add(ix[j] as usize * PAIR_A);
+            let pl = _mm_mul_ps(wj, _mm_loadu_ps(ta));
+            let ph = _mm_mul_ps(wj, _mm_castpd_ps(_mm_load_sd(ta.add(4) as *const f64)));
+            let pbv = _mm_mul_ps(wj, _mm_loadu_ps(bp.add(ix[j] as usize * PAIR_B)));
+            if j == 0 {
+                (lo, hi, sb) = (pl, ph, pbv);
+            } else {
+                lo = _mm_add_ps(lo, pl);
+                hi = _mm_add_ps(hi, ph);
+                sb = _mm_add_ps(sb, pbv);
+            }
+        }
+        _mm_storeu_ps(va.as_mut_ptr(), lo);
+        _mm_storeu_ps(va.as_mut_ptr().add(4), hi);
+        _mm_storeu_ps(vb.as_mut_ptr(), sb);
+    }
+    (va, vb)
+}
+
+/// The warp of both sources by `hom` into the planes `da` (6) and `db` (4) and `valid`, with `sums`
+/// giving a tap's values (zeros and validity 0 outside the source).
+#[inline(always)]
+fn warp_pair_rows(
     (a, b): (&[f32], &[f32]),
     (src_w, src_h): (u32, u32),
     hom: &Hom,
     plane: Plane,
     (da, db): (&mut [&mut [f32]], &mut [&mut [f32]]),
     valid: &mut [f32],
+    sums: impl Fn(&[f32], &[f32], [u32; 4], [f32; 4]) -> ([f32; 8], [f32; 4]),
 ) {
-    const A: usize = 6;
-    const B: usize = 4;
     let n = src_w as usize * src_h as usize;
-    assert!(a.len() >= n * A && b.len() >= n * B && da.len() == A && db.len() == B);
+    assert!(
+        a.len() >= n * PAIR_A && b.len() >= n * PAIR_B && da.len() == PAIR_A && db.len() == PAIR_B
+    );
     assert!(
         da.iter().chain(db.iter()).all(|d| d.len() >= plane.len()) && valid.len() >= plane.len()
     );
-    let pa: [*mut f32; A] = std::array::from_fn(|c| da[c].as_mut_ptr());
-    let pb: [*mut f32; B] = std::array::from_fn(|c| db[c].as_mut_ptr());
+    let pa: [*mut f32; PAIR_A] = std::array::from_fn(|c| da[c].as_mut_ptr());
+    let pb: [*mut f32; PAIR_B] = std::array::from_fn(|c| db[c].as_mut_ptr());
     let sampler = Sampler::new(*hom, src_w, src_h);
     let mut taps = RowTaps::default();
     for y in 0..plane.h {
@@ -315,38 +317,23 @@ fn warp_pair_into_portable(
         let base = plane.index(y, 0);
         for x in 0..plane.w {
             let i = base + x;
-            let (va, vb, ok) = match taps.tap(x) {
-                None => ([0f32; A], [0f32; B], 0.0),
-                Some(t) => {
-                    let ix: [usize; 4] = std::array::from_fn(|j| t.idx[j] as usize);
-                    let mut va = [0f32; A];
-                    let mut vb = [0f32; B];
-                    for c in 0..A {
-                        va[c] = t.w[0] * a[ix[0] * A + c]
-                            + t.w[1] * a[ix[1] * A + c]
-                            + t.w[2] * a[ix[2] * A + c]
-                            + t.w[3] * a[ix[3] * A + c];
-                    }
-                    for c in 0..B {
-                        vb[c] = t.w[0] * b[ix[0] * B + c]
-                            + t.w[1] * b[ix[1] * B + c]
-                            + t.w[2] * b[ix[2] * B + c]
-                            + t.w[3] * b[ix[3] * B + c];
-                    }
-                    (va, vb, 1.0)
-                }
+            let ok = taps.ok[x];
+            let (va, vb) = if ok {
+                sums(a, b, taps.idx[x], taps.w[x])
+            } else {
+                ([0f32; 8], [0f32; PAIR_B])
             };
             // SAFETY: `i < plane.len()` (an interior index) and the planes hold `plane.len()` floats
             // (asserted); they are distinct buffers.
             unsafe {
-                for c in 0..A {
+                for c in 0..PAIR_A {
                     *pa[c].add(i) = va[c];
                 }
-                for c in 0..B {
+                for c in 0..PAIR_B {
                     *pb[c].add(i) = vb[c];
                 }
             }
-            valid[i] = ok;
+            valid[i] = if ok { 1.0 } else { 0.0 };
         }
     }
 }
@@ -660,7 +647,8 @@ fn upsample_into(half: Plane, src: &[f32], full: Plane, dst: &mut [f32], add: bo
 }
 
 /// Infer the MPI (premultiplied RGBA `[D][H][W][4]`) of `reference` at `depths` from `views` with the
-/// kernels; `progress(net)` after each net. The model must be [`supported`].
+/// kernels; `progress(net)` after each net. Any model: U-Net nets run their core at half resolution
+/// between a 2x2 average pool and a bilinear upsampling, as `CoreNet::forward`.
 pub fn infer_engine(
     model: &DeepViewModel,
     views: &[(ImageF32, Camera)],
@@ -677,15 +665,7 @@ pub fn infer_engine(
     let hw = w * h;
     let plane = Plane::new(h, w);
     let s = model.state_channels;
-    let homs: Vec<Vec<Hom>> = views
-        .iter()
-        .map(|(_, cam)| {
-            depths
-                .iter()
-                .map(|&z| plane_homography(reference, cam, z).to_row_major())
-                .collect()
-        })
-        .collect();
+    let homs = mpi_to_view_homographies(reference, views.iter().map(|(_, c)| c), depths);
     let nets: Vec<PackedNet> = model
         .nets
         .iter()
@@ -919,15 +899,11 @@ mod tests {
                         image_tensor(&i.data, i.width as usize, i.height as usize, 3, &dev)
                     })
                     .collect(),
-                mpi_to_view: views
-                    .iter()
-                    .map(|(_, c)| {
-                        depths
-                            .iter()
-                            .map(|&z| plane_homography(&reference, c, z).to_row_major())
-                            .collect()
-                    })
-                    .collect(),
+                mpi_to_view: mpi_to_view_homographies(
+                    &reference,
+                    views.iter().map(|(_, c)| c),
+                    &depths,
+                ),
                 height: 29,
                 width: 37,
                 shrink: false,

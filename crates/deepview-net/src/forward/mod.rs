@@ -25,5 +25,6 @@ pub use composite::{
     render_view,
 };
 pub use warp::{
-    Hom, WarpTable, crop_output, crop_source, invert, mul, warp_planes, warp_planes_grid_sample,
+    Hom, WarpTable, crop_output, crop_source, invert, mpi_to_view_homographies, mul, warp_planes,
+    warp_planes_grid_sample,
 };

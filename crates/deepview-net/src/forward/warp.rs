@@ -5,6 +5,24 @@ use burn::tensor::{Device, Int, Tensor, TensorData};
 /// A row-major 3x3 homography (f64), output pixels -> source pixels.
 pub type Hom = [f64; 9];
 
+/// The plane homographies from the reference camera's pixels to each camera's pixels at every depth,
+/// `[camera][depth]` (the `mpi_to_view` of [`crate::network::ModelInputs`]).
+pub fn mpi_to_view_homographies<'a>(
+    reference: &deepview_geometry::Camera,
+    cameras: impl IntoIterator<Item = &'a deepview_geometry::Camera>,
+    depths: &[f64],
+) -> Vec<Vec<Hom>> {
+    cameras
+        .into_iter()
+        .map(|cam| {
+            depths
+                .iter()
+                .map(|&z| deepview_geometry::plane_homography(reference, cam, z).to_row_major())
+                .collect()
+        })
+        .collect()
+}
+
 /// Precomputed bilinear taps of `planes` homography warps from a `src_w x src_h` source to an
 /// `out_w x out_h` output.
 #[derive(Clone, Debug)]

@@ -60,7 +60,6 @@ pub fn infer_mpi(
     validate(model, views, depths)?;
     let (w, h) = (reference.width as usize, reference.height as usize);
     if crate::kernels::fast_device(&model_device(model))
-        && crate::engine::supported(model)
         && crate::engine::engine_bytes(model, views, w, h, depths.len()) <= max_memory_bytes
     {
         // Whole image at once on the CPU kernels (see `engine`): the same result as the tiled path.

@@ -5,10 +5,11 @@ use super::state::StateStore;
 use super::tiling::Geometry;
 use super::*;
 use crate::config::DeepViewConfig;
-use crate::forward::{Hom, crop_output, gradient_components, image_tensor};
+use crate::forward::{
+    Hom, crop_output, gradient_components, image_tensor, mpi_to_view_homographies,
+};
 use crate::network::ModelInputs;
 use burn::tensor::{Device, Tensor};
-use deepview_geometry::plane_homography;
 use deepview_geometry::{DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths};
 
 fn scene(k: usize) -> (Vec<(ImageF32, Camera)>, Camera, Vec<f64>) {
@@ -56,15 +57,7 @@ fn tiled_equals_untiled() {
             .iter()
             .map(|(i, _)| image_tensor(&i.data, i.width as usize, i.height as usize, 3, &dev))
             .collect(),
-        mpi_to_view: views
-            .iter()
-            .map(|(_, c)| {
-                depths
-                    .iter()
-                    .map(|&z| plane_homography(&reference, c, z).to_row_major())
-                    .collect()
-            })
-            .collect(),
+        mpi_to_view: mpi_to_view_homographies(&reference, views.iter().map(|(_, c)| c), &depths),
         height: 38,
         width: 46,
         shrink: false,

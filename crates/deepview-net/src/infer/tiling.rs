@@ -1,8 +1,8 @@
 //! Tiling: the tiles of the MPI, and per tile what each view contributes (the view-image crop its
 //! samples need, and the MPI sub-window whose renders reach that crop).
 
-use crate::forward::{Hom, crop_source, invert};
-use deepview_geometry::{Camera, plane_homography};
+use crate::forward::{Hom, crop_source, invert, mpi_to_view_homographies};
+use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 
 /// A pixel rectangle `(x0, y0, w, h)`.
@@ -33,15 +33,7 @@ impl Geometry {
             w: reference.width as usize,
             h: reference.height as usize,
             d: depths.len(),
-            homs: views
-                .iter()
-                .map(|(_, cam)| {
-                    depths
-                        .iter()
-                        .map(|&z| plane_homography(reference, cam, z).to_row_major())
-                        .collect()
-                })
-                .collect(),
+            homs: mpi_to_view_homographies(reference, views.iter().map(|(_, c)| c), depths),
             view_sizes: views
                 .iter()
                 .map(|(img, _)| (img.width as usize, img.height as usize))
