@@ -6,6 +6,7 @@
 pub mod config;
 pub mod engine;
 pub mod forward;
+pub mod grow;
 pub mod infer;
 pub mod kernels;
 pub mod network;

@@ -66,6 +66,7 @@ impl TrainConfig {
                 auto_planes: false,
                 colour_jitter: false,
                 wide_inputs: 0.0,
+                surround_inputs: 0.0,
             },
             loss: LossKind::Vgg,
             learning_rate: PAPER_LEARNING_RATE,

@@ -218,6 +218,13 @@ pub struct SampleConfig {
     /// (like the Spaces quads or the demo's corner views). 0: always the K nearest.
     #[serde(default)]
     pub wide_inputs: f64,
+    /// Probability that a tuple's K inputs surround the target (the case of rendering between the
+    /// inputs, like the demo's four corners around its held-out views): the directions from the target
+    /// to its 3K nearest training views (in the target camera's image plane) are split into K equal
+    /// sectors at a random angle, and one random view is drawn from each sector (from the remaining pool
+    /// when a sector is empty). Drawn before `wide_inputs`; 0: never.
+    #[serde(default)]
+    pub surround_inputs: f64,
 }
 
 /// Colour jitter ranges (natural-log units): whole-tuple exposure, per-channel gain, per-input exposure.
@@ -349,7 +356,9 @@ impl TrainData {
         let s = &self.scenes[si];
         let target = s.train_views[rng.below(s.train_views.len())];
         let u = if cfg.jitter { rng.uniform() - 0.5 } else { 0.0 };
-        let inputs = if cfg.wide_inputs > 0.0 && rng.uniform() < cfg.wide_inputs {
+        let inputs = if cfg.surround_inputs > 0.0 && rng.uniform() < cfg.surround_inputs {
+            self.surrounding_inputs(si, target, views.max(1), rng)
+        } else if cfg.wide_inputs > 0.0 && rng.uniform() < cfg.wide_inputs {
             let mut pool = self.nearest_inputs(si, target, 3 * views.max(1));
             // A uniformly random K-subset (partial Fisher-Yates), in pool order.
             let k = views.max(1).min(pool.len());
@@ -406,6 +415,42 @@ impl TrainData {
             }
         }
         Ok(ex)
+    }
+
+    /// K views around `target` ([`SampleConfig::surround_inputs`]), in pool order of distance.
+    fn surrounding_inputs(&self, si: usize, target: usize, k: usize, rng: &mut Rng) -> Vec<usize> {
+        let s = &self.scenes[si];
+        let pool = self.nearest_inputs(si, target, 3 * k);
+        if pool.len() <= k {
+            return pool;
+        }
+        let tcam = s.cameras[target];
+        let turn = std::f64::consts::TAU;
+        let rot = rng.uniform() * turn;
+        // Sector of each pool view: the angle of its centre seen from the target, in the target camera's
+        // x/y plane (forward-facing captures spread their cameras there).
+        let sector: Vec<usize> = pool
+            .iter()
+            .map(|&v| {
+                let d = tcam.pose.rotation * (s.cameras[v].center() - tcam.center());
+                let a = (d.y.atan2(d.x) - rot).rem_euclid(turn);
+                ((a / turn * k as f64) as usize).min(k - 1)
+            })
+            .collect();
+        let mut chosen: Vec<usize> = Vec::with_capacity(k);
+        for q in 0..k {
+            let members: Vec<usize> = (0..pool.len()).filter(|&i| sector[i] == q).collect();
+            if !members.is_empty() {
+                chosen.push(members[rng.below(members.len())]);
+            }
+        }
+        // Empty sectors: random views from the rest of the pool.
+        while chosen.len() < k {
+            let rest: Vec<usize> = (0..pool.len()).filter(|i| !chosen.contains(i)).collect();
+            chosen.push(rest[rng.below(rest.len())]);
+        }
+        chosen.sort();
+        chosen.into_iter().map(|i| pool[i]).collect()
     }
 
     /// The K training views nearest to `target` by camera centre (ties broken by index), K = `views`.
@@ -647,6 +692,7 @@ mod tests {
             auto_planes: true,
             colour_jitter: false,
             wide_inputs: 0.0,
+            surround_inputs: 0.0,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let mut rng = Rng::new(11);
@@ -684,6 +730,7 @@ mod tests {
             auto_planes: false,
             colour_jitter: false,
             wide_inputs: 1.0,
+            surround_inputs: 0.0,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let s = &data.scenes[0];
@@ -727,6 +774,82 @@ mod tests {
         );
     }
 
+    /// `surround_inputs = 1`, K = 4 on a 5x5 grid: distinct views from the 3K nearest, not always the K
+    /// nearest, and around every interior target: seen from the target, no angular gap between the
+    /// inputs exceeds 180 degrees (the target is inside their convex hull).
+    #[test]
+    fn surrounding_inputs_enclose_the_target() {
+        let baseline = 0.1;
+        let data = TrainData::new(vec![two_plane_scene(5, 5, 48, baseline)]).unwrap();
+        let cfg = SampleConfig {
+            crop: 16,
+            views_min: 4,
+            views_max: 4,
+            planes: 6,
+            jitter: false,
+            auto_planes: false,
+            colour_jitter: false,
+            wide_inputs: 0.0,
+            surround_inputs: 1.0,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let s = &data.scenes[0];
+        let mut rng = Rng::new(11);
+        let (mut interior, mut differs) = (0, 0);
+        for _ in 0..60 {
+            let ex = data.sample(&cfg, &model, 4, &mut rng).unwrap();
+            let t = s.cameras[ex.target].center();
+            let mut order: Vec<usize> = s
+                .train_views
+                .iter()
+                .copied()
+                .filter(|&v| v != ex.target)
+                .collect();
+            order.sort_by(|&a, &b| {
+                (s.cameras[a].center() - t)
+                    .length()
+                    .total_cmp(&(s.cameras[b].center() - t).length())
+                    .then(a.cmp(&b))
+            });
+            let mut uniq = ex.inputs.clone();
+            uniq.sort();
+            uniq.dedup();
+            assert_eq!(uniq.len(), 4, "{:?}", ex.inputs);
+            assert!(ex.inputs.iter().all(|v| order[..12].contains(v)));
+            let mut nearest = order[..4].to_vec();
+            nearest.sort();
+            differs += (uniq != nearest) as usize;
+            if t.x.abs() < 1.5 * baseline && t.y.abs() < 1.5 * baseline {
+                interior += 1;
+                let mut angles: Vec<f64> = ex
+                    .inputs
+                    .iter()
+                    .map(|&v| {
+                        let d = s.cameras[v].center() - t;
+                        d.y.atan2(d.x).to_degrees()
+                    })
+                    .collect();
+                angles.sort_by(f64::total_cmp);
+                let gaps = angles
+                    .windows(2)
+                    .map(|w| w[1] - w[0])
+                    .chain([360.0 + angles[0] - angles[3]]);
+                let widest = gaps.fold(0.0, f64::max);
+                assert!(
+                    widest <= 180.0 + 1e-9,
+                    "inputs {:?} leave a {widest} degree gap around target {}",
+                    ex.inputs,
+                    ex.target
+                );
+            }
+        }
+        assert!(interior >= 10, "only {interior} interior targets drawn");
+        assert!(
+            differs > 20,
+            "only {differs} of 60 tuples differ from the 4 nearest"
+        );
+    }
+
     /// Colour jitter scales every channel of the target by one gain within the documented range, and each
     /// input by the same gains times its own exposure within +-5%; the tuple itself (views, crop) is the
     /// one drawn without jitter.
@@ -742,6 +865,7 @@ mod tests {
             auto_planes: false,
             colour_jitter: false,
             wide_inputs: 0.0,
+            surround_inputs: 0.0,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         for seed in 0..6 {
@@ -808,6 +932,7 @@ mod tests {
             auto_planes: false,
             colour_jitter: false,
             wide_inputs: 0.0,
+            surround_inputs: 0.0,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let margin = model.margin_from(0);

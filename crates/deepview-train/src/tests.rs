@@ -48,6 +48,7 @@ fn small_config(steps: u64, devices: &[&str], batch: usize) -> RunConfig {
         auto_planes: false,
         colour_jitter: false,
         wide_inputs: 0.0,
+        surround_inputs: 0.0,
     };
     train.loss = LossKind::L1;
     train.checkpoint_every = 1000;

@@ -154,13 +154,13 @@ impl Trainer {
             Some(init) => {
                 let (model, init_config) = deepview_net::weights::load_model(init, &devices[0])
                     .map_err(|e| run_err(init, e))?;
-                if init_config != config.model {
-                    return Err(run_err(
-                        init,
-                        "the run's model configuration differs from the one saved with these weights",
-                    ));
+                if init_config == config.model {
+                    model
+                } else {
+                    // A larger configuration (`--preset` with `--init`): the trained model grown into it.
+                    deepview_net::grow::grow_model(&model, &init_config, &config.model, &devices[0])
+                        .map_err(|e| run_err(init, e))?
                 }
-                model
             }
             None => DeepViewModel::new(&config.model, &devices[0]),
         };

@@ -31,6 +31,7 @@ use progress::Progress;
     after_help = "Examples:\n  deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000\n  \
     deepview train --name fern --resume --steps 4000\n  \
     deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
+    deepview train --init weights/cpu --preset cpu-large --data ../shared/data/llff/flower --name grown --steps 500\n  \
     deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
     --steps, --devices, --data, --keep-checkpoints and --vgg-weights may be given: the others are the run's own, \
@@ -44,12 +45,15 @@ pub struct Args {
     /// it was loaded with).
     #[arg(long = "data", value_name = "DIR", value_parser = parse_data)]
     pub data: Vec<PathBuf>,
-    /// Network preset: cpu, paper-kalantari, paper-spaces-4view, paper-spaces-12view (default: cpu).
-    #[arg(long, conflicts_with = "init")]
+    /// Network preset: cpu, cpu-large, paper-kalantari, paper-spaces-4view, paper-spaces-12view
+    /// (default: cpu). With --init: grow those weights into this larger preset first (the grown model
+    /// computes the same MPI; the new feature channels and update nets then train).
+    #[arg(long)]
     pub preset: Option<String>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors, e.g. weights/cpu) or a checkpoint folder. The network
-    /// configuration is the one saved with them. The optimizer starts afresh.
+    /// configuration is the one saved with them, unless --preset names a larger one to grow them into.
+    /// The optimizer starts afresh.
     #[arg(long, value_name = "WEIGHTS_DIR", visible_alias = "weights")]
     pub init: Option<PathBuf>,
     /// Run name: the run lives in <runs>/<name>/ (a plain name, no '/').
@@ -114,6 +118,11 @@ pub struct Args {
     /// instead of its K nearest: wider, uneven baselines (default 0).
     #[arg(long, value_name = "P", value_parser = parse_probability)]
     pub wide_inputs: Option<f64>,
+    /// Probability (0..1) that a tuple's K inputs surround the target: one random view per angular sector
+    /// around it among its 3K nearest (rendering between the inputs, like the demo's corner views;
+    /// drawn before --wide-inputs; default 0).
+    #[arg(long, value_name = "P", value_parser = parse_probability)]
+    pub surround_inputs: Option<f64>,
     /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none; 1 would hold out
     /// every view). Default 8.
     #[arg(long, value_parser = parse_holdout)]
@@ -279,6 +288,11 @@ fn fixed_on_resume(args: &Args, cfg: &RunConfig) -> Vec<&'static str> {
         (
             args.wide_inputs.is_some_and(|p| p != t.sample.wide_inputs),
             "--wide-inputs",
+        ),
+        (
+            args.surround_inputs
+                .is_some_and(|p| p != t.sample.surround_inputs),
+            "--surround-inputs",
         ),
         (
             args.holdout_every.is_some_and(|h| h != t.holdout_every),
@@ -557,10 +571,26 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         if args.data.is_empty() {
             bail!("no training data: pass --data DIR (repeatable)");
         }
-        let model = match &args.init {
-            Some(dir) => deepview_net::weights::load_config_any(dir)
+        let model = match (&args.init, &args.preset) {
+            (Some(dir), None) => deepview_net::weights::load_config_any(dir)
                 .with_context(|| format!("--init {}", dir.display()))?,
-            None => DeepViewConfig::preset(args.preset.as_deref().unwrap_or("cpu"))?,
+            (init, preset) => {
+                let to = DeepViewConfig::preset(preset.as_deref().unwrap_or("cpu"))?;
+                if let Some(dir) = init {
+                    // Refuse a preset the weights cannot grow into now, not after loading the data.
+                    let from = deepview_net::weights::load_config_any(dir)
+                        .with_context(|| format!("--init {}", dir.display()))?;
+                    if from != to {
+                        let device = deepview_net::burn::tensor::Device::flex();
+                        let (m, _) = deepview_net::weights::load_model(dir, &device)
+                            .with_context(|| format!("--init {}", dir.display()))?;
+                        deepview_net::grow::grow_model(&m, &from, &to, &device).with_context(
+                            || format!("--init {} --preset {}", dir.display(), to.name),
+                        )?;
+                    }
+                }
+                to
+            }
         };
         let mut train = TrainConfig::defaults(&model);
         train.init = args.init.clone();
@@ -583,6 +613,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         train.sample.jitter = !args.no_jitter;
         train.sample.colour_jitter = !args.no_colour_jitter;
         train.sample.wide_inputs = args.wide_inputs.unwrap_or(0.0);
+        train.sample.surround_inputs = args.surround_inputs.unwrap_or(0.0);
         if let Some(l) = args.loss {
             train.loss = l;
         }

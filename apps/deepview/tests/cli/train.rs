@@ -124,3 +124,60 @@ fn resume_reads_the_data_with_the_options_of_the_run() {
     // ... and with it, the same step as the run that kept its options.
     assert_eq!(losses(&runs.join("old-half")), straight);
 }
+
+/// `--init W --preset P` grows the weights into the larger preset: the grown model computes the same
+/// MPI, so its first loss (before any update, the same tuple) is the first loss of the weights as they
+/// are, up to the training window (a third net widens it, and the gradient components render the views
+/// from the window only), and far from a fresh model's; a preset they cannot grow into is refused with
+/// exit code 2 before any data is read.
+#[test]
+fn init_with_a_larger_preset_grows_the_weights() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    let weights = concat!(env!("CARGO_MANIFEST_DIR"), "/../../weights/cpu");
+    let common = [
+        "--data",
+        s(&grid),
+        "--init",
+        weights,
+        "--loss",
+        "l1",
+        "--crop",
+        "8",
+        "--planes",
+        "4",
+        "--seed",
+        "4",
+    ];
+    train(&runs, "as-is", 1, &common);
+    let mut grown_args = common.to_vec();
+    grown_args.extend(["--preset", "cpu-large"]);
+    train(&runs, "grown", 1, &grown_args);
+    let cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(runs.join("grown/config.json")).unwrap())
+            .unwrap();
+    assert_eq!(cfg["model"]["name"], "cpu-large");
+    assert_eq!(cfg["model"]["updates"], 2);
+    let fresh_args: Vec<&str> = common
+        .iter()
+        .copied()
+        .filter(|a| *a != "--init" && *a != weights)
+        .chain(["--preset", "cpu-large"])
+        .collect();
+    train(&runs, "fresh", 1, &fresh_args);
+    let first = |name: &str| losses(&runs.join(name))[0].1;
+    let (a, b, c) = (first("as-is"), first("grown"), first("fresh"));
+    assert!(
+        (a - b).abs() <= 2e-3 * a.abs() && (a - c).abs() > 10.0 * (a - b).abs(),
+        "first losses: as is {a}, grown {b}, fresh cpu-large {c}"
+    );
+
+    let mut refused_args = vec!["train", "--runs", s(&runs), "--name", "refused"];
+    refused_args.extend_from_slice(&common);
+    refused_args.extend(["--preset", "paper-kalantari"]);
+    fails_with(
+        &deepview(&refused_args),
+        &["cannot grow", "max-pool stages", "--preset paper-kalantari"],
+    );
+}
