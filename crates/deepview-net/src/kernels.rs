@@ -138,6 +138,25 @@ impl Planes {
             self.plane.pad_into(img, &mut self.bufs[from + k]);
         }
     }
+    /// Pad the gradient at `c` output channels (`grad`, unpadded `[c][h][w]`) into planes `from..from +
+    /// c`, multiplied by the activation's derivative (from its output `out`) on the way.
+    fn load_act_grad(&mut self, from: usize, grad: &[f32], out: &[f32], act: Act) {
+        let hw = self.plane.h * self.plane.w;
+        let w = self.plane.w;
+        for (k, (g, o)) in grad.chunks_exact(hw).zip(out.chunks_exact(hw)).enumerate() {
+            let dst = &mut self.bufs[from + k];
+            for (y, (gr, or)) in g.chunks_exact(w).zip(o.chunks_exact(w)).enumerate() {
+                let i = self.plane.index(y, 0);
+                let row = &mut dst[i..i + w];
+                row.copy_from_slice(gr);
+                match act {
+                    Act::Linear => {}
+                    Act::Elu => elu_backward(or, row),
+                    Act::Relu => relu_backward(or, row),
+                }
+            }
+        }
+    }
     fn split(&mut self, at: usize) -> (Vec<&[f32]>, Vec<&mut [f32]>) {
         let (a, b) = self.bufs.split_at_mut(at);
         (
@@ -170,19 +189,20 @@ impl KernelOps for Flex {
         let hw = h * wd;
         let mut out = vec![0f32; n * cout * hw];
         if hw > 0 {
-            out.par_chunks_mut(cout * hw)
-                .zip(x.par_chunks(cin * hw))
-                .for_each_init(
-                    || Planes::new(plane, cin + cout),
-                    |s, (o, xi)| {
-                        s.load(0, xi);
-                        let (ins, mut outs) = s.split(cin);
-                        conv3x3(plane, &ins, &conv, act, &mut outs);
-                        for (k, dst) in o.chunks_exact_mut(hw).enumerate() {
-                            plane.unpad_into(&s.bufs[cin + k], dst);
-                        }
-                    },
-                );
+            // One scratch per thread (`for_each_init` may make one per split, each zeroed).
+            for_each_chunk_with(
+                &mut out,
+                cout * hw,
+                || Planes::new(plane, cin + cout),
+                |s, (i, o)| {
+                    s.load(0, &x[i * cin * hw..][..cin * hw]);
+                    let (ins, mut outs) = s.split(cin);
+                    conv3x3(plane, &ins, &conv, act, &mut outs);
+                    for (k, dst) in o.chunks_exact_mut(hw).enumerate() {
+                        plane.unpad_into(&s.bufs[cin + k], dst);
+                    }
+                },
+            );
         }
         flex(out, vec![n, cout, h, wd])
     }
@@ -198,21 +218,10 @@ impl KernelOps for Flex {
         let (x, xs) = f32_data(&x);
         let (w, ws) = f32_data(&w);
         let (out, _) = f32_data(&out);
-        let mut g = f32_data(&grad).0.into_owned();
+        let (g, _) = f32_data(&grad);
         let [n, cin, h, wd] = [xs[0], xs[1], xs[2], xs[3]];
         let cout = ws[0];
-        match act_of(act) {
-            Act::Linear => {}
-            Act::Elu => g
-                .par_chunks_mut(1 << 14)
-                .zip(out.par_chunks(1 << 14))
-                .for_each(|(g, o)| elu_backward(o, g)),
-            Act::Relu => g
-                .par_chunks_mut(1 << 14)
-                .zip(out.par_chunks(1 << 14))
-                .for_each(|(g, o)| relu_backward(o, g)),
-        }
-        drop(out);
+        let act = act_of(act);
         let transposed = PackedConv::transposed(&w, cout, cin);
         let plane = Plane::new(h, wd);
         let hw = h * wd;
@@ -220,9 +229,14 @@ impl KernelOps for Flex {
         let zero = || (vec![0f32; cout * cin * 9], vec![0f32; cout]);
         let slice =
             |s: &mut Planes, i: usize, gw: &mut [f32], gb: &mut [f32], gxi: Option<&mut [f32]>| {
-                // Planes: x (cin), g_pre (cout), gx (cin).
+                // Planes: x (cin), g_pre (cout: the output gradient through the activation), gx (cin).
                 s.load(0, &x[i * cin * hw..][..cin * hw]);
-                s.load(cin, &g[i * cout * hw..][..cout * hw]);
+                s.load_act_grad(
+                    cin,
+                    &g[i * cout * hw..][..cout * hw],
+                    &out[i * cout * hw..][..cout * hw],
+                    act,
+                );
                 {
                     let (xg, _) = s.split(cin + cout);
                     conv3x3_weight_grad(plane, &xg[..cin], &xg[cin..], gw, gb);
@@ -235,32 +249,42 @@ impl KernelOps for Flex {
                     }
                 }
             };
+        // One scratch and one pair of weight-gradient sums per thread, slices dealt round-robin
+        // (rayon's `fold` makes one per split), summed in thread order.
         let (gw, gb) = if hw == 0 || n == 0 {
             zero()
-        } else if input_grad {
-            gx.par_chunks_mut(cin * hw)
-                .enumerate()
-                .fold(
-                    || (zero(), Planes::new(plane, 2 * cin + cout)),
-                    |((mut gw, mut gb), mut s), (i, gxi)| {
-                        slice(&mut s, i, &mut gw, &mut gb, Some(gxi));
-                        ((gw, gb), s)
-                    },
-                )
-                .map(|(acc, _)| acc)
-                .reduce(zero, add_pair)
         } else {
-            (0..n)
+            let threads = rayon::current_num_threads().max(1);
+            let planes = if input_grad {
+                2 * cin + cout
+            } else {
+                cin + cout
+            };
+            let mut gxs: Vec<Option<&mut [f32]>> = if input_grad {
+                gx.chunks_mut(cin * hw).map(Some).collect()
+            } else {
+                (0..n).map(|_| None).collect()
+            };
+            let mut groups: Vec<Vec<(usize, Option<&mut [f32]>)>> =
+                (0..threads).map(|_| Vec::new()).collect();
+            for (i, gxi) in gxs.drain(..).enumerate() {
+                groups[i % threads].push((i, gxi));
+            }
+            groups
                 .into_par_iter()
-                .fold(
-                    || (zero(), Planes::new(plane, cin + cout)),
-                    |((mut gw, mut gb), mut s), i| {
-                        slice(&mut s, i, &mut gw, &mut gb, None);
-                        ((gw, gb), s)
-                    },
-                )
-                .map(|(acc, _)| acc)
-                .reduce(zero, add_pair)
+                .map(|group| {
+                    let (mut gw, mut gb) = zero();
+                    if !group.is_empty() {
+                        let mut s = Planes::new(plane, planes);
+                        for (i, gxi) in group {
+                            slice(&mut s, i, &mut gw, &mut gb, gxi);
+                        }
+                    }
+                    (gw, gb)
+                })
+                .collect::<Vec<_>>()
+                .into_iter()
+                .fold(zero(), add_pair)
         };
         let gx_shape = if input_grad {
             vec![n, cin, h, wd]
