@@ -265,8 +265,7 @@ impl KernelOps for Flex {
             } else {
                 (0..n).map(|_| None).collect()
             };
-            let mut groups: Vec<Vec<(usize, Option<&mut [f32]>)>> =
-                (0..threads).map(|_| Vec::new()).collect();
+            let mut groups: Vec<Vec<SliceJob<'_>>> = (0..threads).map(|_| Vec::new()).collect();
             for (i, gxi) in gxs.drain(..).enumerate() {
                 groups[i % threads].push((i, gxi));
             }
@@ -298,6 +297,9 @@ impl KernelOps for Flex {
         )
     }
 }
+
+/// A slice index of the backward and, with the input gradient, its part of it.
+type SliceJob<'a> = (usize, Option<&'a mut [f32]>);
 
 fn add_pair(
     (mut a, mut b): (Vec<f32>, Vec<f32>),
