@@ -716,6 +716,25 @@ mod tests {
         assert_eq!(ex.depths.len(), 40);
     }
 
+    /// The training views other than `target` by distance of their centres to its centre (ties: index),
+    /// computed here independently of the sampler.
+    fn by_distance(s: &TrainScene, target: usize) -> Vec<usize> {
+        let t = s.cameras[target].center();
+        let mut order: Vec<usize> = s
+            .train_views
+            .iter()
+            .copied()
+            .filter(|&v| v != target)
+            .collect();
+        order.sort_by(|&a, &b| {
+            (s.cameras[a].center() - t)
+                .length()
+                .total_cmp(&(s.cameras[b].center() - t).length())
+                .then(a.cmp(&b))
+        });
+        order
+    }
+
     /// `wide_inputs = 1`: K distinct training views among the target's 3K nearest, never the target, and
     /// not always the K nearest.
     #[test]
@@ -740,19 +759,7 @@ mod tests {
             let k = data.draw_views(&cfg, &mut rng);
             let ex = data.sample(&cfg, &model, k, &mut rng).unwrap();
             // The 3K nearest by distance, computed here independently.
-            let t = s.cameras[ex.target].center();
-            let mut order: Vec<usize> = s
-                .train_views
-                .iter()
-                .copied()
-                .filter(|&v| v != ex.target)
-                .collect();
-            order.sort_by(|&a, &b| {
-                (s.cameras[a].center() - t)
-                    .length()
-                    .total_cmp(&(s.cameras[b].center() - t).length())
-                    .then(a.cmp(&b))
-            });
+            let order = by_distance(s, ex.target);
             let pool = &order[..(3 * k).min(order.len())];
             assert_eq!(ex.inputs.len(), k);
             let mut uniq = ex.inputs.clone();
@@ -799,18 +806,7 @@ mod tests {
         for _ in 0..60 {
             let ex = data.sample(&cfg, &model, 4, &mut rng).unwrap();
             let t = s.cameras[ex.target].center();
-            let mut order: Vec<usize> = s
-                .train_views
-                .iter()
-                .copied()
-                .filter(|&v| v != ex.target)
-                .collect();
-            order.sort_by(|&a, &b| {
-                (s.cameras[a].center() - t)
-                    .length()
-                    .total_cmp(&(s.cameras[b].center() - t).length())
-                    .then(a.cmp(&b))
-            });
+            let order = by_distance(s, ex.target);
             let mut uniq = ex.inputs.clone();
             uniq.sort();
             uniq.dedup();
