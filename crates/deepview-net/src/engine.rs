@@ -368,41 +368,60 @@ fn logit(p: f32) -> f32 {
 /// colour and the masked logit of the depth weight into `o` (`[4][H*W]`).
 fn prior_stats(psv: &[&mut [f32]], plane: Plane, temperature: f64, o: &mut [f32]) {
     let hw = plane.h * plane.w;
+    let w = plane.w;
     let k = psv.len() / 4;
     let (mean, lg) = o.split_at_mut(3 * hw);
+    // Row by row with the columns innermost (vectorised by the compiler); the same operations per
+    // pixel, in the same order, as the per-pixel definition.
+    let mut count = vec![0f32; w];
+    let mut sum = vec![0f32; 3 * w];
+    let mut var = vec![0f32; 3 * w];
     for y in 0..plane.h {
-        for x in 0..plane.w {
-            let i = plane.index(y, x);
-            let o = y * plane.w + x;
-            let mut count = 0f32;
-            let mut sum = [0f32; 3];
-            for v in 0..k {
-                let m = psv[4 * v + 3][i];
-                count += m;
-                for c in 0..3 {
-                    sum[c] += psv[4 * v + c][i] * m;
-                }
+        let i0 = plane.index(y, 0);
+        let o0 = y * w;
+        count.fill(0.0);
+        sum.fill(0.0);
+        var.fill(0.0);
+        for v in 0..k {
+            let m = &psv[4 * v + 3][i0..i0 + w];
+            for (c, m) in count.iter_mut().zip(m) {
+                *c += m;
             }
-            let denom = count.max(1.0);
-            let mu = [sum[0] / denom, sum[1] / denom, sum[2] / denom];
-            let mut var = [0f32; 3];
-            for v in 0..k {
-                let m = psv[4 * v + 3][i];
-                for c in 0..3 {
-                    let e = psv[4 * v + c][i] * m - mu[c] * m;
-                    var[c] += e * e;
-                }
-            }
-            let mut var = (var[0] / denom + var[1] / denom + var[2] / denom) / 3.0;
-            if count == 1.0 {
-                var = PRIOR_SINGLE_VIEW_VARIANCE as f32;
-            }
-            let seen = if count > 0.5 { 1.0 } else { 0.0 };
-            let l = -var / temperature as f32;
             for c in 0..3 {
-                mean[c * hw + o] = mu[c];
+                let x = &psv[4 * v + c][i0..i0 + w];
+                for ((s, &x), &m) in sum[c * w..(c + 1) * w].iter_mut().zip(x).zip(m) {
+                    *s += x * m;
+                }
             }
-            lg[o] = l * seen + (1.0 - seen) * -1e30;
+        }
+        for c in 0..3 {
+            let mu = &mut mean[c * hw + o0..c * hw + o0 + w];
+            for ((mu, &s), &n) in mu.iter_mut().zip(&sum[c * w..(c + 1) * w]).zip(&count) {
+                *mu = s / n.max(1.0);
+            }
+        }
+        for v in 0..k {
+            let m = &psv[4 * v + 3][i0..i0 + w];
+            for c in 0..3 {
+                let x = &psv[4 * v + c][i0..i0 + w];
+                let mu = &mean[c * hw + o0..c * hw + o0 + w];
+                for (((q, &x), &m), &mu) in var[c * w..(c + 1) * w].iter_mut().zip(x).zip(m).zip(mu)
+                {
+                    let e = x * m - mu * m;
+                    *q += e * e;
+                }
+            }
+        }
+        let t = temperature as f32;
+        for (x, l) in lg[o0..o0 + w].iter_mut().enumerate() {
+            let n = count[x];
+            let denom = n.max(1.0);
+            let mut q = (var[x] / denom + var[w + x] / denom + var[2 * w + x] / denom) / 3.0;
+            if n == 1.0 {
+                q = PRIOR_SINGLE_VIEW_VARIANCE as f32;
+            }
+            let seen = if n > 0.5 { 1.0 } else { 0.0 };
+            *l = (-q / t) * seen + (1.0 - seen) * -1e30;
         }
     }
 }
