@@ -224,6 +224,19 @@ fn events_report_the_run_and_a_stop_during_it_saves_the_last_step() {
     assert!(t.take_notices().is_empty());
 }
 
+/// A run killed while writing its first checkpoint has none to resume from and is started over: the
+/// temporary folder of that write goes too (it was left behind, found by the fault-injection test).
+#[test]
+fn starting_over_removes_the_leftovers_of_a_first_checkpoint() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let leftover = run.join("checkpoints/.tmp-step-0000002-7");
+    std::fs::create_dir_all(&leftover).unwrap();
+    let mut t = Trainer::create(&run, small_config(4, &["cpu"], 1), small_data()).unwrap();
+    assert_eq!(t.take_notices(), vec![Notice::Removed(leftover.clone())]);
+    assert!(!leftover.exists());
+}
+
 #[test]
 fn non_finite_loss_skips_the_step() {
     let dir = tempfile::tempdir().unwrap();

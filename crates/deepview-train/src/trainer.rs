@@ -149,6 +149,12 @@ impl Trainer {
             )?;
             let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
         }
+        // A run killed while writing its first checkpoint is started over here: remove its temporary
+        // checkpoint folder (resuming does the same in `resume_on`).
+        let mut notices = Vec::new();
+        if writer {
+            remove_leftovers(run_dir, &mut notices);
+        }
         devices[0].seed(config.train.seed);
         let model = match &config.train.init {
             Some(init) => {
@@ -199,7 +205,7 @@ impl Trainer {
             comm,
             stop_requested: false,
             stop_agreed: false,
-            notices: Vec::new(),
+            notices,
         })
     }
 
