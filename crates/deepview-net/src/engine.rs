@@ -6,7 +6,7 @@
 //! Memory: the state between nets (`D x S x H x W`), for update nets the views' renders (`K x D x 4`
 //! texels per view pixel: `A` and `T` of every plane, plus `I` and `R`), and per thread one plane's
 //! activations. [`engine_bytes`] estimates it; `infer` falls back to the tiled burn path
-//! ([`crate::infer`]) when it exceeds the budget or the model has U-Net nets.
+//! ([`crate::infer`]) when it exceeds the budget.
 
 use crate::forward::{Hom, invert, mpi_to_view_homographies};
 use crate::kernels::{NetScratch, PackedNet, for_each_chunk_with};

@@ -49,21 +49,15 @@ fn grow_conv(conv: &Conv2d, fresh: &Conv2d, map: &[usize], device: &Device) -> C
         }
     }
     let weight = Tensor::<4>::from_data(TensorData::new(w, [no, ni, kh, kw]), device);
-    let bias = match (&conv.bias, &fresh.bias) {
-        (Some(b), Some(fb)) => {
-            let mut nb = values(fb.val());
-            nb[..o].copy_from_slice(&values(b.val()));
-            Some(Param::from_tensor(Tensor::<1>::from_data(
-                TensorData::new(nb, [no]),
-                device,
-            )))
-        }
-        (None, fb) => fb.clone(),
-        (Some(_), None) => unreachable!("the network's convs all have a bias"),
-    };
+    // Every conv of the network has a bias (`CoreNet::new`).
+    let mut bias = values(fresh.bias.as_ref().expect("a bias").val());
+    bias[..o].copy_from_slice(&values(conv.bias.as_ref().expect("a bias").val()));
     let mut out = fresh.clone();
     out.weight = Param::from_tensor(weight);
-    out.bias = bias;
+    out.bias = Some(Param::from_tensor(Tensor::<1>::from_data(
+        TensorData::new(bias, [no]),
+        device,
+    )));
     out
 }
 
@@ -91,15 +85,9 @@ fn grow_net(net: &CoreNet, fresh: &CoreNet, device: &Device) -> CoreNet {
     out
 }
 
-/// `model` (configuration `from`) grown into configuration `to` ([module docs](self)); the new random
-/// weights come from `device`'s seeded generator. Refused unless `to` has the same inputs, state
-/// channels, max-pool stages, prior and U-Net layout, and at least as many features per net and nets.
-pub fn grow_model(
-    model: &DeepViewModel,
-    from: &DeepViewConfig,
-    to: &DeepViewConfig,
-    device: &Device,
-) -> Result<DeepViewModel, GrowError> {
+/// Whether a model of configuration `from` can grow into `to`: the same inputs, state channels, max-pool
+/// stages, prior and U-Net layout, and at least as many features per net and nets.
+pub fn check_growth(from: &DeepViewConfig, to: &DeepViewConfig) -> Result<(), GrowError> {
     let refuse = |why: String| GrowError {
         from: from.name.clone(),
         to: to.name.clone(),
@@ -129,8 +117,6 @@ pub fn grow_model(
             from.nets()
         )));
     }
-    let fresh = DeepViewModel::new(to, device);
-    let mut nets = Vec::with_capacity(to.nets());
     for n in 0..to.nets() {
         let src = n.min(from.nets() - 1);
         if to.features(n) < from.features(src) || to.unet(n) != from.unet(src) {
@@ -142,6 +128,23 @@ pub fn grow_model(
                 if from.unet(src) { " (U-Net)" } else { "" },
             )));
         }
+    }
+    Ok(())
+}
+
+/// `model` (configuration `from`) grown into configuration `to` ([module docs](self)); the new random
+/// weights come from `device`'s seeded generator. Refused as [`check_growth`] refuses.
+pub fn grow_model(
+    model: &DeepViewModel,
+    from: &DeepViewConfig,
+    to: &DeepViewConfig,
+    device: &Device,
+) -> Result<DeepViewModel, GrowError> {
+    check_growth(from, to)?;
+    let fresh = DeepViewModel::new(to, device);
+    let mut nets = Vec::with_capacity(to.nets());
+    for n in 0..to.nets() {
+        let src = n.min(from.nets() - 1);
         let grown = grow_net(&model.nets[src], &fresh.nets[n], device);
         nets.push(if n >= from.nets() {
             grown.zero_output()

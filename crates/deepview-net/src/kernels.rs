@@ -249,41 +249,29 @@ impl KernelOps for Flex {
                     }
                 }
             };
-        // One scratch and one pair of weight-gradient sums per thread, slices dealt round-robin
-        // (rayon's `fold` makes one per split), summed in thread order.
+        // One scratch and one pair of weight-gradient sums per thread ([`per_thread`]), summed in thread
+        // order.
         let (gw, gb) = if hw == 0 || n == 0 {
             zero()
         } else {
-            let threads = rayon::current_num_threads().max(1);
             let planes = if input_grad {
                 2 * cin + cout
             } else {
                 cin + cout
             };
-            let mut gxs: Vec<Option<&mut [f32]>> = if input_grad {
-                gx.chunks_mut(cin * hw).map(Some).collect()
+            let jobs: Vec<SliceJob<'_>> = if input_grad {
+                gx.chunks_mut(cin * hw).map(Some).enumerate().collect()
             } else {
-                (0..n).map(|_| None).collect()
+                (0..n).map(|i| (i, None)).collect()
             };
-            let mut groups: Vec<Vec<SliceJob<'_>>> = (0..threads).map(|_| Vec::new()).collect();
-            for (i, gxi) in gxs.drain(..).enumerate() {
-                groups[i % threads].push((i, gxi));
-            }
-            groups
-                .into_par_iter()
-                .map(|group| {
-                    let (mut gw, mut gb) = zero();
-                    if !group.is_empty() {
-                        let mut s = Planes::new(plane, planes);
-                        for (i, gxi) in group {
-                            slice(&mut s, i, &mut gw, &mut gb, gxi);
-                        }
-                    }
-                    (gw, gb)
-                })
-                .collect::<Vec<_>>()
-                .into_iter()
-                .fold(zero(), add_pair)
+            per_thread(
+                jobs,
+                || (Planes::new(plane, planes), zero()),
+                |(s, (gw, gb)), (i, gxi)| slice(s, i, gw, gb, gxi),
+            )
+            .into_iter()
+            .map(|(_, sums)| sums)
+            .fold(zero(), add_pair)
         };
         let gx_shape = if input_grad {
             vec![n, cin, h, wd]
@@ -366,28 +354,43 @@ impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C>
     }
 }
 
-/// `f(scratch, (i, chunk))` for every `len`-sized chunk of `data`, the chunks dealt round-robin to one task
-/// per rayon thread, each with one `init()` scratch (rayon's `for_each_init` may call `init` once per
-/// split: for plane-sized scratch that is hundreds of MB zeroed again and again).
-pub(crate) fn for_each_chunk_with<S, I, F>(data: &mut [f32], len: usize, init: I, f: F)
+/// `f(state, item)` for every item, the items dealt round-robin to one task per rayon thread, each with
+/// one `init()` state, made only for a task with items (rayon's `for_each_init` / `fold` may call `init`
+/// once per split: for plane-sized scratch that is hundreds of MB zeroed again and again). The tasks'
+/// states, in thread order.
+pub(crate) fn per_thread<T, S, I, F>(items: impl IntoIterator<Item = T>, init: I, f: F) -> Vec<S>
+where
+    T: Send,
+    S: Send,
+    I: Fn() -> S + Sync,
+    F: Fn(&mut S, T) + Sync,
+{
+    let threads = rayon::current_num_threads().max(1);
+    let mut groups: Vec<Vec<T>> = (0..threads).map(|_| Vec::new()).collect();
+    for (i, item) in items.into_iter().enumerate() {
+        groups[i % threads].push(item);
+    }
+    groups
+        .into_par_iter()
+        .filter(|g| !g.is_empty())
+        .map(|g| {
+            let mut s = init();
+            for item in g {
+                f(&mut s, item);
+            }
+            s
+        })
+        .collect()
+}
+
+/// `f(scratch, (i, chunk))` for every `len`-sized chunk of `data`, with one scratch per thread
+/// ([`per_thread`]).
+pub(crate) fn for_each_chunk_with<S: Send, I, F>(data: &mut [f32], len: usize, init: I, f: F)
 where
     I: Fn() -> S + Sync,
     F: Fn(&mut S, (usize, &mut [f32])) + Sync,
 {
-    let threads = rayon::current_num_threads().max(1);
-    let mut groups: Vec<Vec<(usize, &mut [f32])>> = (0..threads).map(|_| Vec::new()).collect();
-    for (i, c) in data.chunks_mut(len.max(1)).enumerate() {
-        groups[i % threads].push((i, c));
-    }
-    groups.into_par_iter().for_each(|g| {
-        if g.is_empty() {
-            return;
-        }
-        let mut s = init();
-        for item in g {
-            f(&mut s, item);
-        }
-    });
+    per_thread(data.chunks_mut(len.max(1)).enumerate(), init, f);
 }
 
 /// A convolution split by input channels into a per-view part and a part whose inputs are the same for

@@ -581,12 +581,9 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
                     let from = deepview_net::weights::load_config_any(dir)
                         .with_context(|| format!("--init {}", dir.display()))?;
                     if from != to {
-                        let device = deepview_net::burn::tensor::Device::flex();
-                        let (m, _) = deepview_net::weights::load_model(dir, &device)
-                            .with_context(|| format!("--init {}", dir.display()))?;
-                        deepview_net::grow::grow_model(&m, &from, &to, &device).with_context(
-                            || format!("--init {} --preset {}", dir.display(), to.name),
-                        )?;
+                        deepview_net::grow::check_growth(&from, &to).with_context(|| {
+                            format!("--init {} --preset {}", dir.display(), to.name)
+                        })?;
                     }
                 }
                 to
