@@ -926,6 +926,7 @@ mod tests {
                 height: 29,
                 width: 37,
                 shrink: false,
+                context: None,
             };
             let want: Vec<f32> = model
                 .forward(&inputs)

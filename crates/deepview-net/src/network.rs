@@ -14,9 +14,14 @@
 //! Training windows ([`ModelInputs::shrink`]): after net `n` the state is cropped by
 //! [`DeepViewConfig::net_margin`]`(n)` on every side, so a window grown by
 //! [`DeepViewConfig::margin_from`]`(0)` around what the loss needs ends with exactly that region and no
-//! conv zero-padding effects inside it. Caveat (documented approximation): the gradient components of
-//! iteration `n` render the views from the *current window* only (outside it the MPI is transparent),
-//! whereas the full-image computation would also see MPI content outside the window through parallax.
+//! conv zero-padding effects inside it. The gradient components of iteration `n` render the views from
+//! the *current window*, whereas the full-image computation also sees MPI content outside the window
+//! through parallax: a ray of an input crop through a window pixel on one plane leaves the window on
+//! others when the views' disparity exceeds the margins. Without a [`WindowContext`] the MPI is
+//! transparent outside the window (an approximation that grows with the baseline); with one, the views
+//! are rendered from the agreement prior's RGBA on the whole region the input crops' rays cross, with the
+//! window's current values in place ([`window_gradient_components`]). The prior is what net 0 starts
+//! from, so outside the window the update nets see the state's first estimate rather than nothing.
 //! Inference (`infer.rs`) has no such approximation: it tiles each net separately and renders the views
 //! from the full MPI.
 
@@ -184,6 +189,10 @@ pub fn state_to_rgba(state: Tensor<4>) -> Tensor<4> {
     Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)
 }
 
+/// Temperature of the prior filling a training window's context for a model without a prior of its own
+/// (`deepview_eval`'s `psv-mean` default).
+pub const CONTEXT_PRIOR_TEMPERATURE: f64 = 0.0005;
+
 /// Variance assumed where only one view sees a plane point (as `deepview_eval`'s `psv-mean` default).
 pub const PRIOR_SINGLE_VIEW_VARIANCE: f64 = 0.02;
 /// Probabilities are clamped to `[eps, 1 - eps]` before the logit of the prior.
@@ -265,6 +274,76 @@ pub struct ModelInputs {
     pub width: usize,
     /// Crop the state by each net's margin after that net (training windows; see the module docs).
     pub shrink: bool,
+    /// What the views see outside a training window when the update nets' gradient components render
+    /// them (`None`: transparent; see the module docs).
+    pub context: Option<WindowContext>,
+}
+
+/// The inputs of the MPI around a training window: the region of the reference camera that the rays
+/// of the input crops cross on some plane (`width x height`, containing the window at `origin`), and
+/// the input images and homographies that compute the agreement prior there
+/// ([`DeepViewModel::context_rgba`]).
+#[derive(Clone, Debug)]
+pub struct WindowContext {
+    /// K images `[3, h, w]` covering what the context region sees on every plane.
+    pub images: Vec<Tensor<3>>,
+    /// `mpi_to_view[k][d]`: context-region pixels of plane `d` to pixels of `images[k]`.
+    pub mpi_to_view: Vec<Vec<Hom>>,
+    pub width: usize,
+    pub height: usize,
+    /// Top-left of the model's input window in the context region's pixels.
+    pub origin: (usize, usize),
+}
+
+/// A context region's RGBA `[D, 4, h, w]` and the window's top-left in it.
+#[derive(Clone, Debug)]
+pub struct ContextRgba {
+    pub rgba: Tensor<4>,
+    pub origin: (usize, usize),
+}
+
+impl ContextRgba {
+    /// On the autodiff device (for a recomputed segment; a constant there).
+    pub fn autodiff(&self) -> Self {
+        Self {
+            rgba: self.rgba.clone().autodiff(),
+            origin: self.origin,
+        }
+    }
+}
+
+/// Gradient components (`[D, GRADIENT_CHANNELS, h, w]`) of one view on a window of `w x h` at `offset`
+/// in the model's input window, `mpi_to_view` relative to that window. Without a context the views are
+/// rendered from the window's `rgba` alone (transparent outside); with one, from the context's RGBA with
+/// the window's values in place, so rays that leave the window see the context's content.
+pub fn window_gradient_components(
+    rgba: Tensor<4>,
+    image: Tensor<3>,
+    mpi_to_view: &[Hom],
+    (w, h): (usize, usize),
+    offset: (usize, usize),
+    context: Option<&ContextRgba>,
+) -> Tensor<4> {
+    match context {
+        None => gradient_components(rgba, image, mpi_to_view, (0, 0, w, h)),
+        Some(c) => {
+            let (x0, y0) = (c.origin.0 + offset.0, c.origin.1 + offset.1);
+            let [d, _, ch, cw] = c.rgba.dims();
+            assert!(
+                x0 + w <= cw && y0 + h <= ch,
+                "the window lies inside its context"
+            );
+            let full = c
+                .rgba
+                .clone()
+                .slice_assign([0..d, 0..4, y0..y0 + h, x0..x0 + w], rgba);
+            let homs: Vec<Hom> = mpi_to_view
+                .iter()
+                .map(|m| crop_output(m, -(x0 as f64), -(y0 as f64)))
+                .collect();
+            gradient_components(full, image, &homs, (x0, y0, w, h))
+        }
+    }
 }
 
 impl ModelInputs {
@@ -382,9 +461,39 @@ impl DeepViewModel {
         }
     }
 
+    /// Temperature of the agreement prior that fills a window's context: the model's own, or
+    /// `psv-mean`'s default for a model without a prior.
+    pub fn context_temperature(&self) -> f64 {
+        if self.prior_temperature > 0.0 {
+            self.prior_temperature
+        } else {
+            CONTEXT_PRIOR_TEMPERATURE
+        }
+    }
+
+    /// The agreement prior's RGBA on a window's context region (no parameters: nothing to
+    /// differentiate).
+    pub fn context_rgba(&self, context: &WindowContext) -> ContextRgba {
+        let (w, h) = (context.width, context.height);
+        let per_view: Vec<Tensor<4>> = context
+            .images
+            .iter()
+            .zip(&context.mpi_to_view)
+            .map(|(im, homs)| Self::init_input(im.clone(), homs, (0, 0, w, h)))
+            .collect();
+        ContextRgba {
+            rgba: state_to_rgba(agreement_prior_logits(
+                &per_view,
+                self.context_temperature(),
+            )),
+            origin: context.origin,
+        }
+    }
+
     /// The whole model on a window (see [`ModelInputs`]).
     pub fn forward(&self, inputs: &ModelInputs) -> ModelOutput {
         let k = inputs.views();
+        let context = inputs.context.as_ref().map(|c| self.context_rgba(c));
         let (mut w, mut h) = (inputs.width, inputs.height);
         let mut homs = inputs.mpi_to_view.clone();
         let mut offset = (0usize, 0usize);
@@ -393,11 +502,13 @@ impl DeepViewModel {
             let per_view: Vec<Tensor<4>> = (0..k)
                 .map(|v| match &state {
                     None => Self::init_input(inputs.images[v].clone(), &homs[v], (0, 0, w, h)),
-                    Some(s) => gradient_components(
+                    Some(s) => window_gradient_components(
                         state_to_rgba(s.clone()),
                         inputs.images[v].clone(),
                         &homs[v],
-                        (0, 0, w, h),
+                        (w, h),
+                        offset,
+                        context.as_ref(),
                     ),
                 })
                 .collect();
@@ -456,6 +567,19 @@ pub fn synthetic_inputs(
     w: usize,
     device: &Device,
 ) -> ModelInputs {
+    synthetic_inputs_with_baseline(views, planes, h, w, 0.05, device)
+}
+
+/// [`synthetic_inputs`] with the cameras on a circle of radius `baseline` (the reference's focal length
+/// is `w` pixels: `baseline * w` px of disparity at depth 1).
+pub fn synthetic_inputs_with_baseline(
+    views: usize,
+    planes: usize,
+    h: usize,
+    w: usize,
+    baseline: f64,
+    device: &Device,
+) -> ModelInputs {
     use burn::tensor::Distribution;
     use deepview_geometry::{
         Camera, DMat3, DVec3, Intrinsics, PlaneSpacing, Pose, plane_depths, plane_homography,
@@ -477,7 +601,7 @@ pub fn synthetic_inputs(
             reference.intrinsics,
             Pose::from_center(
                 DMat3::IDENTITY,
-                DVec3::new(0.05 * t.cos(), 0.05 * t.sin(), 0.0),
+                DVec3::new(baseline * t.cos(), baseline * t.sin(), 0.0),
             ),
         );
         images.push(Tensor::<3>::random(
@@ -498,6 +622,7 @@ pub fn synthetic_inputs(
         height: h,
         width: w,
         shrink: false,
+        context: None,
     }
 }
 
@@ -637,6 +762,65 @@ mod tests {
         let out = model.forward(&inputs);
         assert_eq!(out.rgba.dims(), [3, 4, 6, 8]);
         assert_eq!(out.offset, (total, total));
+    }
+
+    /// With the initialisation net's output zeroed, the state entering the update net is the agreement
+    /// prior everywhere, which is what a window's context holds: the training window with its context
+    /// then computes exactly the full-image MPI on its output region, although the views' rays leave the
+    /// window (19 px of disparity against 6 px margins). Without the context it does not.
+    #[test]
+    fn window_context_makes_the_training_window_exact() {
+        let dev = Device::flex();
+        let cfg = DeepViewConfig::preset("cpu").unwrap();
+        assert!(cfg.init_prior.is_some() && cfg.updates == 1);
+        let mut model = DeepViewModel::new(&cfg, &dev);
+        let sc = cfg.state_channels();
+        // A random update net (the prior's presets start with zeroed outputs).
+        model.nets[1] = CoreNet::new(
+            GRADIENT_CHANNELS + sc,
+            cfg.features(1),
+            sc,
+            cfg.max_pool_stages,
+            cfg.unet(1),
+            &dev,
+        );
+        let (big_w, big_h, d) = (64, 60, 6);
+        let full_inputs = synthetic_inputs_with_baseline(3, d, big_h, big_w, 0.3, &dev);
+        let full = model.forward(&full_inputs).rgba;
+        let (x0, y0, w, h) = (18usize, 14usize, 30usize, 34usize);
+        let window = |context: bool| ModelInputs {
+            images: full_inputs.images.clone(),
+            mpi_to_view: full_inputs
+                .mpi_to_view
+                .iter()
+                .map(|hv| {
+                    hv.iter()
+                        .map(|m| crop_output(m, x0 as f64, y0 as f64))
+                        .collect()
+                })
+                .collect(),
+            width: w,
+            height: h,
+            shrink: true,
+            context: context.then(|| WindowContext {
+                images: full_inputs.images.clone(),
+                mpi_to_view: full_inputs.mpi_to_view.clone(),
+                width: big_w,
+                height: big_h,
+                origin: (x0, y0),
+            }),
+        };
+        let total = model.margin_from(0);
+        let expected =
+            full.narrow(2, y0 + total, h - 2 * total)
+                .narrow(3, x0 + total, w - 2 * total);
+        let with = model.forward(&window(true));
+        assert_eq!(with.offset, (total, total));
+        // f32 rounding: the homographies are shifted to the context's pixels and back.
+        let e = max_diff(with.rgba, expected.clone());
+        assert!(e < 1e-4, "with the context: {e}");
+        let e0 = max_diff(model.forward(&window(false)).rgba, expected);
+        assert!(e0 > 10.0 * e, "without the context: {e0} (with: {e})");
     }
 
     #[test]

@@ -67,6 +67,7 @@ impl TrainConfig {
                 colour_jitter: false,
                 wide_inputs: 0.0,
                 surround_inputs: 0.0,
+                window_context: false,
             },
             loss: LossKind::Vgg,
             learning_rate: PAPER_LEARNING_RATE,

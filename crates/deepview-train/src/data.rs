@@ -24,7 +24,10 @@
 //! that image the window sees; its bounding box grown by 2 px (bilinear taps, edge clamping), clipped to
 //! the image, is the crop. Samples that fall outside the crop also fall outside the image, so plane sweep
 //! volumes and validity are those of the whole image. (The gradient components render the views from the
-//! current window only: the approximation documented in `network.rs`.)
+//! current window only, the approximation documented in `network.rs`, unless
+//! [`SampleConfig::window_context`] adds the tuple's [`ExampleContext`]: the region of the reference camera
+//! the input crops' rays cross, clipped to the reference image, with its own input crops for the
+//! agreement prior there.)
 
 use deepview_geometry::{
     Camera, DVec2, PlaneSpacing, ReferenceOptions, plane_homography, reference_camera,
@@ -225,6 +228,12 @@ pub struct SampleConfig {
     /// when a sector is empty). Drawn before `wide_inputs`; 0: never.
     #[serde(default)]
     pub surround_inputs: f64,
+    /// Render the views for the update nets' gradient components from the agreement prior outside the
+    /// training window (with the window's state inside) instead of a transparent MPI there: the rays of
+    /// wide inputs leave the window, which inference never sees (`deepview_net::network` module docs).
+    /// Off in configs written before it existed.
+    #[serde(default)]
+    pub window_context: bool,
 }
 
 /// Colour jitter ranges (natural-log units): whole-tuple exposure, per-channel gain, per-input exposure.
@@ -261,6 +270,21 @@ pub struct Example {
     /// Target crop (RGB, interleaved, `crop x crop`) and its top-left in the target image.
     pub target_crop: ImageF32,
     pub crop_origin: (u32, u32),
+    /// The MPI around the window that the input crops' rays cross ([`SampleConfig::window_context`]).
+    pub context: Option<ExampleContext>,
+}
+
+/// The region of the reference camera around a tuple's window that the rays of its input crops cross
+/// (see `deepview_net::network::WindowContext`), with the input crops that region sees.
+#[derive(Clone, Debug)]
+pub struct ExampleContext {
+    pub images: Vec<ImageF32>,
+    /// `mpi_to_view[k][d]`: context pixels of plane d -> pixels of `images[k]`.
+    pub mpi_to_view: Vec<Vec<Hom>>,
+    pub width: usize,
+    pub height: usize,
+    /// Top-left of the window in context pixels.
+    pub origin: (usize, usize),
 }
 
 /// All training scenes.
@@ -401,6 +425,7 @@ impl TrainData {
             (cx0, cy0),
             cfg.crop,
             model.margin_from(0),
+            cfg.window_context && model.updates > 0,
         )?;
         if cfg.colour_jitter {
             let mut log_uniform = |r: f64| ((rng.uniform() * 2.0 - 1.0) * r).exp();
@@ -410,8 +435,12 @@ impl TrainData {
                 .map(|_| log_uniform(VIEW_LOG))
                 .collect();
             scale_clamped(&mut ex.target_crop, g.map(|v| v as f32));
-            for (img, v) in ex.images.iter_mut().zip(views) {
-                scale_clamped(img, g.map(|x| (x * v) as f32));
+            for (k, v) in views.into_iter().enumerate() {
+                let gains = g.map(|x| (x * v) as f32);
+                scale_clamped(&mut ex.images[k], gains);
+                if let Some(c) = ex.context.as_mut() {
+                    scale_clamped(&mut c.images[k], gains);
+                }
             }
         }
         Ok(ex)
@@ -500,7 +529,7 @@ impl TrainData {
         margin: usize,
     ) -> Result<Example, DataError> {
         let inputs = self.nearest_inputs(si, target, views);
-        self.example_with_inputs(si, target, inputs, depths, crop_origin, crop, margin)
+        self.example_with_inputs(si, target, inputs, depths, crop_origin, crop, margin, false)
     }
 
     /// [`Self::example`] with the input views given.
@@ -514,6 +543,7 @@ impl TrainData {
         crop_origin: (u32, u32),
         crop: usize,
         margin: usize,
+        with_context: bool,
     ) -> Result<Example, DataError> {
         let s = &self.scenes[si];
         let geo = |source| DataError::Geometry {
@@ -570,56 +600,31 @@ impl TrainData {
         let mut image_origins = Vec::with_capacity(inputs.len());
         let mut mpi_to_view = Vec::with_capacity(inputs.len());
         for &v in &inputs {
-            let cam = s.cameras[v];
-            let homs: Vec<Hom> = depths
-                .iter()
-                .map(|&d| {
-                    crop_output(
-                        &plane_homography(&reference, &cam, d).to_row_major(),
-                        wx0,
-                        wy0,
-                    )
-                })
-                .collect();
-            let (w, h) = (cam.width as f64, cam.height as f64);
-            let mut pts = Vec::new();
-            for hm in &homs {
-                for (x, y) in [
-                    (0.0, 0.0),
-                    (ww as f64, 0.0),
-                    (0.0, wh as f64),
-                    (ww as f64, wh as f64),
-                ] {
-                    pts.push(apply(hm, x, y).unwrap_or(DVec2::NAN));
-                }
-            }
-            let (ix0, iy0, ix1, iy1) = match bbox(pts) {
-                Some((x0, y0, x1, y1)) => {
-                    let x0 = ((x0 - 2.0).floor().max(0.0)).min(w - 1.0);
-                    let y0 = ((y0 - 2.0).floor().max(0.0)).min(h - 1.0);
-                    (
-                        (x0),
-                        (y0),
-                        (x1 + 2.0).ceil().min(w).max(x0 + 1.0),
-                        (y1 + 2.0).ceil().min(h).max(y0 + 1.0),
-                    )
-                }
-                None => (0.0, 0.0, w, h),
-            };
-            let (ix0, iy0, iw, ih) = (
-                ix0 as u32,
-                iy0 as u32,
-                (ix1 - ix0) as u32,
-                (iy1 - iy0) as u32,
+            let (img, origin, homs) = input_crop(
+                &s.images[v],
+                &s.cameras[v],
+                &reference,
+                &depths,
+                (wx0, wy0),
+                (ww, wh),
             );
-            images.push(s.images[v].crop(ix0, iy0, iw, ih));
-            image_origins.push((ix0, iy0));
-            mpi_to_view.push(
-                homs.iter()
-                    .map(|hm| crop_source(hm, ix0 as f64, iy0 as f64))
-                    .collect(),
-            );
+            images.push(img);
+            image_origins.push(origin);
+            mpi_to_view.push(homs);
         }
+        let context = if with_context {
+            Some(window_context(
+                s,
+                &inputs,
+                &reference,
+                &depths,
+                (wx0, wy0, ww, wh),
+                &images,
+                &mpi_to_view,
+            ))
+        } else {
+            None
+        };
         let window_to_target = ref_to_target
             .iter()
             .map(|h| crop_source(&crop_output(h, wx0, wy0), cx0, cy0))
@@ -638,7 +643,121 @@ impl TrainData {
             window_to_target,
             target_crop,
             crop_origin,
+            context,
         })
+    }
+}
+
+/// The crop of input `image` (camera `cam`) that a region of the reference camera (`origin`, `size` in
+/// reference pixels) sees on every plane, its top-left in the image, and the homographies from region
+/// pixels of each plane to crop pixels. The bounding box of the projected region corners grows by 2 px
+/// (bilinear taps, edge clamping) and is clipped to the image, so samples outside the crop are also
+/// outside the image.
+fn input_crop(
+    image: &ImageF32,
+    cam: &Camera,
+    reference: &Camera,
+    depths: &[f64],
+    (x0, y0): (f64, f64),
+    (ww, wh): (usize, usize),
+) -> (ImageF32, (u32, u32), Vec<Hom>) {
+    let homs: Vec<Hom> = depths
+        .iter()
+        .map(|&d| crop_output(&plane_homography(reference, cam, d).to_row_major(), x0, y0))
+        .collect();
+    let (w, h) = (cam.width as f64, cam.height as f64);
+    let mut pts = Vec::new();
+    for hm in &homs {
+        for (x, y) in [
+            (0.0, 0.0),
+            (ww as f64, 0.0),
+            (0.0, wh as f64),
+            (ww as f64, wh as f64),
+        ] {
+            pts.push(apply(hm, x, y).unwrap_or(DVec2::NAN));
+        }
+    }
+    let (ix0, iy0, ix1, iy1) = match bbox(pts) {
+        Some((x0, y0, x1, y1)) => {
+            let x0 = ((x0 - 2.0).floor().max(0.0)).min(w - 1.0);
+            let y0 = ((y0 - 2.0).floor().max(0.0)).min(h - 1.0);
+            (
+                x0,
+                y0,
+                (x1 + 2.0).ceil().min(w).max(x0 + 1.0),
+                (y1 + 2.0).ceil().min(h).max(y0 + 1.0),
+            )
+        }
+        None => (0.0, 0.0, w, h),
+    };
+    let (ix0, iy0, iw, ih) = (
+        ix0 as u32,
+        iy0 as u32,
+        (ix1 - ix0) as u32,
+        (iy1 - iy0) as u32,
+    );
+    let homs = homs
+        .iter()
+        .map(|hm| crop_source(hm, ix0 as f64, iy0 as f64))
+        .collect();
+    (image.crop(ix0, iy0, iw, ih), (ix0, iy0), homs)
+}
+
+/// The window's context ([`ExampleContext`]): the region of the reference camera crossed, on some
+/// plane, by the rays of the window's input crops (`crops`, with `homs` from window pixels), clipped to
+/// the reference image but always containing the window, at most the window grown by its own size on
+/// every side; and the input crops that region sees.
+fn window_context(
+    s: &TrainScene,
+    inputs: &[usize],
+    reference: &Camera,
+    depths: &[f64],
+    (wx0, wy0, ww, wh): (f64, f64, usize, usize),
+    crops: &[ImageF32],
+    homs: &[Vec<Hom>],
+) -> ExampleContext {
+    let (wwf, whf) = (ww as f64, wh as f64);
+    let mut b = (0.0f64, 0.0f64, wwf, whf);
+    for (crop, hv) in crops.iter().zip(homs) {
+        let (cw, ch) = (crop.width as f64, crop.height as f64);
+        for hm in hv {
+            let inv = deepview_net::forward::invert(hm);
+            for (x, y) in [(0.0, 0.0), (cw, 0.0), (0.0, ch), (cw, ch)] {
+                if let Some(p) = apply(&inv, x, y) {
+                    b = (b.0.min(p.x), b.1.min(p.y), b.2.max(p.x), b.3.max(p.y));
+                }
+            }
+        }
+    }
+    // Window pixels: the reference image is [-wx0, rw - wx0) x [-wy0, rh - wy0).
+    let (rx0, ry0) = (-wx0, -wy0);
+    let (rx1, ry1) = (reference.width as f64 - wx0, reference.height as f64 - wy0);
+    let lo = |v: f64, r: f64, cap: f64| (v - 1.0).max(r).max(-cap).min(0.0).floor();
+    let hi = |v: f64, r: f64, size: f64| (v + 1.0).min(r).min(2.0 * size).max(size).ceil();
+    let (x0, y0) = (lo(b.0, rx0, wwf), lo(b.1, ry0, whf));
+    let (x1, y1) = (hi(b.2, rx1, wwf), hi(b.3, ry1, whf));
+    let (cw, ch) = ((x1 - x0) as usize, (y1 - y0) as usize);
+    let (cx0, cy0) = (wx0 + x0, wy0 + y0);
+    let mut images = Vec::with_capacity(inputs.len());
+    let mut mpi_to_view = Vec::with_capacity(inputs.len());
+    for &v in inputs {
+        let (img, _, hv) = input_crop(
+            &s.images[v],
+            &s.cameras[v],
+            reference,
+            depths,
+            (cx0, cy0),
+            (cw, ch),
+        );
+        images.push(img);
+        mpi_to_view.push(hv);
+    }
+    ExampleContext {
+        images,
+        mpi_to_view,
+        width: cw,
+        height: ch,
+        origin: ((-x0) as usize, (-y0) as usize),
     }
 }
 
@@ -693,6 +812,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 0.0,
+            window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let mut rng = Rng::new(11);
@@ -750,6 +870,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 1.0,
             surround_inputs: 0.0,
+            window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let s = &data.scenes[0];
@@ -784,6 +905,101 @@ mod tests {
     /// `surround_inputs = 1`, K = 4 on a 5x5 grid: distinct views from the 3K nearest, not always the K
     /// nearest, and around every interior target: seen from the target, no angular gap between the
     /// inputs exceeds 180 degrees (the target is inside their convex hull).
+    /// The window's context holds every point of the reference image that a ray of an input crop crosses
+    /// on some plane (up to the window grown by its own size), contains the window, and its input crops
+    /// sample the same image pixels as the window's where the two overlap.
+    #[test]
+    fn window_context_holds_what_the_input_crops_rays_cross() {
+        let data = TrainData::new(vec![two_plane_scene(4, 4, 64, 0.3)]).unwrap();
+        let mut cfg = SampleConfig {
+            crop: 16,
+            views_min: 3,
+            views_max: 3,
+            planes: 8,
+            jitter: true,
+            auto_planes: false,
+            colour_jitter: false,
+            wide_inputs: 0.5,
+            surround_inputs: 0.0,
+            window_context: true,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let s = &data.scenes[0];
+        let mut rng = Rng::new(5);
+        let mut outside_window = 0;
+        for _ in 0..20 {
+            let ex = data.sample(&cfg, &model, 3, &mut rng).unwrap();
+            let c = ex.context.as_ref().expect("a context");
+            let (wx0, wy0, ww, wh) = ex.window;
+            let (ox, oy) = (c.origin.0 as f64, c.origin.1 as f64);
+            assert!(ox + ww as f64 <= c.width as f64 && oy + wh as f64 <= c.height as f64);
+            let cams: Vec<Camera> = ex.inputs.iter().map(|&i| s.cameras[i]).collect();
+            let reference = reference_camera(&cams, &ReferenceOptions::default()).unwrap();
+            for (k, crop) in ex.images.iter().enumerate() {
+                for hom in &ex.mpi_to_view[k] {
+                    let inv = deepview_net::forward::invert(hom);
+                    for (x, y) in [
+                        (0.5, 0.5),
+                        (crop.width as f64 - 0.5, crop.height as f64 - 0.5),
+                    ] {
+                        let p = apply(&inv, x, y).unwrap();
+                        // In reference pixels; only the reference image and the window's own size around
+                        // it are promised.
+                        let (rx, ry) = (p.x + wx0 as f64, p.y + wy0 as f64);
+                        let in_reference = rx >= 0.0
+                            && ry >= 0.0
+                            && rx <= reference.width as f64
+                            && ry <= reference.height as f64;
+                        let near = p.x >= -(ww as f64)
+                            && p.y >= -(wh as f64)
+                            && p.x <= 2.0 * ww as f64
+                            && p.y <= 2.0 * wh as f64;
+                        if !(in_reference && near) {
+                            continue;
+                        }
+                        let inside_window =
+                            p.x >= 0.0 && p.y >= 0.0 && p.x <= ww as f64 && p.y <= wh as f64;
+                        outside_window += usize::from(!inside_window);
+                        let (cx, cy) = (p.x + ox, p.y + oy);
+                        assert!(
+                            cx >= -1e-6
+                                && cy >= -1e-6
+                                && cx <= c.width as f64 + 1e-6
+                                && cy <= c.height as f64 + 1e-6,
+                            "({cx}, {cy}) outside the {}x{} context",
+                            c.width,
+                            c.height
+                        );
+                    }
+                }
+                // The same image pixel from the window's crop and the context's crop.
+                for hom_pair in ex.mpi_to_view[k].iter().zip(&c.mpi_to_view[k]) {
+                    let (hw, hc) = hom_pair;
+                    let (px, py) = (ww as f64 / 2.0, wh as f64 / 2.0);
+                    let a = apply(hw, px, py).unwrap();
+                    let b = apply(hc, px + ox, py + oy).unwrap();
+                    let (ax, ay) = (a.x.round() as u32, a.y.round() as u32);
+                    let shift = (b - a).round();
+                    let (bx, by) = ((ax as f64 + shift.x) as u32, (ay as f64 + shift.y) as u32);
+                    if ax < crop.width && ay < crop.height {
+                        let ci = &c.images[k];
+                        assert!(bx < ci.width && by < ci.height);
+                        let ia = ((ay * crop.width + ax) * 3) as usize;
+                        let ib = ((by * ci.width + bx) * 3) as usize;
+                        assert_eq!(crop.data[ia..ia + 3], ci.data[ib..ib + 3]);
+                    }
+                }
+            }
+        }
+        assert!(
+            outside_window > 20,
+            "the rays leave the window only {outside_window} times"
+        );
+        cfg.window_context = false;
+        let ex = data.sample(&cfg, &model, 3, &mut rng).unwrap();
+        assert!(ex.context.is_none());
+    }
+
     #[test]
     fn surrounding_inputs_enclose_the_target() {
         let baseline = 0.1;
@@ -798,6 +1014,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 1.0,
+            window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let s = &data.scenes[0];
@@ -862,6 +1079,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 0.0,
+            window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         for seed in 0..6 {
@@ -929,6 +1147,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 0.0,
+            window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let margin = model.margin_from(0);

@@ -6,31 +6,40 @@ use crate::loss::Loss;
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor};
+use deepview_image::ImageF32;
 use deepview_net::forward::{Hom, crop_output, image_tensor, invert, render_view};
-use deepview_net::network::{DeepViewModel, ModelInputs};
+use deepview_net::network::{DeepViewModel, ModelInputs, WindowContext};
 
 /// The model inputs of a tuple on `device` (its training window, shrinking by the nets' margins).
 pub fn example_inputs(ex: &Example, device: &Device) -> ModelInputs {
-    let images = ex
-        .images
-        .iter()
-        .map(|im| {
-            image_tensor(
-                &im.data,
-                im.width as usize,
-                im.height as usize,
-                im.channels,
-                device,
-            )
-        })
-        .collect();
+    let tensors = |images: &[ImageF32]| -> Vec<Tensor<3>> {
+        images
+            .iter()
+            .map(|im| {
+                image_tensor(
+                    &im.data,
+                    im.width as usize,
+                    im.height as usize,
+                    im.channels,
+                    device,
+                )
+            })
+            .collect()
+    };
     let (_, _, ww, wh) = ex.window;
     ModelInputs {
-        images,
+        images: tensors(&ex.images),
         mpi_to_view: ex.mpi_to_view.clone(),
         height: wh,
         width: ww,
         shrink: true,
+        context: ex.context.as_ref().map(|c| WindowContext {
+            images: tensors(&c.images),
+            mpi_to_view: c.mpi_to_view.clone(),
+            width: c.width,
+            height: c.height,
+            origin: c.origin,
+        }),
     }
 }
 

@@ -37,8 +37,10 @@ use crate::loss::Loss;
 use burn::module::Module;
 use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor};
-use deepview_net::forward::{Hom, crop_output, gradient_components};
-use deepview_net::network::{DeepViewModel, ModelInputs, state_to_rgba};
+use deepview_net::forward::{Hom, crop_output};
+use deepview_net::network::{
+    ContextRgba, DeepViewModel, ModelInputs, state_to_rgba, window_gradient_components,
+};
 
 /// Geometry of a window: its size and the homographies from its pixels (per view, per plane).
 #[derive(Clone, Debug)]
@@ -86,6 +88,7 @@ pub fn windows(model: &DeepViewModel, inputs: &ModelInputs) -> Vec<Window> {
 
 /// Segment `n`: the state entering net `n + 1` from the state entering net `n` (`None` for net 0),
 /// on the device of `model` and `images` (both inner, or both autodiff).
+#[allow(clippy::too_many_arguments)]
 pub fn segment(
     model: &DeepViewModel,
     n: usize,
@@ -93,6 +96,7 @@ pub fn segment(
     input: &Window,
     output: &Window,
     state: Option<Tensor<4>>,
+    context: Option<&ContextRgba>,
 ) -> Tensor<4> {
     let (w, h) = (input.width, input.height);
     let per_view: Vec<Tensor<4>> = images
@@ -100,9 +104,14 @@ pub fn segment(
         .zip(&input.mpi_to_view)
         .map(|(im, homs)| match &state {
             None => DeepViewModel::init_input(im.clone(), homs, (0, 0, w, h)),
-            Some(s) => {
-                gradient_components(state_to_rgba(s.clone()), im.clone(), homs, (0, 0, w, h))
-            }
+            Some(s) => window_gradient_components(
+                state_to_rgba(s.clone()),
+                im.clone(),
+                homs,
+                (w, h),
+                input.offset,
+                context,
+            ),
         })
         .collect();
     let out = model.run_net(n, per_view, state.clone());
@@ -132,6 +141,9 @@ pub fn loss_and_grads(
     let inputs = example_inputs(ex, &inner);
     let wins = windows(model, &inputs);
     let nets = model.nets.len();
+    // The window's context (no parameters): once, on the inner device.
+    let context = inputs.context.as_ref().map(|c| model.context_rgba(c));
+    let context_ad = context.as_ref().map(|c| c.autodiff());
 
     // 1. Forward on the inner device: the states entering nets 1..N-1.
     let states: Vec<Tensor<4>> = {
@@ -145,6 +157,7 @@ pub fn loss_and_grads(
                 &wins[n],
                 &wins[n + 1],
                 states.last().cloned(),
+                context.as_ref(),
             );
             states.push(s);
         }
@@ -157,7 +170,15 @@ pub fn loss_and_grads(
     // 2. Last segment with the real loss.
     let last = nets - 1;
     let s_in = leaf(last);
-    let out = segment(model, last, &images, &wins[last], &wins[nets], s_in.clone());
+    let out = segment(
+        model,
+        last,
+        &images,
+        &wins[last],
+        &wins[nets],
+        s_in.clone(),
+        context_ad.as_ref(),
+    );
     let l = loss_tail(state_to_rgba(out), wins[nets].offset, ex, loss, device);
     let value = l.clone().into_scalar::<f32>();
     if !value.is_finite() {
@@ -171,7 +192,15 @@ pub fn loss_and_grads(
     for n in (0..last).rev() {
         let Some(g_next) = g.take() else { break };
         let s_in = leaf(n);
-        let out = segment(model, n, &images, &wins[n], &wins[n + 1], s_in.clone());
+        let out = segment(
+            model,
+            n,
+            &images,
+            &wins[n],
+            &wins[n + 1],
+            s_in.clone(),
+            context_ad.as_ref(),
+        );
         let grads = (out * g_next.autodiff()).sum().backward();
         g = s_in.and_then(|s| s.grad(&grads));
         let new = GradientsParams::from_grads(grads, model);

@@ -49,6 +49,7 @@ fn small_config(steps: u64, devices: &[&str], batch: usize) -> RunConfig {
         colour_jitter: false,
         wide_inputs: 0.0,
         surround_inputs: 0.0,
+        window_context: false,
     };
     train.loss = LossKind::L1;
     train.checkpoint_every = 1000;
@@ -823,7 +824,7 @@ fn chain_model(updates: usize, unet: usize, prior: Option<f64>) -> DeepViewConfi
 
 /// Segment-wise recompute gives the ordinary backward's loss (bit for bit: same forward ops) and
 /// parameter gradients (to float rounding), on fixed tuples, for chains of 1, 2 and 4 nets, with a U-Net
-/// net, the init prior and both losses (VGG when its weights are present).
+/// net, the init prior, the window's context and both losses (VGG when its weights are present).
 #[test]
 fn recompute_gradients_match_full_backward() {
     let device = Device::flex().autodiff();
@@ -838,12 +839,15 @@ fn recompute_gradients_match_full_backward() {
         chain_model(3, 1, None),
     ];
     let mut rng = Rng::new(3);
-    for cfg in &cases {
+    for (i, cfg) in cases.iter().enumerate() {
         let model = DeepViewModel::new(cfg, &device);
         let mut sample = TrainConfig::defaults(cfg).sample;
         sample.crop = 12;
         sample.planes = 3;
+        // The last case with the window's context (`--window-context`), which both paths must use alike.
+        sample.window_context = i == 2;
         let ex = data.sample(&sample, cfg, 3, &mut rng).unwrap();
+        assert_eq!(ex.context.is_some(), i == 2);
         for loss in &losses {
             let (va, ga) = loss_and_grads_full(&model, loss, &ex, &device, 2);
             let (vb, gb) = recompute::loss_and_grads(&model, loss, &ex, &device, 2);

@@ -123,6 +123,12 @@ pub struct Args {
     /// drawn before --wide-inputs; default 0).
     #[arg(long, value_name = "P", value_parser = parse_probability)]
     pub surround_inputs: Option<f64>,
+    /// Render the views for the update nets' gradient components from the agreement prior outside the
+    /// training window (with the window's state inside) instead of a transparent MPI there: closer to
+    /// inference's full MPI where wide inputs' rays leave the window. Off by default: it did not change
+    /// the demo's outcome (BENCHMARKS.md, "The training window's context"). Kept in the run's config.
+    #[arg(long)]
+    pub window_context: bool,
     /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none; 1 would hold out
     /// every view). Default 8.
     #[arg(long, value_parser = parse_holdout)]
@@ -293,6 +299,10 @@ fn fixed_on_resume(args: &Args, cfg: &RunConfig) -> Vec<&'static str> {
             args.surround_inputs
                 .is_some_and(|p| p != t.sample.surround_inputs),
             "--surround-inputs",
+        ),
+        (
+            args.window_context && !t.sample.window_context,
+            "--window-context",
         ),
         (
             args.holdout_every.is_some_and(|h| h != t.holdout_every),
@@ -611,6 +621,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         train.sample.colour_jitter = !args.no_colour_jitter;
         train.sample.wide_inputs = args.wide_inputs.unwrap_or(0.0);
         train.sample.surround_inputs = args.surround_inputs.unwrap_or(0.0);
+        train.sample.window_context = args.window_context;
         if let Some(l) = args.loss {
             train.loss = l;
         }

@@ -61,6 +61,7 @@ fn tiled_equals_untiled() {
         height: 38,
         width: 46,
         shrink: false,
+        context: None,
     };
     let full: Vec<f32> = model
         .forward(&inputs)
@@ -234,6 +235,7 @@ fn untiled(
         height: geom.h,
         width: geom.w,
         shrink: false,
+        context: None,
     };
     model
         .forward(&inputs)
