@@ -25,7 +25,7 @@
 //! Inference (`infer.rs`) has no such approximation: it tiles each net separately and renders the views
 //! from the full MPI.
 
-use crate::config::DeepViewConfig;
+use crate::config::{CPU_PRIOR_TEMPERATURE, DeepViewConfig};
 use crate::forward::{
     GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume,
 };
@@ -88,6 +88,25 @@ impl CoreNet {
 
     /// `x` `[K*D, C_in, h, w]` (view-major) -> `[D, out, h, w]`. Invariant to the order of the views.
     /// Zero the last conv (weights and bias), so the net outputs 0 until trained (residual nets on a prior).
+    /// Net `n` of `config` (the initialisation net for 0, an update net otherwise), randomly initialised
+    /// (the model zeroes its output where the config has a prior).
+    pub fn of_config(config: &DeepViewConfig, n: usize, device: &Device) -> Self {
+        let sc = config.state_channels();
+        let cin = if n == 0 {
+            INIT_CHANNELS
+        } else {
+            GRADIENT_CHANNELS + sc
+        };
+        Self::new(
+            cin,
+            config.features(n),
+            sc,
+            config.max_pool_stages,
+            config.unet(n),
+            device,
+        )
+    }
+
     pub fn zero_output(mut self) -> Self {
         let w = self.out.weight.val();
         self.out.weight = Param::from_tensor(w.zeros_like());
@@ -188,10 +207,6 @@ pub fn state_to_rgba(state: Tensor<4>) -> Tensor<4> {
     let a = s.clone().narrow(1, 3, 1);
     Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)
 }
-
-/// Temperature of the prior filling a training window's context for a model without a prior of its own
-/// (`deepview_eval`'s `psv-mean` default).
-pub const CONTEXT_PRIOR_TEMPERATURE: f64 = 0.0005;
 
 /// Variance assumed where only one view sees a plane point (as `deepview_eval`'s `psv-mean` default).
 pub const PRIOR_SINGLE_VIEW_VARIANCE: f64 = 0.02;
@@ -383,19 +398,7 @@ impl DeepViewModel {
         let sc = config.state_channels();
         let nets = (0..config.nets())
             .map(|n| {
-                let cin = if n == 0 {
-                    INIT_CHANNELS
-                } else {
-                    GRADIENT_CHANNELS + sc
-                };
-                let net = CoreNet::new(
-                    cin,
-                    config.features(n),
-                    sc,
-                    config.max_pool_stages,
-                    config.unet(n),
-                    device,
-                );
+                let net = CoreNet::of_config(config, n, device);
                 if config.init_prior.is_some() {
                     net.zero_output()
                 } else {
@@ -462,12 +465,12 @@ impl DeepViewModel {
     }
 
     /// Temperature of the agreement prior that fills a window's context: the model's own, or
-    /// `psv-mean`'s default for a model without a prior.
+    /// `psv-mean`'s default ([`CPU_PRIOR_TEMPERATURE`]) for a model without a prior.
     pub fn context_temperature(&self) -> f64 {
         if self.prior_temperature > 0.0 {
             self.prior_temperature
         } else {
-            CONTEXT_PRIOR_TEMPERATURE
+            CPU_PRIOR_TEMPERATURE
         }
     }
 
@@ -774,16 +777,8 @@ mod tests {
         let cfg = DeepViewConfig::preset("cpu").unwrap();
         assert!(cfg.init_prior.is_some() && cfg.updates == 1);
         let mut model = DeepViewModel::new(&cfg, &dev);
-        let sc = cfg.state_channels();
         // A random update net (the prior's presets start with zeroed outputs).
-        model.nets[1] = CoreNet::new(
-            GRADIENT_CHANNELS + sc,
-            cfg.features(1),
-            sc,
-            cfg.max_pool_stages,
-            cfg.unet(1),
-            &dev,
-        );
+        model.nets[1] = CoreNet::of_config(&cfg, 1, &dev);
         let (big_w, big_h, d) = (64, 60, 6);
         let full_inputs = synthetic_inputs_with_baseline(3, d, big_h, big_w, 0.3, &dev);
         let full = model.forward(&full_inputs).rgba;

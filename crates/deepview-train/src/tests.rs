@@ -1140,15 +1140,7 @@ fn training_tuple_renders_what_the_full_image_model_renders() {
     let s = &data.scenes[0];
     let cfg = DeepViewConfig::preset("cpu").unwrap();
     let mut model = DeepViewModel::new(&cfg, &dev);
-    let sc = cfg.state_channels();
-    model.nets[1] = CoreNet::new(
-        deepview_net::forward::GRADIENT_CHANNELS + sc,
-        cfg.features(1),
-        sc,
-        cfg.max_pool_stages,
-        cfg.unet(1),
-        &dev,
-    );
+    model.nets[1] = CoreNet::of_config(&cfg, 1, &dev);
     // An update large enough to matter (random output convs start small).
     let out = &mut model.nets[1].out;
     out.weight = Param::from_tensor(out.weight.val() * 30.0);
