@@ -811,11 +811,12 @@ mod tests {
                 .narrow(3, x0 + total, w - 2 * total);
         let with = model.forward(&window(true));
         assert_eq!(with.offset, (total, total));
-        // f32 rounding: the homographies are shifted to the context's pixels and back.
+        // f32 rounding of the shifted homographies, amplified by random images and weights: 12 runs gave
+        // 3e-5..1.2e-4 with the context, 0.9e-3..2.3e-3 without (at least 7.6x apart).
         let e = max_diff(with.rgba, expected.clone());
-        assert!(e < 1e-4, "with the context: {e}");
+        assert!(e < 5e-4, "with the context: {e}");
         let e0 = max_diff(model.forward(&window(false)).rgba, expected);
-        assert!(e0 > 10.0 * e, "without the context: {e0} (with: {e})");
+        assert!(e0 > 3.0 * e, "without the context: {e0} (with: {e})");
     }
 
     #[test]
