@@ -1,10 +1,19 @@
-//! `cargo bench -p deepview-kernels`: GFLOP/s of the 3x3 kernels on one thread, for the layer shapes of
+//! `cargo bench -p deepview-kernels`: GFLOP/s of the 3x3 kernels on one thread (AVX-512 and AVX2 where the
+//! machine has them), for the layer shapes of
 //! the `cpu` preset, on a plane that fits the L2 cache and on a fern-sized one (streams from memory).
 
-use deepview_kernels::{Act, PackedConv, Plane, conv3x3, conv3x3_weight_grad};
+use deepview_kernels::{Act, Isa, PackedConv, Plane, conv3x3, conv3x3_weight_grad, with_isa_cap};
 use std::time::Instant;
 
 fn main() {
+    for isa in [Isa::Avx512, Isa::Avx2] {
+        if deepview_kernels::detected() >= isa {
+            with_isa_cap(isa, || shapes(isa));
+        }
+    }
+}
+
+fn shapes(isa: Isa) {
     for (h, w) in [(40, 40), (96, 96), (412, 575)] {
         let plane = Plane::new(h, w);
         for (cin, cout) in [(4, 8), (8, 8), (16, 8), (19, 8), (64, 64)] {
@@ -35,7 +44,7 @@ fn main() {
             }
             let wg = t.elapsed().as_secs_f64() / reps as f64;
             println!(
-                "{{\"kernel\":\"conv3x3\",\"h\":{h},\"w\":{w},\"cin\":{cin},\"cout\":{cout},\"forward_gflops\":{:.1},\"weight_grad_gflops\":{:.1}}}",
+                "{{\"kernel\":\"conv3x3\",\"isa\":\"{isa:?}\",\"h\":{h},\"w\":{w},\"cin\":{cin},\"cout\":{cout},\"forward_gflops\":{:.1},\"weight_grad_gflops\":{:.1}}}",
                 flops / best / 1e9,
                 flops / wg / 1e9
             );

@@ -2,7 +2,7 @@
 //! activation, the input gradient (a convolution with transposed, flipped weights) and the weight and
 //! bias gradients (correlations of the input with the output gradient).
 
-use crate::{Plane, scalar, simd};
+use crate::{Isa, Plane, isa, scalar};
 
 /// The activation fused into a convolution's output.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -164,10 +164,15 @@ fn conv3x3_init(
     // L2 cache while the output blocks (passes of the kernel) reread them.
     let band = ROWS_PER_BAND * plane.pitch();
     let (start, end) = (plane.start(), plane.end());
+    // Bands are whole kernel steps, so that no output is computed twice.
+    let step = match isa() {
+        #[cfg(target_arch = "x86_64")]
+        Isa::Avx512 => crate::x86_512::STEP,
+        _ => 16,
+    };
     let mut b0 = start;
     while b0 < end {
-        // Bands are whole kernel steps (16 outputs), so that no output is computed twice.
-        let b1 = (b0 + band.next_multiple_of(16)).min(end);
+        let b1 = (b0 + band.next_multiple_of(step)).min(end);
         for blk in 0..conv.blocks() {
             let co0 = blk * CO_BLOCK;
             let n = (conv.cout - co0).min(CO_BLOCK);
@@ -178,13 +183,24 @@ fn conv3x3_init(
                 outs[j] = outputs[co0 + j].as_mut_ptr();
             }
             let init = init.as_ref().map(|i| &i[co0..co0 + n]);
+            // SAFETY (both SIMD paths): every input and output holds `plane.len()` floats (checked
+            // above), which covers the kernel's reads (taps of one step past `end`) and writes (one
+            // step past `end`); outputs are distinct buffers from the inputs (they are `&mut`).
             #[cfg(target_arch = "x86_64")]
-            if simd() {
-                // SAFETY: every input and output holds `plane.len()` floats (checked above), which
-                // covers the kernel's reads (taps of one step past `end`) and writes (one step past
-                // `end`); outputs are distinct buffers from the inputs (they are `&mut`).
-                unsafe { crate::x86::conv_block(&ins, w, b, init, &outs[..n], b0, b1, &taps, act) };
-                continue;
+            match isa() {
+                Isa::Avx512 => {
+                    unsafe {
+                        crate::x86_512::conv_block(&ins, w, b, init, &outs[..n], b0, b1, &taps, act)
+                    };
+                    continue;
+                }
+                Isa::Avx2 => {
+                    unsafe {
+                        crate::x86::conv_block(&ins, w, b, init, &outs[..n], b0, b1, &taps, act)
+                    };
+                    continue;
+                }
+                Isa::Portable => {}
             }
             // SAFETY: as above.
             unsafe { scalar::conv_block(&ins, w, b, init, &outs[..n], b0, b1, &taps, act) };
@@ -229,11 +245,20 @@ pub fn conv3x3_weight_grad(
     let taps = plane.taps();
     let xs: Vec<*const f32> = x.iter().map(|b| b.as_ptr()).collect();
     let gs: Vec<*const f32> = g.iter().map(|b| b.as_ptr()).collect();
+    let (start, end) = (plane.start(), plane.end());
+    // SAFETY (both SIMD paths): buffers hold `plane.len()` floats, covering reads of 16 past `end`
+    // plus the taps.
     #[cfg(target_arch = "x86_64")]
-    if simd() {
-        // SAFETY: buffers hold `plane.len()` floats, covering reads of 16 past `end` plus the taps.
-        unsafe { crate::x86::weight_grad(&xs, &gs, plane.start(), plane.end(), &taps, gw, gb) };
-        return;
+    match isa() {
+        Isa::Avx512 => {
+            unsafe { crate::x86_512::weight_grad(&xs, &gs, start, end, &taps, gw, gb) };
+            return;
+        }
+        Isa::Avx2 => {
+            unsafe { crate::x86::weight_grad(&xs, &gs, start, end, &taps, gw, gb) };
+            return;
+        }
+        Isa::Portable => {}
     }
     // SAFETY: as above.
     unsafe { scalar::weight_grad(&xs, &gs, plane.start(), plane.end(), &taps, gw, gb) };

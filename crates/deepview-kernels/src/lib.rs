@@ -4,19 +4,23 @@
 //! Layout ([`Plane`]): one channel of one slice is a flat buffer holding the `h x w` image inside a
 //! one-texel zero border (rows of `w + 2`), with a little slack before and after. A 3x3 tap is then a
 //! constant offset in the flat index, so a kernel walks the whole plane as one vector loop (16 outputs
-//! per step in two AVX2 registers) with no per-row edge cases; the border columns it computes are
+//! per step in two AVX2 registers, 32 in two AVX-512 ones) with no per-row edge cases; the border columns it computes are
 //! discarded (zeroed) afterwards, so every buffer keeps zeros outside its interior and the output of one
 //! layer is the padded input of the next. Channels are passed as lists of planes, so concatenating
 //! channels (the network's `concat(features, max over views)`) costs nothing.
 //!
 //! The kernels run on one slice at a time on the calling thread; callers parallelise over slices. The
-//! AVX2 + FMA path is chosen at run time; a portable path gives the same results (to rounding) elsewhere.
+//! AVX-512 or AVX2 + FMA path is chosen at run time; a portable path gives the same results (to rounding)
+//! elsewhere.
 
 pub mod conv;
 mod elu;
+pub mod fastmath;
 mod scalar;
 #[cfg(target_arch = "x86_64")]
 mod x86;
+#[cfg(target_arch = "x86_64")]
+mod x86_512;
 
 pub use conv::{
     Act, PackedConv, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
@@ -26,8 +30,8 @@ pub use conv::{
 /// Floats before the padded image in a plane buffer (so the top-left tap of the first output is in
 /// bounds).
 pub const FRONT: usize = 16;
-/// Slack for a kernel's overrun past the last interior row (at least one step).
-pub const BLOCK: usize = 32;
+/// Slack for a kernel's overrun past the last interior row (at least one step of the widest kernel).
+pub const BLOCK: usize = 48;
 
 /// The geometry of one zero-padded plane of an `h x w` image.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -107,36 +111,68 @@ impl Plane {
     }
 }
 
-thread_local! {
-    static PORTABLE: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+/// The instruction sets the kernels can run on, in increasing order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+pub enum Isa {
+    Portable,
+    /// AVX2 + FMA.
+    Avx2,
+    /// AVX-512F (with AVX2 + FMA).
+    Avx512,
 }
 
-/// Run `f` with the portable kernels on this thread (tests compare both paths; also
-/// `DEEPVIEW_PORTABLE_KERNELS=1` for a whole process).
-pub fn with_portable<R>(f: impl FnOnce() -> R) -> R {
-    let old = PORTABLE.with(|p| p.replace(true));
+thread_local! {
+    static CAP: std::cell::Cell<Isa> = const { std::cell::Cell::new(Isa::Avx512) };
+}
+
+/// Run `f` with the kernels of at most `cap` on this thread (tests compare every path; benchmarks
+/// compare AVX2 against AVX-512 in one process).
+pub fn with_isa_cap<R>(cap: Isa, f: impl FnOnce() -> R) -> R {
+    let old = CAP.with(|p| p.replace(cap));
     let r = f();
-    PORTABLE.with(|p| p.set(old));
+    CAP.with(|p| p.set(old));
     r
 }
 
-/// Whether the AVX2 kernels run (on this machine and thread).
-pub fn simd() -> bool {
-    if PORTABLE.with(|p| p.get()) {
-        return false;
-    }
+/// Run `f` with the portable kernels on this thread (also `DEEPVIEW_PORTABLE_KERNELS=1` for a whole
+/// process).
+pub fn with_portable<R>(f: impl FnOnce() -> R) -> R {
+    with_isa_cap(Isa::Portable, f)
+}
+
+/// The best instruction set of this machine that the process allows: `DEEPVIEW_PORTABLE_KERNELS=1`
+/// forces the portable kernels, `DEEPVIEW_NO_AVX512=1` the AVX2 ones.
+pub fn detected() -> Isa {
     #[cfg(target_arch = "x86_64")]
     {
         use std::sync::OnceLock;
-        static HAS: OnceLock<bool> = OnceLock::new();
+        static HAS: OnceLock<Isa> = OnceLock::new();
         *HAS.get_or_init(|| {
-            std::env::var_os("DEEPVIEW_PORTABLE_KERNELS").is_none()
-                && is_x86_feature_detected!("avx2")
-                && is_x86_feature_detected!("fma")
+            if std::env::var_os("DEEPVIEW_PORTABLE_KERNELS").is_some()
+                || !(is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
+            {
+                Isa::Portable
+            } else if std::env::var_os("DEEPVIEW_NO_AVX512").is_none()
+                && is_x86_feature_detected!("avx512f")
+            {
+                Isa::Avx512
+            } else {
+                Isa::Avx2
+            }
         })
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        false
+        Isa::Portable
     }
+}
+
+/// The instruction set the kernels run on (on this machine and thread).
+pub fn isa() -> Isa {
+    detected().min(CAP.with(|p| p.get()))
+}
+
+/// Whether the AVX2 (or wider) kernels run (on this machine and thread).
+pub fn simd() -> bool {
+    isa() >= Isa::Avx2
 }

@@ -1,7 +1,7 @@
 //! The kernels against direct f64 evaluations of the convolution's definition (zero padding).
 
 use deepview_kernels::{
-    Act, PackedConv, Plane, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad,
+    Act, Isa, PackedConv, Plane, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad,
     elu_backward,
 };
 
@@ -105,16 +105,23 @@ const SHAPES: [(usize, usize, usize, usize); 7] = [
     (7, 13, 33, 2),
 ];
 
+/// Run `check` on every kernel path this machine has: AVX-512, AVX2 and portable.
+fn every_isa(check: fn()) {
+    for cap in [Isa::Avx512, Isa::Avx2, Isa::Portable] {
+        if deepview_kernels::detected() >= cap {
+            deepview_kernels::with_isa_cap(cap, check);
+        }
+    }
+}
+
 #[test]
 fn forward_matches_the_definition() {
-    forward_check();
-    deepview_kernels::with_portable(forward_check);
+    every_isa(forward_check);
 }
 
 #[test]
 fn gradients_match_the_definition() {
-    gradient_check();
-    deepview_kernels::with_portable(gradient_check);
+    every_isa(gradient_check);
 }
 
 fn forward_check() {
@@ -154,8 +161,7 @@ fn forward_check() {
 
 #[test]
 fn split_sums_match_the_definition() {
-    split_check();
-    deepview_kernels::with_portable(split_check);
+    every_isa(split_check);
 }
 
 /// A convolution computed in two parts, the input channels `split..` first (with the bias, linear) and

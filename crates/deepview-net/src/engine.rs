@@ -14,6 +14,7 @@ use crate::network::{DeepViewModel, PRIOR_EPS, PRIOR_SINGLE_VIEW_VARIANCE};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
+use deepview_kernels::fastmath;
 use deepview_mpi::warp::{RowTaps, Sampler};
 use rayon::prelude::*;
 
@@ -338,29 +339,43 @@ fn warp_pair_rows(
     }
 }
 
-fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
-}
-
-/// The state `[D][S][H*W]` -> premultiplied RGBA `[D][H*W][4]` (see `network::state_to_rgba`).
+/// The state `[D][S][H*W]` -> premultiplied RGBA `[D][H*W][4]` (see `network::state_to_rgba`): the
+/// sigmoids of a run of pixels as vector loops ([`fastmath::with_simd`]), then interleaved.
 fn state_to_rgba(state: &[f32], s: usize, hw: usize) -> Vec<f32> {
+    const RUN: usize = 256;
     let mut rgba = vec![0f32; state.len() / s * 4];
     rgba.par_chunks_mut(hw * 4).enumerate().for_each(|(p, r)| {
         let st = &state[p * s * hw..];
-        for (i, t) in r.chunks_exact_mut(4).enumerate() {
-            let a = sigmoid(st[3 * hw + i]);
-            for c in 0..3 {
-                t[c] = sigmoid(st[c * hw + i]) * a;
-            }
-            t[3] = a;
-        }
+        fastmath::with_simd(
+            #[inline(always)]
+            || {
+                let mut tmp = [[0f32; RUN]; 4];
+                for (k, out) in r.chunks_mut(4 * RUN).enumerate() {
+                    let (i0, n) = (k * RUN, out.len() / 4);
+                    for (a, &x) in tmp[3][..n].iter_mut().zip(&st[3 * hw + i0..][..n]) {
+                        *a = fastmath::sigmoid(x);
+                    }
+                    let (rgb, a) = tmp.split_at_mut(3);
+                    for c in 0..3 {
+                        let src = &st[c * hw + i0..][..n];
+                        for ((t, &x), &a) in rgb[c][..n].iter_mut().zip(src).zip(&a[0][..n]) {
+                            *t = fastmath::sigmoid(x) * a;
+                        }
+                    }
+                    for (i, t) in out.chunks_exact_mut(4).enumerate() {
+                        t.copy_from_slice(&[tmp[0][i], tmp[1][i], tmp[2][i], tmp[3][i]]);
+                    }
+                }
+            },
+        )
     });
     rgba
 }
 
+#[inline(always)]
 fn logit(p: f32) -> f32 {
     let p = p.clamp(PRIOR_EPS as f32, 1.0 - PRIOR_EPS as f32);
-    (p / (1.0 - p)).ln()
+    fastmath::ln(p / (1.0 - p))
 }
 
 /// Pass 1 of the agreement prior (see [`crate::network::agreement_prior_logits`], same arithmetic) on
@@ -430,34 +445,46 @@ fn prior_stats(psv: &[&mut [f32]], plane: Plane, temperature: f64, o: &mut [f32]
 /// pixel, back to front, `alpha_d = w_d / sum_{i<=d} w_i` in the log domain; then every value turned into
 /// its clamped logit.
 fn prior_logits(out: &mut [f32], d: usize, hw: usize) {
-    // Pass 2, per pixel over planes back to front: alpha_d = w_d / sum_{i<=d} w_i (log domain).
+    // Pass 2, per pixel over planes back to front: alpha_d = w_d / sum_{i<=d} w_i (log domain), on
+    // runs of pixels with the pixels innermost (vector loops, [`fastmath::with_simd`]).
+    const RUN: usize = 512;
     let base = out.as_mut_ptr() as usize;
-    (0..hw).into_par_iter().with_min_len(256).for_each(|o| {
+    (0..hw.div_ceil(RUN)).into_par_iter().for_each(|k| {
+        let (o0, n) = (k * RUN, RUN.min(hw - k * RUN));
         let ptr = base as *mut f32;
-        let mut run: Option<(f32, f32)> = None;
-        for p in 0..d {
-            // SAFETY: each task touches only pixel `o` of every plane (disjoint across tasks).
-            let lgp = unsafe { ptr.add((p * 4 + 3) * hw + o) };
-            let l = unsafe { *lgp };
-            let (m, s) = match run {
-                None => (l, 1.0),
-                Some((m0, s0)) => {
-                    let m = m0.max(l);
-                    (m, s0 * (m0 - m).exp() + (l - m).exp())
+        // SAFETY: each task touches only pixels `o0..o0 + n` of every plane (disjoint across tasks).
+        let row = |p: usize, c: usize| unsafe {
+            std::slice::from_raw_parts_mut(ptr.add((p * 4 + c) * hw + o0), n)
+        };
+        fastmath::with_simd(
+            #[inline(always)]
+            || {
+                let (mut m, mut s) = ([0f32; RUN], [0f32; RUN]);
+                for p in 0..d {
+                    let lg = row(p, 3);
+                    if p == 0 {
+                        m[..n].copy_from_slice(lg);
+                        s[..n].fill(1.0);
+                    } else {
+                        for ((m, s), &l) in m[..n].iter_mut().zip(&mut s[..n]).zip(&*lg) {
+                            let m1 = m.max(l);
+                            *s = *s * fastmath::exp(*m - m1) + fastmath::exp(l - m1);
+                            *m = m1;
+                        }
+                    }
+                    for ((l, &m), &s) in lg.iter_mut().zip(&m[..n]).zip(&s[..n]) {
+                        let alpha = fastmath::exp(*l - (m + fastmath::ln(s))).min(1.0);
+                        // `seen` is encoded in the masked logit (unseen: -1e30, alpha 0 there too).
+                        *l = logit(if *l > -1e29 { alpha } else { 0.0 });
+                    }
+                    for c in 0..3 {
+                        for q in row(p, c) {
+                            *q = logit(*q);
+                        }
+                    }
                 }
-            };
-            let alpha = (l - (m + s.ln())).exp().min(1.0);
-            run = Some((m, s));
-            // `seen` is encoded in the masked logit (unseen: -1e30, alpha exp(-huge) = 0 there too).
-            let seen = l > -1e29;
-            unsafe {
-                *lgp = logit(if seen { alpha } else { 0.0 });
-                for c in 0..3 {
-                    let q = ptr.add((p * 4 + c) * hw + o);
-                    *q = logit(*q);
-                }
-            }
-        }
+            },
+        )
     });
 }
 
