@@ -60,20 +60,12 @@ pub fn engine_bytes(
     4 * (d64 * s * hw + d64 * 4 * hw + renders + threads * scratch)
 }
 
-/// Run `f` compiled with AVX2 + FMA where the CPU has them (the warps' `mul_add` and `floor` become
-/// instructions instead of libm calls; `f`'s body is inlined into the feature-enabled function), else as is.
+/// Run `f` compiled with AVX-512 or AVX2 + FMA where the CPU has them (the warps' `mul_add` and `floor`
+/// become instructions instead of libm calls; `f`'s body is inlined into the feature-enabled function),
+/// else as is.
 #[inline(always)]
 fn with_fma<R>(f: impl FnOnce() -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    if deepview_kernels::simd() {
-        #[target_feature(enable = "avx2,fma")]
-        unsafe fn fma<R>(f: impl FnOnce() -> R) -> R {
-            f()
-        }
-        // SAFETY: AVX2 and FMA are present (checked).
-        return unsafe { fma(f) };
-    }
-    f()
+    fastmath::with_simd(f)
 }
 
 /// Bilinear warp of an interleaved `channels`-channel `src_w x src_h` source by `hom` (output pixels ->
@@ -106,8 +98,27 @@ fn warp_into(
         ) {
             warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
         }
-        // SAFETY: AVX2 and FMA are present (checked).
-        unsafe { fma(src, channels, src_w, src_h, hom, plane, dst, valid) };
+        #[target_feature(enable = "avx512f,avx2,fma")]
+        #[allow(clippy::too_many_arguments)]
+        unsafe fn avx512(
+            src: &[f32],
+            channels: usize,
+            src_w: u32,
+            src_h: u32,
+            hom: &Hom,
+            plane: Plane,
+            dst: &mut [&mut [f32]],
+            valid: Option<&mut [f32]>,
+        ) {
+            warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
+        }
+        if deepview_kernels::isa() == deepview_kernels::Isa::Avx512 {
+            // SAFETY: AVX-512F, AVX2 and FMA are present (checked).
+            unsafe { avx512(src, channels, src_w, src_h, hom, plane, dst, valid) };
+        } else {
+            // SAFETY: AVX2 and FMA are present (checked).
+            unsafe { fma(src, channels, src_w, src_h, hom, plane, dst, valid) };
+        }
         return;
     }
     warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
