@@ -176,3 +176,25 @@ pub fn isa() -> Isa {
 pub fn simd() -> bool {
     isa() >= Isa::Avx2
 }
+
+/// A zeroed buffer of `n` floats; a large one (64 MiB and more) is backed by transparent huge pages
+/// where the kernel offers them on request (`madvise`; Linux's default `enabled = madvise`): the
+/// engine's state, renders and prior (hundreds of MB) then fault in 2 MiB at a time instead of 4 KiB
+/// (measured: 6.5% less CPU for `bench net --preset cpu`, most of it the kernel's page-fault path).
+pub fn zeroed_buffer(n: usize) -> Vec<f32> {
+    #[cfg(target_os = "linux")]
+    if n * 4 >= 64 << 20 {
+        const HUGE: usize = 2 << 20;
+        let mut v: Vec<f32> = Vec::with_capacity(n);
+        let p = v.as_mut_ptr() as usize;
+        let (a, e) = (p.next_multiple_of(HUGE), (p + n * 4) & !(HUGE - 1));
+        if e > a {
+            // SAFETY: advice on pages of this allocation, which nothing has touched yet; a failure
+            // (no THP) leaves ordinary pages.
+            unsafe { libc::madvise(a as *mut libc::c_void, e - a, libc::MADV_HUGEPAGE) };
+        }
+        v.resize(n, 0.0);
+        return v;
+    }
+    vec![0.0; n]
+}

@@ -354,7 +354,7 @@ fn warp_pair_rows(
 /// sigmoids of a run of pixels as vector loops ([`fastmath::with_simd`]), then interleaved.
 fn state_to_rgba(state: &[f32], s: usize, hw: usize) -> Vec<f32> {
     const RUN: usize = 256;
-    let mut rgba = vec![0f32; state.len() / s * 4];
+    let mut rgba = deepview_kernels::zeroed_buffer(state.len() / s * 4);
     rgba.par_chunks_mut(hw * 4).enumerate().for_each(|(p, r)| {
         let st = &state[p * s * hw..];
         fastmath::with_simd(
@@ -523,7 +523,7 @@ fn render_views(
             .map(|m| Sampler::new(invert(m), w as u32, h as u32))
             .collect();
         let mut irv = vec![0f32; vw * vh * 6];
-        let mut atv = vec![0f32; d * vw * vh * 4];
+        let mut atv = deepview_kernels::zeroed_buffer(d * vw * vh * 4);
         let at_ptr = atv.as_mut_ptr() as usize;
         irv.par_chunks_mut(vw * 6).enumerate().for_each(|(y, row)| {
             render_row(rgba, img, &samplers, y, row, at_ptr, w, h, d);
@@ -740,7 +740,7 @@ pub fn infer_engine(
         })
         .collect();
     // The state `[D][S][H*W]`.
-    let mut state = vec![0f32; d * s * hw];
+    let mut state = deepview_kernels::zeroed_buffer(d * s * hw);
     for (n, net) in nets.iter().enumerate() {
         let cin = net.in_channels();
         // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch.
@@ -775,7 +775,8 @@ pub fn infer_engine(
         if n == 0 {
             // The plane sweeps feed both the net and the agreement prior's first pass.
             let temperature = model.prior_temperature;
-            let mut prior = vec![0f32; if temperature > 0.0 { d * 4 * hw } else { 0 }];
+            let mut prior =
+                deepview_kernels::zeroed_buffer(if temperature > 0.0 { d * 4 * hw } else { 0 });
             let prior_ptr = prior.as_mut_ptr() as usize;
             for_each_chunk_with(&mut state, s * hw, scratch, |(sc, full), (p, st)| {
                 for (v, (img, _)) in views.iter().enumerate() {
