@@ -35,12 +35,8 @@ fn elu16(x: __m512) -> __m512 {
     }
     q = _mm512_fmadd_ps(q, r, one);
     q = _mm512_mul_ps(q, r);
-    // 2^n for n in [-126, 0]: the exponent field directly.
-    let e = _mm512_slli_epi32::<23>(_mm512_add_epi32(
-        _mm512_cvtps_epi32(n),
-        _mm512_set1_epi32(127),
-    ));
-    let p = _mm512_castsi512_ps(e);
+    // 2^n for n in [-126, 0] (exact: the same bits as the AVX2 path's exponent field).
+    let p = _mm512_scalef_ps(one, n);
     let v = _mm512_fmadd_ps(p, q, _mm512_sub_ps(p, one));
     _mm512_mask_blend_ps(neg, x, v)
 }
