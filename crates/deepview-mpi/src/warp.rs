@@ -221,34 +221,49 @@ impl RowSampler {
             let yb = _mm256_mullo_epi32(clamp(_mm256_add_epi32(y0, ione), hmax), stride);
             let omx = _mm256_sub_ps(one, tx);
             let omy = _mm256_sub_ps(one, ty);
+            let i4 = [
+                _mm256_add_epi32(ya, xa),
+                _mm256_add_epi32(ya, xb),
+                _mm256_add_epi32(yb, xa),
+                _mm256_add_epi32(yb, xb),
+            ];
+            let w4 = [
+                _mm256_mul_ps(omx, omy),
+                _mm256_mul_ps(tx, omy),
+                _mm256_mul_ps(omx, ty),
+                _mm256_mul_ps(tx, ty),
+            ];
+            let bits = _mm256_movemask_ps(m);
+            if n - x >= 8 {
+                // A whole step: the four index and weight vectors transposed into 8 columns' taps
+                // (columns outside get index 0 and weights 0).
+                let mi = _mm256_castps_si256(m);
+                let iq = transpose4x8(i4.map(|v| _mm256_castsi256_ps(_mm256_and_si256(v, mi))));
+                let wq = transpose4x8(w4.map(|v| _mm256_and_ps(v, m)));
+                // SAFETY: `out` holds columns `x..x + 8` (`n - x >= 8`), 4 floats or u32 each.
+                unsafe {
+                    let ip = out.idx.as_mut_ptr().add(x) as *mut f32;
+                    let wp = out.w.as_mut_ptr().add(x) as *mut f32;
+                    for j in 0..4 {
+                        _mm256_storeu_ps(ip.add(8 * j), iq[j]);
+                        _mm256_storeu_ps(wp.add(8 * j), wq[j]);
+                    }
+                }
+                for l in 0..8 {
+                    out.ok[x + l] = bits >> l & 1 != 0;
+                }
+                x += 8;
+                continue;
+            }
             let mut idx = [[0u32; 8]; 4];
             let mut w = [[0f32; 8]; 4];
             // SAFETY (stores): each array holds 8 lanes.
             unsafe {
-                for (j, v) in [
-                    _mm256_add_epi32(ya, xa),
-                    _mm256_add_epi32(ya, xb),
-                    _mm256_add_epi32(yb, xa),
-                    _mm256_add_epi32(yb, xb),
-                ]
-                .into_iter()
-                .enumerate()
-                {
-                    _mm256_storeu_si256(idx[j].as_mut_ptr() as *mut __m256i, v);
-                }
-                for (j, v) in [
-                    _mm256_mul_ps(omx, omy),
-                    _mm256_mul_ps(tx, omy),
-                    _mm256_mul_ps(omx, ty),
-                    _mm256_mul_ps(tx, ty),
-                ]
-                .into_iter()
-                .enumerate()
-                {
-                    _mm256_storeu_ps(w[j].as_mut_ptr(), v);
+                for j in 0..4 {
+                    _mm256_storeu_si256(idx[j].as_mut_ptr() as *mut __m256i, i4[j]);
+                    _mm256_storeu_ps(w[j].as_mut_ptr(), w4[j]);
                 }
             }
-            let bits = _mm256_movemask_ps(m);
             for l in 0..(n - x).min(8) {
                 let ok = bits >> l & 1 != 0;
                 out.ok[x + l] = ok;
@@ -260,6 +275,29 @@ impl RowSampler {
             x += 8;
         }
     }
+}
+
+/// Four 8-lane vectors `v[j]` -> 8 groups of 4 (`[v0[l], v1[l], v2[l], v3[l]]` for `l` in `0..8`), as
+/// four vectors of two groups each, in column order.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+fn transpose4x8(v: [std::arch::x86_64::__m256; 4]) -> [std::arch::x86_64::__m256; 4] {
+    use std::arch::x86_64::*;
+    let t0 = _mm256_unpacklo_ps(v[0], v[1]);
+    let t1 = _mm256_unpackhi_ps(v[0], v[1]);
+    let t2 = _mm256_unpacklo_ps(v[2], v[3]);
+    let t3 = _mm256_unpackhi_ps(v[2], v[3]);
+    let u0 = _mm256_shuffle_ps::<0x44>(t0, t2);
+    let u1 = _mm256_shuffle_ps::<0xee>(t0, t2);
+    let u2 = _mm256_shuffle_ps::<0x44>(t1, t3);
+    let u3 = _mm256_shuffle_ps::<0xee>(t1, t3);
+    [
+        _mm256_permute2f128_ps::<0x20>(u0, u1),
+        _mm256_permute2f128_ps::<0x20>(u2, u3),
+        _mm256_permute2f128_ps::<0x31>(u0, u1),
+        _mm256_permute2f128_ps::<0x31>(u2, u3),
+    ]
 }
 
 /// Warp a `channels`-channel interleaved source into an `out_w x out_h` image; invalid samples are 0.

@@ -548,7 +548,10 @@ fn render_row(
     h: usize,
     d: usize,
 ) {
-    with_fma(|| render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d))
+    with_fma(
+        #[inline(always)]
+        || render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d),
+    )
 }
 
 #[inline(always)]
