@@ -8,6 +8,9 @@
 //! burn's own ops are the reference: `tests` compare outputs and gradients with `conv2d` + `elu` under
 //! burn's autodiff.
 
+use crate::forward::WarpTable;
+use crate::fused::{self, NetShape};
+use crate::renderops;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
@@ -22,6 +25,7 @@ use deepview_kernels::{
     elu_backward, relu_backward,
 };
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// Custom CPU operations of the network.
 #[backend_extension(Flex, Autodiff)]
@@ -45,6 +49,55 @@ pub trait KernelOps: Backend {
         act: u32,
         input_grad: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+
+    /// A whole core net without the U-Net's resampling ([`crate::fused`]): `x` `[K*D, Cin, H, W]`
+    /// (view-major), `params` the flat parameters of [`NetShape`] -> `[D, so, H, W]`.
+    fn core_net(
+        x: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        shape: NetShape,
+    ) -> FloatTensor<Self>;
+
+    /// [`KernelOps::core_net`] and the activations its backward reads (flat).
+    fn core_net_saving(
+        x: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        shape: NetShape,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+
+    /// Gradients `(x, params)` of [`KernelOps::core_net`] given its inputs, its saved activations and
+    /// the gradient at the output; the input gradient only when `input_grad` (else an empty tensor).
+    fn core_net_backward(
+        x: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        saved: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        shape: NetShape,
+        input_grad: bool,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+
+    /// [`WarpTable::apply`]: `src` `[S, C, sh, sw]` -> `[D, C, oh, ow]` ([`crate::renderops`]).
+    /// (`s`, `c`: the source's planes and channels.)
+    fn warp(src: FloatTensor<Self>, table: Arc<WarpTable>, s: usize, c: usize)
+    -> FloatTensor<Self>;
+
+    /// The gradient of [`KernelOps::warp`] at its source (`s` planes of `c` channels).
+    fn warp_backward(
+        grad: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+        s: usize,
+        c: usize,
+    ) -> FloatTensor<Self>;
+
+    /// Over-compositing: `rgba` `[D, 4, h, w]` -> `[D + 1, 4, h, w]` (`A`, `T`; the render).
+    fn composite(rgba: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The gradient of [`KernelOps::composite`] at `rgba`, given its output and the output's gradient.
+    fn composite_backward(
+        rgba: FloatTensor<Self>,
+        out: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
 }
 
 /// The activation's code in [`KernelOps`] (0 linear, 1 ELU, 2 ReLU).
@@ -284,6 +337,113 @@ impl KernelOps for Flex {
             flex(gb, vec![cout]),
         )
     }
+
+    fn core_net(
+        x: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        shape: NetShape,
+    ) -> FloatTensor<Self> {
+        core_net_flex(x, params, shape).0
+    }
+
+    fn core_net_saving(
+        x: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        shape: NetShape,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        core_net_flex(x, params, shape)
+    }
+
+    fn core_net_backward(
+        x: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        saved: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        shape: NetShape,
+        input_grad: bool,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        let (xv, xs) = f32_data(&x);
+        let (p, _) = f32_data(&params);
+        let (sv, _) = f32_data(&saved);
+        let (g, _) = f32_data(&grad);
+        let [kd, cin, h, w] = [xs[0], xs[1], xs[2], xs[3]];
+        let d = kd / shape.views;
+        let (gx, gp) = fused::backward(&shape, &p, &xv, &sv, &g, d, h, w, input_grad);
+        let n = gp.len();
+        let gx_shape = if input_grad {
+            vec![kd, cin, h, w]
+        } else {
+            vec![0]
+        };
+        (flex(gx, gx_shape), flex(gp, vec![n]))
+    }
+
+    fn warp(
+        src: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+        s: usize,
+        c: usize,
+    ) -> FloatTensor<Self> {
+        let (x, _) = f32_data(&src);
+        let out = renderops::warp_forward(&table, &x, s, c);
+        flex(out, vec![table.planes, c, table.out_h, table.out_w])
+    }
+
+    fn warp_backward(
+        grad: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+        s: usize,
+        c: usize,
+    ) -> FloatTensor<Self> {
+        let (g, _) = f32_data(&grad);
+        let out = renderops::warp_backward(&table, &g, s, c);
+        flex(out, vec![s, c, table.src_h, table.src_w])
+    }
+
+    fn composite(rgba: FloatTensor<Self>) -> FloatTensor<Self> {
+        let (x, xs) = f32_data(&rgba);
+        let (d, h, w) = (xs[0], xs[2], xs[3]);
+        assert_eq!(xs[1], 4, "composite: RGBA planes expected");
+        flex(
+            renderops::composite_forward(&x, d, h * w),
+            vec![d + 1, 4, h, w],
+        )
+    }
+
+    fn composite_backward(
+        rgba: FloatTensor<Self>,
+        out: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let (x, xs) = f32_data(&rgba);
+        let (o, _) = f32_data(&out);
+        let (g, _) = f32_data(&grad);
+        let (d, h, w) = (xs[0], xs[2], xs[3]);
+        flex(
+            renderops::composite_backward(&x, &o, &g, d, h * w),
+            vec![d, 4, h, w],
+        )
+    }
+}
+
+/// [`KernelOps::core_net_saving`] on `flex`.
+fn core_net_flex(
+    x: FloatTensor<Flex>,
+    params: FloatTensor<Flex>,
+    shape: NetShape,
+) -> (FloatTensor<Flex>, FloatTensor<Flex>) {
+    let (x, xs) = f32_data(&x);
+    let (p, _) = f32_data(&params);
+    let [kd, cin, h, w] = [xs[0], xs[1], xs[2], xs[3]];
+    assert_eq!(
+        cin, shape.cin,
+        "core net: {} input channels expected",
+        shape.cin
+    );
+    let d = kd / shape.views;
+    let (out, saved) = fused::forward(&shape, &p, &x, d, h, w);
+    let n = saved.len();
+    (flex(out, vec![d, shape.so, h, w]), flex(saved, vec![n]))
 }
 
 /// A slice index of the backward and, with the input gradient, its part of it.
@@ -352,6 +512,203 @@ impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C>
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         unimplemented!("second-order gradients of conv3x3_act")
     }
+
+    fn core_net(
+        x: FloatTensor<Self>,
+        params: FloatTensor<Self>,
+        shape: NetShape,
+    ) -> FloatTensor<Self> {
+        let guards = [x.node(), params.node()];
+        let (x, p) = (x.into_primitive(), params.into_primitive());
+        match CoreNetBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let (out, saved) = B::core_net_saving(x.clone(), p.clone(), shape);
+                prep.finish((x, p, saved, shape), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::core_net(x, p, shape)),
+        }
+    }
+
+    fn core_net_saving(
+        _x: FloatTensor<Self>,
+        _params: FloatTensor<Self>,
+        _shape: NetShape,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        unimplemented!("core_net_saving is the inner backend's")
+    }
+
+    fn core_net_backward(
+        _x: FloatTensor<Self>,
+        _params: FloatTensor<Self>,
+        _saved: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+        _shape: NetShape,
+        _input_grad: bool,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        unimplemented!("second-order gradients of core_net")
+    }
+
+    fn warp(
+        src: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+        s: usize,
+        c: usize,
+    ) -> FloatTensor<Self> {
+        let guards = [src.node()];
+        let src = src.into_primitive();
+        match WarpBackward.prepare::<C>(guards).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                let out = B::warp(src, table.clone(), s, c);
+                prep.finish((table, s, c), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::warp(src, table, s, c)),
+        }
+    }
+
+    fn warp_backward(
+        _grad: FloatTensor<Self>,
+        _table: Arc<WarpTable>,
+        _s: usize,
+        _c: usize,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of warp")
+    }
+
+    fn composite(rgba: FloatTensor<Self>) -> FloatTensor<Self> {
+        let guards = [rgba.node()];
+        let rgba = rgba.into_primitive();
+        match CompositeBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let out = B::composite(rgba.clone());
+                prep.finish((rgba, out.clone()), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::composite(rgba)),
+        }
+    }
+
+    fn composite_backward(
+        _rgba: FloatTensor<Self>,
+        _out: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of composite")
+    }
+}
+
+#[derive(Debug)]
+struct WarpBackward;
+
+impl<B: Backend + KernelOps> Backward<B, 1> for WarpBackward {
+    /// The table, the source's planes and channels.
+    type State = (Arc<WarpTable>, usize, usize);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (table, s, c) = ops.state;
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::warp_backward(grad, table, s, c));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct CompositeBackward;
+
+impl<B: Backend + KernelOps> Backward<B, 1> for CompositeBackward {
+    /// The RGBA planes and the output.
+    type State = (FloatTensor<B>, FloatTensor<B>);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (rgba, out) = ops.state;
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::composite_backward(rgba, out, grad));
+        }
+    }
+}
+
+/// [`WarpTable::apply`] on the CPU: one operation with its own backward.
+pub(crate) fn warp(src: Tensor<4>, table: Arc<WarpTable>) -> Tensor<4> {
+    let [s, c, _, _] = src.dims();
+    Tensor::from_dispatch(<Dispatch as KernelOps>::warp(
+        src.into_dispatch(),
+        table,
+        s,
+        c,
+    ))
+}
+
+/// [`crate::forward::composite`] on the CPU: `[D + 1, 4, h, w]` (see [`KernelOps::composite`]).
+pub(crate) fn composite(rgba: Tensor<4>) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as KernelOps>::composite(rgba.into_dispatch()))
+}
+
+#[derive(Debug)]
+struct CoreNetBackward;
+
+impl<B: Backend + KernelOps> Backward<B, 2> for CoreNetBackward {
+    /// Input, flat parameters, saved activations, the net's sizes.
+    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>, NetShape);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node_x, node_p] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (x, p, saved, shape) = ops.state;
+        let (gx, gp) = B::core_net_backward(x, p, saved, grad, shape, node_x.is_some());
+        if let Some(node) = node_x {
+            grads.register::<B>(node.id, gx);
+        }
+        if let Some(node) = node_p {
+            grads.register::<B>(node.id, gp);
+        }
+    }
+}
+
+/// A whole core net (`input`, `stages`, `head`, `out`; no U-Net resampling) as one operation with its
+/// own backward ([`crate::fused`]) on the CPU: `x` `[K*D, Cin, h, w]` (view-major) -> `[D, out, h, w]`.
+/// The parameters enter as one flat tensor (a concatenation burn differentiates).
+pub fn core_net_train(
+    input: &[Conv2d],
+    stages: &[Conv2d],
+    head: &Conv2d,
+    out: &Conv2d,
+    x: Tensor<4>,
+    views: usize,
+) -> Tensor<4> {
+    let device = x.device();
+    let mut parts: Vec<Tensor<1>> = Vec::new();
+    for c in input.iter().chain(stages).chain([head, out]) {
+        let w = c.weight.val();
+        let [co, ci, kh, kw] = w.dims();
+        assert_eq!((kh, kw), (3, 3), "3x3 convolutions expected");
+        parts.push(w.reshape([co * ci * 9]));
+        parts.push(match &c.bias {
+            Some(b) => b.val(),
+            None => Tensor::zeros([co], &device),
+        });
+    }
+    let shape = NetShape {
+        views,
+        cin: input[0].weight.dims()[1],
+        f: head.weight.dims()[1],
+        so: out.weight.dims()[0],
+        stages: stages.len() / 2,
+    };
+    Tensor::from_dispatch(<Dispatch as KernelOps>::core_net(
+        x.into_dispatch(),
+        Tensor::cat(parts, 0).into_dispatch(),
+        shape,
+    ))
 }
 
 /// `f(state, item)` for every item, the items dealt round-robin to one task per rayon thread, each with
@@ -495,7 +852,7 @@ impl PackedNet {
 }
 
 /// Element-wise maximum of `srcs` into `dst` (whole plane buffers: zero borders stay zero).
-fn max_into(dst: &mut [f32], srcs: &[&[f32]]) {
+pub(crate) fn max_into(dst: &mut [f32], srcs: &[&[f32]]) {
     // In runs that stay in L1 (one pass over the planes instead of one per view), as vector loops.
     const RUN: usize = 1024;
     deepview_kernels::fastmath::with_simd(

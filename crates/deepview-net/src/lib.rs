@@ -6,10 +6,12 @@
 pub mod config;
 pub mod engine;
 pub mod forward;
+pub mod fused;
 pub mod grow;
 pub mod infer;
 pub mod kernels;
 pub mod network;
+pub mod renderops;
 pub mod weights;
 
 /// burn, re-exported so dependants use the same version (e.g. `deepview_net::burn::tensor::Device::flex()`).

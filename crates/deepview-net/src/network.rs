@@ -29,7 +29,7 @@ use crate::config::{CPU_PRIOR_TEMPERATURE, DeepViewConfig};
 use crate::forward::{
     GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume,
 };
-use crate::kernels::{conv3x3_act, core_net_inference, fast_device};
+use crate::kernels::{conv3x3_act, core_net_inference, core_net_train, fast_device};
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
@@ -125,8 +125,12 @@ impl CoreNet {
         } else {
             x
         };
-        if fast_device(&x.device()) && !x.is_autodiff() {
-            let o = core_net_inference(&self.input, &self.stages, &self.head, &self.out, x, views);
+        if fast_device(&x.device()) {
+            let o = if x.is_autodiff() {
+                core_net_train(&self.input, &self.stages, &self.head, &self.out, x, views)
+            } else {
+                core_net_inference(&self.input, &self.stages, &self.head, &self.out, x, views)
+            };
             return self.upsample(o, h, w);
         }
         let mut f = x;
@@ -687,7 +691,8 @@ mod tests {
             assert_eq!(fused.dims(), [d, 8, h, w]);
             let e = rel(fused, reference.clone());
             assert!(e < 1e-5, "fused {cin} {f} {unet} {k}x{d} {h}x{w}: {e}");
-            // Training: per-layer op with its own backward.
+            // Training: the fused core-net op with its own backward (burn's pooling and upsampling
+            // around it for U-Net nets).
             let seed = Tensor::<4>::random(
                 [d, 8, h, w],
                 burn::tensor::Distribution::Uniform(-1.0, 1.0),
@@ -696,7 +701,7 @@ mod tests {
             let xa = x.clone().require_grad();
             let ya = net.forward(xa.clone(), k);
             let e = rel(ya.clone().inner(), reference);
-            assert!(e < 1e-5, "per-layer forward: {e}");
+            assert!(e < 1e-5, "training forward: {e}");
             if !grads {
                 continue;
             }
@@ -715,6 +720,10 @@ mod tests {
             {
                 let e = rel(c.weight.grad(&ga).unwrap(), c.weight.grad(&gb).unwrap());
                 assert!(e < 1e-4, "conv {i} weight gradient {case}: {e}");
+                let b = c.bias.as_ref().expect("bias");
+                let (ba, bb): (Tensor<1>, Tensor<1>) = (b.grad(&ga).unwrap(), b.grad(&gb).unwrap());
+                let e = rel(ba.reshape([1, 1, 1, -1]), bb.reshape([1, 1, 1, -1]));
+                assert!(e < 1e-4, "conv {i} bias gradient {case}: {e}");
             }
         }
     }

@@ -19,6 +19,22 @@ pub struct Composite {
 /// Over-composite `rgba` `[D, 4, h, w]` (premultiplied colour, plane 0 the farthest). A loop over planes
 /// (no division, so alpha = 1 is safe); `d render / d c_d = T_d` and `d render / d a_d = -A_d T_d`.
 pub fn composite(rgba: Tensor<4>) -> Composite {
+    if crate::kernels::fast_device(&rgba.device()) {
+        let [d, _, h, w] = rgba.dims();
+        // One operation: `[D + 1, 4, h, w]`, planes `..D` (A, T), plane D the render.
+        let out = crate::kernels::composite(rgba);
+        let planes = out.clone().narrow(0, 0, d);
+        return Composite {
+            render: out.narrow(0, d, 1).narrow(1, 0, 3).reshape([3, h, w]),
+            transmittance: planes.clone().narrow(1, 3, 1),
+            accumulated: planes.narrow(1, 0, 3),
+        };
+    }
+    composite_burn(rgba)
+}
+
+/// [`composite`] with burn's tensor ops (any device; the reference of the CPU operation).
+pub fn composite_burn(rgba: Tensor<4>) -> Composite {
     let [d, _, h, w] = rgba.dims();
     let device = rgba.device();
     let colour = rgba.clone().narrow(1, 0, 3);

@@ -21,8 +21,8 @@ mod tests;
 mod warp;
 
 pub use composite::{
-    Composite, GRADIENT_CHANNELS, composite, gradient_components, image_tensor, plane_sweep_volume,
-    render_view,
+    Composite, GRADIENT_CHANNELS, composite, composite_burn, gradient_components, image_tensor,
+    plane_sweep_volume, render_view,
 };
 pub use warp::{
     Hom, WarpTable, crop_output, crop_source, invert, mpi_to_view_homographies, mul, warp_planes,

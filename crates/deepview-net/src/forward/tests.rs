@@ -474,3 +474,87 @@ fn gradient_components_match_the_cpu_crate() {
     }
     eprintln!("max |burn - cpu| per channel: {worst:?}");
 }
+
+/// Largest difference of `a` and `b` relative to the largest magnitude of `b`.
+fn max_rel<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> f32 {
+    let (a, b) = (to_vec(a), to_vec(b));
+    assert_eq!(a.len(), b.len());
+    let s = b.iter().fold(0f32, |m, v| m.max(v.abs())).max(1e-6);
+    a.iter()
+        .zip(&b)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()))
+        / s
+}
+
+/// The CPU warp operation (forward, and its scatter backward) equals burn's `select` + weighted sum
+/// under autodiff: per-plane sources and a broadcast source, odd sizes, samples leaving the source.
+#[test]
+fn cpu_warp_matches_burn_ops() {
+    let ad = dev().autodiff();
+    for (s, c, sh, sw, d, oh, ow) in [
+        (3, 4, 9, 11, 3, 7, 10),
+        (1, 3, 13, 8, 5, 6, 9),
+        (2, 11, 5, 7, 2, 5, 6),
+        (1, 1, 1, 1, 2, 3, 2),
+    ] {
+        let homs = some_homs(d);
+        let table = WarpTable::new(&homs, sw, sh, ow, oh);
+        let x = Tensor::<4>::random([s, c, sh, sw], Distribution::Uniform(-1.0, 1.0), &ad);
+        let seed = Tensor::<4>::random([d, c, oh, ow], Distribution::Uniform(-1.0, 1.0), &ad);
+        let (xa, xb) = (x.clone().require_grad(), x.require_grad());
+        let (ya, yb) = (table.apply(xa.clone()), table.apply_burn(xb.clone()));
+        let case = format!("{s}x{c} {sh}x{sw} -> {d} {oh}x{ow}");
+        assert!(
+            max_rel(ya.clone().inner(), yb.clone().inner()) < 1e-6,
+            "output {case}"
+        );
+        let ga = (ya * seed.clone()).sum().backward();
+        let gb = (yb * seed).sum().backward();
+        let e = max_rel(xa.grad(&ga).unwrap(), xb.grad(&gb).unwrap());
+        assert!(e < 1e-5, "source gradient {case}: {e}");
+    }
+}
+
+/// The CPU composite operation equals burn's plane loop: the render, `T` and `A`, and the gradient of
+/// a weighted sum of all three at the RGBA planes (colour and alpha), including alpha 0 and 1.
+#[test]
+fn cpu_composite_matches_burn_ops() {
+    let ad = dev().autodiff();
+    for (d, h, w) in [(6, 5, 7), (1, 3, 4), (33, 17, 19)] {
+        let mut rgba = to_vec(Tensor::<4>::random(
+            [d, 4, h, w],
+            Distribution::Uniform(0.0, 1.0),
+            &dev(),
+        ));
+        let px = h * w;
+        // Opaque and empty texels.
+        rgba[3 * px] = 1.0;
+        rgba[3 * px + 1] = 0.0;
+        let x = Tensor::<4>::from_data(TensorData::new(rgba, [d, 4, h, w]), &ad);
+        let (xa, xb) = (x.clone().require_grad(), x.require_grad());
+        let (ca, cb) = (composite(xa.clone()), composite_burn(xb.clone()));
+        let case = format!("{d} planes {h}x{w}");
+        for (a, b, what) in [
+            (ca.transmittance.clone(), cb.transmittance.clone(), "T"),
+            (ca.accumulated.clone(), cb.accumulated.clone(), "A"),
+        ] {
+            assert!(max_rel(a.inner(), b.inner()) < 1e-5, "{what} {case}");
+        }
+        assert!(
+            max_rel(ca.render.clone().inner(), cb.render.clone().inner()) < 1e-5,
+            "render {case}"
+        );
+        let wr = Tensor::<3>::random([3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wt = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wa = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let loss = |c: Composite| {
+            (c.render * wr.clone()).sum()
+                + (c.transmittance * wt.clone()).sum()
+                + (c.accumulated * wa.clone()).sum()
+        };
+        let ga = loss(ca).backward();
+        let gb = loss(cb).backward();
+        let e = max_rel(xa.grad(&ga).unwrap(), xb.grad(&gb).unwrap());
+        assert!(e < 1e-4, "RGBA gradient {case}: {e}");
+    }
+}

@@ -131,7 +131,39 @@ impl WarpTable {
 
     /// Warp `src` `[S, C, src_h, src_w]` -> `[planes, C, out_h, out_w]`. `S` is `planes` (plane `d` is
     /// warped by homography `d`) or 1 (the one source is broadcast to every plane: a plane sweep).
+    /// On the CPU one operation with its own backward ([`crate::kernels::KernelOps::warp`]), elsewhere
+    /// [`Self::apply_burn`].
     pub fn apply(&self, src: Tensor<4>) -> Tensor<4> {
+        if crate::kernels::fast_device(&src.device()) {
+            self.check_source(&src);
+            return crate::kernels::warp(src, std::sync::Arc::new(self.clone()));
+        }
+        self.apply_burn(src)
+    }
+
+    /// The bilinear taps: `[4][planes * out_h * out_w]` source texel indices within one plane and
+    /// weights (0 for invalid samples).
+    pub fn taps(&self) -> (&[i64], &[f32]) {
+        (&self.idx, &self.w)
+    }
+
+    fn check_source(&self, src: &Tensor<4>) {
+        let [s, _, sh, sw] = src.dims();
+        assert_eq!(
+            (sh, sw),
+            (self.src_h, self.src_w),
+            "warp source size mismatch"
+        );
+        assert!(
+            s == self.planes || s == 1,
+            "warp source has {s} planes, table has {}",
+            self.planes
+        );
+    }
+
+    /// [`Self::apply`] with burn's tensor ops (a `select` gather and a weighted sum; its backward a
+    /// scatter-add): any device, and the reference of the CPU operation.
+    pub fn apply_burn(&self, src: Tensor<4>) -> Tensor<4> {
         let [s, c, sh, sw] = src.dims();
         assert_eq!(
             (sh, sw),
