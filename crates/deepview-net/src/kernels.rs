@@ -40,7 +40,8 @@ pub trait KernelOps: Backend {
     ) -> FloatTensor<Self>;
 
     /// Gradients `(x, w, b)` of [`KernelOps::conv3x3_act`] given its inputs, its output `out` and the
-    /// gradient at the output; the input gradient only when `input_grad` (else an empty tensor).
+    /// gradient at the output; the input gradient only when `input_grad` (else an empty tensor), the
+    /// weight and bias gradients only when `weight_grad` (else zeros: frozen weights, as VGG's).
     fn conv3x3_act_backward(
         x: FloatTensor<Self>,
         w: FloatTensor<Self>,
@@ -48,6 +49,7 @@ pub trait KernelOps: Backend {
         grad: FloatTensor<Self>,
         act: u32,
         input_grad: bool,
+        weight_grad: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
 
     /// A whole core net without the U-Net's resampling ([`crate::fused`]): `x` `[K*D, Cin, H, W]`
@@ -267,6 +269,7 @@ impl KernelOps for Flex {
         grad: FloatTensor<Self>,
         act: u32,
         input_grad: bool,
+        weight_grad: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         let (x, xs) = f32_data(&x);
         let (w, ws) = f32_data(&w);
@@ -290,7 +293,7 @@ impl KernelOps for Flex {
                     &out[i * cout * hw..][..cout * hw],
                     act,
                 );
-                {
+                if weight_grad {
                     let (xg, _) = s.split(cin + cout);
                     conv3x3_weight_grad(plane, &xg[..cin], &xg[cin..], gw, gb);
                 }
@@ -469,7 +472,9 @@ impl<B: Backend + KernelOps> Backward<B, 3> for Conv3x3ActBackward {
         let [node_x, node_w, node_b] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
         let (x, w, out, act) = ops.state;
-        let (gx, gw, gb) = B::conv3x3_act_backward(x, w, out, grad, act, node_x.is_some());
+        let weight_grad = node_w.is_some() || node_b.is_some();
+        let (gx, gw, gb) =
+            B::conv3x3_act_backward(x, w, out, grad, act, node_x.is_some(), weight_grad);
         if let Some(node) = node_x {
             grads.register::<B>(node.id, gx);
         }
@@ -509,6 +514,7 @@ impl<B: Backend + KernelOps, C: CheckpointStrategy> KernelOps for Autodiff<B, C>
         _grad: FloatTensor<Self>,
         _act: u32,
         _input_grad: bool,
+        _weight_grad: bool,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
         unimplemented!("second-order gradients of conv3x3_act")
     }
