@@ -40,20 +40,27 @@ impl NetShape {
         c
     }
 
-    /// Offsets of each convolution's weights and bias in the flat parameters, and their total length.
-    fn offsets(&self) -> (Vec<(usize, usize)>, usize) {
+    /// Each convolution's sizes and the places of its weights and bias in the flat parameters.
+    fn slots(&self) -> Vec<Slot> {
         let mut at = 0;
-        let mut o = Vec::new();
-        for (ci, co) in self.convs() {
-            o.push((at, at + co * ci * 9));
-            at += co * ci * 9 + co;
-        }
-        (o, at)
+        self.convs()
+            .into_iter()
+            .map(|(cin, cout)| {
+                let w = at..at + cout * cin * 9;
+                at = w.end + cout;
+                Slot {
+                    cin,
+                    cout,
+                    b: w.end..at,
+                    w,
+                }
+            })
+            .collect()
     }
 
     /// Length of the flat parameter vector.
     pub fn params_len(&self) -> usize {
-        self.offsets().1
+        self.slots().last().map_or(0, |s| s.b.end)
     }
 
     /// Saved planes per MPI plane: `A1`, `B1` of every view, then per stage the max it reads and its
@@ -96,39 +103,34 @@ impl NetShape {
     }
 }
 
-/// The packed convolutions of a net's flat parameters (forward), and their transposes (backward).
-struct Packed {
-    fwd: Vec<PackedConv>,
+/// One convolution of the flat parameters: its sizes and the ranges of its weights and bias.
+struct Slot {
+    cin: usize,
+    cout: usize,
+    w: std::ops::Range<usize>,
+    b: std::ops::Range<usize>,
 }
 
-impl Packed {
-    fn new(shape: &NetShape, params: &[f32]) -> Self {
-        let (offs, len) = shape.offsets();
-        assert_eq!(
-            params.len(),
-            len,
-            "core net parameters: {len} values expected"
-        );
-        let fwd = shape
-            .convs()
-            .iter()
-            .zip(&offs)
-            .map(|(&(ci, co), &(w, b))| {
-                PackedConv::new(&params[w..b], Some(&params[b..b + co]), co, ci)
-            })
-            .collect();
-        Self { fwd }
-    }
-
-    fn transposed(shape: &NetShape, params: &[f32]) -> Vec<PackedConv> {
-        let (offs, _) = shape.offsets();
-        shape
-            .convs()
-            .iter()
-            .zip(&offs)
-            .map(|(&(ci, co), &(w, b))| PackedConv::transposed(&params[w..b], co, ci))
-            .collect()
-    }
+/// The convolutions of a net's flat parameters packed for the kernels: as they are (forward) or
+/// transposed (the input gradients).
+fn packed(slots: &[Slot], params: &[f32], transposed: bool) -> Vec<PackedConv> {
+    let len = slots.last().map_or(0, |s| s.b.end);
+    assert_eq!(
+        params.len(),
+        len,
+        "core net parameters: {len} values expected"
+    );
+    slots
+        .iter()
+        .map(|s| {
+            let w = &params[s.w.clone()];
+            if transposed {
+                PackedConv::transposed(w, s.cout, s.cin)
+            } else {
+                PackedConv::new(w, Some(&params[s.b.clone()]), s.cout, s.cin)
+            }
+        })
+        .collect()
 }
 
 /// Indices of planes in a list of plane buffers.
@@ -170,7 +172,7 @@ fn max_views(
 /// [`NetShape::saved_planes`] planes, `out` the `so` padded output planes.
 fn forward_plane(
     shape: &NetShape,
-    net: &Packed,
+    net: &[PackedConv],
     plane: Plane,
     x: &[Vec<f32>],
     saved: &mut [&mut [f32]],
@@ -184,11 +186,11 @@ fn forward_plane(
             .collect();
         let a1 = shape.a1(k);
         let mut outs: Vec<&mut [f32]> = saved[a1..a1 + f].iter_mut().map(|v| &mut **v).collect();
-        conv3x3(plane, &ins, &net.fwd[0], Act::Elu, &mut outs);
+        conv3x3(plane, &ins, &net[0], Act::Elu, &mut outs);
     }
     for k in 0..k_n {
         let from: Vec<usize> = (shape.a1(k)..shape.a1(k) + f).collect();
-        layer(plane, saved, &from, shape.b1(k), &net.fwd[1], Act::Elu);
+        layer(plane, saved, &from, shape.b1(k), &net[1], Act::Elu);
     }
     for s in 0..shape.stages {
         max_views(saved, f, k_n, |k| shape.b_after(s, k), shape.m(s));
@@ -200,7 +202,7 @@ fn forward_plane(
                 saved,
                 &from,
                 shape.a(s, k),
-                &net.fwd[2 + 2 * s],
+                &net[2 + 2 * s],
                 Act::Elu,
             );
         }
@@ -211,7 +213,7 @@ fn forward_plane(
                 saved,
                 &from,
                 shape.b(s, k),
-                &net.fwd[3 + 2 * s],
+                &net[3 + 2 * s],
                 Act::Elu,
             );
         }
@@ -224,11 +226,11 @@ fn forward_plane(
         saved,
         &from,
         shape.head(),
-        &net.fwd[2 + 2 * last],
+        &net[2 + 2 * last],
         Act::Elu,
     );
     let ins = refs(saved, shape.head()..shape.head() + f);
-    conv3x3(plane, &ins, &net.fwd[3 + 2 * last], Act::Linear, out);
+    conv3x3(plane, &ins, &net[3 + 2 * last], Act::Linear, out);
 }
 
 /// `x` `[K*D, cin, h, w]` (view-major) -> the output `[D, so, h, w]` and the saved activations (every
@@ -241,7 +243,7 @@ pub fn forward(
     h: usize,
     w: usize,
 ) -> (Vec<f32>, Vec<f32>) {
-    let net = Packed::new(shape, params);
+    let net = packed(&shape.slots(), params, false);
     let plane = Plane::new(h, w);
     let (hw, len, ns) = (h * w, plane.len(), shape.saved_planes());
     let (k_n, cin, so) = (shape.views, shape.cin, shape.so);
@@ -344,17 +346,9 @@ fn as_muts(v: &mut [Vec<f32>]) -> Vec<&mut [f32]> {
     v.iter_mut().map(|b| b.as_mut_slice()).collect()
 }
 
-/// The parameter gradient slices `(weights, bias)` of convolution `i`.
-fn grad_of<'a>(
-    grads: &'a mut [f32],
-    offs: &[(usize, usize)],
-    convs: &[(usize, usize)],
-    i: usize,
-) -> (&'a mut [f32], &'a mut [f32]) {
-    let (w, b) = offs[i];
-    let co = convs[i].1;
-    let (gw, rest) = grads[w..b + co].split_at_mut(b - w);
-    (gw, rest)
+/// The parameter gradient slices `(weights, bias)` of a convolution.
+fn grad_of<'a>(grads: &'a mut [f32], slot: &Slot) -> (&'a mut [f32], &'a mut [f32]) {
+    grads[slot.w.start..slot.b.end].split_at_mut(slot.w.len())
 }
 
 /// Gradients of [`forward`]: `grad` at the output `[D, so, h, w]` -> (the input gradient `[K*D, cin,
@@ -376,7 +370,8 @@ pub fn backward(
     let (k_n, cin, so) = (shape.views, shape.cin, shape.so);
     assert_eq!(saved.len(), d * ns * len, "core net saved activations");
     assert_eq!(grad.len(), d * so * hw, "core net output gradient");
-    let tr = Packed::transposed(shape, params);
+    let slots = shape.slots();
+    let tr = packed(&slots, params, true);
     let plen = shape.params_len();
     let mut gx = vec![0f32; if input_grad { k_n * d * cin * hw } else { 0 }];
     if hw == 0 || d == 0 {
@@ -405,7 +400,7 @@ pub fn backward(
             for (c, src) in grad[p * so * hw..][..so * hw].chunks_exact(hw).enumerate() {
                 plane.pad_into(src, &mut s.g_out[c]);
             }
-            backward_plane(shape, &tr, plane, &sv, s, gxp);
+            backward_plane(shape, &slots, &tr, plane, &sv, s, gxp);
         },
     );
     let mut total = vec![0f32; plen];
@@ -425,6 +420,7 @@ fn add_into(dst: &mut [f32], src: &[f32]) {
 /// unpadded `[cin][h][w]` blocks; empty: not wanted).
 fn backward_plane(
     shape: &NetShape,
+    slots: &[Slot],
     tr: &[PackedConv],
     plane: Plane,
     sv: &[&[f32]],
@@ -432,8 +428,6 @@ fn backward_plane(
     mut gx: Vec<&mut [f32]>,
 ) {
     let (k_n, cin, f) = (shape.views, shape.cin, shape.f);
-    let (offs, _) = shape.offsets();
-    let convs = shape.convs();
     let hw = plane.h * plane.w;
     let Scratch {
         x,
@@ -450,7 +444,7 @@ fn backward_plane(
     let planes =
         |from: usize, n: usize| -> Vec<&[f32]> { (from..from + n).map(|i| sv[i]).collect() };
     let mut wgrad = |i: usize, xs: &[&[f32]], gs: &[Vec<f32>]| {
-        let (gw, gb) = grad_of(grads, &offs, &convs, i);
+        let (gw, gb) = grad_of(grads, &slots[i]);
         conv3x3_weight_grad(plane, xs, &as_refs(gs), gw, gb);
     };
     let last = shape.stages;

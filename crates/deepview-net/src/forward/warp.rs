@@ -1,6 +1,7 @@
 //! Homography warps of plane stacks: the bilinear taps ([`WarpTable`]) and the 3x3 homography helpers.
 
 use burn::tensor::{Device, Int, Tensor, TensorData};
+use std::sync::Arc;
 
 /// A row-major 3x3 homography (f64), output pixels -> source pixels.
 pub type Hom = [f64; 9];
@@ -32,12 +33,14 @@ pub struct WarpTable {
     pub src_h: usize,
     pub out_w: usize,
     pub out_h: usize,
-    /// `[4][planes * out_h * out_w]` texel indices within one source plane (`y * src_w + x`).
-    idx: Vec<i64>,
+    /// `[4][planes * out_h * out_w]` texel indices within one source plane (`y * src_w + x`). Shared
+    /// (as the weights and the mask), so that a clone is cheap: [`Self::apply`] hands one to the CPU
+    /// operation, which keeps it for the backward.
+    idx: Arc<[i64]>,
     /// `[4][planes * out_h * out_w]` bilinear weights (0 for invalid samples).
-    w: Vec<f32>,
+    w: Arc<[f32]>,
     /// `[planes * out_h * out_w]`: 1 where the sample is inside the source.
-    valid: Vec<f32>,
+    valid: Arc<[f32]>,
 }
 
 impl WarpTable {
@@ -123,9 +126,9 @@ impl WarpTable {
             src_h,
             out_w,
             out_h,
-            idx,
-            w,
-            valid,
+            idx: idx.into(),
+            w: w.into(),
+            valid: valid.into(),
         }
     }
 
@@ -164,17 +167,8 @@ impl WarpTable {
     /// [`Self::apply`] with burn's tensor ops (a `select` gather and a weighted sum; its backward a
     /// scatter-add): any device, and the reference of the CPU operation.
     pub fn apply_burn(&self, src: Tensor<4>) -> Tensor<4> {
+        self.check_source(&src);
         let [s, c, sh, sw] = src.dims();
-        assert_eq!(
-            (sh, sw),
-            (self.src_h, self.src_w),
-            "warp source size mismatch"
-        );
-        assert!(
-            s == self.planes || s == 1,
-            "warp source has {s} planes, table has {}",
-            self.planes
-        );
         let device = src.device();
         let n = self.valid.len();
         let (d, oh, ow) = (self.planes, self.out_h, self.out_w);
@@ -184,7 +178,7 @@ impl WarpTable {
         let per_plane = oh * ow;
         let plane_len = (sh * sw) as i64;
         let idx: Vec<i64> = if s == 1 {
-            self.idx.clone()
+            self.idx.to_vec()
         } else {
             self.idx
                 .iter()
@@ -193,7 +187,7 @@ impl WarpTable {
                 .collect()
         };
         let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [4 * n]), &device);
-        let w = Tensor::<3>::from_data(TensorData::new(self.w.clone(), [4, n, 1]), &device);
+        let w = Tensor::<3>::from_data(TensorData::new(self.w.to_vec(), [4, n, 1]), &device);
         let flat = src.permute([0, 2, 3, 1]).reshape([s * sh * sw, c]);
         let taps = flat.select(0, idx).reshape([4, n, c]);
         let out = (taps * w).sum_dim(0).reshape([d, oh, ow, c]);
@@ -203,7 +197,10 @@ impl WarpTable {
     /// Validity `[planes, 1, out_h, out_w]`: 1 where the sample falls inside the source.
     pub fn valid(&self, device: &Device) -> Tensor<4> {
         Tensor::from_data(
-            TensorData::new(self.valid.clone(), [self.planes, 1, self.out_h, self.out_w]),
+            TensorData::new(
+                self.valid.to_vec(),
+                [self.planes, 1, self.out_h, self.out_w],
+            ),
             device,
         )
     }
