@@ -33,7 +33,8 @@ pub use scene::{Scene, SceneFormat, View};
 pub use camera_json::read_camera_json;
 pub use formats::colmap::{ColmapModel, read_colmap, write_colmap_text};
 pub use formats::lightfield::{
-    LightFieldCameras, light_field_cameras, light_field_image_name, write_light_field,
+    LightFieldCameras, light_field_cameras, light_field_image_name, read_disparity_range,
+    write_disparity_range, write_light_field,
 };
 pub use formats::llff::{read_poses_bounds, write_llff};
 pub use formats::spaces::{spaces_relative_path, write_spaces_models};

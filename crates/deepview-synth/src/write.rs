@@ -3,7 +3,7 @@
 use crate::scene::SynthScene;
 use deepview_data::{
     DataError, LoadOptions, SceneFormat, light_field_cameras, load_scene, write_colmap_text,
-    write_light_field, write_llff, write_spaces_models, write_transforms,
+    write_disparity_range, write_light_field, write_llff, write_spaces_models, write_transforms,
 };
 use deepview_geometry::{Camera, PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
 use deepview_image::{ImageF32, write_atomic};
@@ -92,6 +92,9 @@ struct SynthInfo<'a> {
 
 /// Build a scene, render it through the rig and write `out` as a dataset of the rig's format, with
 /// `out/ground_truth_mpi/` (the exact MPI) and `out/synth.json` (how it was made).
+/// Disparities of a grid rig's scenes: -2..+2 px per grid step, as in the HCI benchmark scenes.
+pub const GRID_DISPARITY: (f64, f64) = (-2.0, 2.0);
+
 pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, SynthError> {
     synthesize_as(out, options, None)
 }
@@ -122,11 +125,10 @@ pub fn synthesize_as(
                 ));
             }
             let lf = light_field_cameras(*side, *side, *width, *height);
-            // Disparities of -2..+2 px per grid step, as in the HCI benchmark scenes.
             (
                 SceneFormat::LightField,
                 lf.cameras(),
-                Some(lf.depth_bounds(-2.0, 2.0)),
+                Some(lf.depth_bounds(GRID_DISPARITY.0, GRID_DISPARITY.1)),
                 None,
             )
         }
@@ -174,6 +176,11 @@ pub fn synthesize_as(
         SceneFormat::LightField => {
             let side = (cameras.len() as f64).sqrt().round() as usize;
             write_light_field(out, side, side, &images, None)?;
+            // The scene's depth range as the light field's disparity range, so that loading the folder
+            // gets the bounds it was rendered with (a grid rig's cameras are the loader's own).
+            let lf = light_field_cameras(side, side, cameras[0].width, cameras[0].height);
+            let range = (lf.depth_to_disparity(far), lf.depth_to_disparity(near));
+            write_disparity_range(out, range)?;
         }
         SceneFormat::Llff => {
             let src = source.as_ref().expect("dataset rig");

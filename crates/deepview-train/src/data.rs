@@ -224,8 +224,9 @@ pub struct SampleConfig {
     /// Probability that a tuple's K inputs surround the target (the case of rendering between the
     /// inputs, like the demo's four corners around its held-out views): the directions from the target
     /// to its 3K nearest training views (in the target camera's image plane) are split into K equal
-    /// sectors at a random angle, and one random view is drawn from each sector (from the remaining pool
-    /// when a sector is empty). Drawn before `wide_inputs`; 0: never.
+    /// sectors at a random angle, and one random view is drawn from each sector. A target with an empty
+    /// sector (outside the views around it: an edge or corner view of a grid) is redrawn, up to 64 times
+    /// (then the empty sectors are filled from the rest of the pool). Drawn before `wide_inputs`; 0: never.
     #[serde(default)]
     pub surround_inputs: f64,
     /// Render the views for the update nets' gradient components from the agreement prior outside the
@@ -235,6 +236,9 @@ pub struct SampleConfig {
     #[serde(default)]
     pub window_context: bool,
 }
+
+/// Targets drawn for a surrounded tuple before one with its inputs around it is accepted.
+const SURROUND_TRIES: usize = 64;
 
 /// Colour jitter ranges (natural-log units): whole-tuple exposure, per-channel gain, per-input exposure.
 const EXPOSURE_LOG: f64 = 0.3;
@@ -378,10 +382,20 @@ impl TrainData {
     ) -> Result<Example, DataError> {
         let si = rng.below(self.scenes.len());
         let s = &self.scenes[si];
-        let target = s.train_views[rng.below(s.train_views.len())];
+        let mut target = s.train_views[rng.below(s.train_views.len())];
         let u = if cfg.jitter { rng.uniform() - 0.5 } else { 0.0 };
         let inputs = if cfg.surround_inputs > 0.0 && rng.uniform() < cfg.surround_inputs {
-            self.surrounding_inputs(si, target, views.max(1), rng)
+            // A target with an empty sector lies outside its inputs (an edge or corner view of a grid):
+            // that is extrapolation, not rendering between the inputs, so another target is drawn.
+            let mut drawn = self.surrounding_inputs(si, target, views.max(1), rng);
+            for _ in 0..SURROUND_TRIES {
+                if drawn.1 {
+                    break;
+                }
+                target = s.train_views[rng.below(s.train_views.len())];
+                drawn = self.surrounding_inputs(si, target, views.max(1), rng);
+            }
+            drawn.0
         } else if cfg.wide_inputs > 0.0 && rng.uniform() < cfg.wide_inputs {
             let mut pool = self.nearest_inputs(si, target, 3 * views.max(1));
             // A uniformly random K-subset (partial Fisher-Yates), in pool order.
@@ -446,12 +460,20 @@ impl TrainData {
         Ok(ex)
     }
 
-    /// K views around `target` ([`SampleConfig::surround_inputs`]), in pool order of distance.
-    fn surrounding_inputs(&self, si: usize, target: usize, k: usize, rng: &mut Rng) -> Vec<usize> {
+    /// K views around `target` ([`SampleConfig::surround_inputs`]), in pool order of distance, and whether
+    /// every sector held one (false: the target lies outside the views around it; the empty sectors were
+    /// filled from the rest of the pool).
+    fn surrounding_inputs(
+        &self,
+        si: usize,
+        target: usize,
+        k: usize,
+        rng: &mut Rng,
+    ) -> (Vec<usize>, bool) {
         let s = &self.scenes[si];
         let pool = self.nearest_inputs(si, target, 3 * k);
         if pool.len() <= k {
-            return pool;
+            return (pool, false);
         }
         let tcam = s.cameras[target];
         let turn = std::f64::consts::TAU;
@@ -473,13 +495,14 @@ impl TrainData {
                 chosen.push(members[rng.below(members.len())]);
             }
         }
+        let enclosed = chosen.len() == k;
         // Empty sectors: random views from the rest of the pool.
         while chosen.len() < k {
             let rest: Vec<usize> = (0..pool.len()).filter(|i| !chosen.contains(i)).collect();
             chosen.push(rest[rng.below(rest.len())]);
         }
         chosen.sort();
-        chosen.into_iter().map(|i| pool[i]).collect()
+        (chosen.into_iter().map(|i| pool[i]).collect(), enclosed)
     }
 
     /// The K training views nearest to `target` by camera centre (ties broken by index), K = `views`.
@@ -1056,7 +1079,10 @@ mod tests {
                 );
             }
         }
-        assert!(interior >= 10, "only {interior} interior targets drawn");
+        // Edge and corner views of the grid have an empty sector (nothing beyond them): such targets are
+        // redrawn, so every tuple renders between its inputs. Drawn uniformly, 16 of the 25 views are on
+        // the edge.
+        assert_eq!(interior, 60, "only {interior} of 60 targets inside the grid");
         assert!(
             differs > 20,
             "only {differs} of 60 tuples differ from the 4 nearest"

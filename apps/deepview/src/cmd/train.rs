@@ -119,8 +119,9 @@ pub struct Args {
     #[arg(long, value_name = "P", value_parser = parse_probability)]
     pub wide_inputs: Option<f64>,
     /// Probability (0..1) that a tuple's K inputs surround the target: one random view per angular sector
-    /// around it among its 3K nearest (rendering between the inputs, like the demo's corner views;
-    /// drawn before --wide-inputs; default 0).
+    /// around it among its 3K nearest (rendering between the inputs, like the demo's corner views). A
+    /// target with an empty sector (an edge view: extrapolation) is redrawn. Drawn before --wide-inputs;
+    /// default 0.
     #[arg(long, value_name = "P", value_parser = parse_probability)]
     pub surround_inputs: Option<f64>,
     /// Render the views for the update nets' gradient components from the agreement prior outside the

@@ -1,5 +1,7 @@
 //! Light-field grids in the HCI 4D benchmark layout: `input_CamNNN.png`, N x N views, row-major, and
-//! optionally the ground-truth disparity `gt_disp_lowres.pfm` of the centre view.
+//! optionally the scene's disparity range in `parameters.cfg` (HCI's `[meta]` keys `disp_min` and
+//! `disp_max`, pixels between neighbouring views) or the ground-truth disparity `gt_disp_lowres.pfm` of the
+//! centre view.
 //!
 //! The folder ships no calibration, so cameras are synthesised: identity rotations, centres on a regular grid
 //! (spacing `baseline`) in the plane z = 0, focal length = image width, and principal points shifted
@@ -19,9 +21,11 @@ use deepview_image::ImageF32;
 use std::path::Path;
 
 pub const GT_DISPARITY: &str = "gt_disp_lowres.pfm";
+/// The HCI benchmark's scene parameters; its `[meta]` section states the disparity range.
+pub const PARAMETERS: &str = "parameters.cfg";
 /// Disparity (pixels between neighbouring views) of points at infinity.
 pub const D_INF: f64 = 16.0;
-/// Disparity range assumed without ground truth.
+/// Disparity range assumed without `parameters.cfg` or ground truth.
 pub const DEFAULT_DISPARITY_RANGE: (f64, f64) = (-4.0, 4.0);
 
 /// `input_CamNNN.png` for view `i` (row-major).
@@ -168,7 +172,15 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
         });
     }
     let gt = root.join(GT_DISPARITY);
-    let (d_min, d_max) = if gt.is_file() {
+    let params = root.join(PARAMETERS);
+    let stated = if params.is_file() {
+        read_disparity_range(&params)?
+    } else {
+        None
+    };
+    let (d_min, d_max) = if let Some(range) = stated {
+        range
+    } else if gt.is_file() {
         let pfm = read_pfm(&gt)?;
         let finite = pfm.data.iter().filter(|v| v.is_finite()).map(|&v| v as f64);
         let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
@@ -191,6 +203,66 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
         rig_count: 1,
         downscale: 1,
     })
+}
+
+/// The disparity range `[meta] disp_min / disp_max` of an HCI `parameters.cfg` (`None` when the file
+/// does not state both). Other sections and keys are ignored.
+pub fn read_disparity_range(path: &Path) -> Result<Option<(f64, f64)>, DataError> {
+    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    let (mut section, mut lo, mut hi) = (String::new(), None, None);
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.is_empty() || line.starts_with('#') || line.starts_with(';') {
+            continue;
+        }
+        if let Some(name) = line.strip_prefix('[').and_then(|l| l.strip_suffix(']')) {
+            section = name.trim().to_string();
+            continue;
+        }
+        let Some((key, value)) = line.split_once('=') else {
+            return Err(DataError::parse(
+                path,
+                Some(n + 1),
+                format!("expected `key = value` or `[section]`, got {line:?}"),
+            ));
+        };
+        let key = key.trim();
+        if section != "meta" || !(key == "disp_min" || key == "disp_max") {
+            continue;
+        }
+        let v: f64 = value
+            .trim()
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite())
+            .ok_or_else(|| {
+                DataError::parse(
+                    path,
+                    Some(n + 1),
+                    format!("{key} = {:?} is not a finite number", value.trim()),
+                )
+            })?;
+        if key == "disp_min" { lo = Some(v) } else { hi = Some(v) }
+    }
+    match (lo, hi) {
+        (Some(lo), Some(hi)) if lo < hi => Ok(Some((lo, hi))),
+        (Some(lo), Some(hi)) => Err(DataError::invalid(
+            path,
+            format!("disp_min {lo} is not below disp_max {hi}"),
+        )),
+        _ => Ok(None),
+    }
+}
+
+/// Write the disparity range `(d_min, d_max)` of a light field as an HCI `parameters.cfg` in `dir`.
+pub fn write_disparity_range(dir: &Path, (d_min, d_max): (f64, f64)) -> Result<(), DataError> {
+    let path = dir.join(PARAMETERS);
+    let text = format!(
+        "# Disparity range of the scene in pixels between neighbouring views (HCI 4D light field layout).\n\
+         [meta]\ndisp_min = {d_min}\ndisp_max = {d_max}\n"
+    );
+    deepview_image::write_atomic_with(&path, text.as_bytes(), deepview_image::Durability::Rename)
+        .map_err(|e| DataError::write(&path, e))
 }
 
 /// Write a light field: `images` (row-major, `rows * cols`, `rows == cols` for the HCI layout) as
@@ -273,10 +345,43 @@ mod tests {
         // Disparity exactly 1 everywhere, margin 0.25 px.
         assert!((lf.depth_to_disparity(near) - 1.25).abs() < 1e-9);
         assert!((lf.depth_to_disparity(far) - 0.75).abs() < 1e-9);
+        // A stated range (`parameters.cfg`) wins over the ground truth, exactly as stated.
+        write_disparity_range(dir.path(), (-2.5, 1.5)).unwrap();
+        let s = crate::load_scene(dir.path(), &LoadOptions::default()).unwrap();
+        let (near, far) = s.near_far().unwrap();
+        assert!((lf.depth_to_disparity(near) - 1.5).abs() < 1e-9);
+        assert!((lf.depth_to_disparity(far) + 2.5).abs() < 1e-9);
         std::fs::remove_file(dir.path().join("input_Cam008.png")).unwrap();
         let e = crate::load_scene(dir.path(), &LoadOptions::default())
             .unwrap_err()
             .to_string();
         assert!(e.contains("found 8") && e.contains("N x N"), "{e}");
+    }
+
+    #[test]
+    fn parameters_cfg_states_the_disparity_range() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join(PARAMETERS);
+        // HCI's own layout: other sections and keys around the two that matter.
+        std::fs::write(
+            &p,
+            "[intrinsics]\nfocal_length_mm = 100\n\n[meta]\ndisp_min = -1.75\nfrustum_disp_min = -3\n\
+             disp_max = 0.5\n",
+        )
+        .unwrap();
+        assert_eq!(read_disparity_range(&p).unwrap(), Some((-1.75, 0.5)));
+        // The keys outside [meta] do not count.
+        std::fs::write(&p, "[extrinsics]\ndisp_min = -1\ndisp_max = 1\n").unwrap();
+        assert_eq!(read_disparity_range(&p).unwrap(), None);
+        for (text, expect) in [
+            ("[meta]\ndisp_min = -1\ndisp_max = abc\n", "parameters.cfg:3:"),
+            ("[meta]\ndisp_min = inf\ndisp_max = 1\n", "not a finite number"),
+            ("[meta]\ndisp_min = 2\ndisp_max = 1\n", "is not below"),
+            ("[meta]\njunk\n", "parameters.cfg:2:"),
+        ] {
+            std::fs::write(&p, text).unwrap();
+            let e = read_disparity_range(&p).unwrap_err().to_string();
+            assert!(e.contains(expect) && e.contains("parameters.cfg"), "{text:?}: {e}");
+        }
     }
 }
