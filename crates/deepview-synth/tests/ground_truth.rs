@@ -115,8 +115,16 @@ fn grid_rig_round_trip_as_light_field() {
     // The folder loads with the depth range it was rendered with (written as the light field's
     // disparity range), which is -2..+2 px per grid step: the ground truth's first and last planes.
     let (near, far) = scene.near_far().unwrap();
-    assert!((near / out.near_far.0 - 1.0).abs() < 1e-9, "{near} vs {:?}", out.near_far);
-    assert!((far / out.near_far.1 - 1.0).abs() < 1e-9, "{far} vs {:?}", out.near_far);
+    assert!(
+        (near / out.near_far.0 - 1.0).abs() < 1e-9,
+        "{near} vs {:?}",
+        out.near_far
+    );
+    assert!(
+        (far / out.near_far.1 - 1.0).abs() < 1e-9,
+        "{far} vs {:?}",
+        out.near_far
+    );
     assert!((gt.depths[0] / far - 1.0).abs() < 1e-6 && (gt.depths[7] / near - 1.0).abs() < 1e-6);
     let lf = light_field_cameras(3, 3, 64, 48);
     assert!((lf.depth_to_disparity(near) - 2.0).abs() < 1e-9);

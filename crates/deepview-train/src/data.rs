@@ -1082,7 +1082,10 @@ mod tests {
         // Edge and corner views of the grid have an empty sector (nothing beyond them): such targets are
         // redrawn, so every tuple renders between its inputs. Drawn uniformly, 16 of the 25 views are on
         // the edge.
-        assert_eq!(interior, 60, "only {interior} of 60 targets inside the grid");
+        assert_eq!(
+            interior, 60,
+            "only {interior} of 60 targets inside the grid"
+        );
         assert!(
             differs > 20,
             "only {differs} of 60 tuples differ from the 4 nearest"

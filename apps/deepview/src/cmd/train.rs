@@ -8,9 +8,10 @@ use deepview_data::LoadOptions;
 use deepview_net::config::DeepViewConfig;
 use deepview_train::loss::LossKind;
 use deepview_train::{
-    Collective, DataSpec, RunConfig, TrainConfig, Trainer, list_checkpoints, load_data,
+    Collective, DataSpec, RunConfig, SYNTHETIC_TWO_PLANES, TrainConfig, Trainer, list_checkpoints,
+    load_data,
 };
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
 #[cfg(feature = "mpi")]
@@ -32,7 +33,9 @@ use progress::Progress;
     deepview train --name fern --resume --steps 4000\n  \
     deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
     deepview train --init weights/cpu --preset cpu-large --data ../shared/data/llff/flower --name grown --steps 500\n  \
-    deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n\n\
+    deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n  \
+    deepview train --data ../shared/data/llff/fern --data runs/synth/grid-20 --images images_4 --max-width 512 \
+    --views 4 --surround-inputs 1 --name mixed\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
     --steps, --devices, --data, --keep-checkpoints and --vgg-weights may be given: the others are the run's own, \
     and its datasets load with the scene options they were first loaded with (kept in its config.json).\n\n\
@@ -130,6 +133,12 @@ pub struct Args {
     /// the demo's outcome (BENCHMARKS.md, "The training window's context"). Kept in the run's config.
     #[arg(long)]
     pub window_context: bool,
+    /// Downscale each dataset by the smallest integer factor that brings its images to at most W pixels
+    /// wide, instead of one --downscale for all: scenes of different sizes train at their own factor
+    /// (e.g. LLFF `images_4` at 2 and 256 px synthetic grids at 1 with `--max-width 512`). Each factor is
+    /// kept in the run's config.json.
+    #[arg(long, value_name = "W", conflicts_with = "downscale")]
+    pub max_width: Option<u32>,
     /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none; 1 would hold out
     /// every view). Default 8.
     #[arg(long, value_parser = parse_holdout)]
@@ -361,6 +370,21 @@ fn scene_flags_differing(given: &LoadOptions, other: &LoadOptions) -> Vec<&'stat
     .collect()
 }
 
+/// A dataset loaded with the scene flags `opts`; with `--max-width W`, downscaled by the smallest
+/// integer factor that brings its images to at most `W` pixels wide.
+fn data_spec(path: &Path, opts: &LoadOptions, max_width: Option<u32>) -> anyhow::Result<DataSpec> {
+    let mut load = opts.clone();
+    if let Some(w) = max_width
+        && path != Path::new(SYNTHETIC_TWO_PLANES)
+    {
+        let scene = deepview_data::load_scene(path, &load)
+            .with_context(|| format!("--data {}", path.display()))?;
+        let width = scene.views.first().map_or(0, |v| v.camera.width);
+        load.downscale = width.div_ceil(w.max(1)).max(1);
+    }
+    Ok(DataSpec::new(path, load))
+}
+
 /// The datasets of a run resumed (or started over) from its config.json: `--data` if given, else the
 /// run's own; each loads with the options the run keeps for it (a scene flag given now must agree with
 /// them), or, for runs whose config.json has bare paths (older ones) and data the run did not have,
@@ -393,7 +417,7 @@ fn resumed_data(args: &Args, cfg: &RunConfig, opts: &LoadOptions) -> anyhow::Res
                     }
                     Ok(DataSpec::new(path, load))
                 }
-                None => Ok(DataSpec::new(path, opts.clone())),
+                None => data_spec(&path, opts, args.max_width),
             }
         })
         .collect()
@@ -605,8 +629,8 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         train.data = args
             .data
             .iter()
-            .map(|p| DataSpec::new(p, opts.clone()))
-            .collect();
+            .map(|p| data_spec(p, &opts, args.max_width))
+            .collect::<anyhow::Result<_>>()?;
         train.steps = args.steps.unwrap_or(train.steps);
         train.batch = args.batch.unwrap_or(train.batch);
         if let Some(c) = args.crop {

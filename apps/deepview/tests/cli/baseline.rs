@@ -135,6 +135,13 @@ fn baseline_mpis_render_held_out_and_input_views() {
 fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = synth_grid(tmp.path());
+    // A wider stated disparity range than the grid's own +-2 px (HCI `parameters.cfg`): enough planes
+    // (17) for the memory budget to cut the count below the rule's.
+    std::fs::write(
+        scene.join("parameters.cfg"),
+        "[meta]\ndisp_min = -4\ndisp_max = 4\n",
+    )
+    .unwrap();
     let mpi = tmp.path().join("psv_auto");
     let o = deepview(&[
         "baseline",

@@ -3,9 +3,9 @@
 use crate::common::{deepview, s, succeeds};
 
 /// The README's first command: the whole pipeline on the built-in scene (the slow `optimize` baseline
-/// skipped). Everything it announces is there, every method is scored, and the learned model beats the
-/// nearest-view baseline. (On this noise-free synthetic scene `psv-mean`, the model's own starting point,
-/// is hard to beat: colours agree exactly across views; BENCHMARKS.md has the figures.)
+/// skipped). Everything it announces is there, every method is scored, and the shipped model beats both
+/// baselines on the held-out views (the scene is deterministic, and none of the training scenes is it;
+/// BENCHMARKS.md has the figures, `optimize` included).
 #[test]
 fn demo_makes_everything_it_announces() {
     let tmp = tempfile::tempdir().unwrap();
@@ -50,7 +50,7 @@ fn demo_makes_everything_it_announces() {
     };
     let (nearest, psv, learned) = (ssim("nearest"), ssim("psv-mean"), ssim("deepview"));
     assert!(
-        learned > nearest && psv > nearest,
+        learned > psv && psv > nearest,
         "deepview {learned} vs nearest {nearest}, psv-mean {psv}"
     );
     // It says how to look at the MPI in the browser.

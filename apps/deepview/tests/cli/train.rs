@@ -1,7 +1,7 @@
 //! `deepview train --resume` needs nothing repeated: the run's config.json keeps each dataset with the
 //! options it was loaded with.
 
-use crate::common::{deepview, fails_with, s, succeeds, synth_grid};
+use crate::common::{deepview, fails_with, grid, s, succeeds, synth_grid};
 use std::path::Path;
 
 /// A tiny run on `grid`: the cpu preset, L1 loss, 8x8 crops, 4 planes, a checkpoint every step.
@@ -123,6 +123,46 @@ fn resume_reads_the_data_with_the_options_of_the_run() {
     );
     // ... and with it, the same step as the run that kept its options.
     assert_eq!(losses(&runs.join("old-half")), straight);
+}
+
+/// `--max-width W` gives each dataset its own factor: the smallest that brings its images to at most W
+/// pixels wide (96 px at 48 -> 2, 40 px -> 1, 100 px -> 3), kept in config.json and used on resume.
+#[test]
+fn max_width_downscales_each_dataset_by_its_own_factor() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b, c) = (
+        synth_grid(tmp.path()),
+        grid(tmp.path(), "small", 40, 32),
+        grid(tmp.path(), "large", 100, 64),
+    );
+    let runs = tmp.path().join("runs");
+    let mut args = start_args(&a);
+    args.extend(["--data", s(&b), "--data", s(&c), "--max-width", "48"]);
+    train(&runs, "mixed", 1, &args);
+    let cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(runs.join("mixed/config.json")).unwrap())
+            .unwrap();
+    let factors: Vec<u64> = (0..3)
+        .map(|i| cfg["train"]["data"][i]["downscale"].as_u64().unwrap())
+        .collect();
+    assert_eq!(factors, [2, 1, 3]);
+    train(&runs, "mixed", 2, &["--resume"]);
+    assert_eq!(losses(&runs.join("mixed")).len(), 2);
+    // One rule or the other, not both.
+    let mut both = start_args(&a);
+    both.extend([
+        "--max-width",
+        "48",
+        "--downscale",
+        "2",
+        "--name",
+        "x",
+        "--runs",
+        s(&runs),
+    ]);
+    let mut full = vec!["train"];
+    full.extend(both);
+    fails_with(&deepview(&full), &["--max-width", "--downscale"]);
 }
 
 /// `--init W --preset P` grows the weights into the larger preset: the grown model computes the same

@@ -242,7 +242,11 @@ pub fn read_disparity_range(path: &Path) -> Result<Option<(f64, f64)>, DataError
                     format!("{key} = {:?} is not a finite number", value.trim()),
                 )
             })?;
-        if key == "disp_min" { lo = Some(v) } else { hi = Some(v) }
+        if key == "disp_min" {
+            lo = Some(v)
+        } else {
+            hi = Some(v)
+        }
     }
     match (lo, hi) {
         (Some(lo), Some(hi)) if lo < hi => Ok(Some((lo, hi))),
@@ -374,14 +378,23 @@ mod tests {
         std::fs::write(&p, "[extrinsics]\ndisp_min = -1\ndisp_max = 1\n").unwrap();
         assert_eq!(read_disparity_range(&p).unwrap(), None);
         for (text, expect) in [
-            ("[meta]\ndisp_min = -1\ndisp_max = abc\n", "parameters.cfg:3:"),
-            ("[meta]\ndisp_min = inf\ndisp_max = 1\n", "not a finite number"),
+            (
+                "[meta]\ndisp_min = -1\ndisp_max = abc\n",
+                "parameters.cfg:3:",
+            ),
+            (
+                "[meta]\ndisp_min = inf\ndisp_max = 1\n",
+                "not a finite number",
+            ),
             ("[meta]\ndisp_min = 2\ndisp_max = 1\n", "is not below"),
             ("[meta]\njunk\n", "parameters.cfg:2:"),
         ] {
             std::fs::write(&p, text).unwrap();
             let e = read_disparity_range(&p).unwrap_err().to_string();
-            assert!(e.contains(expect) && e.contains("parameters.cfg"), "{text:?}: {e}");
+            assert!(
+                e.contains(expect) && e.contains("parameters.cfg"),
+                "{text:?}: {e}"
+            );
         }
     }
 }
