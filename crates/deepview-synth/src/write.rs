@@ -90,11 +90,11 @@ struct SynthInfo<'a> {
     ground_truth_mpi: &'a str,
 }
 
-/// Build a scene, render it through the rig and write `out` as a dataset of the rig's format, with
-/// `out/ground_truth_mpi/` (the exact MPI) and `out/synth.json` (how it was made).
 /// Disparities of a grid rig's scenes: -2..+2 px per grid step, as in the HCI benchmark scenes.
 pub const GRID_DISPARITY: (f64, f64) = (-2.0, 2.0);
 
+/// Build a scene, render it through the rig and write `out` as a dataset of the rig's format, with
+/// `out/ground_truth_mpi/` (the exact MPI) and `out/synth.json` (how it was made).
 pub fn synthesize(out: &Path, options: &SynthOptions) -> Result<SynthOutput, SynthError> {
     synthesize_as(out, options, None)
 }
