@@ -43,10 +43,10 @@ use progress::Progress;
     DEEPVIEW_VGG_WEIGHTS."
 )]
 pub struct Args {
-    /// Dataset folder (repeat for several; any format `deepview info` reads). `synthetic:two-planes` is a
-    /// built-in analytic scene. With --resume, defaults to the run's own list (each with the scene options
-    /// it was loaded with).
-    #[arg(long = "data", value_name = "DIR", value_parser = parse_data)]
+    /// Dataset folders (`--data A B` or `--data A --data B`; any format `deepview info` reads).
+    /// `synthetic:two-planes` is a built-in analytic scene. With --resume, defaults to the run's own list
+    /// (each with the scene options it was loaded with).
+    #[arg(long = "data", value_name = "DIR", num_args = 1.., value_parser = parse_data)]
     pub data: Vec<PathBuf>,
     /// Network preset: cpu, cpu-large, paper-kalantari, paper-spaces-4view, paper-spaces-12view
     /// (default: cpu). With --init: grow those weights into this larger preset first (the grown model

@@ -137,7 +137,8 @@ fn max_width_downscales_each_dataset_by_its_own_factor() {
     );
     let runs = tmp.path().join("runs");
     let mut args = start_args(&a);
-    args.extend(["--data", s(&b), "--data", s(&c), "--max-width", "48"]);
+    // `--data` takes several folders at once (what `--data dir/{a,b}` expands to in a shell).
+    args.extend(["--data", s(&b), s(&c), "--max-width", "48"]);
     train(&runs, "mixed", 1, &args);
     let cfg: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(runs.join("mixed/config.json")).unwrap())
