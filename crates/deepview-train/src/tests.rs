@@ -238,6 +238,41 @@ fn starting_over_removes_the_leftovers_of_a_first_checkpoint() {
     assert!(!leftover.exists());
 }
 
+/// burn's CPU backend has one random generator per process: trainers created at the same time from
+/// the same seed still start from the same weights (their seed-and-draw does not interleave; the
+/// `non_finite_loss_skips_the_step` twin failed once in CI when another test's trainer drew between its
+/// seed and its draws).
+#[test]
+fn trainers_created_at_once_start_from_their_seed() {
+    let dir = tempfile::tempdir().unwrap();
+    let alone = Trainer::create(
+        &dir.path().join("alone"),
+        small_config(2, &["cpu"], 1),
+        small_data(),
+    )
+    .unwrap();
+    let want = parameter_values(&alone.model);
+    let got: Vec<Vec<f32>> = std::thread::scope(|s| {
+        let handles: Vec<_> = (0..6)
+            .map(|i| {
+                let run = dir.path().join(format!("at-once-{i}"));
+                s.spawn(move || {
+                    let t =
+                        Trainer::create(&run, small_config(2, &["cpu"], 1), small_data()).unwrap();
+                    parameter_values(&t.model)
+                })
+            })
+            .collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for (i, v) in got.iter().enumerate() {
+        assert!(
+            v == &want,
+            "trainer {i} created alongside others starts elsewhere"
+        );
+    }
+}
+
 #[test]
 fn non_finite_loss_skips_the_step() {
     let dir = tempfile::tempdir().unwrap();

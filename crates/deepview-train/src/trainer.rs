@@ -155,6 +155,10 @@ impl Trainer {
         if writer {
             remove_leftovers(run_dir, &mut notices);
         }
+        // burn's CPU backend draws every random tensor from one process-wide generator: seeding it and
+        // drawing the initial weights happen under [`with_burn_rng`], so that another trainer (or test)
+        // in the same process cannot draw in between and change the weights this seed gives.
+        let burn_rng = burn_rng_lock();
         devices[0].seed(config.train.seed);
         let model = match &config.train.init {
             Some(init) => {
@@ -172,6 +176,7 @@ impl Trainer {
         };
         // Materialise lazily initialised parameters now, right after seeding.
         let mut values = parameter_values(&model);
+        drop(burn_rng);
         let model = match &comm {
             Some(c) => {
                 // Rank 0's initial weights everywhere.
@@ -636,4 +641,22 @@ impl Trainer {
             on_event(TrainEvent::Notice(&n));
         }
     }
+}
+
+/// The lock every seeding of burn's process-wide random generator and every draw that must follow it
+/// take in this crate (the generator is one per process, not per device: two trainers created at once
+/// would otherwise share and interleave its draws).
+static BURN_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+/// Hold [`BURN_RNG`] (a panic in another holder does not poison it for the rest).
+pub(crate) fn burn_rng_lock() -> std::sync::MutexGuard<'static, ()> {
+    BURN_RNG.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+#[cfg(test)]
+/// `f()` with [`BURN_RNG`] held: random draws of burn's CPU backend that should not land between
+/// another holder's seed and draws.
+pub(crate) fn with_burn_rng<T>(f: impl FnOnce() -> T) -> T {
+    let _guard = burn_rng_lock();
+    f()
 }
