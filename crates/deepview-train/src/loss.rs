@@ -183,8 +183,15 @@ fn vgg_feature_loss(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::trainer::with_burn_rng;
+    use crate::trainer::seeded;
     use burn::tensor::{Device, Distribution};
+
+    /// A tensor of uniform values in [0, 1) drawn from burn's generator seeded with `seed` ([`seeded`]).
+    fn uniform(dims: [usize; 4], seed: u64, device: &Device) -> Tensor<4> {
+        seeded(device, seed, || {
+            Tensor::<4>::random(dims, Distribution::Uniform(0.0, 1.0), device)
+        })
+    }
 
     fn losses(device: &Device) -> Vec<Loss> {
         let mut v = vec![Loss::L1];
@@ -270,9 +277,7 @@ mod tests {
     fn zero_for_identical_positive_otherwise_and_grad_flows() {
         let device = Device::flex().autodiff();
         for loss in losses(&device) {
-            let t = with_burn_rng(|| {
-                Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device)
-            });
+            let t = uniform([2, 3, 32, 32], 1, &device);
             let same = loss
                 .per_example(t.clone(), t.clone())
                 .into_data()
@@ -283,10 +288,7 @@ mod tests {
                 "{:?}: {same:?}",
                 loss.kind()
             );
-            let p = with_burn_rng(|| {
-                Tensor::<4>::random([2, 3, 32, 32], Distribution::Uniform(0.0, 1.0), &device)
-            })
-            .require_grad();
+            let p = uniform([2, 3, 32, 32], 2, &device).require_grad();
             let l = loss.sum(p.clone(), t);
             let v = l.clone().into_scalar::<f32>();
             assert!(v.is_finite() && v > 0.0, "{:?}: {v}", loss.kind());
@@ -345,9 +347,7 @@ mod tests {
         // The padding the loss feeds to VGG: 4 px per side for 32x32, and size / 8 per axis otherwise
         // (a non-square crop pins the axis order).
         for (dims, p, q) in [([1, 3, 32, 32], 4, 4), ([2, 3, 16, 40], 2, 5)] {
-            let x = with_burn_rng(|| {
-                Tensor::<4>::random(dims, Distribution::Uniform(0.0, 1.0), &device)
-            });
+            let x = uniform(dims, 3, &device);
             let v = x.clone().into_data().try_to_vec::<f32>().unwrap();
             let padded = pad_for_feature_loss(x);
             let [n, c, h, w] = dims;
@@ -365,10 +365,8 @@ mod tests {
             }
         };
         let dims = [1, 3, 32, 32];
-        let pred =
-            with_burn_rng(|| Tensor::<4>::random(dims, Distribution::Uniform(0.0, 1.0), &device));
-        let target =
-            with_burn_rng(|| Tensor::<4>::random(dims, Distribution::Uniform(0.0, 1.0), &device));
+        let pred = uniform(dims, 4, &device);
+        let target = uniform(dims, 5, &device);
         let features = |t: &Tensor<4>| {
             let v = t.clone().into_data().try_to_vec::<f32>().unwrap();
             let padded = Tensor::<4>::from_data(

@@ -155,28 +155,31 @@ impl Trainer {
         if writer {
             remove_leftovers(run_dir, &mut notices);
         }
-        // burn's CPU backend draws every random tensor from one process-wide generator: seeding it and
-        // drawing the initial weights happen under [`with_burn_rng`], so that another trainer (or test)
-        // in the same process cannot draw in between and change the weights this seed gives.
-        let burn_rng = burn_rng_lock();
-        devices[0].seed(config.train.seed);
-        let model = match &config.train.init {
-            Some(init) => {
-                let (model, init_config) = deepview_net::weights::load_model(init, &devices[0])
-                    .map_err(|e| run_err(init, e))?;
-                if init_config == config.model {
-                    model
-                } else {
-                    // A larger configuration (`--preset` with `--init`): the trained model grown into it.
-                    deepview_net::grow::grow_model(&model, &init_config, &config.model, &devices[0])
+        // The initial weights, drawn right after the seed ([`seeded`]: no other trainer draws in between).
+        let (model, mut values) = seeded(&devices[0], config.train.seed, || {
+            let model = match &config.train.init {
+                Some(init) => {
+                    let (model, init_config) = deepview_net::weights::load_model(init, &devices[0])
+                        .map_err(|e| run_err(init, e))?;
+                    if init_config == config.model {
+                        model
+                    } else {
+                        // A larger configuration (`--preset` with `--init`): the trained model grown into it.
+                        deepview_net::grow::grow_model(
+                            &model,
+                            &init_config,
+                            &config.model,
+                            &devices[0],
+                        )
                         .map_err(|e| run_err(init, e))?
+                    }
                 }
-            }
-            None => DeepViewModel::new(&config.model, &devices[0]),
-        };
-        // Materialise lazily initialised parameters now, right after seeding.
-        let mut values = parameter_values(&model);
-        drop(burn_rng);
+                None => DeepViewModel::new(&config.model, &devices[0]),
+            };
+            // Materialise lazily initialised parameters now, while the generator is still held.
+            let values = parameter_values(&model);
+            Ok::<_, TrainError>((model, values))
+        })?;
         let model = match &comm {
             Some(c) => {
                 // Rank 0's initial weights everywhere.
@@ -643,20 +646,15 @@ impl Trainer {
     }
 }
 
-/// The lock every seeding of burn's process-wide random generator and every draw that must follow it
-/// take in this crate (the generator is one per process, not per device: two trainers created at once
-/// would otherwise share and interleave its draws).
+/// Held by every seeding of burn's random generator together with the draws that must follow it
+/// ([`seeded`]). burn's CPU backend has one generator per process, not per device: two trainers created
+/// at once would otherwise interleave their draws and start from weights their seed does not give.
 static BURN_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// Hold [`BURN_RNG`] (a panic in another holder does not poison it for the rest).
-pub(crate) fn burn_rng_lock() -> std::sync::MutexGuard<'static, ()> {
-    BURN_RNG.lock().unwrap_or_else(|e| e.into_inner())
-}
-
-#[cfg(test)]
-/// `f()` with [`BURN_RNG`] held: random draws of burn's CPU backend that should not land between
-/// another holder's seed and draws.
-pub(crate) fn with_burn_rng<T>(f: impl FnOnce() -> T) -> T {
-    let _guard = burn_rng_lock();
+/// `f()` right after seeding burn's random generator with `seed`, with [`BURN_RNG`] held throughout
+/// (a panic in another holder does not poison it for the rest).
+pub(crate) fn seeded<T>(device: &Device, seed: u64, f: impl FnOnce() -> T) -> T {
+    let _guard = BURN_RNG.lock().unwrap_or_else(|e| e.into_inner());
+    device.seed(seed);
     f()
 }
