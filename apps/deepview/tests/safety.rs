@@ -284,6 +284,38 @@ fn runs_and_weights_are_never_overwritten_and_images_follow_their_extension() {
 
 // 2. Whole-folder atomicity and signals.
 
+/// Start `args`, send SIGTERM `after` the command first prints a line containing `marker` on
+/// stderr (so a fast machine cannot finish the job before the signal), return the exit code.
+fn terminate_after_line(args: &[&str], marker: &str, after: Duration) -> Option<i32> {
+    use std::io::{BufRead, Read};
+    let mut child = bin()
+        .args(args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        let n = stderr.read_line(&mut line).unwrap();
+        assert!(n > 0, "{marker:?} never printed: {seen}");
+        seen.push_str(&line);
+        if line.contains(marker) {
+            break;
+        }
+    }
+    std::thread::sleep(after);
+    // SAFETY: kill(2) on the pid of the child this test started.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGTERM);
+    }
+    stderr.read_to_string(&mut seen).unwrap();
+    let status = child.wait().unwrap();
+    assert!(!seen.contains("panicked"), "{seen}");
+    status.code()
+}
+
 /// Start `args`, send SIGTERM after `after`, return the exit code.
 fn terminate(args: &[&str], after: Duration) -> Option<i32> {
     let child = bin()
@@ -374,7 +406,8 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
     ]));
     let before = snapshot(&out);
     let data = deepview_data::data_dir().join("llff/fern");
-    let code = terminate(
+    // 64 planes take several seconds: stopped just after the network starts, it must not finish first.
+    let code = terminate_after_line(
         &[
             "infer",
             "--data",
@@ -382,11 +415,12 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
             "--images",
             "images_8",
             "--planes",
-            "8",
+            "64",
             "--out",
             s(&out),
         ],
-        Duration::from_millis(1500),
+        "inferring a 64-plane",
+        Duration::from_millis(300),
     );
     assert_eq!(code, Some(143));
     assert_eq!(snapshot(&out), before, "the old MPI changed");
