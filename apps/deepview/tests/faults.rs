@@ -243,6 +243,35 @@ fn killed_at_random_moments_the_run_resumes_and_ends_like_an_uninterrupted_one()
 }
 
 #[test]
+fn a_run_killed_before_its_config_json_starts_on_resume() {
+    let tmp = tempfile::tempdir().unwrap();
+    let runs = tmp.path().join("runs");
+    // What a run killed inside `Trainer::create` leaves: an empty checkpoints/, the lock file and the
+    // temporary file of config.json (the rename not yet done).
+    let make = |name: &str| {
+        let run = runs.join(name);
+        std::fs::create_dir_all(run.join("checkpoints")).unwrap();
+        std::fs::write(run.join(".lock"), b"").unwrap();
+        std::fs::write(run.join(".config.json.4242.tmp"), b"{\"model\": ").unwrap();
+        run
+    };
+    let run_dir = make("k");
+    let mut args = train_args(&runs, "k", 6);
+    args.push("--resume".into());
+    succeeds(&run(&args));
+    check_finished(&run_dir, 6, &tmp.path().join("k"));
+    // A folder holding anything else is not taken for a run.
+    let other = make("other");
+    std::fs::write(other.join("notes.txt"), b"mine").unwrap();
+    let mut args = train_args(&runs, "other", 4);
+    args.push("--resume".into());
+    let out = run(&args);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("is not a training run"));
+    assert_eq!(std::fs::read(other.join("notes.txt")).unwrap(), b"mine");
+}
+
+#[test]
 fn keep_checkpoints_prunes_old_ones() {
     let tmp = tempfile::tempdir().unwrap();
     let runs = tmp.path().join("runs");

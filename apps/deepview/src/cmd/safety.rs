@@ -79,10 +79,32 @@ impl Kind {
     }
 }
 
-/// A training run folder: `config.json` with `checkpoints/` or `metrics.jsonl`.
+/// A training run folder: `config.json` with `checkpoints/` or `metrics.jsonl`; or a run stopped while
+/// it started, before its `config.json` was in place: nothing but what `Trainer::create` makes first
+/// (an empty `checkpoints/`, the `.lock` file, a temporary `config.json`), so that `--resume` starts it.
 pub fn is_run(dir: &Path) -> bool {
-    dir.join("config.json").is_file()
-        && (dir.join("checkpoints").is_dir() || dir.join("metrics.jsonl").is_file())
+    if dir.join("config.json").is_file() {
+        return dir.join("checkpoints").is_dir() || dir.join("metrics.jsonl").is_file();
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    let mut any = false;
+    for e in entries {
+        let Ok(e) = e else { return false };
+        let name = e.file_name().to_string_lossy().into_owned();
+        let starting = match name.as_str() {
+            "checkpoints" => std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_none()),
+            ".lock" => e.path().is_file(),
+            // `deepview_image::temp_path` of config.json.
+            n => n.starts_with(".config.json.") && n.ends_with(".tmp"),
+        };
+        if !starting {
+            return false;
+        }
+        any = true;
+    }
+    any
 }
 
 /// A weights folder: `config.json` + `model.safetensors`.
