@@ -284,9 +284,18 @@ fn runs_and_weights_are_never_overwritten_and_images_follow_their_extension() {
 
 // 2. Whole-folder atomicity and signals.
 
-/// Start `args`, send SIGTERM `after` the command first prints a line containing `marker` on
-/// stderr (so a fast machine cannot finish the job before the signal), return the exit code.
-fn terminate_after_line(args: &[&str], marker: &str, after: Duration) -> Option<i32> {
+/// Send SIGTERM to `child`.
+fn sigterm(child: &std::process::Child) {
+    // SAFETY: kill(2) on the pid of a child this test started.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGTERM);
+    }
+}
+
+/// Start `args`, send SIGTERM `after` the command first prints a line containing `marker` on stderr
+/// (none: after its start), return the exit code. A marker the job prints before its long part keeps a
+/// fast machine from finishing the job before the signal.
+fn terminate(args: &[&str], marker: Option<&str>, after: Duration) -> Option<i32> {
     use std::io::{BufRead, Read};
     let mut child = bin()
         .args(args)
@@ -296,43 +305,23 @@ fn terminate_after_line(args: &[&str], marker: &str, after: Duration) -> Option<
         .unwrap();
     let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
     let mut seen = String::new();
-    loop {
-        let mut line = String::new();
-        let n = stderr.read_line(&mut line).unwrap();
-        assert!(n > 0, "{marker:?} never printed: {seen}");
-        seen.push_str(&line);
-        if line.contains(marker) {
-            break;
+    if let Some(marker) = marker {
+        loop {
+            let mut line = String::new();
+            let n = stderr.read_line(&mut line).unwrap();
+            assert!(n > 0, "{marker:?} never printed: {seen}");
+            seen.push_str(&line);
+            if line.contains(marker) {
+                break;
+            }
         }
     }
     std::thread::sleep(after);
-    // SAFETY: kill(2) on the pid of the child this test started.
-    unsafe {
-        libc::kill(child.id() as i32, libc::SIGTERM);
-    }
+    sigterm(&child);
     stderr.read_to_string(&mut seen).unwrap();
     let status = child.wait().unwrap();
     assert!(!seen.contains("panicked"), "{seen}");
     status.code()
-}
-
-/// Start `args`, send SIGTERM after `after`, return the exit code.
-fn terminate(args: &[&str], after: Duration) -> Option<i32> {
-    let child = bin()
-        .args(args)
-        .stdout(Stdio::null())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(after);
-    // SAFETY: kill(2) on the pid of the child this test started.
-    unsafe {
-        libc::kill(child.id() as i32, libc::SIGTERM);
-    }
-    let out = child.wait_with_output().unwrap();
-    let err = String::from_utf8_lossy(&out.stderr);
-    assert!(!err.contains("panicked"), "{err}");
-    out.status.code()
 }
 
 #[test]
@@ -366,7 +355,7 @@ fn sigterm_leaves_the_old_mpi_folder_intact() {
     let started = Instant::now();
     let mut replaced = 0;
     for ms in [150, 600, 1200, 1800] {
-        let code = terminate(&args, Duration::from_millis(ms));
+        let code = terminate(&args, None, Duration::from_millis(ms));
         assert!(matches!(code, Some(143) | Some(0)), "exit {code:?}");
         let mpi = deepview_mpi::read_mpi::<u8>(&out).expect("the MPI folder still loads");
         if code == Some(143) {
@@ -407,7 +396,7 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
     let before = snapshot(&out);
     let data = deepview_data::data_dir().join("llff/fern");
     // 64 planes take several seconds: stopped just after the network starts, it must not finish first.
-    let code = terminate_after_line(
+    let code = terminate(
         &[
             "infer",
             "--data",
@@ -419,7 +408,7 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
             "--out",
             s(&out),
         ],
-        "inferring a 64-plane",
+        Some("inferring a 64-plane"),
         Duration::from_millis(300),
     );
     assert_eq!(code, Some(143));
@@ -458,10 +447,7 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
         );
         std::thread::sleep(Duration::from_millis(50));
     }
-    // SAFETY: kill(2) on the pid of the child this test started.
-    unsafe {
-        libc::kill(child.id() as i32, libc::SIGTERM);
-    }
+    sigterm(&child);
     let status = child.wait_with_output().unwrap().status;
     assert_eq!(status.code(), Some(143));
     let checkpoints: Vec<_> = std::fs::read_dir(runs.join("k/checkpoints"))

@@ -25,6 +25,16 @@ pub fn temp_path(path: &Path) -> PathBuf {
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
+/// Whether the file name `name` is a [`temp_path`] of the file named `file` (from any process): the
+/// leftover of an atomic write that was interrupted.
+pub fn is_temp_of(name: &str, file: &str) -> bool {
+    name.strip_prefix('.')
+        .and_then(|n| n.strip_prefix(file))
+        .and_then(|n| n.strip_prefix('.'))
+        .and_then(|n| n.strip_suffix(".tmp"))
+        .is_some_and(|pid| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()))
+}
+
 /// Write `bytes` to `path` atomically ([`temp_path`], then a rename), with the I/O error for the caller
 /// to wrap in its own error type. The temporary file is removed when any step fails.
 pub fn write_atomic_with(path: &Path, bytes: &[u8], durability: Durability) -> std::io::Result<()> {
@@ -78,5 +88,22 @@ mod tests {
         // A missing folder: an error, and nothing left behind.
         let e = write_atomic(&dir.path().join("no/such/file"), b"x").unwrap_err();
         assert!(e.to_string().contains("no/such/file"), "{e}");
+    }
+
+    #[test]
+    fn temporary_names_are_recognised_for_their_file_only() {
+        let tmp = temp_path(Path::new("run/config.json"));
+        let name = tmp.file_name().unwrap().to_str().unwrap();
+        assert!(is_temp_of(name, "config.json"));
+        assert!(is_temp_of(".config.json.4242.tmp", "config.json"));
+        for other in [
+            "config.json",
+            ".config.json.tmp",
+            ".config.json.x1.tmp",
+            ".metrics.jsonl.4242.tmp",
+            ".config.json.4242.tmp.png",
+        ] {
+            assert!(!is_temp_of(other, "config.json"), "{other}");
+        }
     }
 }

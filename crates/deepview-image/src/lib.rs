@@ -5,7 +5,7 @@
 
 mod atomic;
 
-pub use atomic::{Durability, temp_path, write_atomic, write_atomic_with};
+pub use atomic::{Durability, is_temp_of, temp_path, write_atomic, write_atomic_with};
 
 use std::path::{Path, PathBuf};
 

@@ -226,7 +226,7 @@ pub(crate) fn remove_leftovers(run_dir: &Path, notices: &mut Vec<Notice>) {
         n.starts_with(".tmp-step-") || n.starts_with(".old-step-")
     });
     remove(run_dir, &|n| {
-        // `deepview_image::temp_path` of metrics.jsonl and config.json.
-        (n.starts_with(".metrics.jsonl.") || n.starts_with(".config.json.")) && n.ends_with(".tmp")
+        deepview_image::is_temp_of(n, "metrics.jsonl")
+            || deepview_image::is_temp_of(n, "config.json")
     });
 }

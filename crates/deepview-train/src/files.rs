@@ -11,10 +11,41 @@ pub(crate) fn record_message(e: &impl std::fmt::Display) -> String {
         .to_string()
 }
 
+/// The lock file of a run folder ([`lock_run`]).
+const LOCK_FILE: &str = ".lock";
+
+/// A training run folder: `config.json` with `checkpoints/` or `metrics.jsonl`; or a run stopped while
+/// [`Trainer::create`](crate::Trainer::create) started it, before its `config.json` was in place:
+/// nothing but what it makes first (an empty `checkpoints/`, the `.lock` file, a temporary
+/// `config.json`), so that `--resume` starts it.
+pub fn is_run_folder(dir: &Path) -> bool {
+    if dir.join("config.json").is_file() {
+        return dir.join("checkpoints").is_dir() || dir.join("metrics.jsonl").is_file();
+    }
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return false;
+    };
+    let mut any = false;
+    for e in entries {
+        let Ok(e) = e else { return false };
+        let name = e.file_name().to_string_lossy().into_owned();
+        let starting = match name.as_str() {
+            "checkpoints" => std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_none()),
+            LOCK_FILE => e.path().is_file(),
+            n => deepview_image::is_temp_of(n, "config.json"),
+        };
+        if !starting {
+            return false;
+        }
+        any = true;
+    }
+    any
+}
+
 /// Lock `run_dir/.lock` so that two processes never train the same run at once (the file is held open
 /// read-only: the folder can still be remounted read-only under a running trainer).
 pub(crate) fn lock_run(run_dir: &Path) -> Result<std::fs::File, TrainError> {
-    let path = run_dir.join(".lock");
+    let path = run_dir.join(LOCK_FILE);
     if !path.exists() {
         std::fs::File::create(&path).map_err(io_err(&path))?;
     }

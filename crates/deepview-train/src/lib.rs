@@ -70,6 +70,7 @@ pub use dist::Collective;
 pub use error::TrainError;
 pub use events::{Notice, TrainEvent};
 pub use example::{example_inputs, example_loss, loss_and_grads_full, loss_tail, parameter_values};
+pub use files::is_run_folder;
 pub use load::{DataSpec, SYNTHETIC_TWO_PLANES, load_data};
 pub use metrics::StepReport;
 pub use reduce::LocalReduction;

@@ -63,7 +63,7 @@ impl Kind {
         match self {
             Kind::Mpi => has("mpi.json"),
             Kind::Weights => is_weights(dir),
-            Kind::Run => is_run(dir),
+            Kind::Run => deepview_train::is_run_folder(dir),
             Kind::SynthScene => has("synth.json"),
             Kind::Export => {
                 has(deepview_mpi::interchange::compact::META)
@@ -77,34 +77,6 @@ impl Kind {
             Kind::File | Kind::Files => false,
         }
     }
-}
-
-/// A training run folder: `config.json` with `checkpoints/` or `metrics.jsonl`; or a run stopped while
-/// it started, before its `config.json` was in place: nothing but what `Trainer::create` makes first
-/// (an empty `checkpoints/`, the `.lock` file, a temporary `config.json`), so that `--resume` starts it.
-pub fn is_run(dir: &Path) -> bool {
-    if dir.join("config.json").is_file() {
-        return dir.join("checkpoints").is_dir() || dir.join("metrics.jsonl").is_file();
-    }
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return false;
-    };
-    let mut any = false;
-    for e in entries {
-        let Ok(e) = e else { return false };
-        let name = e.file_name().to_string_lossy().into_owned();
-        let starting = match name.as_str() {
-            "checkpoints" => std::fs::read_dir(e.path()).is_ok_and(|mut d| d.next().is_none()),
-            ".lock" => e.path().is_file(),
-            // `deepview_image::temp_path` of config.json.
-            n => n.starts_with(".config.json.") && n.ends_with(".tmp"),
-        };
-        if !starting {
-            return false;
-        }
-        any = true;
-    }
-    any
 }
 
 /// A weights folder: `config.json` + `model.safetensors`.
@@ -172,7 +144,7 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
     // Runs and weights are never written over by another kind of output, nor written into.
     for a in o.ancestors() {
         let exact = a == o;
-        if is_run(a) && !(exact && kind == Kind::Run) {
+        if deepview_train::is_run_folder(a) && !(exact && kind == Kind::Run) {
             bail!(
                 "{option} {} {} the training run {}: refusing to overwrite it; choose another {option}",
                 out.display(),
