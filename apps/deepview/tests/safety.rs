@@ -282,6 +282,129 @@ fn runs_and_weights_are_never_overwritten_and_images_follow_their_extension() {
     );
 }
 
+/// Every command that writes a folder, run twice into the same `--out`: the second run replaces its own
+/// earlier output, but once a user's file, subfolder or dataset sits in that folder, it refuses (exit 2,
+/// naming what it would delete) and leaves everything as it was.
+#[test]
+fn rerunning_a_command_never_deletes_files_it_did_not_write() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let scene = grid(t, "scene");
+    let gt = scene.join("ground_truth_mpi");
+    ok(&deepview_in(
+        t,
+        &[
+            "train",
+            "--data",
+            "synthetic:two-planes",
+            "--name",
+            "r",
+            "--steps",
+            "1",
+            "--loss",
+            "l1",
+            "--quiet",
+        ],
+    ));
+    let run = t.join("runs/r");
+    let commands: Vec<(&str, Vec<&str>)> = vec![
+        (
+            "infer",
+            vec![
+                "infer",
+                "--data",
+                s(&scene),
+                "--method",
+                "psv-mean",
+                "--planes",
+                "4",
+            ],
+        ),
+        (
+            "baseline",
+            vec!["baseline", "--data", s(&scene), "--method", "nearest"],
+        ),
+        (
+            "render",
+            vec![
+                "render",
+                "--mpi",
+                s(&gt),
+                "--path",
+                "spiral",
+                "--frames",
+                "2",
+            ],
+        ),
+        (
+            "export-llff",
+            vec!["export", "--mpi", s(&gt), "--format", "llff"],
+        ),
+        (
+            "export-stereo",
+            vec!["export", "--mpi", s(&gt), "--format", "stereo-mag"],
+        ),
+        (
+            "export-compact",
+            vec!["export", "--mpi", s(&gt), "--format", "compact"],
+        ),
+        ("export-web", vec!["export-web", "--mpi", s(&gt)]),
+        ("export-weights", vec!["export-weights", s(&run)]),
+        ("import", vec!["import", "--mpi", s(&gt)]),
+        ("psv", vec!["psv", "--data", s(&scene), "--planes", "4"]),
+        (
+            "synth",
+            vec![
+                "synth", "--width", "32", "--height", "24", "--grid", "2", "--planes", "4",
+            ],
+        ),
+    ];
+    for (name, args) in &commands {
+        let out = t.join(format!("out-{name}"));
+        let mut full = args.clone();
+        full.extend(["--out", s(&out)]);
+        ok(&deepview(&full));
+        // Its own earlier output is replaced.
+        ok(&deepview(&full));
+        // A user's note, a subfolder and a dataset's poses beside the output are never deleted.
+        for (extra, is_dir) in [
+            ("notes.txt", false),
+            ("photos", true),
+            ("poses_bounds.npy", false),
+        ] {
+            let p = out.join(extra);
+            if is_dir {
+                std::fs::create_dir(&p).unwrap();
+                std::fs::write(p.join("IMG_0001.JPG"), b"a photo").unwrap();
+            } else {
+                std::fs::write(&p, b"mine").unwrap();
+            }
+            let before = snapshot(&out);
+            let shown = if is_dir {
+                format!("{extra}/")
+            } else {
+                extra.to_string()
+            };
+            let r = deepview(&full);
+            // A synthetic scene in LLFF's format writes poses_bounds.npy itself: the one file it owns.
+            if *name == "synth" && extra == "poses_bounds.npy" {
+                ok(&r);
+                continue;
+            }
+            refused(&r, &["--out", &shown, "refusing"]);
+            assert_eq!(snapshot(&out), before, "{name}: the folder changed");
+            assert!(leftovers(t).is_empty(), "{name}: {:?}", leftovers(t));
+            if is_dir {
+                std::fs::remove_dir_all(&p).unwrap();
+            } else {
+                std::fs::remove_file(&p).unwrap();
+            }
+        }
+        // With them moved away, it replaces its output again.
+        ok(&deepview(&full));
+    }
+}
+
 // 2. Whole-folder atomicity and signals.
 
 /// Send SIGTERM to `child`.

@@ -13,7 +13,10 @@
 
 use deepview_mpi::interchange::{ImportFormat, ImportOptions, compact, detect_format, read_any};
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
+
+mod server;
+
+pub use server::{MAX_BODY, MAX_CONNECTIONS, MAX_HEAD, Server};
 
 /// The viewer page.
 pub const INDEX_HTML: &str = include_str!("../web/index.html");
@@ -72,87 +75,6 @@ fn content_type(name: &str) -> &'static str {
     }
 }
 
-/// A running viewer server (a worker thread answers requests until [`Server::stop`] or drop).
-pub struct Server {
-    http: Arc<tiny_http::Server>,
-    workers: Vec<std::thread::JoinHandle<()>>,
-    url: String,
-}
-
-impl Server {
-    /// Serve the MPI folder `dir` on `host:port` (port 0: any free port).
-    pub fn start(dir: &Path, host: &str, port: u16) -> Result<Server, ViewerError> {
-        let files = Arc::new(mpi_files(dir)?);
-        let addr = format!("{host}:{port}");
-        let http = tiny_http::Server::http(&addr).map_err(|e| ViewerError::Bind {
-            addr: addr.clone(),
-            msg: e.to_string(),
-        })?;
-        let local = http
-            .server_addr()
-            .to_ip()
-            .ok_or_else(|| ViewerError::Bind {
-                addr: addr.clone(),
-                msg: "not an IP socket".into(),
-            })?;
-        let url_host = if local.ip().is_unspecified() {
-            "127.0.0.1".to_string()
-        } else {
-            local.ip().to_string()
-        };
-        let url_host = if url_host.contains(':') {
-            format!("[{url_host}]")
-        } else {
-            url_host
-        };
-        let url = format!("http://{url_host}:{}/", local.port());
-        let http = Arc::new(http);
-        let http_keep = http.clone();
-        let dir = Arc::new(dir.to_path_buf());
-        // One thread answers requests in arrival order. (tiny_http writes the responses of one keep-alive
-        // connection in request order, so several workers holding later requests of a connection while its
-        // earlier one waits in the queue could all block; the files are small and local.)
-        let workers = vec![std::thread::spawn(move || {
-            for req in http.incoming_requests() {
-                handle(req, &dir, &files);
-            }
-        })];
-        let http = http_keep;
-        Ok(Server { http, workers, url })
-    }
-
-    /// `http://host:port/`.
-    pub fn url(&self) -> &str {
-        &self.url
-    }
-
-    /// Block until the server stops (it does not stop by itself: for the CLI).
-    pub fn wait(mut self) {
-        for w in self.workers.drain(..) {
-            let _ = w.join();
-        }
-    }
-
-    pub fn stop(mut self) {
-        self.shutdown();
-    }
-
-    fn shutdown(&mut self) {
-        for _ in 0..self.workers.len() {
-            self.http.unblock();
-        }
-        for w in self.workers.drain(..) {
-            let _ = w.join();
-        }
-    }
-}
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        self.shutdown();
-    }
-}
-
 /// The answer to `path` (URL path without query): `Some((content type, body))` or `None` for 404.
 pub fn route(path: &str, dir: &Path, files: &[String]) -> Option<(&'static str, Vec<u8>)> {
     let name = path.strip_prefix('/')?;
@@ -164,31 +86,6 @@ pub fn route(path: &str, dir: &Path, files: &[String]) -> Option<(&'static str, 
     let listed = files.iter().find(|f| f.as_str() == name)?;
     let bytes = std::fs::read(dir.join(listed)).ok()?;
     Some((content_type(listed), bytes))
-}
-
-fn handle(req: tiny_http::Request, dir: &Path, files: &[String]) {
-    use tiny_http::{Header, Method, Response};
-    let method = req.method().clone();
-    if method != Method::Get && method != Method::Head {
-        let _ = req.respond(Response::from_string("method not allowed").with_status_code(405));
-        return;
-    }
-    let path = req.url().split(['?', '#']).next().unwrap_or("").to_string();
-    let header =
-        |k: &str, v: &str| Header::from_bytes(k.as_bytes(), v.as_bytes()).expect("valid header");
-    match route(&path, dir, files) {
-        Some((ct, body)) => {
-            let resp = Response::from_data(body)
-                .with_header(header("Content-Type", ct))
-                .with_header(header("Cache-Control", "no-cache"))
-                .with_header(header("X-Content-Type-Options", "nosniff"))
-                .with_header(header("Connection", "close"));
-            let _ = req.respond(resp);
-        }
-        None => {
-            let _ = req.respond(Response::from_string("404 not found").with_status_code(404));
-        }
-    }
 }
 
 /// Write the viewer page and the MPI's files to `out` as a static site (`index.html` + the MPI files).

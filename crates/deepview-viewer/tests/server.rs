@@ -163,3 +163,77 @@ fn export_web_writes_a_static_site() {
     export_web(&compact, &site2).unwrap();
     assert!(site2.join("mpi_compact.json").is_file() && site2.join("tiles_000.png").is_file());
 }
+
+/// Send `raw` and read the answer's status line (the server closes every connection after one answer).
+fn raw(url: &str, raw: &[u8]) -> String {
+    let host = url.trim_start_matches("http://").trim_end_matches('/');
+    let mut s = TcpStream::connect(host).unwrap();
+    s.set_read_timeout(Some(std::time::Duration::from_secs(30)))
+        .unwrap();
+    let _ = s.write_all(raw);
+    let mut buf = Vec::new();
+    let _ = s.read_to_end(&mut buf);
+    String::from_utf8_lossy(&buf)
+        .lines()
+        .next()
+        .unwrap_or("")
+        .to_string()
+}
+
+#[test]
+fn no_request_stops_the_server() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("mpi");
+    small_mpi(&dir);
+    let server = Server::start(&dir, "127.0.0.1", 0).unwrap();
+    let url = server.url().to_string();
+    let cases: Vec<(Vec<u8>, &str)> = vec![
+        // A huge announced body (the abort of issue 28): refused unread.
+        (
+            b"GET /mpi.json HTTP/1.1\r\nContent-Length: 18446744073709551615\r\n\r\n".to_vec(),
+            "413",
+        ),
+        (
+            b"POST / HTTP/1.1\r\nContent-Length: 9000000000\r\n\r\nxx".to_vec(),
+            "413",
+        ),
+        (
+            b"GET / HTTP/1.1\r\nContent-Length: 99999999999999999999999999\r\n\r\n".to_vec(),
+            "400",
+        ),
+        (
+            b"GET / HTTP/1.1\r\nTransfer-Encoding: chunked\r\n\r\nffffffffffff\r\n".to_vec(),
+            "411",
+        ),
+        // Endless headers: bounded.
+        (
+            [b"GET / HTTP/1.1\r\nX: ".to_vec(), vec![b'a'; 200_000]].concat(),
+            "431",
+        ),
+        (b"\x00\x01\x02\xff\r\n\r\n".to_vec(), "400"),
+        (b"GET / HTTP/1.1\r\nbroken header\r\n\r\n".to_vec(), "400"),
+        // A small body on GET is read and ignored.
+        (
+            b"GET /mpi.json HTTP/1.1\r\nContent-Length: 5\r\n\r\nhello".to_vec(),
+            "200",
+        ),
+    ];
+    for (req, status) in &cases {
+        let line = raw(&url, req);
+        assert!(
+            line.starts_with(&format!("HTTP/1.1 {status}")),
+            "{:?}: {line}",
+            String::from_utf8_lossy(&req[..req.len().min(60)])
+        );
+        // The server still answers.
+        assert_eq!(get(&url, "/mpi.json").0, 200);
+    }
+    // A client that connects and says nothing, and one that half-sends a head: others are still served.
+    let host = url.trim_start_matches("http://").trim_end_matches('/');
+    let idle = TcpStream::connect(host).unwrap();
+    let mut half = TcpStream::connect(host).unwrap();
+    half.write_all(b"GET / HTTP/1.1\r\nHost: x\r\n").unwrap();
+    assert_eq!(get(&url, "/").0, 200);
+    drop((idle, half));
+    server.stop();
+}

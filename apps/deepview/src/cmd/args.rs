@@ -86,15 +86,27 @@ pub fn min_arg(bytes: u64) -> String {
     format!("{}MiB", bytes.div_ceil(1 << 20).max(1))
 }
 
+/// What to do about work that needs `need` bytes beyond the budget: the `--max-memory` that fits, when this
+/// machine has that much memory (`total`: its physical memory, `None` when unknown), else that it cannot.
+pub fn more_memory_hint(need: u64, total: Option<u64>) -> String {
+    match total {
+        Some(t) if need > t => format!(
+            "that is more than this machine's {} of memory: make it smaller",
+            human(t)
+        ),
+        _ => format!("make it smaller or pass --max-memory {}", min_arg(need)),
+    }
+}
+
 /// Refuse work estimated at `need` bytes that does not fit `budget`, before anything is allocated; the
 /// message names the one `--max-memory` that does fit.
 pub fn check_memory(what: &str, need: u64, budget: u64) -> anyhow::Result<()> {
     if need > budget {
         bail!(
-            "{what} needs about {} of memory but the budget is {}: make it smaller or pass --max-memory {}",
+            "{what} needs about {} of memory but the budget is {}: {}",
             human(need),
             human(budget),
-            min_arg(need)
+            more_memory_hint(need, total_memory())
         );
     }
     Ok(())
@@ -248,9 +260,20 @@ pub fn available_memory() -> Option<u64> {
     parse_mem_available(&text)
 }
 
+/// Bytes of physical memory (`MemTotal` in `/proc/meminfo`).
+pub fn total_memory() -> Option<u64> {
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    parse_meminfo(&text, "MemTotal:")
+}
+
 fn parse_mem_available(meminfo: &str) -> Option<u64> {
-    let line = meminfo.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let mut it = line["MemAvailable:".len()..].split_whitespace();
+    parse_meminfo(meminfo, "MemAvailable:")
+}
+
+/// The value of the `/proc/meminfo` field `key` (with its colon) in bytes.
+fn parse_meminfo(meminfo: &str, key: &str) -> Option<u64> {
+    let line = meminfo.lines().find(|l| l.starts_with(key))?;
+    let mut it = line[key.len()..].split_whitespace();
     let value: u64 = it.next()?.parse().ok()?;
     match it.next().map(str::to_ascii_lowercase).as_deref() {
         Some("kb") => Some(value * 1024),
@@ -277,11 +300,30 @@ fn gib(bytes: u64) -> String {
 pub fn memory_budget_of(
     arg: Option<&str>,
     available: Option<u64>,
+    total: Option<u64>,
 ) -> anyhow::Result<(u64, String)> {
     match arg.map(str::trim) {
         Some(t) if !t.eq_ignore_ascii_case("auto") => {
             let b = parse_bytes(t).context("--max-memory")?;
-            Ok((b, format!("memory budget: {} (--max-memory {t})", gib(b))))
+            // More than the machine has would end in an allocation abort, not in a clear error.
+            if let Some(total) = total.filter(|&m| b > m) {
+                bail!(
+                    "--max-memory {t} is more than this machine's {} of memory: pass at most {}",
+                    gib(total),
+                    min_arg(available.unwrap_or(total).min(total) / 2)
+                );
+            }
+            let warn = match available {
+                Some(a) if b > a => format!(
+                    "; only {} is available now, so the run may be stopped for memory",
+                    gib(a)
+                ),
+                _ => String::new(),
+            };
+            Ok((
+                b,
+                format!("memory budget: {} (--max-memory {t}{warn})", gib(b)),
+            ))
         }
         _ => Ok(match available {
             Some(a) if a > 0 => {
@@ -309,7 +351,7 @@ pub fn memory_budget_of(
 
 /// [`memory_budget_of`] on this machine, printed to stderr.
 pub fn memory_budget(arg: Option<&str>) -> anyhow::Result<u64> {
-    let (bytes, line) = memory_budget_of(arg, available_memory())?;
+    let (bytes, line) = memory_budget_of(arg, available_memory(), total_memory())?;
     eprintln!("{line}");
     Ok(bytes)
 }
@@ -341,20 +383,36 @@ mod tests {
         let info = "MemTotal:       24000000 kB\nMemFree:  100 kB\nMemAvailable:   20971520 kB\n";
         assert_eq!(parse_mem_available(info), Some(20971520 * 1024));
         assert_eq!(parse_mem_available("MemTotal: 5 kB\n"), None);
-        let (b, line) = memory_budget_of(None, Some(4 << 30)).unwrap();
+        let (b, line) = memory_budget_of(None, Some(4 << 30), None).unwrap();
         assert_eq!(b, 2 << 30);
         assert!(line.contains("2.0 GiB") && line.contains("half"), "{line}");
-        let (b, line) = memory_budget_of(Some("auto"), Some(20 << 30)).unwrap();
+        let (b, line) = memory_budget_of(Some("auto"), Some(20 << 30), None).unwrap();
         assert_eq!(b, MAX_DEFAULT_BUDGET);
         assert!(
             line.contains("3.0 GiB") && line.contains("at most"),
             "{line}"
         );
-        assert_eq!(memory_budget_of(None, None).unwrap().0, FALLBACK_BUDGET);
         assert_eq!(
-            memory_budget_of(Some("512MiB"), Some(8 << 30)).unwrap().0,
+            memory_budget_of(None, None, None).unwrap().0,
+            FALLBACK_BUDGET
+        );
+        assert_eq!(
+            memory_budget_of(Some("512MiB"), Some(8 << 30), Some(16 << 30))
+                .unwrap()
+                .0,
             512 << 20
         );
-        assert!(memory_budget_of(Some("lots"), None).is_err());
+        assert!(memory_budget_of(Some("lots"), None, None).is_err());
+        // Beyond the machine: refused, naming a value that fits; beyond what is free: a warning.
+        let e = memory_budget_of(Some("64GiB"), Some(8 << 30), Some(16 << 30)).unwrap_err();
+        assert!(
+            e.to_string().contains("16.0 GiB") && e.to_string().contains("4096MiB"),
+            "{e}"
+        );
+        let (b, line) = memory_budget_of(Some("12GiB"), Some(8 << 30), Some(16 << 30)).unwrap();
+        assert_eq!(b, 12 << 30);
+        assert!(line.contains("only 8.0 GiB"), "{line}");
+        assert!(more_memory_hint(32 << 30, Some(16 << 30)).contains("more than this machine"));
+        assert!(more_memory_hint(8 << 30, Some(16 << 30)).contains("--max-memory 8192MiB"));
     }
 }

@@ -67,7 +67,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "[1/5] synthesising a scene with ground truth in {}",
         scene_dir.display()
     );
-    let scene_tmp = super::safety::OutputDir::new(&scene_dir)?;
+    let scene_tmp = super::safety::OutputDir::new(&scene_dir, super::safety::Kind::SynthScene)?;
     let synth = synthesize(
         scene_tmp.path(),
         &SynthOptions {
@@ -111,7 +111,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mpi = made.mpi.clone();
     let infer_seconds = started.elapsed().as_secs_f64();
     let mpi_dir = out.join("mpi");
-    let mpi_tmp = super::safety::OutputDir::new(&mpi_dir)?;
+    let mpi_tmp = super::safety::OutputDir::new(&mpi_dir, super::safety::Kind::Mpi)?;
     deepview_mpi::write_mpi_with(mpi_tmp.path(), &mpi, made.planes.as_ref().map(|c| &c.rule))?;
     mpi_tmp.commit()?;
 

@@ -25,7 +25,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let format: ExportFormat = args.format.parse()?;
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Export, &[("--mpi", mpi_dir)])?;
-    let dir = OutputDir::new(out)?;
+    let dir = OutputDir::new(out, Kind::Export)?;
     let report = deepview_mpi::export(mpi_dir, dir.path(), format)
         .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;
     dir.commit()?;

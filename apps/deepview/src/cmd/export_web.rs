@@ -19,7 +19,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Web, &[("--mpi", mpi_dir)])?;
-    let dir = OutputDir::new(out)?;
+    let dir = OutputDir::new(out, Kind::Web)?;
     let files = deepview_viewer::export_web(mpi_dir, dir.path())
         .with_context(|| format!("cannot export the web viewer for {}", mpi_dir.display()))?;
     let bytes: u64 = files

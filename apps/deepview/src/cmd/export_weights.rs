@@ -46,7 +46,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         given.clone()
     };
-    let dir = OutputDir::new(&args.out)?;
+    let dir = OutputDir::new(&args.out, Kind::Weights)?;
     let config = deepview_net::weights::export_checkpoint(&ck, dir.path())
         .with_context(|| format!("cannot export {}", ck.display()))?;
     dir.commit()?;

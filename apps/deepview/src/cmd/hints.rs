@@ -1,7 +1,7 @@
 //! The flag hints of library errors: the libraries say what is wrong in their own terms, the binary adds
 //! which of its options fixes it (printed after the error by `main`).
 
-use super::args::min_arg;
+use super::args::{min_arg, more_memory_hint, total_memory};
 use deepview_data::DataError;
 use deepview_eval::EvalError;
 use deepview_media::MediaError;
@@ -49,13 +49,18 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
 
 fn eval(e: &EvalError) -> Option<String> {
     Some(match e {
-        EvalError::PlanesOverBudget { need, .. } => format!(
-            "use fewer planes (--planes), smaller images (--downscale) or --max-memory {}",
-            min_arg(*need)
-        ),
-        EvalError::OverBudget { need, .. } => {
-            format!("make it smaller or pass --max-memory {}", min_arg(*need))
-        }
+        EvalError::PlanesOverBudget { need, .. } => match total_memory() {
+            Some(t) if *need > t => format!(
+                "use fewer planes (--planes) or smaller images (--downscale): it needs more than this \
+                 machine's {} of memory",
+                super::args::human(t)
+            ),
+            _ => format!(
+                "use fewer planes (--planes), smaller images (--downscale) or --max-memory {}",
+                min_arg(*need)
+            ),
+        },
+        EvalError::OverBudget { need, .. } => more_memory_hint(*need, total_memory()),
         EvalError::StateOverBudget { fewer_than, .. } => format!(
             "use fewer than {fewer_than} planes (--planes), smaller images (--downscale) or far more \
              --max-memory"

@@ -31,7 +31,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let (input, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Mpi, &[("--mpi", input)])?;
-    let dir = OutputDir::new(out)?;
+    let dir = OutputDir::new(out, Kind::Mpi)?;
     let format = deepview_mpi::import(input, dir.path(), &opts)
         .with_context(|| format!("cannot import {}", input.display()))?;
     dir.commit()?;

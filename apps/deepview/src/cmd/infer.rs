@@ -132,7 +132,7 @@ fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
         &mut |e| reporter.event(e),
     )?;
     reporter.finish();
-    let out = OutputDir::new(&args.out)?;
+    let out = OutputDir::new(&args.out, Kind::Mpi)?;
     deepview_mpi::write_mpi_with(out.path(), &made.mpi, made.planes.as_ref().map(|c| &c.rule))
         .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
     out.commit()?;

@@ -71,7 +71,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let depths = plane_depths(near, far, choice.count, PlaneSpacing::InverseDepth)?;
     let image = scene.load_image(args.view)?;
     let psv = plane_sweep(&image, &scene.views[args.view].camera, &reference, &depths);
-    let out = OutputDir::new(&args.out)?;
+    let out = OutputDir::new(&args.out, Kind::Psv)?;
     for d in 0..depths.len() {
         let plane = psv.plane(d);
         let img = deepview_image::ImageF32 {

@@ -144,7 +144,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
         )
     };
     let report = if kind == Kind::Frames {
-        let out = OutputDir::new(&args.out)?;
+        let out = OutputDir::new(&args.out, Kind::Frames)?;
         let r = super::method::video(&mpi, &cameras, out.path(), fps)?;
         out.commit()?;
         r

@@ -57,6 +57,53 @@ impl Kind {
         }
     }
 
+    /// Whether an output folder of this kind writes the entry `name` (a file, or a folder with everything
+    /// in it): the explicit set of outputs, which alone a command replaces.
+    pub fn owns(self, name: &str, is_dir: bool) -> bool {
+        let mpi = |n: &str| n == "mpi.json" || numbered(n, "layer_", ".png");
+        match (self, is_dir) {
+            (Kind::Mpi, false) => mpi(name),
+            (Kind::Web, false) => {
+                mpi(name)
+                    || name == "index.html"
+                    || name == deepview_mpi::interchange::compact::META
+                    || numbered(name, "tiles_", ".png")
+            }
+            (Kind::Weights, false) => {
+                name == deepview_net::weights::CONFIG_FILE
+                    || name == deepview_net::weights::WEIGHTS_FILE
+            }
+            (Kind::SynthScene, false) => {
+                matches!(
+                    name,
+                    "synth.json" | "models.json" | "poses_bounds.npy" | "transforms.json"
+                ) || name == deepview_data::formats::lightfield::GT_DISPARITY
+                    || name == deepview_data::formats::lightfield::PARAMETERS
+                    || numbered(name, "input_Cam", ".png")
+            }
+            (Kind::SynthScene, true) => {
+                matches!(name, "ground_truth_mpi" | "images" | "sparse")
+                    || numbered(name, "images_", "")
+                    || numbered(name, "cam_", "")
+            }
+            (Kind::Export, false) => {
+                matches!(name, "metadata.txt" | "mpi.b" | "intrinsics.txt" | "README")
+                    || name == deepview_mpi::interchange::compact::META
+                    || name == deepview_mpi::interchange::stereo_mag::SIDECAR
+                    || numbered(name, "tiles_", ".png")
+                    || numbered(name, "mpi_rgb_", ".png")
+                    || numbered(name, "mpi_alpha_", ".png")
+            }
+            (Kind::Psv, false) => name == "psv.json" || numbered(name, "psv_", ".png"),
+            (Kind::Frames, false) => numbered(name, "frame_", ".png"),
+            (Kind::Demo, false) => matches!(name, "spiral.gif" | "eval.json" | "eval.md"),
+            (Kind::Demo, true) => {
+                matches!(name, "scene" | "mpi" | "novel_views" | "depth" | "renders")
+            }
+            _ => false,
+        }
+    }
+
     /// Whether the existing folder `dir` is an earlier output of this kind (which it may replace).
     fn recognises(self, dir: &Path) -> bool {
         let has = |n: &str| dir.join(n).is_file();
@@ -204,9 +251,66 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
                     kind.name()
                 );
             }
+            // Runs are written into (checkpoints, metrics), never replaced whole.
+            if !empty && kind != Kind::Run {
+                refuse_foreign(option, out, &o, kind)?;
+            }
         }
     }
     Ok(())
+}
+
+/// Refuse to replace the existing folder `dir` (`out` as the user typed it) when it holds anything the
+/// command did not write there: a user's notes, a subfolder, photos kept beside an MPI.
+fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::Result<()> {
+    let foreign = foreign_entries(dir, kind)
+        .with_context(|| format!("cannot read {option} {}", out.display()))?;
+    if foreign.is_empty() {
+        return Ok(());
+    }
+    let shown: Vec<&str> = foreign.iter().take(4).map(String::as_str).collect();
+    let more = match foreign.len() - shown.len() {
+        0 => String::new(),
+        n => format!(" and {n} more"),
+    };
+    bail!(
+        "{option} {} holds files that a {} does not have ({}{more}): refusing to replace it, which \
+         would delete them; move them away or choose a new or empty folder",
+        out.display(),
+        kind.name(),
+        shown.join(", ")
+    )
+}
+
+/// The entries of the existing folder `dir` (paths relative to it, folders with a trailing `/`) that an
+/// output of `kind` does not write: what replacing the folder would destroy. Leftovers of interrupted
+/// atomic writes of its own files count as its own.
+pub fn foreign_entries(dir: &Path, kind: Kind) -> std::io::Result<Vec<String>> {
+    let mut foreign = Vec::new();
+    for e in std::fs::read_dir(dir)? {
+        let e = e?;
+        let name = e.file_name().to_string_lossy().into_owned();
+        let is_dir = e.file_type()?.is_dir();
+        let own = match name.strip_prefix('.').and_then(|n| n.rsplit_once('.')) {
+            // `.NAME.PID.tmp`: an interrupted write of one of its own files.
+            Some((rest, "tmp")) => rest
+                .rsplit_once('.')
+                .is_some_and(|(file, _)| !is_dir && kind.owns(file, false)),
+            _ => kind.owns(&name, is_dir),
+        };
+        if !own {
+            foreign.push(if is_dir { format!("{name}/") } else { name });
+        }
+    }
+    foreign.sort();
+    Ok(foreign)
+}
+
+/// `name` is `prefix` + ASCII digits + `suffix`.
+fn numbered(name: &str, prefix: &str, suffix: &str) -> bool {
+    name.strip_prefix(prefix)
+        .and_then(|n| n.strip_suffix(suffix))
+        .is_some_and(|d| !d.is_empty() && d.bytes().all(|b| b.is_ascii_digit()))
 }
 
 /// Run names and file-name prefixes: one plain path component (`--name`, `--prefix`).
@@ -306,8 +410,12 @@ pub struct OutputDir {
 }
 
 impl OutputDir {
-    /// Start writing the folder `out` (checked with [`check_output`] beforehand).
-    pub fn new(out: &Path) -> anyhow::Result<Self> {
+    /// Start writing the folder `out` of `kind` (checked with [`check_output`] beforehand; checked again
+    /// here, just before the work is written, for files that appeared in it since).
+    pub fn new(out: &Path, kind: Kind) -> anyhow::Result<Self> {
+        if out.is_dir() {
+            refuse_foreign("--out", out, out, kind)?;
+        }
         let parent = match out.parent().filter(|p| !p.as_os_str().is_empty()) {
             Some(p) => p.to_path_buf(),
             None => PathBuf::from("."),
@@ -518,17 +626,17 @@ mod tests {
         let out = dir.path().join("sub/mpi");
         // A failure leaves nothing, not even the parent it created.
         {
-            let o = OutputDir::new(&out).unwrap();
-            std::fs::write(o.path().join("a"), b"1").unwrap();
+            let o = OutputDir::new(&out, Kind::Mpi).unwrap();
+            std::fs::write(o.path().join("layer_000.png"), b"1").unwrap();
         }
         assert!(!dir.path().join("sub").exists());
-        let o = OutputDir::new(&out).unwrap();
-        std::fs::write(o.path().join("a"), b"1").unwrap();
+        let o = OutputDir::new(&out, Kind::Mpi).unwrap();
+        std::fs::write(o.path().join("layer_000.png"), b"1").unwrap();
         o.commit().unwrap();
-        let o = OutputDir::new(&out).unwrap();
-        std::fs::write(o.path().join("b"), b"2").unwrap();
+        let o = OutputDir::new(&out, Kind::Mpi).unwrap();
+        std::fs::write(o.path().join("mpi.json"), b"2").unwrap();
         o.commit().unwrap();
-        assert!(!out.join("a").exists() && out.join("b").is_file());
+        assert!(!out.join("layer_000.png").exists() && out.join("mpi.json").is_file());
         let names: Vec<_> = std::fs::read_dir(dir.path().join("sub"))
             .unwrap()
             .map(|e| e.unwrap().file_name())

@@ -128,7 +128,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         near_far,
         supersample: args.supersample,
     };
-    let dir = OutputDir::new(&args.out)?;
+    let dir = OutputDir::new(&args.out, Kind::SynthScene)?;
     let out = synthesize_as(dir.path(), &opts, args.out_format)
         .with_context(|| format!("cannot synthesise into {}", args.out.display()))?;
     dir.commit()?;
