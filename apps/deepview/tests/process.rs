@@ -287,3 +287,82 @@ fn missing_colmap_or_photos_give_clear_errors() {
     assert!(err.contains("already exists"), "{err}");
     assert!(empty.join("notes.txt").is_file());
 }
+
+/// SIGTERM to `deepview process` stops the COLMAP it started (issue 28: a rerun used to start a second
+/// COLMAP on the same database). A stand-in `colmap` records its pid and waits; the test waits for that
+/// file (an event, not a fixed sleep), signals deepview, and then for the stand-in to be gone.
+#[test]
+fn sigterm_to_process_stops_colmap() {
+    use std::os::unix::fs::PermissionsExt;
+    let tmp = tempfile::tempdir().unwrap();
+    let photos = tmp.path().join("photos");
+    std::fs::create_dir(&photos).unwrap();
+    noise_png(&photos.join("a.png"), 1);
+    noise_png(&photos.join("b.png"), 2);
+    let pid_file = tmp.path().join("colmap.pid");
+    let fake = tmp.path().join("colmap");
+    std::fs::write(
+        &fake,
+        format!(
+            "#!/bin/sh\ncase \"$1\" in help) echo COLMAP; exit 0;; esac\necho $$ > {p}.tmp && mv {p}.tmp {p}\nexec sleep 120\n",
+            p = s(&pid_file)
+        ),
+    )
+    .unwrap();
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let out = tmp.path().join("scene");
+    let mut child = Command::new(env!("CARGO_BIN_EXE_deepview"))
+        .args([
+            "process",
+            "--data",
+            s(&photos),
+            "--out",
+            s(&out),
+            "--colmap",
+            s(&fake),
+        ])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let start = Instant::now();
+    while !pid_file.is_file() {
+        assert!(
+            start.elapsed() < Duration::from_secs(60),
+            "the stand-in colmap never started"
+        );
+        if let Some(st) = child.try_wait().unwrap() {
+            let mut err = String::new();
+            std::io::Read::read_to_string(&mut child.stderr.take().unwrap(), &mut err).unwrap();
+            panic!("deepview process ended first ({st}): {err}");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    let colmap_pid = std::fs::read_to_string(&pid_file)
+        .unwrap()
+        .trim()
+        .to_string();
+    // SAFETY: kill(2) on the pid of a child this test started.
+    unsafe {
+        libc::kill(child.id() as i32, libc::SIGTERM);
+    }
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(143), "{status}");
+    let proc_dir = Path::new("/proc").join(&colmap_pid);
+    let start = Instant::now();
+    // Gone, or a zombie waiting for its new parent to reap it.
+    let alive = || {
+        std::fs::read_to_string(proc_dir.join("stat")).is_ok_and(|st| {
+            st.rsplit(')')
+                .next()
+                .is_some_and(|r| !r.trim_start().starts_with('Z'))
+        })
+    };
+    while alive() {
+        assert!(
+            start.elapsed() < Duration::from_secs(30),
+            "colmap (pid {colmap_pid}) outlived deepview process"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    assert!(!out.exists(), "a stopped process left {}", out.display());
+}

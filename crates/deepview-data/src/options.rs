@@ -41,8 +41,9 @@ pub struct SceneArgs {
     /// Far depth bound in scene units (overrides the dataset's bounds).
     #[arg(long)]
     pub far: Option<f64>,
-    /// Box-downscale every image by this integer factor on load (cameras scaled by exactly 1/N).
-    #[arg(long, default_value_t = 1, value_name = "N")]
+    /// Box-downscale every image by this integer factor on load (cameras scaled by exactly 1/N; 1: full
+    /// size).
+    #[arg(long, default_value_t = 1, value_name = "N", value_parser = clap::value_parser!(u32).range(1..))]
     pub downscale: u32,
 }
 

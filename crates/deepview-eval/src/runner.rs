@@ -325,6 +325,16 @@ fn load_view(scene: &Scene, i: usize, downscale: u32) -> Result<(ImageF32, Camer
     if downscale == 1 {
         return Ok((img, cam));
     }
+    if img.width / downscale == 0 || img.height / downscale == 0 {
+        return Err(deepview_data::DataError::DownscaleTooLarge {
+            path: scene.root.clone(),
+            factor: downscale,
+            view: scene.views[i].name.clone(),
+            width: img.width,
+            height: img.height,
+        }
+        .into());
+    }
     let small = img.downscale(downscale);
     let s = 1.0 / downscale as f64;
     Ok((

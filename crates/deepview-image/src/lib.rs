@@ -4,6 +4,7 @@
 //! a rename, so an interrupted run never leaves a half-written result in place of an earlier one.
 
 mod atomic;
+pub mod child;
 
 pub use atomic::{Durability, is_temp_of, temp_path, write_atomic, write_atomic_with};
 

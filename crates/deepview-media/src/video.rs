@@ -210,6 +210,8 @@ pub struct Mp4Sink {
     path: PathBuf,
     tmp: PathBuf,
     child: Child,
+    /// Renamed into place: nothing left to clean up.
+    finished: bool,
 }
 
 /// The ffmpeg program: `DEEPVIEW_FFMPEG` if set, else `ffmpeg` (searched on `PATH`).
@@ -230,7 +232,7 @@ impl Mp4Sink {
         }
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("mp4");
         let tmp = temp_path(path).with_extension(format!("tmp.{ext}"));
-        let child = Command::new(program)
+        let child = deepview_image::child::die_with_parent(&mut Command::new(program))
             .args(["-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s"])
             .arg(format!("{width}x{height}"))
             .arg("-r")
@@ -256,7 +258,21 @@ impl Mp4Sink {
             path: path.into(),
             tmp,
             child,
+            finished: false,
         })
+    }
+}
+
+impl Drop for Mp4Sink {
+    /// A sink dropped unfinished (a frame failed, ffmpeg stopped early): stop ffmpeg and remove its
+    /// temporary file, leaving nothing behind.
+    fn drop(&mut self) {
+        if !self.finished {
+            drop(self.child.stdin.take());
+            let _ = self.child.kill();
+            let _ = self.child.wait();
+            let _ = std::fs::remove_file(&self.tmp);
+        }
     }
 }
 
@@ -272,20 +288,25 @@ impl FrameSink for Mp4Sink {
     }
     fn finish(mut self: Box<Self>) -> Result<(), MediaError> {
         drop(self.child.stdin.take());
-        let out = self
+        let mut stderr = String::new();
+        if let Some(mut e) = self.child.stderr.take() {
+            let _ = std::io::Read::read_to_string(&mut e, &mut stderr);
+        }
+        // Any error from here on leaves the cleanup to Drop (finished stays false).
+        let status = self
             .child
-            .wait_with_output()
+            .wait()
             .map_err(|e| MediaError::Ffmpeg(format!("waiting for ffmpeg: {e}")))?;
-        if !out.status.success() {
-            let _ = std::fs::remove_file(&self.tmp);
+        if !status.success() {
             return Err(MediaError::Ffmpeg(format!(
-                "ffmpeg failed writing {} ({}): {}",
+                "ffmpeg failed writing {} ({status}): {}",
                 self.path.display(),
-                out.status,
-                String::from_utf8_lossy(&out.stderr).trim()
+                stderr.trim()
             )));
         }
-        std::fs::rename(&self.tmp, &self.path).map_err(write_err(&self.path))
+        std::fs::rename(&self.tmp, &self.path).map_err(write_err(&self.path))?;
+        self.finished = true;
+        Ok(())
     }
 }
 

@@ -35,6 +35,8 @@ pub enum WeightsError {
     },
     #[error("{path}: tensor {tensor} contains non-finite values (NaN or infinity)")]
     NonFinite { path: PathBuf, tensor: String },
+    #[error("{path} is {what}")]
+    NotWeights { path: PathBuf, what: &'static str },
     #[error(
         "these weights were trained for exactly {expected} input views, got {got} (config {config})"
     )]
@@ -139,8 +141,28 @@ pub fn checkpoint_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
     Ok(config)
 }
 
+/// What a folder handed in as weights must be, for [`WeightsError::NotWeights`].
+const WEIGHTS_OR_CHECKPOINT: &str = "neither a weights folder (config.json + model.safetensors) nor a training \
+    checkpoint (runs/NAME/checkpoints/step-N with model.bpk)";
+
+/// Refuse a folder that is neither weights nor a checkpoint, naming it rather than a file inside it.
+fn check_weights_folder(dir: &Path) -> Result<(), WeightsError> {
+    if is_checkpoint(dir) || dir.join(CONFIG_FILE).is_file() {
+        return Ok(());
+    }
+    Err(WeightsError::NotWeights {
+        path: dir.to_path_buf(),
+        what: if dir.is_dir() {
+            WEIGHTS_OR_CHECKPOINT
+        } else {
+            "not a folder (weights or a training checkpoint)"
+        },
+    })
+}
+
 /// The model configuration saved with a weights folder or a training checkpoint folder.
 pub fn load_config_any(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
+    check_weights_folder(dir)?;
     if is_checkpoint(dir) {
         checkpoint_config(dir)
     } else {
@@ -170,6 +192,13 @@ pub fn load_checkpoint(
 
 /// Convert a training checkpoint into a weights folder (`config.json` + `model.safetensors`).
 pub fn export_checkpoint(checkpoint: &Path, out: &Path) -> Result<DeepViewConfig, WeightsError> {
+    if !is_checkpoint(checkpoint) {
+        return Err(WeightsError::NotWeights {
+            path: checkpoint.to_path_buf(),
+            what: "neither a training run (with checkpoints/) nor a training checkpoint \
+                   (runs/NAME/checkpoints/step-N with model.bpk)",
+        });
+    }
     let (model, config) = load_checkpoint(checkpoint, &Device::flex())?;
     save_model(out, &model, &config)?;
     Ok(config)
@@ -181,6 +210,7 @@ pub fn load_model(
     dir: &Path,
     device: &Device,
 ) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    check_weights_folder(dir)?;
     if is_checkpoint(dir) {
         return load_checkpoint(dir, device);
     }

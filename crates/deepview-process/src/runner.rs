@@ -40,7 +40,8 @@ impl Runner {
         writeln!(f, "\n===== {stage}: {line}").map_err(write_err(&self.log))?;
         let out = f.try_clone().map_err(write_err(&self.log))?;
         let err = f.try_clone().map_err(write_err(&self.log))?;
-        let status = cmd
+        // COLMAP and ffmpeg end with this process (a SIGTERM to `deepview process` stops them too).
+        let status = deepview_image::child::die_with_parent(&mut cmd)
             .stdin(Stdio::null())
             .stdout(out)
             .stderr(err)

@@ -31,8 +31,8 @@ pub struct Args {
     /// The camera model shared by all photos while solving (undistorted to PINHOLE at the end).
     #[arg(long, value_enum, default_value_t = CameraModel::SimpleRadial)]
     pub camera_model: CameraModel,
-    /// Downscale photos whose larger side exceeds N pixels first.
-    #[arg(long, value_name = "N")]
+    /// Downscale photos whose larger side exceeds N pixels first (at least 16).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u32).range(16..))]
     pub max_size: Option<u32>,
     /// The COLMAP program.
     #[arg(long, default_value = "colmap")]

@@ -221,6 +221,7 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
             );
         }
     }
+    check_writable(option, out, &o)?;
     match std::fs::metadata(&o) {
         Err(_) => {}
         Ok(m) if kind == Kind::File => {
@@ -258,6 +259,44 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
         }
     }
     Ok(())
+}
+
+/// Refuse an output that cannot be written (a read-only folder or file system, a file where a folder
+/// must be made) now, before the work, rather than after minutes of it: a probe file is made and removed
+/// in the folder the output goes into (or in its nearest existing ancestor, where folders will be made).
+fn check_writable(option: &str, out: &Path, resolved: &Path) -> anyhow::Result<()> {
+    let Some(existing) = resolved
+        .parent()
+        .into_iter()
+        .flat_map(Path::ancestors)
+        .find(|a| a.exists())
+    else {
+        return Ok(());
+    };
+    if !existing.is_dir() {
+        bail!(
+            "{option} {}: {} is a file, so no folder can be made there",
+            out.display(),
+            existing.display()
+        );
+    }
+    let probe = existing.join(format!(".deepview-probe.{}", std::process::id()));
+    match std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+    {
+        Ok(_) => {
+            let _ = std::fs::remove_file(&probe);
+            Ok(())
+        }
+        Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
+        Err(e) => bail!(
+            "{option} {}: cannot write in {}: {e}",
+            out.display(),
+            existing.display()
+        ),
+    }
 }
 
 /// Refuse to replace the existing folder `dir` (`out` as the user typed it) when it holds anything the
@@ -612,6 +651,12 @@ mod tests {
             assert!(e.to_string().contains("refusing"), "{e}");
         }
         check_output("--out", &dir.path().join("new"), Kind::Mpi, &input).unwrap();
+        // A folder that cannot be written in, or a file standing where a folder must be made.
+        let e = check_output("--out", Path::new("/proc/deepview/mpi"), Kind::Mpi, &[]).unwrap_err();
+        assert!(e.to_string().contains("cannot write in /proc"), "{e}");
+        std::fs::write(dir.path().join("f"), b"x").unwrap();
+        let e = check_output("--out", &dir.path().join("f/a/mpi"), Kind::Mpi, &[]).unwrap_err();
+        assert!(e.to_string().contains("is a file"), "{e}");
         // A non-empty folder of another kind is not replaced; an empty one is.
         std::fs::write(d.join("photo.jpg"), b"x").unwrap();
         let e = check_output("--out", &d, Kind::Mpi, &[]).unwrap_err();

@@ -341,6 +341,26 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The `checkpoints/step-N` folders of `run_dir` that miss a file (or hold an empty one).
+fn damaged_checkpoints(run_dir: &Path) -> Vec<String> {
+    let dir = run_dir.join("checkpoints");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return Vec::new();
+    };
+    let mut out: Vec<String> = entries
+        .flatten()
+        .filter(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.strip_prefix("step-")
+                .is_some_and(|n| n.parse::<u64>().is_ok())
+                && !deepview_train::checkpoint_is_complete(&e.path())
+        })
+        .map(|e| e.path().display().to_string())
+        .collect();
+    out.sort();
+    out
+}
+
 /// `--downscale` 0 and 1 both mean full size.
 fn normalised(o: &LoadOptions) -> LoadOptions {
     LoadOptions {
@@ -523,7 +543,20 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             run_dir.display()
         );
     }
-    // A run killed before its first checkpoint restarts from its config.json (said on stderr).
+    // A run killed before its first checkpoint restarts from its config.json (said on stderr); one whose
+    // every checkpoint is damaged is refused, naming them, rather than started over.
+    if args.resume && started && list_checkpoints(&run_dir)?.is_empty() {
+        let damaged = damaged_checkpoints(&run_dir);
+        if !damaged.is_empty() {
+            bail!(
+                "--resume: no checkpoint of {} is complete ({} lack one of {}): move them away to start \
+                 the run over from step 0",
+                run_dir.display(),
+                damaged.join(", "),
+                deepview_train::CHECKPOINT_FILES.join(", ")
+            );
+        }
+    }
     let mut mode = [if !args.resume || !started {
         FRESH
     } else if !list_checkpoints(&run_dir)?.is_empty() {
@@ -554,6 +587,15 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         )?;
         if let Some(k) = args.keep_checkpoints {
             t.config.train.keep_checkpoints = k;
+        }
+        if let Some(n) = args.steps.filter(|&n| n < t.step) {
+            bail!(
+                "--steps {n} is below the step the run {} has reached ({}): --steps is the new total, \
+                 e.g. --steps {}",
+                run_dir.display(),
+                t.step,
+                t.step + 1000
+            );
         }
         if writer {
             for n in t.take_notices() {
