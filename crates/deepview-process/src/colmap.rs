@@ -40,11 +40,13 @@ fn missing(program: &Path) -> impl FnOnce(String) -> ProcessError + '_ {
     }
 }
 
-/// SIFT features on the CPU of the photos in `images` into the database `db`, one shared camera.
+/// SIFT features on the CPU of the photos in `images` into the database `db`: one camera shared by all
+/// photos (`shared`, when they have one size), else one camera per photo.
 pub(crate) fn extract_features(
     runner: &Runner,
     program: &Path,
     camera_model: CameraModel,
+    shared: bool,
     db: &Path,
     images: &Path,
 ) -> Result<(), ProcessError> {
@@ -53,7 +55,10 @@ pub(crate) fn extract_features(
         .arg(db)
         .arg("--image_path")
         .arg(images)
-        .args(["--ImageReader.single_camera", "1"])
+        .args([
+            "--ImageReader.single_camera",
+            if shared { "1" } else { "0" },
+        ])
         .args(["--ImageReader.camera_model", camera_model.colmap_name()])
         .args(["--SiftExtraction.use_gpu", "0"]);
     runner.run(Stage::Features, c, missing(program))

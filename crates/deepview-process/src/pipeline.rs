@@ -109,16 +109,45 @@ pub fn process(
         (Input::Photos(_), None) => unreachable!("photos are listed above"),
     }
 
-    // 2. COLMAP: features, matches, mapping, undistortion.
+    // 2. COLMAP: features, matches, mapping, undistortion. Photos of one size share one camera; photos
+    // of several sizes (two phones, a cropped photo) get one camera each, and the event says so.
+    let sizes: std::collections::BTreeSet<(u32, u32)> = names
+        .iter()
+        .filter_map(|n| image::image_dimensions(input.join(n)).ok())
+        .collect();
+    let shared = sizes.len() <= 1;
     let db = colmap_dir.join("database.db");
     timed(
         Stage::Features,
-        format!(
-            "SIFT on the CPU, one shared {} camera",
-            opts.camera_model.colmap_name()
-        ),
+        if shared {
+            format!(
+                "SIFT on the CPU, one shared {} camera",
+                opts.camera_model.colmap_name()
+            )
+        } else {
+            format!(
+                "SIFT on the CPU, one {} camera per photo: the photos have {} sizes ({})",
+                opts.camera_model.colmap_name(),
+                sizes.len(),
+                sizes
+                    .iter()
+                    .take(4)
+                    .map(|(w, h)| format!("{w}x{h}"))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            )
+        },
         progress,
-        &mut || colmap::extract_features(&runner, &opts.colmap, opts.camera_model, &db, &input),
+        &mut || {
+            colmap::extract_features(
+                &runner,
+                &opts.colmap,
+                opts.camera_model,
+                shared,
+                &db,
+                &input,
+            )
+        },
     )?;
     let matcher = match opts.matcher {
         Matcher::Auto if names.len() <= opts.exhaustive_up_to => Matcher::Exhaustive,

@@ -222,3 +222,52 @@ fn init_with_a_larger_preset_grows_the_weights() {
         &["cannot grow", "max-pool stages", "--preset paper-kalantari"],
     );
 }
+
+/// `--resume --steps N` below the run's step, and a run whose every checkpoint is damaged, are refused
+/// with the reason (they used to say "resuming at step 4 of 2" and exit 0, or start over from step 0).
+#[test]
+fn resume_refuses_fewer_steps_and_damaged_checkpoints() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    train(&runs, "r", 3, &start_args(&grid));
+    let o = deepview(&[
+        "train",
+        "--runs",
+        s(&runs),
+        "--name",
+        "r",
+        "--resume",
+        "--steps",
+        "2",
+    ]);
+    fails_with(&o, &["--steps 2", "(3)"]);
+    // Every checkpoint loses its model file: refused, naming them; nothing is removed.
+    let cks = runs.join("r/checkpoints");
+    let mut names = Vec::new();
+    for e in std::fs::read_dir(&cks).unwrap() {
+        let p = e.unwrap().path();
+        for f in std::fs::read_dir(&p).unwrap() {
+            let f = f.unwrap().path();
+            if f.extension().is_some_and(|x| x == "bpk") {
+                std::fs::write(&f, b"").unwrap();
+            }
+        }
+        names.push(p.file_name().unwrap().to_string_lossy().into_owned());
+    }
+    assert!(!names.is_empty());
+    let o = deepview(&[
+        "train",
+        "--runs",
+        s(&runs),
+        "--name",
+        "r",
+        "--resume",
+        "--steps",
+        "5",
+    ]);
+    let mut needles = vec!["no checkpoint", "complete"];
+    needles.extend(names.iter().map(String::as_str));
+    fails_with(&o, &needles);
+    assert_eq!(std::fs::read_dir(&cks).unwrap().count(), names.len());
+}

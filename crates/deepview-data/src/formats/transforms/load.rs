@@ -89,6 +89,7 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         });
     }
     let mut views = Vec::with_capacity(cams.len());
+    let mut seen: std::collections::HashMap<PathBuf, usize> = std::collections::HashMap::new();
     for (i, c) in cams.iter().enumerate() {
         let path = image_path(&base, &c.file_path, opts.images.as_deref()).ok_or_else(|| {
             let tried = image_path_display(&base, &c.file_path, opts.images.as_deref());
@@ -97,6 +98,17 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
                 view: format!("frame {i} of {}", json.display()),
             }
         })?;
+        // One photo listed twice would be used as two distinct inputs (and be its own nearest view).
+        let key = path.canonicalize().unwrap_or_else(|_| path.clone());
+        if let Some(first) = seen.insert(key, i) {
+            return Err(DataError::invalid(
+                &json,
+                format!(
+                    "frames {first} and {i} both name the image {}: list each photo once",
+                    c.file_path
+                ),
+            ));
+        }
         let got = crate::image_size(&path)?;
         let (w, h) = c.size.unwrap_or(got);
         let k = c

@@ -243,3 +243,23 @@ fn bounds_from_aabb_or_required() {
     let s = load_scene(dir.path(), &LoadOptions::default()).unwrap();
     assert_eq!(s.depth_bounds, None);
 }
+
+#[test]
+fn a_photo_listed_twice_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    write_transforms(dir.path(), &cams(), &images(3, 16, 12), Some((0.5, 8.0))).unwrap();
+    let json = dir.path().join(TRANSFORMS_JSON);
+    let mut f = parse_transforms(&std::fs::read_to_string(&json).unwrap(), &json).unwrap();
+    // Frame 2 names frame 0's photo, spelled differently.
+    let frames = f.frames.as_mut().unwrap();
+    let first = frames[0].file_path.clone().unwrap();
+    frames[2].file_path = Some(format!("./{first}"));
+    std::fs::write(&json, serde_json::to_string(&f).unwrap()).unwrap();
+    let e = load_scene(dir.path(), &LoadOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("transforms.json") && e.contains("frames 0 and 2") && e.contains(&first),
+        "{e}"
+    );
+}
