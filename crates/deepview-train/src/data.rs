@@ -295,6 +295,31 @@ pub struct ExampleContext {
 #[derive(Clone, Debug, Default)]
 pub struct TrainData {
     pub scenes: Vec<TrainScene>,
+    /// Procedural scenes made on the fly (`--data synthetic:procedural`), if any.
+    pub procedural: Option<Procedural>,
+}
+
+/// [`Example::scene`] of a tuple drawn from a procedural scene.
+pub const PROCEDURAL_SCENE: usize = usize::MAX;
+
+/// Procedural 3D scenes ([`deepview_synth::procedural`]) made for each tuple from a seed drawn from the
+/// run's generator (so a resumed run draws the same ones), textured with crops of the training views of
+/// the dataset scenes (never a held-out view).
+#[derive(Clone, Debug)]
+pub struct Procedural {
+    /// Share of the tuples drawn from procedural scenes when there are dataset scenes too.
+    pub share: f64,
+    /// Size and sampling of each scene.
+    pub options: deepview_synth::procedural::ProceduralOptions,
+}
+
+impl Default for Procedural {
+    fn default() -> Self {
+        Self {
+            share: 0.5,
+            options: Default::default(),
+        }
+    }
 }
 
 /// Plane depths, back to front, with an optional jitter `u` in [-0.5, 0.5] steps of inverse depth.
@@ -348,7 +373,54 @@ impl TrainData {
         if scenes.is_empty() {
             return Err(DataError::Empty("no scenes given".into()));
         }
-        Ok(Self { scenes })
+        Ok(Self {
+            scenes,
+            procedural: None,
+        })
+    }
+
+    /// Dataset scenes (possibly none) and procedural scenes made on the fly.
+    pub fn with_procedural(scenes: Vec<TrainScene>, procedural: Procedural) -> Self {
+        Self {
+            scenes,
+            procedural: Some(procedural),
+        }
+    }
+
+    /// The name of the scene of a tuple ([`Example::scene`]).
+    pub fn scene_name(&self, scene: usize) -> &str {
+        match self.scenes.get(scene) {
+            Some(s) => &s.name,
+            None => crate::load::SYNTHETIC_PROCEDURAL,
+        }
+    }
+
+    /// The photos procedural scenes take their textures from: the training views of the dataset scenes
+    /// (never a held-out view).
+    pub fn texture_photos(&self) -> Vec<&ImageF32> {
+        self.scenes
+            .iter()
+            .flat_map(|s| s.train_views.iter().map(|&v| &s.images[v]))
+            .collect()
+    }
+
+    /// A procedural scene from `seed` with enough views for `views` inputs and a target.
+    pub fn procedural_scene(&self, seed: u64, views: usize) -> Result<TrainScene, DataError> {
+        let p = self.procedural.clone().unwrap_or_default();
+        let photos = self.texture_photos();
+        let options = deepview_synth::procedural::ProceduralOptions {
+            min_views: p.options.min_views.max(views + 2),
+            ..p.options
+        };
+        let g = deepview_synth::procedural::generate(seed, &photos, &options);
+        TrainScene::new(
+            &format!("{}#{seed}", crate::load::SYNTHETIC_PROCEDURAL),
+            g.cameras,
+            g.images,
+            g.near,
+            g.far,
+            Holdout::Nothing,
+        )
     }
 
     /// Load several dataset folders.
@@ -380,6 +452,15 @@ impl TrainData {
         views: usize,
         rng: &mut Rng,
     ) -> Result<Example, DataError> {
+        if let Some(p) = &self.procedural
+            && (self.scenes.is_empty() || rng.uniform() < p.share)
+        {
+            let seed = rng.next_u64();
+            let one = TrainData::new(vec![self.procedural_scene(seed, views)?])?;
+            let mut ex = one.sample(cfg, model, views, rng)?;
+            ex.scene = PROCEDURAL_SCENE;
+            return Ok(ex);
+        }
         let si = rng.below(self.scenes.len());
         let s = &self.scenes[si];
         let mut target = s.train_views[rng.below(s.train_views.len())];
@@ -818,6 +899,64 @@ mod tests {
         )
         .unwrap();
         assert_eq!(t.train_views, vec![1, 2, 3, 4, 5, 6, 7]);
+    }
+
+    /// `synthetic:procedural`: half the tuples (with dataset scenes beside it) come from a new procedural
+    /// scene each, with valid crops and the inputs asked for; the same generator state draws the same
+    /// tuples (a resumed run sees the same data), and the textures come from training views only.
+    #[test]
+    fn procedural_tuples_are_valid_and_reproducible() {
+        let mut scene = two_plane_scene(3, 3, 48, 0.15);
+        scene.train_views.retain(|&v| v != 4);
+        let data = TrainData::with_procedural(vec![scene], Procedural::default());
+        let cfg = SampleConfig {
+            crop: 16,
+            views_min: 3,
+            views_max: 4,
+            planes: 32,
+            jitter: true,
+            auto_planes: true,
+            colour_jitter: false,
+            wide_inputs: 0.3,
+            surround_inputs: 0.3,
+            window_context: false,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let draw = |seed| {
+            let mut rng = Rng::new(seed);
+            (0..12)
+                .map(|_| {
+                    let k = data.draw_views(&cfg, &mut rng);
+                    data.sample(&cfg, &model, k, &mut rng).unwrap()
+                })
+                .collect::<Vec<_>>()
+        };
+        let (a, b) = (draw(5), draw(5));
+        let procedural = a.iter().filter(|e| e.scene == PROCEDURAL_SCENE).count();
+        assert!((3..=9).contains(&procedural), "{procedural} of 12");
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!(
+                (x.scene, x.target, &x.inputs),
+                (y.scene, y.target, &y.inputs)
+            );
+            assert_eq!(x.target_crop.data, y.target_crop.data);
+            assert!((3..=4).contains(&x.inputs.len()));
+            assert!(!x.inputs.contains(&x.target));
+            assert_eq!((x.target_crop.width, x.target_crop.height), (16, 16));
+            assert!(x.depths.len() >= 8 && x.depths.len() <= 32);
+            assert!(x.target_crop.data.iter().all(|v| (0.0..=1.0).contains(v)));
+        }
+        // Textures come from the 8 training views, never from the held-out one.
+        let photos = data.texture_photos();
+        assert_eq!(photos.len(), 8);
+        assert!(
+            !photos
+                .iter()
+                .any(|p| std::ptr::eq(*p, &data.scenes[0].images[4]))
+        );
+        for seed in 0..4 {
+            assert!(data.procedural_scene(seed, 4).unwrap().cameras.len() >= 6);
+        }
     }
 
     /// `auto_planes`: each tuple gets the plane count of the inference rule for its own inputs, clamped to

@@ -71,7 +71,7 @@ pub use error::TrainError;
 pub use events::{Notice, TrainEvent};
 pub use example::{example_inputs, example_loss, loss_and_grads_full, loss_tail, parameter_values};
 pub use files::is_run_folder;
-pub use load::{DataSpec, SYNTHETIC_TWO_PLANES, load_data};
+pub use load::{DataSpec, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, is_synthetic, load_data};
 pub use metrics::StepReport;
 pub use reduce::LocalReduction;
 pub use trainer::Trainer;

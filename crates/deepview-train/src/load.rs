@@ -11,6 +11,15 @@ use std::path::PathBuf;
 /// The built-in analytic scene (a 4 x 4 rig looking at two planes).
 pub const SYNTHETIC_TWO_PLANES: &str = "synthetic:two-planes";
 
+/// Procedural 3D scenes made on the fly, one per tuple, from a seed ([`crate::data::Procedural`]).
+pub const SYNTHETIC_PROCEDURAL: &str = "synthetic:procedural";
+
+/// Whether `path` names a built-in synthetic dataset rather than a folder.
+pub fn is_synthetic(path: &std::path::Path) -> bool {
+    path.to_str()
+        .is_some_and(|p| p == SYNTHETIC_TWO_PLANES || p == SYNTHETIC_PROCEDURAL)
+}
+
 /// One dataset of a run: its folder (or [`SYNTHETIC_TWO_PLANES`]) and how it is loaded (format, image
 /// folder, downscale, rig, depth bounds), so that resuming the run reads the same images.
 ///
@@ -81,9 +90,12 @@ pub fn load_data(
     holdout_every: usize,
 ) -> Result<TrainData, TrainError> {
     let mut scenes = Vec::new();
+    let mut procedural = None;
     for spec in specs {
         if spec.path.to_str() == Some(SYNTHETIC_TWO_PLANES) {
             scenes.push(synthetic::two_plane_scene(4, 4, 96, 0.08));
+        } else if spec.path.to_str() == Some(SYNTHETIC_PROCEDURAL) {
+            procedural = Some(crate::data::Procedural::default());
         } else {
             scenes.push(TrainScene::load(
                 &spec.path,
@@ -92,7 +104,10 @@ pub fn load_data(
             )?);
         }
     }
-    Ok(TrainData::new(scenes)?)
+    Ok(match procedural {
+        Some(p) => TrainData::with_procedural(scenes, p),
+        None => TrainData::new(scenes)?,
+    })
 }
 
 #[cfg(test)]

@@ -501,7 +501,11 @@ impl Trainer {
             report.skipped = Some(format!(
                 "step {}: non-finite loss ({}) on tuple {i} (scene {}, target view {}, inputs {:?}{on_rank}); step \
                  skipped, weights unchanged",
-                self.step, losses[i], self.data.scenes[ex.scene].name, ex.target, ex.inputs
+                self.step,
+                losses[i],
+                self.data.scene_name(ex.scene),
+                ex.target,
+                ex.inputs
             ));
             return report;
         }

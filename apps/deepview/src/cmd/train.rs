@@ -8,8 +8,8 @@ use deepview_data::LoadOptions;
 use deepview_net::config::DeepViewConfig;
 use deepview_train::loss::LossKind;
 use deepview_train::{
-    Collective, DataSpec, RunConfig, SYNTHETIC_TWO_PLANES, TrainConfig, Trainer, list_checkpoints,
-    load_data,
+    Collective, DataSpec, RunConfig, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, TrainConfig,
+    Trainer, is_synthetic, list_checkpoints, load_data,
 };
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
@@ -44,7 +44,10 @@ use progress::Progress;
 )]
 pub struct Args {
     /// Dataset folders (`--data A B` or `--data A --data B`; any format `deepview info` reads).
-    /// `synthetic:two-planes` is a built-in analytic scene. With --resume, defaults to the run's own list
+    /// `synthetic:two-planes` is a built-in analytic scene; `synthetic:procedural` makes a new 3D scene
+    /// for every tuple (slanted planes, boxes, spheres, thin bars, semi-transparent sheets, textured with
+    /// crops of the other scenes' training views; half the tuples when other data is given, reproducible
+    /// from the run's seed, nothing stored). With --resume, defaults to the run's own list
     /// (each with the scene options it was loaded with).
     #[arg(long = "data", value_name = "DIR", num_args = 1.., value_parser = parse_data)]
     pub data: Vec<PathBuf>,
@@ -203,7 +206,7 @@ impl VggArg {
 
 /// `--data`: a folder, or one of the built-in synthetic scenes.
 fn parse_data(s: &str) -> Result<PathBuf, String> {
-    const SYNTHETIC: &[&str] = &["synthetic:two-planes"];
+    const SYNTHETIC: &[&str] = &[SYNTHETIC_TWO_PLANES, SYNTHETIC_PROCEDURAL];
     if s.is_empty() {
         return Err("empty dataset path".into());
     }
@@ -395,7 +398,7 @@ fn scene_flags_differing(given: &LoadOptions, other: &LoadOptions) -> Vec<&'stat
 fn data_spec(path: &Path, opts: &LoadOptions, max_width: Option<u32>) -> anyhow::Result<DataSpec> {
     let mut load = opts.clone();
     if let Some(w) = max_width
-        && path != Path::new(SYNTHETIC_TWO_PLANES)
+        && !is_synthetic(path)
     {
         let scene = deepview_data::load_scene(path, &load)
             .with_context(|| format!("--data {}", path.display()))?;
@@ -714,8 +717,18 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         args.vgg.check(train.loss)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
         if writer {
+            let procedural = match &data.procedural {
+                Some(_) if data.scenes.is_empty() => {
+                    " (every tuple from a new procedural scene)".to_string()
+                }
+                Some(p) => format!(
+                    " plus a new procedural scene for {:.0}% of the tuples",
+                    100.0 * p.share
+                ),
+                None => String::new(),
+            };
             eprintln!(
-                "training {} ({} preset) on {} scene(s), {views} training views, devices {:?}{}",
+                "training {} ({} preset) on {} scene(s), {views} training views{procedural}, devices {:?}{}",
                 run_dir.display(),
                 model.name,
                 data.scenes.len(),
