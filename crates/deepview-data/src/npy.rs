@@ -80,19 +80,19 @@ pub fn parse_npy(bytes: &[u8], path: &Path) -> Result<NpyArray, DataError> {
             )));
         }
     };
-    let count = shape
+    // Checked to the byte count: a count times the item size that wraps must not pass as a few bytes.
+    let data_bytes = shape
         .iter()
-        .try_fold(1usize, |a, &b| a.checked_mul(b))
-        .ok_or_else(|| err("shape overflows".into()))?;
+        .try_fold(size, |a: usize, &b| a.checked_mul(b))
+        .ok_or_else(|| err(format!("shape {shape:?} overflows")))?;
     let payload = &bytes[end..];
-    if payload.len() < count * size {
+    if payload.len() < data_bytes {
         return Err(err(format!(
-            "truncated: shape {shape:?} needs {} data bytes, the file has {}",
-            count * size,
+            "truncated: shape {shape:?} needs {data_bytes} data bytes, the file has {}",
             payload.len()
         )));
     }
-    let data: Vec<f64> = payload[..count * size]
+    let data: Vec<f64> = payload[..data_bytes]
         .chunks_exact(size)
         .map(|c| match (size, little) {
             (8, true) => f64::from_le_bytes(c.try_into().unwrap()),
@@ -293,6 +293,15 @@ mod tests {
                 "shape",
             ),
             (with_header(7, "{}", &[]), "version"),
+            // 2^61 float64s are 2^64 bytes: the byte count wraps to 0 (found by tests/fuzz.rs).
+            (
+                with_header(
+                    1,
+                    "{'descr': '<f8', 'fortran_order': False, 'shape': (2305843009213693952,), }\n",
+                    &[],
+                ),
+                "overflows",
+            ),
         ];
         for (bytes, want) in cases {
             let e = parse_npy(&bytes, p()).unwrap_err().to_string();

@@ -59,7 +59,12 @@ pub fn parse_pfm(bytes: &[u8], path: &Path) -> Result<Pfm, DataError> {
         return Err(err(format!("bad scale {scale}")));
     }
     let little = scale < 0.0;
-    let n = width * height * channels;
+    // Checked to the byte count: a size whose product wraps must not pass as a few bytes.
+    let (row, n) = width
+        .checked_mul(channels)
+        .and_then(|row| Some((row, row.checked_mul(height)?)))
+        .filter(|(_, n)| n.checked_mul(4).is_some())
+        .ok_or_else(|| err(format!("size {width}x{height}x{channels} overflows")))?;
     let payload = bytes.get(i..).unwrap_or(&[]);
     if payload.len() < n * 4 {
         return Err(err(format!(
@@ -69,7 +74,6 @@ pub fn parse_pfm(bytes: &[u8], path: &Path) -> Result<Pfm, DataError> {
         )));
     }
     let mut data = vec![0.0f32; n];
-    let row = width * channels;
     for (k, c) in payload[..n * 4].chunks_exact(4).enumerate() {
         let v = if little {
             f32::from_le_bytes(c.try_into().unwrap())
@@ -140,6 +144,8 @@ mod tests {
             (&b"Pf\n2 2\n-1\n\0\0\0\0"[..], "truncated"),
             (&b"Pf\n2"[..], "truncated header"),
             (&b"Pf\nx 2\n-1\n\0\0\0\0"[..], "width"),
+            // 2^63 x 4 wraps to 0 values (found by tests/fuzz.rs).
+            (&b"Pf\n9223372036854775808 4\n-1\n"[..], "overflows"),
         ] {
             let e = parse_pfm(b, Path::new("m.pfm")).unwrap_err().to_string();
             assert!(e.contains("m.pfm") && e.contains(want), "{e}");

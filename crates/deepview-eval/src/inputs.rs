@@ -23,6 +23,10 @@ pub enum InputRule {
     NearestTo { count: usize, view: usize },
     /// `centroid:K`: nearest the centroid of all camera centres.
     Centroid(usize),
+    /// `spread:K`: K views spread evenly over the others in index order (`cand[round(i)]` for `i` in
+    /// `linspace(0, len - 1, K)`), the same for every target: with targets `every:8`, the few-shot
+    /// protocol of RegNeRF, FreeNeRF and FSGS (`spread:3`).
+    Spread(usize),
     /// `all`: every view that is not a target.
     All,
     /// The same explicit views for every target.
@@ -31,7 +35,7 @@ pub enum InputRule {
 
 /// What `--inputs` accepts, for error messages.
 pub const INPUT_RULES: &str =
-    "nearest:K, nearest:K@VIEW, centroid:K, all, or a list of view indices like 0,3,5";
+    "nearest:K, nearest:K@VIEW, centroid:K, spread:K, all, or a list of view indices like 0,3,5";
 
 /// The input count of the default rule for methods that take any number of views.
 pub const DEFAULT_INPUTS: usize = 4;
@@ -116,6 +120,11 @@ impl InputRule {
                 nearest(cameras[check(*view)?].center(), *count)
             }
             InputRule::Centroid(k) => centroid(*k),
+            InputRule::Spread(k) => {
+                let cand = candidates();
+                enough(&cand, *k)?;
+                Ok(spread(&cand, *k))
+            }
             InputRule::All => {
                 let cand = candidates();
                 enough(&cand, 1)?;
@@ -135,6 +144,22 @@ impl InputRule {
             }
         }
     }
+}
+
+/// `k` of `cand` spread evenly: `cand[round(i)]` for `i` in `linspace(0, len - 1, k)` (numpy's rounding,
+/// half to even); `k <= cand.len()`.
+fn spread(cand: &[usize], k: usize) -> Vec<usize> {
+    let last = (cand.len() - 1) as f64;
+    (0..k)
+        .map(|j| {
+            let x = if k == 1 {
+                0.0
+            } else {
+                last * j as f64 / (k - 1) as f64
+            };
+            cand[(x.round_ties_even() as usize).min(cand.len() - 1)]
+        })
+        .collect()
 }
 
 /// A comma-separated list of view indices, no duplicates.
@@ -208,6 +233,9 @@ impl FromStr for InputRule {
         if let Some(k) = parse_count(t, "centroid:").map_err(with_rules)? {
             return Ok(InputRule::Centroid(k));
         }
+        if let Some(k) = parse_count(t, "spread:").map_err(with_rules)? {
+            return Ok(InputRule::Spread(k));
+        }
         parse_list(t).map(InputRule::List).map_err(with_rules)
     }
 }
@@ -225,6 +253,7 @@ impl fmt::Display for InputRule {
             InputRule::Nearest(n) => write!(f, "nearest:{n}"),
             InputRule::NearestTo { count, view } => write!(f, "nearest:{count}@{view}"),
             InputRule::Centroid(n) => write!(f, "centroid:{n}"),
+            InputRule::Spread(n) => write!(f, "spread:{n}"),
             InputRule::All => f.write_str("all"),
             InputRule::List(v) => f.write_str(&join(v)),
         }
@@ -251,7 +280,14 @@ mod tests {
 
     #[test]
     fn spellings_round_trip() {
-        for s in ["nearest:4", "nearest:3@7", "centroid:2", "all", "3,0,5"] {
+        for s in [
+            "nearest:4",
+            "nearest:3@7",
+            "centroid:2",
+            "spread:3",
+            "all",
+            "3,0,5",
+        ] {
             assert_eq!(s.parse::<InputRule>().unwrap().to_string(), s);
         }
         assert_eq!(InputRule::default().to_string(), "nearest:4");
@@ -303,6 +339,30 @@ mod tests {
             (1..8).collect::<Vec<_>>()
         );
         assert_eq!(sel("5,1", None, &[]).unwrap(), [5, 1]);
+        // spread:3, the few-shot protocol: 20 views, targets 0, 8, 16; train = the 17 others;
+        // linspace(0, 16, 3) = 0, 8, 16 -> train[0], train[8], train[16] = 1, 10, 19.
+        let cams20 = line(20);
+        let few = "spread:3"
+            .parse::<InputRule>()
+            .unwrap()
+            .select(&cams20, Some(8), &[0, 8, 16])
+            .unwrap();
+        assert_eq!(few, [1, 10, 19]);
+        // 34 views (flower): targets 0, 8, ..., 32 (5); train 29; linspace(0, 28, 3) = 0, 14, 28.
+        let cams34 = line(34);
+        let targets: Vec<usize> = (0..34).filter(|i| i % 8 == 0).collect();
+        let few = "spread:3"
+            .parse::<InputRule>()
+            .unwrap()
+            .select(&cams34, Some(0), &targets)
+            .unwrap();
+        let train: Vec<usize> = (0..34).filter(|i| i % 8 != 0).collect();
+        assert_eq!(few, [train[0], train[14], train[28]]);
+        // Half-way ties round to even, as numpy does: 4 of 6 -> linspace(0, 5, 4) = 0, 1.67, 3.33, 5.
+        assert_eq!(sel("spread:4", None, &[]).unwrap().len(), 4);
+        assert_eq!(spread(&[10, 11, 12, 13, 14, 15], 4), [10, 12, 13, 15]);
+        assert_eq!(spread(&[10, 11, 12, 13, 14], 2), [10, 14]);
+        assert!(sel("spread:10", None, &[]).is_err());
         let e = sel("4,9", None, &[]).unwrap_err().to_string();
         assert!(
             e.contains("view index 9 out of range") && e.contains("9 views"),

@@ -122,7 +122,15 @@ pub fn parse_camera_path(text: &str, path: &Path) -> Result<CameraPath, MediaErr
             ));
         }
         let f = h as f64 / (2.0 * (e.fov.to_radians() / 2.0).tan());
-        cameras.push(Camera::new(w, h, Intrinsics::centred(f, w, h), pose));
+        // A fov of a few subnormal degrees passes the range check but its focal length is infinite.
+        let k = Intrinsics::centred(f, w, h);
+        k.validate().map_err(|err| {
+            invalid(
+                path,
+                format!("camera_path[{i}].fov {} degrees: {err}", e.fov),
+            )
+        })?;
+        cameras.push(Camera::new(w, h, k, pose));
     }
     Ok(CameraPath {
         cameras,

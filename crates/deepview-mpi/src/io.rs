@@ -99,9 +99,7 @@ impl MpiMeta {
                 ),
             ));
         }
-        if self.depths.is_empty() {
-            return Err(invalid(path, "the MPI has zero planes"));
-        }
+        check_depths(path, &self.depths)?;
         if self.layers.len() != self.depths.len() {
             return Err(invalid(
                 path,
@@ -111,12 +109,6 @@ impl MpiMeta {
                     self.depths.len()
                 ),
             ));
-        }
-        if !self.depths.iter().all(|d| d.is_finite() && *d > 0.0) {
-            return Err(invalid(path, "depths must be finite and positive"));
-        }
-        if self.depths.windows(2).any(|w| w[1] >= w[0]) {
-            return Err(invalid(path, "depths must decrease (far plane first)"));
         }
         let pose = Pose::from_row_major(&self.camera_from_world)
             .map_err(|e| invalid(path, e.to_string()))?;
@@ -132,6 +124,21 @@ impl MpiMeta {
         }
         Ok(cam)
     }
+}
+
+/// The plane depths of a valid MPI, whatever file they come from: at least one, finite, positive and
+/// decreasing (far plane first). Errors name `path`.
+pub(crate) fn check_depths(path: &Path, depths: &[f64]) -> Result<(), MpiError> {
+    if depths.is_empty() {
+        return Err(invalid(path, "the MPI has zero planes"));
+    }
+    if !depths.iter().all(|d| d.is_finite() && *d > 0.0) {
+        return Err(invalid(path, "depths must be finite and positive"));
+    }
+    if depths.windows(2).any(|w| w[1] >= w[0]) {
+        return Err(invalid(path, "depths must decrease (far plane first)"));
+    }
+    Ok(())
 }
 
 pub fn layer_name(i: usize) -> String {

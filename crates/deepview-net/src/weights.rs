@@ -6,7 +6,8 @@
 //! non-finite weights, and (with [`check_views`]) a view count the weights were not trained for.
 
 use crate::config::{ConfigError, DeepViewConfig};
-use crate::network::DeepViewModel;
+use crate::forward::GRADIENT_CHANNELS;
+use crate::network::{DeepViewModel, INIT_CHANNELS};
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::store::{ModuleSnapshot, SafetensorsStore};
@@ -84,6 +85,55 @@ pub fn save_model(
     write_atomic(&dir.join(CONFIG_FILE), json.as_bytes())
 }
 
+/// The parameter count of the model `config` describes (mirrors `CoreNet::new`: 3x3 convs with biases;
+/// net 0 takes the plane sweep volume, update nets the gradient components and the state), in closed form
+/// so that absurd counts are computed, not looped over; `None` when it does not even fit in a u128.
+fn parameter_count(config: &DeepViewConfig) -> Option<u128> {
+    let n = |v: usize| v as u128;
+    let conv = |i: u128, o: u128| i.checked_mul(o)?.checked_mul(9)?.checked_add(o);
+    let sc = n(config.extra_channels).checked_add(4)?;
+    let net = |cin: u128, f: u128| -> Option<u128> {
+        let stage = conv(2 * f, f)?.checked_add(conv(f, f)?)?;
+        [
+            conv(cin, f)?,
+            conv(f, f)?,
+            stage.checked_mul(n(config.max_pool_stages))?,
+            conv(f, f)?,
+            conv(f, sc)?,
+        ]
+        .into_iter()
+        .try_fold(0u128, u128::checked_add)
+    };
+    let update_in = n(GRADIENT_CHANNELS).checked_add(sc)?;
+    let updates = n(config.updates);
+    let large_updates = n(config.large_nets).saturating_sub(1).min(updates);
+    let (fl, fs) = (n(config.features_large), n(config.features_small));
+    net(n(INIT_CHANNELS), n(config.features(0)))?
+        .checked_add(net(update_in, fl)?.checked_mul(large_updates)?)?
+        .checked_add(net(update_in, fs)?.checked_mul(updates - large_updates)?)
+}
+
+/// Refuse a config describing more parameters than the `len` bytes of the model file `path` can hold (one
+/// byte each at the very least), before the model is built: building allocates what the config says.
+fn check_model_size(
+    config: &DeepViewConfig,
+    config_path: &Path,
+    path: &Path,
+    len: u64,
+) -> Result<(), WeightsError> {
+    match parameter_count(config) {
+        Some(p) if p <= len as u128 => Ok(()),
+        p => Err(WeightsError::Mismatch {
+            path: path.to_path_buf(),
+            config: config_path.to_path_buf(),
+            msg: format!(
+                "the config describes a model of {} parameters, more than the file's {len} bytes can hold",
+                p.map_or("too many".to_string(), |p| p.to_string())
+            ),
+        }),
+    }
+}
+
 /// Read `dir/config.json`.
 pub fn load_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
     let path = dir.join(CONFIG_FILE);
@@ -119,11 +169,7 @@ pub const CHECKPOINT_MODEL_FILE: &str = "model.bpk";
 /// The model configuration of a training checkpoint folder: the `model` entry of the run's
 /// `runs/<name>/config.json`.
 pub fn checkpoint_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
-    let run_config = dir
-        .parent()
-        .and_then(Path::parent)
-        .map(|run| run.join(CONFIG_FILE))
-        .unwrap_or_else(|| PathBuf::from(CONFIG_FILE));
+    let run_config = run_config_path(dir);
     let text = std::fs::read_to_string(&run_config).map_err(io(&run_config))?;
     let config_err = |msg: String| WeightsError::Config {
         path: run_config.clone(),
@@ -160,6 +206,14 @@ fn check_weights_folder(dir: &Path) -> Result<(), WeightsError> {
     })
 }
 
+/// The run's `config.json` of a checkpoint folder `runs/<name>/checkpoints/step-N`.
+fn run_config_path(dir: &Path) -> PathBuf {
+    dir.parent()
+        .and_then(Path::parent)
+        .map(|run| run.join(CONFIG_FILE))
+        .unwrap_or_else(|| PathBuf::from(CONFIG_FILE))
+}
+
 /// The model configuration saved with a weights folder or a training checkpoint folder.
 pub fn load_config_any(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
     check_weights_folder(dir)?;
@@ -178,6 +232,8 @@ pub fn load_checkpoint(
 ) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
     let config = checkpoint_config(dir)?;
     let path = dir.join(CHECKPOINT_MODEL_FILE);
+    let len = std::fs::metadata(&path).map_err(io(&path))?.len();
+    check_model_size(&config, &run_config_path(dir), &path, len)?;
     let model = DeepViewModel::new(&config, device)
         .try_load_file(&path)
         .map_err(|e| WeightsError::Corrupt {
@@ -249,6 +305,7 @@ pub fn load_model_bytes(
 ) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
     let config = parse_config(&dir.join(CONFIG_FILE), config)?;
     let path = dir.join(WEIGHTS_FILE);
+    check_model_size(&config, &dir.join(CONFIG_FILE), &path, bytes.len() as u64)?;
     let mut model = DeepViewModel::new(&config, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes))
         .allow_partial(true)
@@ -353,6 +410,32 @@ mod tests {
             init_prior: None,
             ..DeepViewConfig::preset("cpu").unwrap()
         }
+    }
+
+    /// The closed-form count that guards model building equals the built model's.
+    #[test]
+    fn parameter_count_is_the_models() {
+        let dev = Device::flex();
+        let odd = DeepViewConfig {
+            large_nets: 2,
+            updates: 3,
+            features_large: 5,
+            features_small: 3,
+            extra_channels: 1,
+            max_pool_stages: 2,
+            ..cfg()
+        };
+        let presets = ["cpu", "cpu-large", "paper-kalantari", "paper-spaces-4view"];
+        let presets = presets.map(|p| DeepViewConfig::preset(p).unwrap());
+        for c in [cfg(), odd].into_iter().chain(presets) {
+            let built = DeepViewModel::new(&c, &dev).num_params() as u128;
+            assert_eq!(parameter_count(&c), Some(built), "{c:?}");
+        }
+        let huge = DeepViewConfig {
+            features_large: usize::MAX,
+            ..cfg()
+        };
+        assert_eq!(parameter_count(&huge), None);
     }
 
     #[test]

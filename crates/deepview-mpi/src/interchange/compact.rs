@@ -89,16 +89,24 @@ impl CompactMeta {
                 "tiles_x / tiles_y do not match the size and tile".into()
             ));
         }
-        let n_tiles = meta.tiles_x * meta.tiles_y;
+        // The tile arithmetic (here and in the writer) is 32-bit: a plane's bytes must fit in a u32. Checked
+        // before anything is allocated from these numbers.
+        if meta.width as u64 * meta.height as u64 * 4 > u32::MAX as u64 {
+            return Err(bad(format!(
+                "{}x{} planes of RGBA8 exceed the format's 4 GiB per plane",
+                meta.width, meta.height
+            )));
+        }
+        let n_tiles = meta.tiles_x as u64 * meta.tiles_y as u64;
         for (d, p) in meta.planes.iter().enumerate() {
-            if p.iter().any(|&k| k >= n_tiles) || p.windows(2).any(|w| w[1] <= w[0]) {
+            if p.iter().any(|&k| k as u64 >= n_tiles) || p.windows(2).any(|w| w[1] <= w[0]) {
                 return Err(bad(format!(
                     "plane {d}: tile indices must ascend and be below {n_tiles}"
                 )));
             }
         }
         let kept: usize = meta.planes.iter().map(Vec::len).sum();
-        let per_page = (meta.page_cols * meta.page_rows) as usize;
+        let per_page = meta.page_cols as usize * meta.page_rows as usize;
         if meta.pages.len() != kept.div_ceil(per_page) {
             return Err(bad(format!(
                 "{kept} tiles need {} pages, the file lists {}",
@@ -217,15 +225,17 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
 /// Read a compact export back into full straight-alpha planes.
 pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
     let (meta, camera) = CompactMeta::read(dir)?;
-    let (w, h, t) = (meta.width, meta.height, meta.tile);
-    let (cols, rows) = (meta.page_cols as usize, meta.page_rows as usize);
+    // 64-bit arithmetic: the header's numbers are checked against each other, not against overflow.
+    let (w, h, t) = (meta.width as u64, meta.height as u64, meta.tile as u64);
+    let (cols, rows) = (meta.page_cols as u64, meta.page_rows as u64);
     let per_page = cols * rows;
-    let page_w = meta.page_cols * t;
+    let page_w = cols * t;
     let mut pages = Vec::with_capacity(meta.pages.len());
     for name in &meta.pages {
         let path = dir.join(name);
         let (pw, ph, px) = decode_rgba8(&path)?;
-        if pw != page_w || ph % t != 0 || ph > meta.page_rows * t {
+        let ph = ph as u64;
+        if pw as u64 != page_w || !ph.is_multiple_of(t) || ph > rows * t {
             return Err(invalid(
                 &path,
                 format!("page is {pw}x{ph}, expected {page_w} wide and a multiple of {t} tall"),
@@ -233,25 +243,33 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
         }
         pages.push((ph, px));
     }
-    let mut planes = vec![vec![0u8; w as usize * h as usize * 4]; meta.depths.len()];
-    let mut slot = 0usize;
+    // One allocation per plane (zeroed lazily), not a clone of the first: only the kept tiles are touched.
+    let plane_len = (w * h * 4) as usize;
+    let mut planes: Vec<Vec<u8>> = (0..meta.depths.len())
+        .map(|_| vec![0u8; plane_len])
+        .collect();
+    let mut slot = 0u64;
+    let index = |v: u64| v as usize;
     for (d, kept) in meta.planes.iter().enumerate() {
         for &k in kept {
-            let (tx, ty) = (k % meta.tiles_x, k / meta.tiles_x);
-            let (ph, page) = &pages[slot / per_page];
+            let (tx, ty) = (
+                k as u64 % meta.tiles_x as u64,
+                k as u64 / meta.tiles_x as u64,
+            );
+            let (ph, page) = &pages[index(slot / per_page)];
             let local = slot % per_page;
-            let (px0, py0) = ((local % cols) as u32 * t, (local / cols) as u32 * t);
+            let (px0, py0) = ((local % cols) * t, (local / cols) * t);
             if py0 + t > *ph {
                 return Err(invalid(
-                    dir.join(&meta.pages[slot / per_page]),
+                    dir.join(&meta.pages[index(slot / per_page)]),
                     format!("too short for tile slot {local}"),
                 ));
             }
             let (x0, y0) = (tx * t, ty * t);
-            let cw = (t.min(w - x0) * 4) as usize;
+            let cw = index(t.min(w - x0) * 4);
             for r in 0..t.min(h - y0) {
-                let dst = (((y0 + r) * w + x0) * 4) as usize;
-                let src = (((py0 + r) * page_w + px0) * 4) as usize;
+                let dst = index(((y0 + r) * w + x0) * 4);
+                let src = index(((py0 + r) * page_w + px0) * 4);
                 planes[d][dst..dst + cw].copy_from_slice(&page[src..src + cw]);
             }
             slot += 1;

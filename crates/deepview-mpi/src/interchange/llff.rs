@@ -26,6 +26,7 @@ use super::straight::{
     ExportReport, StraightMpi, check_planes, inverse_depth_spacing_error, numbers,
 };
 use crate::error::{MpiError, invalid, read_err, write_err};
+use crate::io::check_depths;
 use deepview_geometry::convention::{opengl_c2w_to_pose, pose_to_opengl_c2w};
 use deepview_geometry::{Camera, Intrinsics, PlaneSpacing, plane_depths};
 use deepview_image::write_atomic;
@@ -127,6 +128,8 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
     let (far, near) = (bounds[0], bounds[1]);
     let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth)
         .map_err(|e| invalid(&meta_path, format!("line 6 (far near): {e}")))?;
+    // A tiny near depth (e.g. 1e-320) passes plane_depths but its inverse overflows to depths of 0.
+    check_depths(&meta_path, &depths)?;
     let camera = Camera::new(
         w as u32,
         h as u32,

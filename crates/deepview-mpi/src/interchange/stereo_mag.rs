@@ -16,6 +16,7 @@
 
 use super::straight::{ExportReport, StraightMpi, check_planes, decode_rgba8, numbers};
 use crate::error::{MpiError, invalid, read_err, write_err};
+use crate::io::check_depths;
 use deepview_geometry::{Camera, CameraJson, Intrinsics, PlaneSpacing, Pose, plane_depths};
 use deepview_image::{write_atomic, write_png_u8};
 use serde::{Deserialize, Serialize};
@@ -156,6 +157,8 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Mpi
             .camera
             .to_camera()
             .map_err(|e| invalid(&side_path, e.to_string()))?;
+        // The sidecar's depths are checked as mpi.json's are (the writer is not the only author).
+        check_depths(&side_path, &s.depths)?;
         if (cam.width, cam.height) != (w, h) || s.depths.len() != d {
             return Err(invalid(
                 &side_path,
@@ -184,6 +187,8 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Mpi
             .ok_or_else(|| MpiError::NoPlaneDepths { path: dir.into() })?;
         let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth)
             .map_err(|e| invalid(dir, e.to_string()))?;
+        // A tiny near depth (e.g. 1e-320) passes plane_depths but its inverse overflows to depths of 0.
+        check_depths(dir, &depths)?;
         (camera, depths)
     };
     Ok(StraightMpi {
