@@ -6,7 +6,9 @@ use deepview_eval::{MethodEvent, MethodKind};
 /// The help text of `--inputs`.
 pub const INPUTS_HELP: &str = "Input views: nearest:K (the K views nearest the target; where there is no \
     target, as in infer, nearest the centroid of all camera centres), nearest:K@VIEW (the K nearest view \
-    VIEW), centroid:K (the K nearest the centroid of all camera centres), all, or a list like 0,3,5. \
+    VIEW), centroid:K (the K nearest the centroid of all camera centres), spread:K (K views spread evenly \
+    over the others in index order: eval --inputs spread:3 --crop 0 is the few-shot 3-view protocol), \
+    all, or a list like 0,3,5. \
     Default: nearest:4 (nearest:K for weights trained for K views). eval never takes a target as an input.";
 
 /// Shows a method's events on stderr: the plane count line (once per distinct line), and for the learned
