@@ -232,9 +232,10 @@ fn unrelated_images_fail_clearly_with_exit_code_2() {
         "{err}"
     );
     assert!(!out.exists(), "no scene is written");
-    // The log is kept beside, for inspection.
-    assert!(err.contains("scene.incomplete/colmap.log"), "{err}");
-    assert!(tmp.path().join("scene.incomplete/colmap.log").is_file());
+    // The working folder is removed; the log is kept beside, for inspection, and named.
+    assert!(err.contains("scene.colmap.log"), "{err}");
+    assert!(tmp.path().join("scene.colmap.log").is_file());
+    assert!(!tmp.path().join("scene.incomplete").exists());
 }
 
 #[test]
@@ -365,4 +366,8 @@ fn sigterm_to_process_stops_colmap() {
         std::thread::sleep(Duration::from_millis(20));
     }
     assert!(!out.exists(), "a stopped process left {}", out.display());
+    assert!(
+        !tmp.path().join("scene.incomplete").exists(),
+        "a stopped process left its working folder"
+    );
 }

@@ -405,6 +405,114 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
     }
 }
 
+/// Folders that commands write into (depth maps, evaluation renders and MPIs) hold only such files, a
+/// dataset is never written into, a dataset view's options need the dataset, and cameras no real camera
+/// has are refused (issue 28's probe: each of these exited 0, overwrote a user's file or rendered black).
+#[test]
+fn written_into_folders_datasets_views_and_absurd_cameras() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let scene = grid(t, "scene");
+    let gt = scene.join("ground_truth_mpi");
+    let notes = t.join("notes");
+    std::fs::create_dir(&notes).unwrap();
+    std::fs::write(notes.join("depth_color.png"), b"my notes").unwrap();
+    std::fs::write(notes.join("todo.txt"), b"keep").unwrap();
+    let before = snapshot(&notes);
+    refused(
+        &deepview(&["depth", "--mpi", s(&gt), "--out", s(&notes)]),
+        &["--out", "todo.txt", "refusing"],
+    );
+    refused(
+        &deepview(&[
+            "eval",
+            "--data",
+            s(&scene),
+            "--method",
+            "nearest",
+            "--targets",
+            "4",
+            "--save-renders",
+            s(&notes),
+        ]),
+        &["--save-renders", "todo.txt"],
+    );
+    assert_eq!(snapshot(&notes), before);
+    // Their own earlier output is fine: depth twice into one folder, renders twice.
+    let d = t.join("d");
+    ok(&deepview(&["depth", "--mpi", s(&gt), "--out", s(&d)]));
+    ok(&deepview(&[
+        "depth",
+        "--mpi",
+        s(&gt),
+        "--out",
+        s(&d),
+        "--prefix",
+        "again",
+    ]));
+    let r = t.join("r");
+    for _ in 0..2 {
+        ok(&deepview(&[
+            "eval",
+            "--data",
+            s(&scene),
+            "--method",
+            "nearest",
+            "--targets",
+            "4",
+            "--save-renders",
+            s(&r),
+        ]));
+    }
+    // A dataset (not an input) is never an output nor holds one.
+    let other = grid(t, "other");
+    let other_before = snapshot(&other);
+    refused(
+        &deepview(&["depth", "--mpi", s(&gt), "--out", s(&other)]),
+        &["--out", "refusing"],
+    );
+    refused(
+        &deepview(&[
+            "baseline",
+            "--data",
+            s(&scene),
+            "--method",
+            "nearest",
+            "--out",
+            s(&other.join("mpi")),
+        ]),
+        &["lies inside the dataset"],
+    );
+    assert_eq!(snapshot(&other), other_before);
+    // --view (or any dataset option) without --data: refused, not the MPI's own view.
+    for extra in [["--view", "1"], ["--near", "1"], ["--downscale", "2"]] {
+        let mut args = vec!["render", "--mpi", s(&gt), "--out"];
+        let out = t.join("v.png");
+        args.push(s(&out));
+        args.extend(extra);
+        refused(&deepview(&args), &[extra[0], "--data"]);
+        assert!(!out.exists());
+    }
+    // A camera no real camera is: refused, naming the field.
+    let cam = t.join("cam.json");
+    let good = ok(&deepview(&["info", "--data", s(&scene), "--camera", "0"]));
+    let mut v: serde_json::Value = serde_json::from_str(&good).unwrap();
+    v["cx"] = serde_json::json!(1e300);
+    std::fs::write(&cam, v.to_string()).unwrap();
+    refused(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--camera",
+            s(&cam),
+            "--out",
+            s(&t.join("x.png")),
+        ]),
+        &["cam.json", "cx"],
+    );
+}
+
 // 2. Whole-folder atomicity and signals.
 
 /// Send SIGTERM to `child`.

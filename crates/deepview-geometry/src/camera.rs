@@ -85,6 +85,18 @@ impl Intrinsics {
     }
 }
 
+/// `v` for a message: plain, or in scientific notation when very large or small.
+fn short(v: f64) -> String {
+    if v != 0.0 && !(1e-3..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+/// The largest camera translation (scene units) [`Pose::validate`] accepts.
+pub const MAX_TRANSLATION: f64 = 1e12;
+
 /// A rigid camera-from-world transform: `x_cam = rotation * x_world + translation`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Pose {
@@ -199,6 +211,14 @@ impl Pose {
         if !r.is_finite() || !self.translation.is_finite() {
             return Err(GeometryError::NonFinite("pose"));
         }
+        // Beyond 1e12 scene units the pose's arithmetic (a plane sweep's depths, homographies) loses every
+        // significant digit of a capture's scale: not a position of a real camera.
+        if self.translation.abs().max_element() > MAX_TRANSLATION {
+            return Err(GeometryError::Invalid(format!(
+                "camera translation {:?} is beyond {MAX_TRANSLATION:e} scene units",
+                self.translation.to_array()
+            )));
+        }
         let e = (r.transpose() * r - DMat3::IDENTITY).to_cols_array();
         let dev = e.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         if dev > 1e-4 || r.determinant() < 0.0 {
@@ -302,6 +322,32 @@ impl Camera {
             return Err(GeometryError::BadSize(self.width, self.height));
         }
         self.intrinsics.validate()?;
+        // Values no camera has, which render nothing but an empty image: a focal length outside 1/1000 to
+        // 100,000 times the image size (fields of view from about 180 degrees down to 0.0006), a principal
+        // point more than ten image sizes off the image.
+        let k = &self.intrinsics;
+        let (w, h) = (self.width as f64, self.height as f64);
+        let size = w.max(h);
+        for (name, f) in [("fx", k.fx), ("fy", k.fy)] {
+            if !(1e-3 * size..=1e5 * size).contains(&f) {
+                return Err(GeometryError::BadIntrinsics(format!(
+                    "{name} {} is not a focal length of a {}x{} image (1/1000 to 100,000 times its size)",
+                    short(f),
+                    self.width,
+                    self.height
+                )));
+            }
+        }
+        for (name, c, n) in [("cx", k.cx, w), ("cy", k.cy, h)] {
+            if !(-10.0 * n..=11.0 * n).contains(&c) {
+                return Err(GeometryError::BadIntrinsics(format!(
+                    "{name} {} lies more than ten image sizes off the {}x{} image",
+                    short(c),
+                    self.width,
+                    self.height
+                )));
+            }
+        }
         self.pose.validate()
     }
 
@@ -372,6 +418,49 @@ mod tests {
         assert!((id.rotation - DMat3::IDENTITY).abs_diff_eq(DMat3::ZERO, 1e-12));
         assert!(id.translation.length() < 1e-12);
         assert!((p.transform_point(p.center())).length() < 1e-12);
+    }
+
+    #[test]
+    fn absurd_cameras_are_refused() {
+        let ok = Camera::new(64, 48, Intrinsics::centred(60.0, 64, 48), Pose::IDENTITY);
+        ok.validate().unwrap();
+        let with = |k: Intrinsics, t: DVec3| {
+            Camera::new(64, 48, k, Pose::new(DMat3::IDENTITY, t))
+                .validate()
+                .map_err(|e| e.to_string())
+        };
+        let k = ok.intrinsics;
+        for (bad, needle) in [
+            (Intrinsics { cx: 1e300, ..k }, "cx"),
+            (Intrinsics { cy: -1e6, ..k }, "cy"),
+            (Intrinsics { fx: 1e300, ..k }, "fx"),
+            (Intrinsics { fy: 1e-300, ..k }, "fy"),
+        ] {
+            let e = with(bad, DVec3::ZERO).unwrap_err();
+            assert!(e.contains(needle), "{e}");
+        }
+        let e = with(k, DVec3::new(0.0, 1e300, 0.0)).unwrap_err();
+        assert!(e.contains("translation"), "{e}");
+        // Wide, long and off-centre but real: accepted.
+        with(
+            Intrinsics {
+                fx: 0.2,
+                fy: 0.2,
+                ..k
+            },
+            DVec3::ZERO,
+        )
+        .unwrap();
+        with(
+            Intrinsics {
+                fx: 1e6,
+                fy: 1e6,
+                cx: 600.0,
+                ..k
+            },
+            DVec3::new(1e9, 0.0, 0.0),
+        )
+        .unwrap();
     }
 
     #[test]

@@ -23,3 +23,24 @@ pub(crate) fn extract_frames(
         reason,
     })
 }
+
+/// Check that `ffmpeg` runs (`ffmpeg -version`), before any work.
+pub(crate) fn check_ffmpeg(ffmpeg: &Path) -> Result<(), ProcessError> {
+    let missing = |reason: String| ProcessError::FfmpegMissing {
+        program: ffmpeg.into(),
+        reason,
+    };
+    let out = Command::new(ffmpeg)
+        .arg("-version")
+        .stdin(std::process::Stdio::null())
+        .output()
+        .map_err(|e| missing(e.to_string()))?;
+    if !out.status.success() {
+        return Err(missing(format!(
+            "`{} -version` failed ({})",
+            ffmpeg.display(),
+            out.status
+        )));
+    }
+    Ok(())
+}

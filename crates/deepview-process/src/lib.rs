@@ -10,8 +10,8 @@
 //! ```
 //!
 //! Existing output is never replaced: the scene is built in the sibling folder `SCENE_DIR.incomplete` and
-//! renamed into place at the end; after a failure that folder (with its `colmap.log`) is kept for
-//! inspection and reused by the next run.
+//! renamed into place at the end. After a failure that folder is removed and COLMAP's log is kept beside
+//! the output as `SCENE_DIR.colmap.log` (named in the error) for inspection.
 //!
 //! Modules: `options` (what to do, what is reported), `pipeline` ([`process`]), `photos` (listing and
 //! copying the input), `frames` (video input through ffmpeg), `colmap` (COLMAP's command lines and its

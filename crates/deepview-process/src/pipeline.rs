@@ -7,6 +7,7 @@ use crate::photos::{copy_photos, list_photos};
 use crate::runner::Runner;
 use crate::{Event, Input, Matcher, ProcessError, ProcessOptions, ProcessReport, Stage, colmap};
 use deepview_data::{LoadOptions, load_scene, read_colmap};
+use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 /// Run the whole pipeline; `progress` hears of every stage. See the crate documentation for the output.
@@ -48,7 +49,63 @@ pub fn process(
         }
     };
     colmap::check_colmap(&opts.colmap)?;
+    if matches!(opts.input, Input::Video { .. }) {
+        crate::frames::check_ffmpeg(&opts.ffmpeg)?;
+    }
     let work = work_folder(out)?;
+    match build(opts, photos.as_deref(), &work, t0, progress) {
+        Ok(r) => Ok(r),
+        Err(e) => Err(discard_work(&work, out, e)),
+    }
+}
+
+/// After a failure: the working folder removed (a scene is never left half-built), COLMAP's log kept beside
+/// the output as `OUT.colmap.log` and named in the error instead of the log inside the removed folder.
+fn discard_work(work: &Path, out: &Path, e: ProcessError) -> ProcessError {
+    let log = work.join("colmap.log");
+    let mut kept_name = out.file_name().unwrap_or_default().to_os_string();
+    kept_name.push(".colmap.log");
+    let kept = out.with_file_name(kept_name);
+    let moved = log.is_file() && std::fs::rename(&log, &kept).is_ok();
+    let _ = std::fs::remove_dir_all(work);
+    let relog = |l: PathBuf| if moved && l == log { kept.clone() } else { l };
+    match e {
+        ProcessError::StageFailed {
+            stage,
+            status,
+            log: l,
+            tail,
+        } => ProcessError::StageFailed {
+            stage,
+            status,
+            log: relog(l),
+            tail,
+        },
+        ProcessError::NotRegistered {
+            registered,
+            total,
+            missing,
+            log: l,
+        } => ProcessError::NotRegistered {
+            registered,
+            total,
+            missing,
+            log: relog(l),
+        },
+        e => e,
+    }
+}
+
+/// The work of [`process`] in its working folder `work`.
+fn build(
+    opts: &ProcessOptions,
+    photos: Option<&[PathBuf]>,
+    work: &Path,
+    t0: Instant,
+    progress: &mut dyn FnMut(Event),
+) -> Result<ProcessReport, ProcessError> {
+    let out = &opts.out;
+    let work = work.to_path_buf();
     let runner = Runner {
         log: work.join("colmap.log"),
     };
@@ -68,7 +125,7 @@ pub fn process(
 
     // 1. Photos: copied (or downscaled), or frames extracted from the video.
     let mut names = Vec::new();
-    match (&opts.input, &photos) {
+    match (&opts.input, photos) {
         (Input::Video { path, fps }, _) => {
             let frames = colmap_dir.join("frames");
             std::fs::create_dir_all(&frames).map_err(write_err(&frames))?;

@@ -36,7 +36,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(d) = &args.source.scene_dir {
         inputs.push(("--data", d));
     }
-    check_output("--out", &args.out, Kind::Files, &inputs)?;
+    check_output("--out", &args.out, Kind::DepthMaps, &inputs)?;
     for suffix in ["color", "disparity16"] {
         let file = args.out.join(format!("{}_{suffix}.png", args.prefix));
         check_output("--out", &file, Kind::File, &inputs)?;

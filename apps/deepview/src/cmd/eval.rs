@@ -70,10 +70,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         outputs.push(("--out", out, Kind::File));
     }
     if let Some(dir) = &args.save_renders {
-        outputs.push(("--save-renders", dir, Kind::Files));
+        outputs.push(("--save-renders", dir, Kind::Renders));
     }
     if let Some(dir) = &args.save_mpi {
-        outputs.push(("--save-mpi", dir, Kind::Files));
+        outputs.push(("--save-mpi", dir, Kind::Mpis));
     }
     for (i, &(option, path, kind)) in outputs.iter().enumerate() {
         let mut against = inputs.clone();

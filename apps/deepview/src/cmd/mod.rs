@@ -55,6 +55,31 @@ pub struct CameraSource {
 impl CameraSource {
     /// The camera, or `None` when neither `--camera` nor `--data` was given.
     pub fn camera(&self) -> anyhow::Result<Option<Camera>> {
+        if self.scene_dir.is_none() {
+            // Options of a dataset view, given without the dataset: an error, not a silent other camera.
+            let sc = &self.scene;
+            let given: Vec<&str> = [
+                (self.view.is_some(), "--view"),
+                (sc.images.is_some(), "--images"),
+                (sc.format.is_some(), "--format"),
+                (sc.near.is_some(), "--near"),
+                (sc.far.is_some(), "--far"),
+                (sc.downscale != 1, "--downscale"),
+                (sc.rig != 0, "--rig"),
+            ]
+            .iter()
+            .filter(|g| g.0)
+            .map(|g| g.1)
+            .collect();
+            if !given.is_empty() {
+                anyhow::bail!(
+                    "{} {} a dataset, but no --data was given: pass --data DIR (the dataset whose view to \
+                     use), or --camera FILE, or neither (the MPI's own reference view)",
+                    given.join(", "),
+                    if given.len() == 1 { "needs" } else { "need" }
+                );
+            }
+        }
         if let Some(p) = &self.camera {
             return Ok(Some(read_camera_json(p)?));
         }

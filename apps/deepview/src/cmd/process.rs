@@ -1,5 +1,6 @@
 //! `deepview process --data PHOTOS --out SCENE`: poses for one's own photos (or a video) with COLMAP.
 
+use super::safety::{Kind, check_output};
 use deepview_process::{CameraModel, Event, Input, Matcher, ProcessOptions, process};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -55,6 +56,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         (Some(d), None) => Input::Photos(d.clone()),
         (None, None) => anyhow::bail!("give --data PHOTOS_DIR or --video FILE"),
     };
+    let given: Vec<super::safety::Input> = match (&args.data, &args.video) {
+        (_, Some(v)) => vec![("--video", v.as_path())],
+        (Some(d), None) => vec![("--data", d.as_path())],
+        (None, None) => vec![],
+    };
+    check_output("--out", &args.out, Kind::ProcessedScene, &given)?;
+    // The working folder `OUT.incomplete` goes with a signal too (unless it is someone else's).
+    let mut work_name = args.out.file_name().unwrap_or_default().to_os_string();
+    work_name.push(".incomplete");
+    let work = args.out.with_file_name(work_name);
+    let ours = !work.exists() || work.join(".deepview-process").is_file();
+    if ours {
+        super::signals::register(&work);
+    }
     let mut opts = ProcessOptions::new(input, &args.out);
     opts.matcher = args.matcher;
     opts.camera_model = args.camera_model;
@@ -80,6 +95,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Event::Warning(w) => bar.suspend(|| eprintln!("warning: {w}")),
     });
     bar.finish_and_clear();
+    if ours {
+        super::signals::unregister(&work);
+    }
     let r = result?;
     let [fx, fy, cx, cy] = r.intrinsics;
     println!(
@@ -100,8 +118,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     println!("COLMAP's log: {}", r.log.display());
     println!(
-        "next: deepview info --data {0}; deepview infer --data {0} --out {0}/mpi",
-        r.out.display()
+        "next: deepview info --data {0}; deepview infer --data {0} --out {1}",
+        r.out.display(),
+        r.out
+            .with_file_name(format!(
+                "{}_mpi",
+                r.out.file_name().unwrap_or_default().to_string_lossy()
+            ))
+            .display()
     );
     Ok(())
 }

@@ -34,10 +34,16 @@ pub enum Kind {
     Psv,
     /// A folder of video frames (`frame_NNNNN.png`).
     Frames,
-    /// A folder files are added to (depth maps, renders): never replaced, only written into.
-    Files,
+    /// A folder of depth maps (`PREFIX_color.png`, `PREFIX_disparity16.png`): written into, never replaced.
+    DepthMaps,
+    /// A folder of evaluation renders (`NNN_NAME.png`): written into, never replaced.
+    Renders,
+    /// A folder of evaluation MPIs (`NNN_NAME/`): written into, never replaced.
+    Mpis,
     /// The demo's folder.
     Demo,
+    /// A scene made by `deepview process` (always a new or empty folder).
+    ProcessedScene,
 }
 
 impl Kind {
@@ -52,8 +58,11 @@ impl Kind {
             Kind::Web => "web viewer folder",
             Kind::Psv => "plane sweep volume folder",
             Kind::Frames => "folder of video frames",
-            Kind::Files => "folder",
+            Kind::DepthMaps => "folder of depth maps",
+            Kind::Renders => "folder of evaluation renders",
+            Kind::Mpis => "folder of evaluation MPIs",
             Kind::Demo => "demo folder",
+            Kind::ProcessedScene => "new scene folder",
         }
     }
 
@@ -95,6 +104,11 @@ impl Kind {
                     || numbered(name, "mpi_alpha_", ".png")
             }
             (Kind::Psv, false) => name == "psv.json" || numbered(name, "psv_", ".png"),
+            (Kind::DepthMaps, false) => {
+                name.ends_with("_color.png") || name.ends_with("_disparity16.png")
+            }
+            (Kind::Renders, false) => evaluated(name, ".png"),
+            (Kind::Mpis, true) => evaluated(name, ""),
             (Kind::Frames, false) => numbered(name, "frame_", ".png"),
             (Kind::Demo, false) => matches!(name, "spiral.gif" | "eval.json" | "eval.md"),
             (Kind::Demo, true) => {
@@ -121,7 +135,9 @@ impl Kind {
             Kind::Psv => has("psv.json"),
             Kind::Frames => has("frame_00000.png"),
             Kind::Demo => has("eval.md") || dir.join("scene").join("synth.json").is_file(),
-            Kind::File | Kind::Files => false,
+            Kind::File | Kind::DepthMaps | Kind::Renders | Kind::Mpis | Kind::ProcessedScene => {
+                false
+            }
         }
     }
 }
@@ -209,6 +225,15 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
                 a.display()
             );
         }
+        // Nor into a dataset (photos, poses) that is not an input either.
+        if !exact && a.is_dir() && deepview_data::detect_format(a).is_ok() {
+            bail!(
+                "{option} {} lies inside the dataset {}: refusing to write into a dataset; choose another \
+                 {option}",
+                out.display(),
+                a.display()
+            );
+        }
         let mpi_file = kind == Kind::File
             && o.file_name()
                 .and_then(|n| n.to_str())
@@ -239,13 +264,20 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
                 kind.name()
             );
         }
-        Ok(_) if kind == Kind::Files => {}
         Ok(_) => {
             let empty = std::fs::read_dir(&o)
                 .with_context(|| format!("cannot read {}", out.display()))?
                 .next()
                 .is_none();
-            if !empty && !kind.recognises(&o) {
+            if !empty && kind == Kind::ProcessedScene {
+                bail!(
+                    "{option} {} already exists and is not empty: choose a new or empty folder (existing \
+                     output is never replaced)",
+                    out.display()
+                );
+            }
+            let written_into = matches!(kind, Kind::DepthMaps | Kind::Renders | Kind::Mpis);
+            if !empty && !written_into && !kind.recognises(&o) {
                 bail!(
                     "{option} {} exists and is not a {}: refusing to replace it; choose a new or empty folder",
                     out.display(),
@@ -312,9 +344,14 @@ fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::R
         0 => String::new(),
         n => format!(" and {n} more"),
     };
+    let what = if matches!(kind, Kind::DepthMaps | Kind::Renders | Kind::Mpis) {
+        "refusing to write into it, which could overwrite them"
+    } else {
+        "refusing to replace it, which would delete them"
+    };
     bail!(
-        "{option} {} holds files that a {} does not have ({}{more}): refusing to replace it, which \
-         would delete them; move them away or choose a new or empty folder",
+        "{option} {} holds files that a {} does not have ({}{more}): {what}; move them away or choose \
+         a new or empty folder",
         out.display(),
         kind.name(),
         shown.join(", ")
@@ -343,6 +380,17 @@ pub fn foreign_entries(dir: &Path, kind: Kind) -> std::io::Result<Vec<String>> {
     }
     foreign.sort();
     Ok(foreign)
+}
+
+/// `name` is an evaluated view's file or folder: `NNN_NAME` + `suffix`, NAME of `[A-Za-z0-9_]`.
+fn evaluated(name: &str, suffix: &str) -> bool {
+    name.strip_suffix(suffix)
+        .and_then(|n| n.split_once('_'))
+        .is_some_and(|(d, rest)| {
+            d.len() >= 3
+                && d.bytes().all(|b| b.is_ascii_digit())
+                && rest.bytes().all(|b| b.is_ascii_alphanumeric() || b == b'_')
+        })
 }
 
 /// `name` is `prefix` + ASCII digits + `suffix`.

@@ -104,6 +104,18 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     }
     let mut views = Vec::with_capacity(rig.len());
     for (i, c) in rig.iter().enumerate() {
+        if let Some(j) = rig[..i]
+            .iter()
+            .position(|o| o.relative_path == c.relative_path)
+        {
+            return Err(DataError::invalid(
+                &path,
+                format!(
+                    "rig {} cameras {j} and {i} both name the image {}: list each image once",
+                    opts.rig, c.relative_path
+                ),
+            ));
+        }
         let camera = c.to_camera(&path, &format!("rig {} camera {i}", opts.rig))?;
         let name = Path::new(&c.relative_path)
             .with_extension("")

@@ -118,6 +118,21 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     })?;
     let mut model = read_colmap(&dir)?;
     model.images.sort_by(|a, b| a.name.cmp(&b.name));
+    // One photo listed twice would be two distinct inputs (and its own nearest view).
+    if let Some(w) = model.images.windows(2).find(|w| w[0].name == w[1].name) {
+        let images_file = dir.join(if dir.join("images.bin").is_file() {
+            "images.bin"
+        } else {
+            "images.txt"
+        });
+        return Err(DataError::invalid(
+            &images_file,
+            format!(
+                "images {} and {} both name the photo {}: list each photo once",
+                w[0].id, w[1].id, w[0].name
+            ),
+        ));
+    }
     let images_dir = match &opts.images {
         Some(name) => root.join(name),
         None if root.join("images").is_dir() => root.join("images"),

@@ -163,6 +163,21 @@ fn text_writer_round_trip_and_bounds() {
     assert!(e.contains("near and far") && e.contains("3D points"), "{e}");
 }
 
+#[test]
+fn a_photo_listed_twice_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let (mut names, cams, pts) = scene_cameras();
+    names[2] = names[0].clone();
+    write_colmap_text(&dir.path().join("sparse/0"), &names, &cams, &pts).unwrap();
+    let e = load_scene(dir.path(), &LoadOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("images.txt") && e.contains("both name the photo") && e.contains(&names[0]),
+        "{e}"
+    );
+}
+
 // A tiny binary model writer for fixtures.
 fn write_bin(dir: &Path, names: &[String], cams: &[Camera], pts: &[DVec3]) {
     let mut c = (cams.len() as u64).to_le_bytes().to_vec();
