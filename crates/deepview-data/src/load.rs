@@ -9,6 +9,9 @@ use std::path::Path;
 pub const DETECTION_RULES: &str = "poses_bounds.npy (LLFF), models.json (Spaces), cameras.txt / cameras.bin / \
      sparse/0/ (COLMAP), input_Cam000.png (light field), transforms.json (nerfstudio)";
 
+/// The largest far / near ratio of a scene's depth bounds (real captures: up to about 10^3).
+pub const MAX_DEPTH_RATIO: f64 = 1e7;
+
 /// Detect the format of a dataset folder from its contents.
 pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
     // A nerfstudio / instant-ngp JSON given as a file (e.g. Blender's transforms_train.json).
@@ -108,6 +111,24 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
         return Err(DataError::invalid(
             path,
             format!("invalid depth bounds near {n}, far {f} (need 0 < near < far, finite)"),
+        ));
+    }
+    // A plane sweep spaces its planes in inverse depth between them: beyond this ratio its disparities are
+    // not numbers a capture has (near 1e-300, far 1e300 gave infinite disparity and 256 planes).
+    if let Some((n, f)) = scene.depth_bounds
+        && f / n > MAX_DEPTH_RATIO
+    {
+        let given = if opts.near.is_some() || opts.far.is_some() {
+            " (--near/--far)"
+        } else {
+            ""
+        };
+        return Err(DataError::invalid(
+            path,
+            format!(
+                "depth bounds near {n:e}, far {f:e}{given}: far is more than {MAX_DEPTH_RATIO:e} times near; \
+                 give bounds that hold the scene"
+            ),
         ));
     }
     Ok(scene)

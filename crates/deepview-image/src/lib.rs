@@ -239,8 +239,22 @@ pub fn read_image(path: &Path, channels: usize) -> Result<ImageF32, ImageError> 
     ImageF32::from_data(w, h, channels, data)
 }
 
-/// Image size without decoding the pixels.
+/// Image size without decoding the pixels. A PNG's size comes straight from its IHDR chunk, so that a
+/// header announcing a huge image is reported with its size (the decoder's memory limit would refuse it
+/// without saying why).
 pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
+    let mut head = [0u8; 24];
+    if let Ok(mut f) = std::fs::File::open(path)
+        && std::io::Read::read_exact(&mut f, &mut head).is_ok()
+        && head[..8] == *b"\x89PNG\r\n\x1a\n"
+        && head[12..16] == *b"IHDR"
+    {
+        let w = u32::from_be_bytes([head[16], head[17], head[18], head[19]]);
+        let h = u32::from_be_bytes([head[20], head[21], head[22], head[23]]);
+        if w > 0 && h > 0 {
+            return Ok((w, h));
+        }
+    }
     image::image_dimensions(path).map_err(|e| ImageError::Read {
         path: path.into(),
         source: e,

@@ -124,13 +124,14 @@ pub fn parse_camera_path(text: &str, path: &Path) -> Result<CameraPath, MediaErr
         let f = h as f64 / (2.0 * (e.fov.to_radians() / 2.0).tan());
         // A fov of a few subnormal degrees passes the range check but its focal length is infinite.
         let k = Intrinsics::centred(f, w, h);
-        k.validate().map_err(|err| {
+        let camera = Camera::new(w, h, k, pose);
+        camera.validate().map_err(|err| {
             invalid(
                 path,
-                format!("camera_path[{i}].fov {} degrees: {err}", e.fov),
+                format!("camera_path[{i}].fov {:e} degrees ({w}x{h}): {err}", e.fov),
             )
         })?;
-        cameras.push(Camera::new(w, h, k, pose));
+        cameras.push(camera);
     }
     Ok(CameraPath {
         cameras,

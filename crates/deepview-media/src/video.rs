@@ -279,12 +279,31 @@ impl Drop for Mp4Sink {
 impl FrameSink for Mp4Sink {
     fn push(&mut self, rgb: &[u8]) -> Result<(), MediaError> {
         let stdin = self.child.stdin.as_mut().expect("stdin is piped");
-        stdin.write_all(rgb).map_err(|e| {
-            MediaError::Ffmpeg(format!(
-                "ffmpeg stopped accepting frames for {}: {e}",
-                self.path.display()
-            ))
-        })
+        if let Err(e) = stdin.write_all(rgb) {
+            // ffmpeg ended early: say how, with what it printed.
+            drop(self.child.stdin.take());
+            let mut stderr = String::new();
+            if let Some(mut err) = self.child.stderr.take() {
+                let _ = std::io::Read::read_to_string(&mut err, &mut stderr);
+            }
+            let status = self
+                .child
+                .wait()
+                .map(|s| s.to_string())
+                .unwrap_or_else(|w| w.to_string());
+            let said = stderr.trim();
+            return Err(MediaError::Ffmpeg(format!(
+                "ffmpeg stopped accepting frames for {} ({e}; ffmpeg: {status}){}",
+                self.path.display(),
+                if said.is_empty() {
+                    String::new()
+                } else {
+                    let lines: Vec<&str> = said.lines().collect();
+                    format!(": {}", lines[lines.len().saturating_sub(5)..].join(" | "))
+                }
+            )));
+        }
+        Ok(())
     }
     fn finish(mut self: Box<Self>) -> Result<(), MediaError> {
         drop(self.child.stdin.take());

@@ -159,6 +159,14 @@ pub(crate) fn read_layers<P: Send>(
         .par_iter()
         .map(|name| {
             let path = dir.join(name);
+            // The header first: a layer announcing another size is refused before it is decoded.
+            let (lw, lh) = deepview_image::image_size(&path)?;
+            if (lw, lh) != (w, h) {
+                return Err(invalid(
+                    &path,
+                    format!("layer is {lw}x{lh} but mpi.json says {w}x{h}"),
+                ));
+            }
             let img = deepview_image::decode_file(&path)?;
             if (img.width(), img.height()) != (w, h) {
                 return Err(invalid(

@@ -2,7 +2,7 @@
 
 use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Convert a training checkpoint (runs/<name>/checkpoints/step-N, or a run folder: its latest
 /// checkpoint) into a weights folder: config.json + model.safetensors.
@@ -39,10 +39,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         &[("--checkpoint", &given)],
     )?;
     let ck = if given.join("checkpoints").is_dir() {
-        deepview_train::list_checkpoints(&given)?
+        let (step, ck) = deepview_train::list_checkpoints(&given)?
             .pop()
-            .map(|(_, p)| p)
-            .with_context(|| format!("{}: the run has no checkpoints", given.display()))?
+            .with_context(|| format!("{}: the run has no complete checkpoint", given.display()))?;
+        // Say so when newer checkpoints are damaged: the export is then not the run's latest step.
+        for d in super::train::damaged_checkpoints(&given) {
+            let newer = Path::new(&d)
+                .file_name()
+                .and_then(|n| n.to_str())
+                .and_then(|n| n.strip_prefix("step-"))
+                .and_then(|n| n.parse::<u64>().ok())
+                .is_some_and(|s| s > step);
+            if newer {
+                eprintln!(
+                    "warning: skipping the damaged checkpoint {d} (a file is missing or empty)"
+                );
+            }
+        }
+        ck
     } else {
         given.clone()
     };

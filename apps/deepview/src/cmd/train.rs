@@ -345,7 +345,7 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
 }
 
 /// The `checkpoints/step-N` folders of `run_dir` that miss a file (or hold an empty one).
-fn damaged_checkpoints(run_dir: &Path) -> Vec<String> {
+pub fn damaged_checkpoints(run_dir: &Path) -> Vec<String> {
     let dir = run_dir.join("checkpoints");
     let Ok(entries) = std::fs::read_dir(&dir) else {
         return Vec::new();
@@ -736,7 +736,17 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
                 ranks_note(&comm)
             );
         }
-        Trainer::create_on(&run_dir, RunConfig { model, train }, data, comm.clone())?
+        let existed = run_dir.exists();
+        match Trainer::create_on(&run_dir, RunConfig { model, train }, data, comm.clone()) {
+            Ok(t) => t,
+            Err(e) => {
+                // A run that failed to start (unreadable --init weights, ...) leaves no folder behind.
+                if !existed && writer && list_checkpoints(&run_dir).is_ok_and(|c| c.is_empty()) {
+                    let _ = std::fs::remove_dir_all(&run_dir);
+                }
+                return Err(e.into());
+            }
+        }
     };
     let start_step = trainer.step;
     let mut progress = Progress::new(writer && !args.quiet, writer);
