@@ -256,6 +256,13 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
                     out.display()
                 );
             }
+            if let Some(what) = foreign_file(&o) {
+                bail!(
+                    "{option} {} exists and is not {what}: refusing to replace it; choose another name or \
+                     move it away",
+                    out.display()
+                );
+            }
         }
         Ok(m) if !m.is_dir() => {
             bail!(
@@ -329,6 +336,29 @@ fn check_writable(option: &str, out: &Path, resolved: &Path) -> anyhow::Result<(
             existing.display()
         ),
     }
+}
+
+/// What the existing file `path` should be, from its extension, when its content is not that (a user's
+/// notes named `view.png`); `None` when it may be replaced: content of its kind, an empty file, or an
+/// extension of no known kind.
+fn foreign_file(path: &Path) -> Option<&'static str> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    let (what, ok): (&str, fn(&[u8]) -> bool) = match ext.as_str() {
+        "png" => ("a PNG image", |b| b.starts_with(b"\x89PNG\r\n\x1a\n")),
+        "jpg" | "jpeg" => ("a JPEG image", |b| b.starts_with(&[0xFF, 0xD8, 0xFF])),
+        "gif" => ("a GIF animation", |b| b.starts_with(b"GIF8")),
+        "mp4" | "mov" | "m4v" => ("an MP4 video", |b| b.len() >= 8 && &b[4..8] == b"ftyp"),
+        "json" => ("a JSON file", |b| {
+            b.iter()
+                .find(|c| !c.is_ascii_whitespace())
+                .is_some_and(|&c| c == b'{' || c == b'[')
+        }),
+        _ => return None,
+    };
+    let mut head = Vec::with_capacity(16);
+    let f = std::fs::File::open(path).ok()?;
+    std::io::Read::read_to_end(&mut std::io::Read::take(f, 4096), &mut head).ok()?;
+    (!head.is_empty() && !ok(&head)).then_some(what)
 }
 
 /// Refuse to replace the existing folder `dir` (`out` as the user typed it) when it holds anything the
@@ -711,6 +741,24 @@ mod tests {
         assert!(e.to_string().contains("not a MPI folder"), "{e}");
         std::fs::create_dir(dir.path().join("empty")).unwrap();
         check_output("--out", &dir.path().join("empty"), Kind::Mpi, &[]).unwrap();
+    }
+
+    #[test]
+    fn single_files_replace_only_files_of_their_kind() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = |n: &str| dir.path().join(n);
+        std::fs::write(p("notes.png"), b"my notes").unwrap();
+        std::fs::write(p("v.png"), b"\x89PNG\r\n\x1a\nrest").unwrap();
+        std::fs::write(p("r.json"), b"  {\"ssim\": 1}").unwrap();
+        std::fs::write(p("todo.json"), b"buy milk").unwrap();
+        std::fs::write(p("empty.gif"), b"").unwrap();
+        for bad in ["notes.png", "todo.json"] {
+            let e = check_output("--out", &p(bad), Kind::File, &[]).unwrap_err();
+            assert!(e.to_string().contains("refusing to replace"), "{e}");
+        }
+        for good in ["v.png", "r.json", "empty.gif", "new.png"] {
+            check_output("--out", &p(good), Kind::File, &[]).unwrap();
+        }
     }
 
     #[test]
