@@ -511,6 +511,31 @@ fn written_into_folders_datasets_views_and_absurd_cameras() {
         ]),
         &["cam.json", "cx"],
     );
+    // --near/--far on an import that carries its own depths: refused, not ignored.
+    let sm = t.join("sm");
+    ok(&deepview(&[
+        "export",
+        "--mpi",
+        s(&gt),
+        "--format",
+        "stereo-mag",
+        "--out",
+        s(&sm),
+    ]));
+    refused(
+        &deepview(&[
+            "import",
+            "--mpi",
+            s(&sm),
+            "--near",
+            "10",
+            "--far",
+            "1",
+            "--out",
+            s(&t.join("im")),
+        ]),
+        &["--near/--far", "carries its own"],
+    );
 }
 
 // 2. Whole-folder atomicity and signals.

@@ -31,6 +31,25 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let (input, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Mpi, &[("--mpi", input)])?;
+    // --near/--far only fill in depths a folder lacks: never silently ignored.
+    if opts.near_far.is_some() {
+        use deepview_mpi::interchange::{ImportFormat, detect_format, stereo_mag};
+        let format =
+            detect_format(input).with_context(|| format!("cannot import {}", input.display()))?;
+        let own = match format {
+            ImportFormat::StereoMag => [stereo_mag::SIDECAR, "README"]
+                .into_iter()
+                .find(|f| input.join(f).is_file()),
+            _ => Some("its own metadata"),
+        };
+        if let Some(own) = own {
+            anyhow::bail!(
+                "--near/--far apply to a stereo magnification folder without depths; {} ({format:?}) \
+                 carries its own ({own}): leave them out",
+                input.display()
+            );
+        }
+    }
     let dir = OutputDir::new(out, Kind::Mpi)?;
     let format = deepview_mpi::import(input, dir.path(), &opts)
         .with_context(|| format!("cannot import {}", input.display()))?;
