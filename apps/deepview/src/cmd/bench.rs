@@ -17,6 +17,22 @@ pub enum BenchCommand {
     Net(NetArgs),
     /// Median time of a whole training step (VGG loss, backward, clipping, Adam) after warm-up.
     Train(TrainArgs),
+    /// Median time to make one procedural training scene (`train --data synthetic:procedural`).
+    Scenes(ScenesArgs),
+}
+
+#[derive(clap::Args, Debug)]
+#[command(after_help = "Examples:\n  deepview bench scenes --count 20\n  \
+    deepview bench scenes --data ../shared/data/llff/fern --images images_8   # photo textures")]
+pub struct ScenesArgs {
+    /// Scenes made (seeds 0..COUNT).
+    #[arg(long, default_value_t = 20, value_parser = args::parse_positive)]
+    pub count: usize,
+    /// A dataset whose views lend the textures (default: noise textures only).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    #[command(flatten)]
+    pub scene: deepview_data::SceneArgs,
 }
 
 #[derive(clap::Args, Debug)]
@@ -100,7 +116,42 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Render(a) => bench_render(a),
         BenchCommand::Net(a) => bench_net(a),
         BenchCommand::Train(a) => bench_train(a),
+        BenchCommand::Scenes(a) => bench_scenes(a),
     }
+}
+
+fn bench_scenes(args: ScenesArgs) -> anyhow::Result<()> {
+    use deepview_synth::procedural::{ProceduralOptions, generate};
+    let photos = match &args.data {
+        Some(d) => {
+            let scene = deepview_data::load_scene(d, &args.scene.load_options())?;
+            (0..scene.len())
+                .map(|i| scene.load_image(i))
+                .collect::<Result<Vec<_>, _>>()?
+        }
+        None => Vec::new(),
+    };
+    let refs: Vec<&deepview_image::ImageF32> = photos.iter().collect();
+    let opts = ProceduralOptions::default();
+    let (mut times, mut views) = (Vec::new(), 0);
+    for seed in 0..args.count as u64 {
+        let t = std::time::Instant::now();
+        let s = generate(seed, &refs, &opts);
+        times.push(t.elapsed().as_secs_f64());
+        views += s.cameras.len();
+    }
+    times.sort_by(f64::total_cmp);
+    let line = serde_json::json!({
+        "scene_ms": (times[times.len() / 2] * 1e4).round() / 10.0,
+        "views_per_scene": views as f64 / args.count as f64,
+        "width": opts.width,
+        "height": opts.height,
+        "supersample": opts.supersample,
+        "photo_textures": refs.len(),
+        "threads": rayon::current_num_threads(),
+    });
+    println!("{line}");
+    Ok(())
 }
 
 /// A dense MPI: every plane textured, alpha varying between 0 and 0.5 (like a network's output).
