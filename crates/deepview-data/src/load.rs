@@ -63,6 +63,29 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
     if scene.views.is_empty() {
         return Err(DataError::invalid(path, "the scene has no views"));
     }
+    // Options of other formats are errors here, not silently ignored.
+    if opts.rig != 0 && scene.format != SceneFormat::Spaces {
+        return Err(DataError::invalid(
+            path,
+            format!(
+                "--rig {} picks a rig position of a Spaces models.json; this is a {} scene",
+                opts.rig, scene.format
+            ),
+        ));
+    }
+    // (Light fields ignore it: runs and recipes pass one --images for LLFF scenes and grids together.)
+    if let Some(images) = &opts.images
+        && scene.format == SceneFormat::Spaces
+    {
+        return Err(DataError::invalid(
+            path,
+            format!(
+                "--images {images} names an image folder of LLFF, COLMAP or transforms.json scenes; a {} \
+                 scene has its images where its calibration says",
+                scene.format
+            ),
+        ));
+    }
     let factor = opts.downscale.max(1);
     if factor > 1 {
         for v in &mut scene.views {

@@ -98,7 +98,15 @@ pub struct GifSink {
 impl GifSink {
     pub fn new(path: &Path, width: u32, height: u32, fps: f64) -> Result<Self, MediaError> {
         use image::codecs::gif::{GifEncoder, Repeat};
-        let delay_ms = (1000.0 / fps.max(1e-3)).round().clamp(10.0, 655_350.0) as u32;
+        // A GIF frame lasts a whole number of centiseconds, 1 to 65535: 100 to about 0.0015 frames/s.
+        if !(fps.is_finite() && (1.0 / 655.35..=100.0).contains(&fps)) {
+            return Err(MediaError::Config(format!(
+                "{}: a GIF plays 0.0016 to 100 frames per second (got {fps}); choose an --fps in that \
+                 range or write an MP4",
+                path.display()
+            )));
+        }
+        let delay_ms = (1000.0 / fps).round().clamp(10.0, 655_350.0) as u32;
         let tmp = temp_path(path);
         let file = std::fs::File::create(&tmp).map_err(write_err(path))?;
         let error = std::rc::Rc::new(std::cell::RefCell::new(None));

@@ -76,9 +76,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         outputs.push(("--save-mpi", dir, Kind::Mpis));
     }
     for (i, &(option, path, kind)) in outputs.iter().enumerate() {
-        let mut against = inputs.clone();
-        against.extend(outputs[..i].iter().map(|&(o, p, _)| (o, p)));
-        check_output(option, path, kind, &against)?;
+        // Two outputs in one place: each needs its own.
+        let r = super::safety::resolve(path);
+        for &(other, p, _) in &outputs[..i] {
+            let q = super::safety::resolve(p);
+            if r == q || r.starts_with(&q) || q.starts_with(&r) {
+                anyhow::bail!(
+                    "{other} {} and {option} {} overlap: give each output its own place",
+                    p.display(),
+                    path.display()
+                );
+            }
+        }
+        check_output(option, path, kind, &inputs)?;
     }
     // The runner downscales (and scales the protocol's crops with it), so the scene loads at full size.
     let load = deepview_data::LoadOptions {
@@ -115,7 +125,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .flatten()
         .map(|d| CreatedDirs::create(d))
         .collect::<anyhow::Result<Vec<_>>>()?;
-    let report = evaluate(&scene, &protocol, &mut predictor, &options)?;
+    // Folders this run made go with a signal too (the outermost holds the rest).
+    let made: Vec<PathBuf> = created
+        .iter()
+        .filter_map(|c| c.paths().first().cloned())
+        .collect();
+    made.iter().for_each(|p| super::signals::register(p));
+    let report = evaluate(&scene, &protocol, &mut predictor, &options);
+    made.iter().for_each(|p| super::signals::unregister(p));
+    let report = report?;
     for c in created {
         c.keep();
     }

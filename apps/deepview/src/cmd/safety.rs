@@ -487,6 +487,11 @@ impl CreatedDirs {
         }
     }
 
+    /// The folders it made, outermost first.
+    pub fn paths(&self) -> &[PathBuf] {
+        &self.0
+    }
+
     /// Keep them (success).
     pub fn keep(mut self) {
         self.0.clear();

@@ -90,8 +90,46 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     } else {
         let cams = std::path::Path::new(&args.cameras);
         check_output("--out", &args.out, Kind::SynthScene, &[("--cameras", cams)])?;
+        if (args.width, args.height, args.grid) != (256, 192, 4) {
+            anyhow::bail!(
+                "--width, --height and --grid shape a generated grid; the rig {} brings its own cameras \
+                 (use --downscale to make them smaller)",
+                cams.display()
+            );
+        }
         let scene = deepview_data::load_scene(cams, &args.scene.load_options())
             .with_context(|| format!("cannot load the rig {}", cams.display()))?;
+        // LLFF's poses_bounds.npy holds one focal length and a centred principal point: a --downscale that
+        // does not divide the image size moves it off centre, so say so now, not after the rendering.
+        let llff_out = args
+            .out_format
+            .map_or(scene.format == deepview_data::SceneFormat::Llff, |f| {
+                f == deepview_data::SceneFormat::Llff
+            });
+        if llff_out {
+            for v in &scene.views {
+                let (k, w, h) = (
+                    v.camera.intrinsics,
+                    v.camera.width as f64,
+                    v.camera.height as f64,
+                );
+                if (k.fx - k.fy).abs() > 1e-9 * k.fx
+                    || (k.cx - w / 2.0).abs() > 1e-9 * w
+                    || (k.cy - h / 2.0).abs() > 1e-9 * h
+                {
+                    anyhow::bail!(
+                        "view {} of {} is {}x{} with its principal point off centre at this --downscale {}: \
+                         LLFF output needs a centred one; use a --downscale that divides the image size, or \
+                         --out-format transforms",
+                        v.name,
+                        cams.display(),
+                        v.camera.width,
+                        v.camera.height,
+                        args.scene.downscale
+                    );
+                }
+            }
+        }
         let sizes = scene
             .views
             .iter()
