@@ -1,10 +1,10 @@
-//! `mpirun -np N deepview train ...` (feature `mpi`; needs Open MPI's `mpirun`): N ranks end with the
+//! `mpirun -np N deepview train ...` (feature `openmpi`; needs Open MPI's `mpirun`): N ranks end with the
 //! weights of one process on the same global batch, an error or a killed rank stops the whole job, and
 //! the run resumes on N ranks.
 //!
-//! `cargo test --release -p deepview --features mpi --test mpi` (about 30 s; VGG weights passed with
+//! `cargo test --release -p deepview --features openmpi --test mpi` (about 30 s; VGG weights passed with
 //! `--vgg-weights` from the data folder, `DEEPVIEW_DATA`).
-#![cfg(feature = "mpi")]
+#![cfg(feature = "openmpi")]
 
 mod common;
 

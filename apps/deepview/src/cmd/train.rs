@@ -14,7 +14,7 @@ use deepview_train::{
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
 
-#[cfg(feature = "mpi")]
+#[cfg(feature = "openmpi")]
 #[path = "train_mpi.rs"]
 mod mpi;
 #[path = "train_progress.rs"]
@@ -496,15 +496,15 @@ fn launcher_ranks() -> Option<usize> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    #[cfg(feature = "mpi")]
+    #[cfg(feature = "openmpi")]
     if launcher_ranks().is_some_and(|n| n > 1) {
         return mpi::run_ranks(|comm| train(args, Some(comm)));
     }
-    #[cfg(not(feature = "mpi"))]
+    #[cfg(not(feature = "openmpi"))]
     if let Some(n) = launcher_ranks().filter(|&n| n > 1) {
         bail!(
             "started by an MPI launcher as one of {n} ranks, but this deepview was built without MPI \
-             support: rebuild it with `cargo build --release -p deepview --features mpi`"
+             support: rebuild it with `cargo build --release -p deepview --features openmpi`"
         );
     }
     train(args, None)

@@ -1,4 +1,4 @@
-//! `mpirun -np N deepview train ...` (feature `mpi`): one training replica per MPI rank, through the
+//! `mpirun -np N deepview train ...` (feature `openmpi`): one training replica per MPI rank, through the
 //! `mpi` crate (Open MPI, MPICH, ...). The training side is `deepview_train::dist`.
 //!
 //! An error or a panic on any rank prints `error: rank R of N: <reason>` and calls `MPI_Abort`, which
