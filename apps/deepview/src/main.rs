@@ -12,6 +12,28 @@ use std::process::ExitCode;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// The network's CPU engine: `kernels` (the fast custom kernels, default) or `burn` (burn's own ops,
+    /// the reference: for A/B benchmarks and checks).
+    #[arg(long, global = true, value_enum, default_value_t = Engine::Kernels)]
+    engine: Engine,
+    /// Widest instruction set of the CPU kernels: `auto` (the machine's best, default), `avx512`, `avx2`
+    /// or `portable` (for A/B benchmarks, or a machine whose wide units misbehave).
+    #[arg(long, global = true, value_enum, default_value_t = IsaArg::Auto)]
+    isa: IsaArg,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum Engine {
+    Kernels,
+    Burn,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+enum IsaArg {
+    Auto,
+    Avx512,
+    Avx2,
+    Portable,
 }
 
 #[derive(Subcommand)]
@@ -57,6 +79,12 @@ enum Command {
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
+    deepview_net::kernels::use_burn_ops(cli.engine == Engine::Burn);
+    deepview_kernels::set_process_isa(match cli.isa {
+        IsaArg::Auto | IsaArg::Avx512 => deepview_kernels::Isa::Avx512,
+        IsaArg::Avx2 => deepview_kernels::Isa::Avx2,
+        IsaArg::Portable => deepview_kernels::Isa::Portable,
+    });
     match cli.command {
         Command::Demo(a) => cmd::demo::run(a),
         Command::Synth(a) => cmd::synth::run(a),

@@ -134,32 +134,45 @@ pub fn with_isa_cap<R>(cap: Isa, f: impl FnOnce() -> R) -> R {
     r
 }
 
-/// Run `f` with the portable kernels on this thread (also `DEEPVIEW_PORTABLE_KERNELS=1` for a whole
-/// process).
+/// The widest instruction set the whole process may use ([`set_process_isa`]; `deepview --isa`).
+static PROCESS_CAP: std::sync::atomic::AtomicU8 =
+    std::sync::atomic::AtomicU8::new(Isa::Avx512 as u8);
+
+/// Cap the instruction set of the kernels for the whole process (`deepview --isa avx2|portable`: A/B
+/// benchmarks, or a machine whose wide units misbehave).
+pub fn set_process_isa(cap: Isa) {
+    PROCESS_CAP.store(cap as u8, std::sync::atomic::Ordering::Relaxed);
+}
+
+fn process_cap() -> Isa {
+    match PROCESS_CAP.load(std::sync::atomic::Ordering::Relaxed) {
+        0 => Isa::Portable,
+        1 => Isa::Avx2,
+        _ => Isa::Avx512,
+    }
+}
+
+/// Run `f` with the portable kernels on this thread ([`set_process_isa`] for a whole process).
 pub fn with_portable<R>(f: impl FnOnce() -> R) -> R {
     with_isa_cap(Isa::Portable, f)
 }
 
-/// The best instruction set of this machine that the process allows: `DEEPVIEW_PORTABLE_KERNELS=1`
-/// forces the portable kernels, `DEEPVIEW_NO_AVX512=1` the AVX2 ones.
+/// The best instruction set of this machine that the process allows ([`set_process_isa`]).
 pub fn detected() -> Isa {
     #[cfg(target_arch = "x86_64")]
     {
         use std::sync::OnceLock;
         static HAS: OnceLock<Isa> = OnceLock::new();
-        *HAS.get_or_init(|| {
-            if std::env::var_os("DEEPVIEW_PORTABLE_KERNELS").is_some()
-                || !(is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma"))
-            {
+        let hardware = *HAS.get_or_init(|| {
+            if !(is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma")) {
                 Isa::Portable
-            } else if std::env::var_os("DEEPVIEW_NO_AVX512").is_none()
-                && is_x86_feature_detected!("avx512f")
-            {
+            } else if is_x86_feature_detected!("avx512f") {
                 Isa::Avx512
             } else {
                 Isa::Avx2
             }
-        })
+        });
+        hardware.min(process_cap())
     }
     #[cfg(not(target_arch = "x86_64"))]
     {

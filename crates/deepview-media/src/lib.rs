@@ -81,4 +81,4 @@ pub(crate) fn write_err(path: &std::path::Path) -> impl FnOnce(std::io::Error) -
 
 pub use camera_path::{CameraPathFile, read_camera_path, write_camera_path};
 pub use path::{PathKind, PathSpec, Radius, camera_path as make_camera_path};
-pub use video::{VideoFormat, VideoReport, render_video};
+pub use video::{VideoFormat, VideoReport, render_video, set_ffmpeg_program};

@@ -2,7 +2,7 @@
 //!
 //! The format follows the output path: `*.gif` -> GIF (the `image` crate's encoder, looping),
 //! `*.mp4` / `*.mov` / `*.mkv` -> raw RGB frames piped to `ffmpeg` (H.264, yuv420p; found on `PATH` or
-//! named by `DEEPVIEW_FFMPEG`), anything else -> a folder of `frame_00000.png ...`. Frames are the
+//! named by `render --ffmpeg`), anything else -> a folder of `frame_00000.png ...`. Frames are the
 //! premultiplied render over black, streamed to the output as they are rendered (never held). Every file is
 //! written atomically (GIF and MP4 into a temporary file renamed at the end).
 
@@ -222,9 +222,17 @@ pub struct Mp4Sink {
     finished: bool,
 }
 
-/// The ffmpeg program: `DEEPVIEW_FFMPEG` if set, else `ffmpeg` (searched on `PATH`).
+/// The ffmpeg program [`set_ffmpeg_program`] named (`render --ffmpeg`), else `ffmpeg` on `PATH`.
+static FFMPEG: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+
+/// Use `program` for MP4 output in this process (once; later calls keep the first).
+pub fn set_ffmpeg_program(program: &str) {
+    let _ = FFMPEG.set(program.to_string());
+}
+
+/// The ffmpeg program ([`set_ffmpeg_program`]), else `ffmpeg` (searched on `PATH`).
 pub fn ffmpeg_program() -> String {
-    std::env::var("DEEPVIEW_FFMPEG").unwrap_or_else(|_| "ffmpeg".into())
+    FFMPEG.get().cloned().unwrap_or_else(|| "ffmpeg".into())
 }
 
 impl Mp4Sink {
@@ -255,7 +263,7 @@ impl Mp4Sink {
                 if e.kind() == std::io::ErrorKind::NotFound {
                     MediaError::Ffmpeg(format!(
                         "cannot write {}: `{program}` was not found on PATH; install ffmpeg (e.g. apt-get install \
-                         ffmpeg), set DEEPVIEW_FFMPEG, or write a .gif or a folder of PNG frames instead",
+                         ffmpeg), name it with --ffmpeg, or write a .gif or a folder of PNG frames instead",
                         path.display()
                     ))
                 } else {

@@ -119,10 +119,19 @@ fn act_of(code: u32) -> Act {
     }
 }
 
+/// Set by [`use_burn_ops`]: burn's own ops everywhere, the custom kernels off.
+static BURN_OPS: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Run every op through burn's own implementation instead of the custom kernels, for the whole process
+/// (`deepview --engine burn`: A/B benchmarks against burn, which stays the reference).
+pub fn use_burn_ops(on: bool) {
+    BURN_OPS.store(on, std::sync::atomic::Ordering::Relaxed);
+}
+
 /// Whether tensors on `device` take the custom kernels (the `flex` CPU backend, with or without
-/// autodiff). `DEEPVIEW_ENGINE=burn` turns them off (for A/B benchmarks against burn's own ops).
+/// autodiff), unless [`use_burn_ops`] turned them off.
 pub fn fast_device(device: &Device) -> bool {
-    if std::env::var("DEEPVIEW_ENGINE").is_ok_and(|v| v == "burn") {
+    if BURN_OPS.load(std::sync::atomic::Ordering::Relaxed) {
         return false;
     }
     matches!(

@@ -39,7 +39,7 @@ pub struct ScenesArgs {
 #[command(
     after_help = "Examples:\n  deepview bench net --preset cpu --views 4 --planes 32 --size 575x412\n  \
     deepview bench net --weights weights/cpu --views 4 --planes 32 --size 504x378\n  \
-    DEEPVIEW_ENGINE=burn deepview bench net --preset cpu   # burn's own conv2d instead of the kernels"
+    deepview bench net --preset cpu --engine burn   # burn's own conv2d instead of the kernels"
 )]
 pub struct NetArgs {
     /// Weights folder or checkpoint; default: `--preset` with random weights.

@@ -48,6 +48,9 @@ pub struct Args {
     pub alpha: bool,
     #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
     pub max_memory: Option<String>,
+    /// The ffmpeg program for MP4 output (default: `ffmpeg` on PATH).
+    #[arg(long, value_name = "PROGRAM", default_value = "ffmpeg")]
+    pub ffmpeg: String,
 }
 
 impl Args {
@@ -173,6 +176,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    deepview_media::set_ffmpeg_program(&args.ffmpeg);
     if args.path.is_some() || args.camera_path.is_some() {
         return run_path(&args);
     }
