@@ -149,6 +149,11 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
+    /// Score the held-out views of the run's posed real datasets (4 nearest and 3 spread inputs, at most
+    /// 256 px wide) at the session's first checkpoint and at the first one past every multiple of N steps,
+    /// into runs/NAME/validation.jsonl (choose the checkpoint to ship by it).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub validate_every: Option<u64>,
     /// Recompute each net's activations during the backward pass (the paper's gradient checkpointing:
     /// peak memory of one net instead of all nets, one extra forward pass per step). Default: on for
     /// presets with more than 2 nets (all paper-* presets). Kept in the run's config.json.
@@ -750,7 +755,34 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     };
     let start_step = trainer.step;
     let mut progress = Progress::new(writer && !args.quiet, writer);
-    let result = trainer.run(&stop, &mut |e| progress.event(e));
+    let mut validation = match args.validate_every.filter(|_| writer) {
+        Some(n) => Some(super::train_validate::Validation::new(
+            &trainer.config.train.data,
+            &opts,
+            &run_dir,
+            n,
+        )?),
+        None => None,
+    };
+    if validation.as_ref().is_some_and(|v| v.is_empty()) {
+        progress.say(
+            "warning: --validate-every: the run has no posed real dataset (LLFF, COLMAP, transforms.json) \
+             to hold views out of"
+                .into(),
+        );
+    }
+    let result = trainer.run(&stop, &mut |e| {
+        if let (deepview_train::TrainEvent::Checkpoint { step, dir }, Some(v)) =
+            (&e, validation.as_mut())
+        {
+            match v.at_checkpoint(*step, dir) {
+                Ok(Some(line)) => progress.say(line),
+                Ok(None) => {}
+                Err(err) => progress.say(format!("warning: validation failed: {err:#}")),
+            }
+        }
+        progress.event(e)
+    });
     progress.finish();
     let reports = result?;
     let last: Vec<f64> = reports

@@ -30,7 +30,7 @@ impl Progress {
         }
     }
 
-    fn say(&self, line: String) {
+    pub fn say(&self, line: String) {
         if !self.writer {
             return;
         }

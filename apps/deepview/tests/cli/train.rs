@@ -271,3 +271,76 @@ fn resume_refuses_fewer_steps_and_damaged_checkpoints() {
     fails_with(&o, &needles);
     assert_eq!(std::fs::read_dir(&cks).unwrap().count(), names.len());
 }
+
+/// `--validate-every N` scores the held-out views of the posed real datasets (both protocols) at the
+/// checkpoints past each multiple of N, into validation.jsonl; light-field grids and procedural scenes are
+/// not in it; the scores are those `eval --method deepview --weights CK` gives for that checkpoint.
+#[test]
+fn validation_scores_checkpoints_into_validation_jsonl() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    let fern = crate::common::data().join("llff/fern");
+    let err = train(
+        &runs,
+        "v",
+        4,
+        &[
+            "--data",
+            s(&fern),
+            s(&grid),
+            "synthetic:procedural",
+            "--images",
+            "images_8",
+            "--loss",
+            "l1",
+            "--crop",
+            "8",
+            "--planes",
+            "4",
+            "--checkpoint-every",
+            "2",
+            "--validate-every",
+            "3",
+        ],
+    );
+    assert!(err.contains("validation at step 4 (1 scenes)"), "{err}");
+    let lines: Vec<serde_json::Value> = std::fs::read_to_string(runs.join("v/validation.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    // The first checkpoint (step 2), then the first past 3 (step 4).
+    let steps: Vec<u64> = lines.iter().map(|l| l["step"].as_u64().unwrap()).collect();
+    assert_eq!(steps, [2, 2, 4, 4]);
+    for l in &lines {
+        assert!(l["scene"].as_str().unwrap().ends_with("llff/fern"));
+        let ssim = l["ssim"].as_f64().unwrap();
+        assert!(ssim > 0.0 && ssim <= 1.0, "{l}");
+    }
+    // The same number as eval of that checkpoint under the same protocol.
+    let ck = runs.join("v/checkpoints/step-0000004");
+    let o = crate::common::deepview(&[
+        "eval",
+        "--data",
+        s(&fern),
+        "--images",
+        "images_8",
+        "--downscale",
+        "2",
+        "--method",
+        "deepview",
+        "--weights",
+        s(&ck),
+        "--inputs",
+        "spread:3",
+        "--crop",
+        "0",
+    ]);
+    let table = succeeds(&o);
+    let want = lines[3]["ssim"].as_f64().unwrap();
+    assert!(
+        table.contains(&format!("{want:.4}")),
+        "validation {want:.4} not in eval's table:\n{table}"
+    );
+}
