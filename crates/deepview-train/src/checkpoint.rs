@@ -58,6 +58,27 @@ pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainErro
     Ok(out)
 }
 
+/// The `checkpoints/step-N` folders of `run_dir` that miss a file of [`CHECKPOINT_FILES`] (or hold an
+/// empty one): damaged, and left out of [`list_checkpoints`].
+pub fn damaged_checkpoints(run_dir: &Path) -> Vec<String> {
+    let dir = run_dir.join("checkpoints");
+    let Ok(entries) = std::fs::read_dir(&dir) else {
+        return Vec::new();
+    };
+    let mut out: Vec<String> = entries
+        .flatten()
+        .filter(|e| {
+            let name = e.file_name().to_string_lossy().into_owned();
+            name.strip_prefix("step-")
+                .is_some_and(|n| n.parse::<u64>().is_ok())
+                && !checkpoint_is_complete(&e.path())
+        })
+        .map(|e| e.path().display().to_string())
+        .collect();
+    out.sort();
+    out
+}
+
 pub(crate) type Loaded = (DeepViewModel, ModuleOptimizer, CheckpointState);
 
 /// The latest checkpoint of `run_dir` that loads (a damaged one is skipped, said in `notices`).

@@ -387,6 +387,20 @@ impl TrainData {
         }
     }
 
+    /// How the procedural scenes join the data, for a run's first line ("" without them).
+    pub fn procedural_note(&self) -> String {
+        match &self.procedural {
+            Some(_) if self.scenes.is_empty() => {
+                " (every tuple from a new procedural scene)".into()
+            }
+            Some(p) => format!(
+                " plus a new procedural scene for {:.0}% of the tuples",
+                100.0 * p.share
+            ),
+            None => String::new(),
+        }
+    }
+
     /// The name of the scene of a tuple ([`Example::scene`]).
     pub fn scene_name(&self, scene: usize) -> &str {
         match self.scenes.get(scene) {

@@ -62,7 +62,10 @@ pub mod synthetic;
 pub mod trainer;
 pub mod vgg;
 
-pub use checkpoint::{CHECKPOINT_FILES, CheckpointState, checkpoint_is_complete, list_checkpoints};
+pub use checkpoint::{
+    CHECKPOINT_FILES, CheckpointState, checkpoint_is_complete, damaged_checkpoints,
+    list_checkpoints,
+};
 pub use config::{PAPER_LEARNING_RATE, RunConfig, TrainConfig};
 pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
 pub use device::parse_device;

@@ -43,7 +43,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .pop()
             .with_context(|| format!("{}: the run has no complete checkpoint", given.display()))?;
         // Say so when newer checkpoints are damaged: the export is then not the run's latest step.
-        for d in super::train::damaged_checkpoints(&given) {
+        for d in deepview_train::damaged_checkpoints(&given) {
             let newer = Path::new(&d)
                 .file_name()
                 .and_then(|n| n.to_str())

@@ -20,7 +20,6 @@ pub mod safety;
 pub mod signals;
 pub mod synth;
 pub mod train;
-pub mod train_validate;
 pub mod view;
 
 use deepview_geometry::Camera;

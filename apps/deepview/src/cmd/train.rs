@@ -19,7 +19,10 @@ use std::rc::Rc;
 mod mpi;
 #[path = "train_progress.rs"]
 mod progress;
+#[path = "train_validate.rs"]
+mod validate;
 use progress::Progress;
+use validate::Validation;
 
 /// Train the network (Adam, lr 1.5e-4, global gradient clipping at 8, VGG feature loss on 32x32 target
 /// crops, as in the paper). A run lives in `<runs>/<name>/`: config.json, metrics.jsonl and
@@ -349,26 +352,6 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The `checkpoints/step-N` folders of `run_dir` that miss a file (or hold an empty one).
-pub fn damaged_checkpoints(run_dir: &Path) -> Vec<String> {
-    let dir = run_dir.join("checkpoints");
-    let Ok(entries) = std::fs::read_dir(&dir) else {
-        return Vec::new();
-    };
-    let mut out: Vec<String> = entries
-        .flatten()
-        .filter(|e| {
-            let name = e.file_name().to_string_lossy().into_owned();
-            name.strip_prefix("step-")
-                .is_some_and(|n| n.parse::<u64>().is_ok())
-                && !deepview_train::checkpoint_is_complete(&e.path())
-        })
-        .map(|e| e.path().display().to_string())
-        .collect();
-    out.sort();
-    out
-}
-
 /// `--downscale` 0 and 1 both mean full size.
 fn normalised(o: &LoadOptions) -> LoadOptions {
     LoadOptions {
@@ -554,7 +537,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     // A run killed before its first checkpoint restarts from its config.json (said on stderr); one whose
     // every checkpoint is damaged is refused, naming them, rather than started over.
     if args.resume && started && list_checkpoints(&run_dir)?.is_empty() {
-        let damaged = damaged_checkpoints(&run_dir);
+        let damaged = deepview_train::damaged_checkpoints(&run_dir);
         if !damaged.is_empty() {
             bail!(
                 "--resume: no checkpoint of {} is complete ({} lack one of {}): move them away to start \
@@ -722,16 +705,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         args.vgg.check(train.loss)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
         if writer {
-            let procedural = match &data.procedural {
-                Some(_) if data.scenes.is_empty() => {
-                    " (every tuple from a new procedural scene)".to_string()
-                }
-                Some(p) => format!(
-                    " plus a new procedural scene for {:.0}% of the tuples",
-                    100.0 * p.share
-                ),
-                None => String::new(),
-            };
+            let procedural = data.procedural_note();
             eprintln!(
                 "training {} ({} preset) on {} scene(s), {views} training views{procedural}, devices {:?}{}",
                 run_dir.display(),
@@ -756,7 +730,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     let start_step = trainer.step;
     let mut progress = Progress::new(writer && !args.quiet, writer);
     let mut validation = match args.validate_every.filter(|_| writer) {
-        Some(n) => Some(super::train_validate::Validation::new(
+        Some(n) => Some(Validation::new(
             &trainer.config.train.data,
             &opts,
             &run_dir,
@@ -765,21 +739,11 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         None => None,
     };
     if validation.as_ref().is_some_and(|v| v.is_empty()) {
-        progress.say(
-            "warning: --validate-every: the run has no posed real dataset (LLFF, COLMAP, transforms.json) \
-             to hold views out of"
-                .into(),
-        );
+        progress.say(validate::NO_SCENES.into());
     }
     let result = trainer.run(&stop, &mut |e| {
-        if let (deepview_train::TrainEvent::Checkpoint { step, dir }, Some(v)) =
-            (&e, validation.as_mut())
-        {
-            match v.at_checkpoint(*step, dir) {
-                Ok(Some(line)) => progress.say(line),
-                Ok(None) => {}
-                Err(err) => progress.say(format!("warning: validation failed: {err:#}")),
-            }
+        if let Some(v) = validation.as_mut() {
+            v.on_event(&e, &progress);
         }
         progress.event(e)
     });

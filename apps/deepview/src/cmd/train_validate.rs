@@ -6,14 +6,19 @@
 //! crop). The learned method runs from the checkpoint exactly as `eval --method deepview --weights CK`
 //! would. Synthetic data, light-field grids and Spaces rigs are not in it.
 
+use super::progress::Progress;
 use deepview_data::{LoadOptions, Scene, SceneFormat};
 use deepview_eval::{
     EvalOptions, InputRule, MethodKind, MethodOptions, MpiPredictor, Protocol, TargetRule,
     evaluate, make_method,
 };
-use deepview_train::DataSpec;
+use deepview_train::{DataSpec, TrainEvent};
 use std::io::Write;
 use std::path::{Path, PathBuf};
+
+/// The warning when a run asks for validation but has nothing to validate on.
+pub const NO_SCENES: &str = "warning: --validate-every: the run has no posed real dataset (LLFF, COLMAP, \
+    transforms.json) to hold views out of";
 
 /// Images of the validation set are downscaled to at most this width.
 pub const VALIDATION_WIDTH: u32 = 256;
@@ -68,6 +73,17 @@ impl Validation {
     /// Whether it holds any scene.
     pub fn is_empty(&self) -> bool {
         self.scenes.is_empty()
+    }
+
+    /// On a training event: at a checkpoint, [`Self::at_checkpoint`], said through `progress`.
+    pub fn on_event(&mut self, e: &TrainEvent<'_>, progress: &Progress) {
+        if let TrainEvent::Checkpoint { step, dir } = e {
+            match self.at_checkpoint(*step, dir) {
+                Ok(Some(line)) => progress.say(line),
+                Ok(None) => {}
+                Err(err) => progress.say(format!("warning: validation failed: {err:#}")),
+            }
+        }
     }
 
     /// At a checkpoint of `step` in `ck`: score it when a multiple of `every` was passed since the last
