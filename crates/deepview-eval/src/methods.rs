@@ -110,8 +110,8 @@ pub struct MethodOptions {
     #[arg(long, default_value_t = 0.1, value_parser = positive_f64)]
     pub lr: f64,
     /// Working width of the optimisation: inputs are box-downscaled by an integer factor to at most this
-    /// width (optimize).
-    #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(1..))]
+    /// width (optimize; at least 16).
+    #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(16..))]
     pub max_width: u32,
 }
 

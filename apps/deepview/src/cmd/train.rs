@@ -143,7 +143,7 @@ pub struct Args {
     /// wide, instead of one --downscale for all: scenes of different sizes train at their own factor
     /// (e.g. LLFF `images_4` at 2 and 256 px synthetic grids at 1 with `--max-width 512`). Each factor is
     /// kept in the run's config.json; with --resume it applies only to datasets the run did not have.
-    #[arg(long, value_name = "W", conflicts_with = "downscale")]
+    #[arg(long, value_name = "W", conflicts_with = "downscale", value_parser = clap::value_parser!(u32).range(16..))]
     pub max_width: Option<u32>,
     /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none; 1 would hold out
     /// every view). Default 8.
