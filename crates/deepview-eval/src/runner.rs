@@ -304,17 +304,40 @@ fn write_mpi_folder(
 ) -> Result<(), EvalError> {
     let name = dir.file_name().unwrap_or_default().to_string_lossy();
     let tmp = dir.with_file_name(format!(".{name}.tmp-{}", std::process::id()));
+    let old = dir.with_file_name(format!(".{name}.old-{}", std::process::id()));
+    let write_err = |source| EvalError::Write {
+        path: dir.to_path_buf(),
+        source,
+    };
+    // An earlier run's MPI of this target is replaced; a folder holding anything else is not.
+    if dir.exists() {
+        let foreign = std::fs::read_dir(dir)
+            .map_err(write_err)?
+            .flatten()
+            .map(|e| e.file_name().to_string_lossy().into_owned())
+            .find(|n| n != "mpi.json" && !(n.starts_with("layer_") && n.ends_with(".png")));
+        if let Some(f) = foreign {
+            return Err(EvalError::Invalid(format!(
+                "{} holds {f}, which is not part of an MPI: refusing to replace it",
+                dir.display()
+            )));
+        }
+    }
     let written = deepview_mpi::write_mpi_with(&tmp, mpi, rule)
         .map_err(EvalError::from)
         .and_then(|()| {
-            std::fs::rename(&tmp, dir).map_err(|source| EvalError::Write {
-                path: dir.to_path_buf(),
-                source,
-            })
+            if dir.exists() {
+                std::fs::rename(dir, &old).map_err(write_err)?;
+            }
+            std::fs::rename(&tmp, dir).map_err(write_err)
         });
     if written.is_err() {
         let _ = std::fs::remove_dir_all(&tmp);
+        if old.exists() && !dir.exists() {
+            let _ = std::fs::rename(&old, dir);
+        }
     }
+    let _ = std::fs::remove_dir_all(&old);
     written
 }
 

@@ -64,6 +64,13 @@ pub struct DeepViewConfig {
     pub init_prior: Option<f64>,
 }
 
+/// The largest feature count of a net a config may ask for.
+pub const MAX_FEATURES: usize = 1024;
+/// The most update nets a config may ask for.
+pub const MAX_UPDATES: usize = 16;
+/// The most planes a config may ask for (`--planes` takes up to 1024 too).
+pub const MAX_PLANES: usize = 1024;
+
 impl DeepViewConfig {
     /// A preset by name: `paper-kalantari`, `paper-spaces-4view`, `paper-spaces-12view`, `cpu`, `cpu-large`.
     pub fn preset(name: &str) -> Result<Self, ConfigError> {
@@ -126,6 +133,7 @@ impl DeepViewConfig {
         })
     }
 
+    /// Validate the configuration (see the limits below).
     pub fn validate(&self) -> Result<(), ConfigError> {
         let bad = |m: &str| Err(ConfigError::Invalid(m.to_string()));
         if self.features_large == 0 || self.features_small == 0 {
@@ -144,6 +152,25 @@ impl DeepViewConfig {
         }
         if self.max_pool_stages == 0 {
             return bad("at least one max-pool stage is needed");
+        }
+        // Beyond these no machine builds the model (the paper's largest preset: 64 features, 3 updates, 4
+        // pool stages, 128 planes): a config asking for more is damaged, not ambitious.
+        let limits = [
+            (self.features_large, MAX_FEATURES, "features_large"),
+            (self.features_small, MAX_FEATURES, "features_small"),
+            (self.updates, MAX_UPDATES, "updates"),
+            (self.large_nets, MAX_UPDATES + 1, "large_nets"),
+            (self.unet_nets, MAX_UPDATES + 1, "unet_nets"),
+            (self.extra_channels, MAX_FEATURES, "extra_channels"),
+            (self.max_pool_stages, 8, "max_pool_stages"),
+            (self.train_planes, MAX_PLANES, "train_planes"),
+            (self.infer_planes, MAX_PLANES, "infer_planes"),
+            (self.views.unwrap_or(1), 64, "views"),
+        ];
+        if let Some((v, max, name)) = limits.iter().find(|(v, max, _)| v > max) {
+            return Err(ConfigError::Invalid(format!(
+                "{name} {v} is more than {max}"
+            )));
         }
         Ok(())
     }

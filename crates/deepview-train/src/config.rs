@@ -45,6 +45,9 @@ pub struct TrainConfig {
     pub init: Option<PathBuf>,
 }
 
+/// The largest batch (tuples per step) a run may ask for.
+pub const MAX_BATCH: usize = 256;
+
 impl TrainConfig {
     /// Defaults for `model`: paper learning rate and clipping, VGG loss, 32x32 crops, the model's
     /// training plane count, 2..=4 views (or the preset's fixed count), batch 1.
@@ -101,6 +104,17 @@ impl TrainConfig {
         }
         if self.sample.planes == 0 {
             return bad("planes must be at least 1".into());
+        }
+        // Beyond these a step cannot be held in any machine's memory: a damaged config.json.
+        for (v, max, name) in [
+            (self.sample.planes, 1024, "planes"),
+            (self.sample.crop, 4096, "crop"),
+            (self.batch, MAX_BATCH, "batch"),
+            (self.sample.views_max, 64, "views"),
+        ] {
+            if v > max {
+                return bad(format!("{name} {v} is more than {max}"));
+            }
         }
         if !(self.learning_rate > 0.0 && self.learning_rate.is_finite()) {
             return bad(format!(

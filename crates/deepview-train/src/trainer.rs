@@ -248,6 +248,10 @@ impl Trainer {
         if let Some(d) = devices {
             config.train.devices = d;
         }
+        config
+            .model
+            .validate()
+            .map_err(|e| TrainError::Config(format!("{}: {e}", cfg_path.display())))?;
         config.train.validate()?;
         let rank = comm.as_ref().map_or(0, |c| c.rank());
         let devices = Self::devices(&config.train.devices)?;

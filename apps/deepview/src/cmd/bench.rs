@@ -111,7 +111,19 @@ pub struct RenderArgs {
     pub max_memory: Option<String>,
 }
 
+/// The most repetitions a benchmark takes (more is a typo, and would allocate its timings first).
+const MAX_REPEATS: usize = 100_000;
+
 pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
+    let (what, n) = match &cmd {
+        BenchCommand::Render(a) => ("--repeats", a.repeats),
+        BenchCommand::Net(a) => ("--repeats", a.repeats),
+        BenchCommand::Train(a) => ("--steps", a.steps),
+        BenchCommand::Scenes(a) => ("--count", a.count),
+    };
+    if n > MAX_REPEATS {
+        anyhow::bail!("{what} {n} is more than a benchmark needs (at most {MAX_REPEATS})");
+    }
     match cmd {
         BenchCommand::Render(a) => bench_render(a),
         BenchCommand::Net(a) => bench_net(a),

@@ -38,14 +38,13 @@ const INPUTS: &str = "0,3,12,15";
 const TARGETS: &str = "5,10";
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let out = &args.out;
+    let shown = &args.out;
     let weights = args.weights.clone().unwrap_or_default();
     let inputs: Vec<super::safety::Input> = match &args.weights {
         Some(_) => vec![("--weights", &weights)],
         None => Vec::new(),
     };
-    super::safety::check_output("--out", out, super::safety::Kind::Demo, &inputs)?;
-    let created = super::safety::CreatedDirs::create(out)?;
+    super::safety::check_output("--out", shown, super::safety::Kind::Demo, &inputs)?;
     let budget = super::args::memory_budget(args.max_memory.as_deref())?;
     // The same plane rule for every method, so the comparison is fair.
     let options = |steps: usize| MethodOptions {
@@ -60,16 +59,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let weights_name = learned_method.weights().unwrap_or_default();
     let mut reporter = Reporter::new(MethodKind::Deepview, &[], None, false);
     let mut learned = MpiPredictor::new(learned_method, move |e| reporter.event(e));
+    // Everything is made in a temporary sibling and swapped in at the end: a failure or a signal leaves
+    // the earlier demo folder (or none) as it was.
+    let dir = super::safety::OutputDir::new(shown, super::safety::Kind::Demo)?;
+    let out = &dir.path().to_path_buf();
 
     // 1. A synthetic scene through a 4 x 4 light-field rig, with its exact ground truth.
     let scene_dir = out.join("scene");
     eprintln!(
         "[1/5] synthesising a scene with ground truth in {}",
-        scene_dir.display()
+        shown.join("scene").display()
     );
-    let scene_tmp = super::safety::OutputDir::new(&scene_dir, super::safety::Kind::SynthScene)?;
+    std::fs::create_dir_all(&scene_dir)?;
     let synth = synthesize(
-        scene_tmp.path(),
+        &scene_dir,
         &SynthOptions {
             rig: Rig::Grid {
                 side: 4,
@@ -82,8 +85,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             supersample: 2,
         },
     )?;
-    scene_tmp.commit()?;
-    created.keep();
     let scene = load_scene(&scene_dir, &LoadOptions::default())?;
     let near_far = synth.near_far;
     let inputs: Vec<usize> = INPUTS
@@ -111,9 +112,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mpi = made.mpi.clone();
     let infer_seconds = started.elapsed().as_secs_f64();
     let mpi_dir = out.join("mpi");
-    let mpi_tmp = super::safety::OutputDir::new(&mpi_dir, super::safety::Kind::Mpi)?;
-    deepview_mpi::write_mpi_with(mpi_tmp.path(), &mpi, made.planes.as_ref().map(|c| &c.rule))?;
-    mpi_tmp.commit()?;
+    deepview_mpi::write_mpi_with(&mpi_dir, &mpi, made.planes.as_ref().map(|c| &c.rule))?;
 
     // 3. Novel views (the inner, held-out cameras) beside their ground truth, depth, a camera path.
     eprintln!("[3/5] rendering novel views, a depth map and a spiral animation");
@@ -193,12 +192,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(&reports)?;
     deepview_image::write_atomic(&out.join("eval.json"), json.as_bytes())?;
     deepview_image::write_atomic(&out.join("eval.md"), table.as_bytes())?;
+    dir.commit()?;
     eprintln!("[5/5] done");
     println!(
         "\nHeld-out views {TARGETS} of the synthetic scene, inputs {INPUTS} (SSIM and PSNR against ground truth):\n"
     );
     println!("{table}");
-    println!("Made in {}:", out.display());
+    println!("Made in {}:", shown.display());
     println!("  scene/            the synthetic scene (4x4 light field) and its ground_truth_mpi/");
     println!(
         "  mpi/              the inferred MPI ({} planes, {:.1} s)",
@@ -212,7 +212,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("  eval.json, eval.md  the table above");
     println!(
         "\nLook at it in the browser:  cargo run --release -- view --mpi {}",
-        mpi_dir.display()
+        shown.join("mpi").display()
     );
     Ok(())
 }

@@ -169,6 +169,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let dir = OutputDir::new(&args.out, Kind::SynthScene)?;
     let out = synthesize_as(dir.path(), &opts, args.out_format)
         .with_context(|| format!("cannot synthesise into {}", args.out.display()))?;
+    // The dataset must read back with the depth bounds it was rendered with (a light field's disparity
+    // range cannot hold every far depth): checked before it replaces anything.
+    // (Spaces' models.json holds no bounds at all: nothing to compare.)
+    let back = deepview_data::load_scene(dir.path(), &deepview_data::LoadOptions::default())
+        .with_context(|| {
+            format!(
+                "the scene written to {} does not read back",
+                args.out.display()
+            )
+        })?
+        .depth_bounds;
+    let (n, f) = out.near_far;
+    let same = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs());
+    if let Some((bn, bf)) = back
+        && !(same(bn, n) && same(bf, f))
+    {
+        anyhow::bail!(
+            "a {} scene cannot hold the depth bounds {n}..{f}: it would read back as {bn}..{bf}; use \
+             --out-format transforms, or a nearer --far",
+            out.format
+        );
+    }
     dir.commit()?;
     println!(
         "wrote a {} scene with {} views, {} layers between depth {:.3} and {:.3}, to {}",
