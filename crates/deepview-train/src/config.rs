@@ -43,6 +43,10 @@ pub struct TrainConfig {
     /// (fine-tuning); the model configuration is then the one saved with those weights.
     #[serde(default)]
     pub init: Option<PathBuf>,
+    /// The folder the run was started from: relative dataset paths are read against it on resume, from
+    /// wherever the run is resumed. Absent in older `config.json` files (then against the current folder).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub base: Option<PathBuf>,
 }
 
 /// The largest batch (tuples per step) a run may ask for.
@@ -82,6 +86,7 @@ impl TrainConfig {
             holdout_every: 8,
             recompute: model.nets() > 2,
             init: None,
+            base: None,
         }
     }
 

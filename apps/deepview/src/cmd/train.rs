@@ -406,14 +406,26 @@ fn resumed_data(args: &Args, cfg: &RunConfig, opts: &LoadOptions) -> anyhow::Res
     } else {
         args.data.clone()
     };
+    // Relative paths of the run's own list are read against the folder it was started from.
+    let here = std::env::current_dir().ok();
+    let resolve = |p: &Path| match &cfg.train.base {
+        Some(b) if args.data.is_empty() && p.is_relative() && here.as_ref() != Some(b) => {
+            if !deepview_train::is_synthetic(p) {
+                return b.join(p);
+            }
+            p.to_path_buf()
+        }
+        _ => p.to_path_buf(),
+    };
     paths
         .into_iter()
-        .map(|path| {
+        .map(|given| {
+            let path = resolve(&given);
             let kept = cfg
                 .train
                 .data
                 .iter()
-                .find(|d| d.path == path)
+                .find(|d| d.path == given)
                 .and_then(|d| d.load.clone());
             match kept {
                 Some(load) => {
@@ -659,6 +671,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         };
         let mut train = TrainConfig::defaults(&model);
         train.init = args.init.clone();
+        train.base = std::env::current_dir().ok();
         train.data = args
             .data
             .iter()

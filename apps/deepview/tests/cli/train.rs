@@ -344,3 +344,62 @@ fn validation_scores_checkpoints_into_validation_jsonl() {
         "validation {want:.4} not in eval's table:\n{table}"
     );
 }
+
+/// A run started with a relative `--data` resumes on the same dataset from any folder (it was read against
+/// the current folder, so a resume elsewhere trained on another scene of the same name without a word).
+#[test]
+fn resume_elsewhere_reads_the_datasets_the_run_started_with() {
+    use crate::common::deepview_in;
+    let tmp = tempfile::tempdir().unwrap();
+    let (a, b) = (tmp.path().join("a"), tmp.path().join("b"));
+    std::fs::create_dir_all(&a).unwrap();
+    std::fs::create_dir_all(&b).unwrap();
+    let grid_a = grid(&a, "scene", 64, 48);
+    assert!(grid_a.is_dir());
+    // B has a different scene of the same name: 2x2 views, too few for the run's 3 inputs.
+    succeeds(&deepview_in(
+        &b,
+        &[
+            "synth", "--out", "scene", "--grid", "2", "--width", "32", "--height", "24",
+            "--planes", "4",
+        ],
+    ));
+    let start = [
+        "train",
+        "--data",
+        "scene",
+        "--name",
+        "r",
+        "--steps",
+        "2",
+        "--loss",
+        "l1",
+        "--crop",
+        "8",
+        "--planes",
+        "4",
+        "--views",
+        "3",
+        "--checkpoint-every",
+        "1",
+        "--quiet",
+    ];
+    succeeds(&deepview_in(&a, &start));
+    let runs = a.join("runs");
+    let o = deepview_in(
+        &b,
+        &[
+            "train",
+            "--runs",
+            s(&runs),
+            "--name",
+            "r",
+            "--resume",
+            "--steps",
+            "3",
+            "--quiet",
+        ],
+    );
+    succeeds(&o);
+    assert_eq!(losses(&runs.join("r")).len(), 3);
+}
