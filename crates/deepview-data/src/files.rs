@@ -43,7 +43,12 @@ pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>, DataError> {
 }
 
 pub(crate) fn read_text(path: &Path) -> Result<String, DataError> {
-    std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))
+    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    // Editors on some systems start UTF-8 files with a byte-order mark: not part of the content.
+    Ok(match text.strip_prefix('\u{feff}') {
+        Some(rest) => rest.to_string(),
+        None => text,
+    })
 }
 
 pub(crate) fn write_bytes(path: &Path, bytes: &[u8]) -> Result<(), DataError> {

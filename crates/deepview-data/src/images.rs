@@ -21,6 +21,12 @@ impl Scene {
     /// Check that view `i`'s image file exists and has its camera's size (reads the header only).
     pub fn check_image(&self, i: usize) -> Result<(), DataError> {
         let v = self.view(i)?;
+        if v.image_path.is_dir() {
+            return Err(DataError::invalid(
+                &v.image_path,
+                format!("is a folder, not the image of view {}", v.name),
+            ));
+        }
         if !v.image_path.is_file() {
             return Err(DataError::MissingImage {
                 path: v.image_path.clone(),

@@ -200,9 +200,22 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
         image::ImageFormat::Png if !png_complete(&bytes) => Err(corrupt(
             "truncated PNG (no complete IEND chunk at the end)".into(),
         )),
-        f => image::load_from_memory_with_format(&bytes, f).map_err(|e| ImageError::Read {
-            path: path.into(),
-            source: e,
+        f => image::load_from_memory_with_format(&bytes, f).map_err(|e| match e {
+            // The decoder's memory limit: say how large the image is and what to do.
+            image::ImageError::Limits(_) => match image_size(path) {
+                Ok((w, h)) => corrupt(format!(
+                    "is {w}x{h}: larger than an image deepview decodes (512 MiB of pixels); downscale it \
+                     first"
+                )),
+                Err(_) => ImageError::Read {
+                    path: path.into(),
+                    source: e,
+                },
+            },
+            e => ImageError::Read {
+                path: path.into(),
+                source: e,
+            },
         }),
     }
 }

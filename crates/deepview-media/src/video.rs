@@ -246,6 +246,12 @@ impl Mp4Sink {
         if width % 2 == 1 || height % 2 == 1 {
             return Err(MediaError::OddFrameSize { width, height });
         }
+        if !(fps.is_finite() && (1e-3..=1000.0).contains(&fps)) {
+            return Err(MediaError::Config(format!(
+                "{}: a video plays 0.001 to 1000 frames per second (got {fps:e})",
+                path.display()
+            )));
+        }
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("mp4");
         let tmp = temp_path(path).with_extension(format!("tmp.{ext}"));
         let child = deepview_image::child::die_with_parent(&mut Command::new(program))

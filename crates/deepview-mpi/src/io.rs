@@ -114,7 +114,13 @@ impl MpiMeta {
             .map_err(|e| invalid(path, e.to_string()))?;
         let cam = Camera::new(self.width, self.height, self.intrinsics, pose);
         cam.validate().map_err(|e| invalid(path, e.to_string()))?;
-        for l in &self.layers {
+        for (i, l) in self.layers.iter().enumerate() {
+            if self.layers[..i].contains(l) {
+                return Err(invalid(
+                    path,
+                    format!("layer name {l:?} is listed twice: every plane has its own file"),
+                ));
+            }
             if l.contains('/') || l.contains('\\') || l.starts_with('.') {
                 return Err(invalid(
                     path,

@@ -432,16 +432,25 @@ fn numbered(name: &str, prefix: &str, suffix: &str) -> bool {
 
 /// Run names and file-name prefixes: one plain path component (`--name`, `--prefix`).
 pub fn parse_component(s: &str) -> Result<String, String> {
+    // Also no control characters, no leading '-' or '.', not only spaces, no name of this program's
+    // temporaries, and short enough for every file system.
+    let temp_like = s.ends_with(".tmp") || s.ends_with(".incomplete") || s.contains(".deepview-");
     let ok = !s.is_empty()
         && s != "."
         && s != ".."
         && !s.contains(['/', '\\', '\0'])
+        && !s.chars().any(char::is_control)
+        && !s.starts_with(['-', '.'])
+        && !s.trim().is_empty()
+        && !temp_like
+        && s.len() <= 200
         && Path::new(s).components().count() == 1;
     if ok {
         Ok(s.to_string())
     } else {
         Err(format!(
-            "{s:?} must be a single file name (no '/', not empty, not '.' or '..')"
+            "{s:?} must be a plain file name of at most 200 bytes: no '/', control characters or leading \
+             '-' or '.', not blank, not ending in .tmp or .incomplete"
         ))
     }
 }
@@ -717,7 +726,25 @@ mod tests {
     #[test]
     fn components_and_relations() {
         assert!(parse_component("fern").is_ok());
-        for bad in ["", ".", "..", "../x", "a/b", "/abs"] {
+        assert!(parse_component("gen19 large-v2").is_ok());
+        let long = "x".repeat(201);
+        for bad in [
+            "",
+            ".",
+            "..",
+            "../x",
+            "a/b",
+            "/abs",
+            "a\nb",
+            "\t",
+            "   ",
+            "-x",
+            ".hidden",
+            "r.tmp",
+            "r.incomplete",
+            ".r.deepview-tmp.1",
+            &long,
+        ] {
             assert!(parse_component(bad).is_err(), "{bad}");
         }
         let dir = tempfile::tempdir().unwrap();
