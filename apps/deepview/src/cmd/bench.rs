@@ -55,9 +55,8 @@ pub struct NetArgs {
     /// MPI size WIDTHxHEIGHT (the input views have the same size).
     #[arg(long, default_value = "575x412")]
     pub size: String,
-    /// Memory budget of the tiled inference.
-    #[arg(long, default_value = "8GiB", value_parser = args::parse_memory)]
-    pub max_memory: String,
+    #[arg(long, value_name = "SIZE", help = args::MEMORY_HELP, value_parser = args::parse_memory)]
+    pub max_memory: Option<String>,
     /// Timed forward passes (after one warm-up pass).
     #[arg(long, default_value_t = 1, value_parser = args::parse_positive)]
     pub repeats: usize,
@@ -370,7 +369,7 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
             (DeepViewModel::new(&cfg, &device), cfg.name)
         }
     };
-    let budget = args::parse_bytes(&args.max_memory)?;
+    let budget = args::memory_budget(args.max_memory.as_deref())?;
     let px = (w as u64).saturating_mul(h as u64);
     args::check_memory(
         &format!("{} synthetic {w}x{h} views", args.views),

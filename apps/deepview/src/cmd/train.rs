@@ -4,16 +4,17 @@ use super::args;
 use super::safety::{Input, Kind, check_output, parse_component};
 use super::signals;
 use anyhow::{Context, bail};
-use deepview_data::LoadOptions;
 use deepview_net::config::DeepViewConfig;
 use deepview_train::loss::LossKind;
 use deepview_train::{
-    Collective, DataSpec, RunConfig, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, TrainConfig,
-    Trainer, is_synthetic, list_checkpoints, load_data,
+    Collective, RunConfig, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, TrainConfig, Trainer,
+    list_checkpoints, load_data,
 };
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::rc::Rc;
 
+#[path = "train_data.rs"]
+mod data;
 #[cfg(feature = "openmpi")]
 #[path = "train_mpi.rs"]
 mod mpi;
@@ -21,6 +22,7 @@ mod mpi;
 mod progress;
 #[path = "train_validate.rs"]
 mod validate;
+use data::{check_views, data_spec, resumed_data};
 use progress::Progress;
 use validate::Validation;
 
@@ -352,116 +354,6 @@ fn check_fixed_on_resume(args: &Args, cfg: &RunConfig) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `--downscale` 0 and 1 both mean full size.
-fn normalised(o: &LoadOptions) -> LoadOptions {
-    LoadOptions {
-        downscale: o.downscale.max(1),
-        ..o.clone()
-    }
-}
-
-/// The scene flags given on the command line (those that differ from their defaults), with their values
-/// in `opts` and in `other`.
-fn scene_flags_differing(given: &LoadOptions, other: &LoadOptions) -> Vec<&'static str> {
-    let (g, o) = (normalised(given), normalised(other));
-    [
-        (g.format.is_some() && g.format != o.format, "--format"),
-        (g.images.is_some() && g.images != o.images, "--images"),
-        (g.rig != 0 && g.rig != o.rig, "--rig"),
-        (g.near.is_some() && g.near != o.near, "--near"),
-        (g.far.is_some() && g.far != o.far, "--far"),
-        (
-            g.downscale != 1 && g.downscale != o.downscale,
-            "--downscale",
-        ),
-    ]
-    .iter()
-    .filter(|f| f.0)
-    .map(|f| f.1)
-    .collect()
-}
-
-/// A dataset loaded with the scene flags `opts`; with `--max-width W`, downscaled by the smallest
-/// integer factor that brings its images to at most `W` pixels wide.
-fn data_spec(path: &Path, opts: &LoadOptions, max_width: Option<u32>) -> anyhow::Result<DataSpec> {
-    let mut load = opts.clone();
-    if let Some(w) = max_width
-        && !is_synthetic(path)
-    {
-        let scene = deepview_data::load_scene(path, &load)
-            .with_context(|| format!("--data {}", path.display()))?;
-        let width = scene.views.first().map_or(0, |v| v.camera.width);
-        load.downscale = width.div_ceil(w.max(1)).max(1);
-    }
-    Ok(DataSpec::new(path, load))
-}
-
-/// The datasets of a run resumed (or started over) from its config.json: `--data` if given, else the
-/// run's own; each loads with the options the run keeps for it (a scene flag given now must agree with
-/// them), or, for runs whose config.json has bare paths (older ones) and data the run did not have,
-/// with the scene flags given now.
-fn resumed_data(args: &Args, cfg: &RunConfig, opts: &LoadOptions) -> anyhow::Result<Vec<DataSpec>> {
-    let paths: Vec<PathBuf> = if args.data.is_empty() {
-        cfg.train.data.iter().map(|d| d.path.clone()).collect()
-    } else {
-        args.data.clone()
-    };
-    // Relative paths of the run's own list are read against the folder it was started from.
-    let here = std::env::current_dir().ok();
-    let resolve = |p: &Path| match &cfg.train.base {
-        Some(b) if args.data.is_empty() && p.is_relative() && here.as_ref() != Some(b) => {
-            if !deepview_train::is_synthetic(p) {
-                return b.join(p);
-            }
-            p.to_path_buf()
-        }
-        _ => p.to_path_buf(),
-    };
-    paths
-        .into_iter()
-        .map(|given| {
-            let path = resolve(&given);
-            let kept = cfg
-                .train
-                .data
-                .iter()
-                .find(|d| d.path == given)
-                .and_then(|d| d.load.clone());
-            match kept {
-                Some(load) => {
-                    let differ = scene_flags_differing(opts, &load);
-                    if !differ.is_empty() {
-                        bail!(
-                            "--resume loads {} as the run first did (its config.json): {} differ and cannot \
-                             change on resume; start a new --name instead",
-                            path.display(),
-                            differ.join(", ")
-                        );
-                    }
-                    Ok(DataSpec::new(path, load))
-                }
-                None => data_spec(&path, opts, args.max_width),
-            }
-        })
-        .collect()
-}
-
-/// Every scene must have more training views than the largest input count (the target is one of them).
-fn check_views(data: &deepview_train::TrainData, views_max: usize) -> anyhow::Result<()> {
-    for s in &data.scenes {
-        let n = s.train_views.len();
-        if views_max + 1 > n {
-            bail!(
-                "--views {views_max}: the scene {} has {n} training views, so at most {} inputs besides the \
-                 target; use fewer --views (or a smaller --holdout-every)",
-                s.name,
-                n.saturating_sub(1)
-            );
-        }
-    }
-    Ok(())
-}
-
 fn parse_views(s: &str) -> anyhow::Result<(usize, usize)> {
     let parse = |t: &str| {
         t.trim()
@@ -579,7 +471,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         check_fixed_on_resume(&args, &cfg)?;
         let specs = resumed_data(&args, &cfg, &opts)?;
         let data = load_data(&specs, &opts, cfg.train.holdout_every)?;
-        check_views(&data, cfg.train.sample.views_max)?;
+        check_views(&data, cfg.train.sample.views_max, cfg.train.sample.crop)?;
         args.vgg.check(cfg.train.loss)?;
         let mut t = Trainer::resume_on(
             &run_dir,
@@ -714,7 +606,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             deepview_train::parse_device(d)?;
         }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
-        check_views(&data, train.sample.views_max)?;
+        check_views(&data, train.sample.views_max, train.sample.crop)?;
         args.vgg.check(train.loss)?;
         let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
         if writer {
