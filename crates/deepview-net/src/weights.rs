@@ -193,6 +193,13 @@ const WEIGHTS_OR_CHECKPOINT: &str = "neither a weights folder (config.json + mod
 
 /// Refuse a folder that is neither weights nor a checkpoint, naming it rather than a file inside it.
 fn check_weights_folder(dir: &Path) -> Result<(), WeightsError> {
+    if dir.join("checkpoints").is_dir() && !dir.join(WEIGHTS_FILE).is_file() {
+        return Err(WeightsError::NotWeights {
+            path: dir.to_path_buf(),
+            what: "a training run, not weights: pass one of its checkpoints \
+                   (checkpoints/step-N), or make weights of it with `deepview export-weights`",
+        });
+    }
     if is_checkpoint(dir) || dir.join(CONFIG_FILE).is_file() {
         return Ok(());
     }

@@ -29,6 +29,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    super::check_deepview_mpi("--mpi", &args.mpi)?;
     let mut inputs: Vec<Input> = vec![("--mpi", args.mpi.as_path())];
     if let Some(c) = &args.source.camera {
         inputs.push(("--camera", c));

@@ -92,3 +92,21 @@ impl CameraSource {
         Ok(None)
     }
 }
+
+/// Refuse an MPI folder in another tool's format where a deepview MPI (`mpi.json`) is read, saying how to
+/// convert it (instead of "cannot read mpi.json").
+pub fn check_deepview_mpi(option: &str, dir: &std::path::Path) -> anyhow::Result<()> {
+    use deepview_mpi::interchange::{ImportFormat, detect_format};
+    if dir.join("mpi.json").is_file() {
+        return Ok(());
+    }
+    match detect_format(dir) {
+        Ok(f) if f != ImportFormat::Deepview => anyhow::bail!(
+            "{option} {} is an MPI in {f:?} format: convert it first with `deepview import --mpi {} --out \
+             DIR`",
+            dir.display(),
+            dir.display()
+        ),
+        _ => Ok(()),
+    }
+}

@@ -177,6 +177,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     deepview_media::set_ffmpeg_program(&args.ffmpeg);
+    super::check_deepview_mpi("--mpi", &args.mpi)?;
     if args.path.is_some() || args.camera_path.is_some() {
         return run_path(&args);
     }
