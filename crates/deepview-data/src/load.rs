@@ -22,6 +22,12 @@ pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
     {
         return Ok(SceneFormat::Transforms);
     }
+    if !path.exists() {
+        return Err(DataError::invalid(
+            path,
+            "does not exist (expected a dataset folder)",
+        ));
+    }
     if !path.is_dir() {
         return Err(DataError::invalid(
             path,

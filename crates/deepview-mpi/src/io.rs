@@ -144,6 +144,15 @@ pub(crate) fn check_depths(path: &Path, depths: &[f64]) -> Result<(), MpiError> 
     if depths.windows(2).any(|w| w[1] >= w[0]) {
         return Err(invalid(path, "depths must decrease (far plane first)"));
     }
+    // Beyond this ratio the planes' disparities are no numbers a capture has (1e10..1e-10 printed a
+    // disparity map of depth 0 everywhere).
+    let (far, near) = (depths[0], depths[depths.len() - 1]);
+    if far / near > 1e7 {
+        return Err(invalid(
+            path,
+            format!("depths {far:e}..{near:e}: far is more than 1e7 times near"),
+        ));
+    }
     Ok(())
 }
 

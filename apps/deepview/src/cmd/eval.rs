@@ -60,6 +60,12 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    if args.options.weights.is_some() && args.method != MethodKind::Deepview {
+        anyhow::bail!(
+            "--weights applies to --method deepview (the learned model), not to {}",
+            args.method
+        );
+    }
     let weights = args.options.weights.clone().unwrap_or_default();
     let mut inputs: Vec<Input> = vec![("--data", args.data.as_path())];
     if args.options.weights.is_some() {

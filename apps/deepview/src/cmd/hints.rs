@@ -73,6 +73,10 @@ fn eval(e: &EvalError) -> Option<String> {
         EvalError::NoWeights { .. } => {
             "train some with `deepview train`, or pass --weights DIR (default: the built-in weights)".into()
         }
+        EvalError::TooFewViews { available: 0, .. }
+        | EvalError::NotEnoughInputs { available: 0, .. } => {
+            "every view is a target, so none is left as an input: choose fewer --targets".into()
+        }
         EvalError::TooFewViews { wanted, .. } | EvalError::NotEnoughInputs { wanted, .. } => {
             format!("ask for fewer than {wanted} inputs (--inputs nearest:K, all, or a list)")
         }

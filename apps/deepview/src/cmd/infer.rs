@@ -99,6 +99,9 @@ pub fn run_optimize(args: OptimizeArgs) -> anyhow::Result<()> {
 
 /// Make the MPI of `kind` from the inputs `args` name and write it.
 fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
+    if args.options.weights.is_some() && kind != MethodKind::Deepview {
+        anyhow::bail!("--weights applies to --method deepview (the learned model), not to {kind}");
+    }
     let data = args.data.path();
     let mut inputs: Vec<Input> = vec![("--data", data)];
     let weights = args.options.weights.clone().unwrap_or_default();

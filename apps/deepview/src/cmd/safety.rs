@@ -330,11 +330,19 @@ fn check_writable(option: &str, out: &Path, resolved: &Path) -> anyhow::Result<(
             Ok(())
         }
         Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
-        Err(e) => bail!(
-            "{option} {}: cannot write in {}: {e}",
-            out.display(),
-            existing.display()
-        ),
+        Err(e) => {
+            // Named as the user typed it (not through resolved links like /proc/self).
+            let shown = out
+                .ancestors()
+                .skip(1)
+                .find(|a| !a.as_os_str().is_empty() && a.exists())
+                .unwrap_or(existing);
+            bail!(
+                "{option} {}: cannot write in {}: {e}",
+                out.display(),
+                shown.display()
+            )
+        }
     }
 }
 
@@ -348,16 +356,18 @@ fn foreign_file(path: &Path) -> Option<&'static str> {
         "jpg" | "jpeg" => ("a JPEG image", |b| b.starts_with(&[0xFF, 0xD8, 0xFF])),
         "gif" => ("a GIF animation", |b| b.starts_with(b"GIF8")),
         "mp4" | "mov" | "m4v" => ("an MP4 video", |b| b.len() >= 8 && &b[4..8] == b"ftyp"),
-        "json" => ("a JSON file", |b| {
-            b.iter()
-                .find(|c| !c.is_ascii_whitespace())
-                .is_some_and(|&c| c == b'{' || c == b'[')
+        // The JSON files deepview writes are evaluation reports.
+        "json" => ("an evaluation report", |b| {
+            serde_json::from_slice::<serde_json::Value>(b)
+                .ok()
+                .is_some_and(|v| v.get("results").is_some())
         }),
         _ => return None,
     };
     let mut head = Vec::with_capacity(16);
     let f = std::fs::File::open(path).ok()?;
-    std::io::Read::read_to_end(&mut std::io::Read::take(f, 4096), &mut head).ok()?;
+    let limit = if ext == "json" { 16 << 20 } else { 4096 };
+    std::io::Read::read_to_end(&mut std::io::Read::take(f, limit), &mut head).ok()?;
     (!head.is_empty() && !ok(&head)).then_some(what)
 }
 
@@ -781,7 +791,7 @@ mod tests {
         let p = |n: &str| dir.path().join(n);
         std::fs::write(p("notes.png"), b"my notes").unwrap();
         std::fs::write(p("v.png"), b"\x89PNG\r\n\x1a\nrest").unwrap();
-        std::fs::write(p("r.json"), b"  {\"ssim\": 1}").unwrap();
+        std::fs::write(p("r.json"), b"  {\"results\": {\"ssim\": 1}}").unwrap();
         std::fs::write(p("todo.json"), b"buy milk").unwrap();
         std::fs::write(p("empty.gif"), b"").unwrap();
         for bad in ["notes.png", "todo.json"] {

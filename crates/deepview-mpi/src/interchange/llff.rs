@@ -35,6 +35,13 @@ use std::path::Path;
 /// Write `mpi` as LLFF `metadata.txt` + `mpi.b` in the folder `out`.
 pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
     check_planes(out, mpi)?;
+    // metadata.txt holds a near and a far depth: one plane has no range, and would not import back.
+    if mpi.depths.len() < 2 {
+        return Err(crate::error::invalid(
+            out,
+            "LLFF's format needs at least 2 planes (its metadata is a depth range); this MPI has 1",
+        ));
+    }
     let cam = &mpi.camera;
     let k = cam.intrinsics;
     let mut report = ExportReport::default();
