@@ -247,7 +247,18 @@ pub fn evaluate_splits(
             target: split.target,
             target_name: scene.views[split.target].name.clone(),
             inputs: split.inputs.clone(),
-            ssim: ssim(&pc, &gc)?,
+            ssim: ssim(&pc, &gc).map_err(|e| {
+                EvalError::Invalid(format!(
+                    "view {} ({}x{} after a border crop of {}/{}/{}/{} px; --crop changes it): {e}",
+                    scene.views[split.target].name,
+                    pc.width,
+                    pc.height,
+                    crop.left,
+                    crop.top,
+                    crop.right,
+                    crop.bottom
+                ))
+            })?,
             psnr: psnr(&pc, &gc)?,
             seconds,
             crop: [crop.left, crop.top, crop.right, crop.bottom],

@@ -88,8 +88,8 @@ fn eval(e: &EvalError) -> Option<String> {
 fn vgg(e: &VggError) -> Option<String> {
     match e {
         VggError::NotGiven => Some(
-            "pass --vgg-weights PATH (vgg16_conv1_1-conv3_3.safetensors) or set DEEPVIEW_VGG_WEIGHTS, or \
-             train with --loss l1"
+            "pass --vgg-weights PATH (vgg16_conv1_1-conv3_3.safetensors) or set DEEPVIEW_VGG_WEIGHTS \
+             (`deepview train` also takes --loss l1, which needs none)"
                 .into(),
         ),
         _ => None,
