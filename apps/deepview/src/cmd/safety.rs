@@ -66,6 +66,11 @@ impl Kind {
         }
     }
 
+    /// Folders that are written into, file by file, never replaced whole.
+    fn written_into(self) -> bool {
+        matches!(self, Kind::DepthMaps | Kind::Renders | Kind::Mpis)
+    }
+
     /// Whether an output folder of this kind writes the entry `name` (a file, or a folder with everything
     /// in it): the explicit set of outputs, which alone a command replaces.
     pub fn owns(self, name: &str, is_dir: bool) -> bool {
@@ -283,7 +288,7 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
                     out.display()
                 );
             }
-            let written_into = matches!(kind, Kind::DepthMaps | Kind::Renders | Kind::Mpis);
+            let written_into = kind.written_into();
             if !empty && !written_into && !kind.recognises(&o) {
                 bail!(
                     "{option} {} exists and is not a {}: refusing to replace it; choose a new or empty folder",
@@ -384,7 +389,7 @@ fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::R
         0 => String::new(),
         n => format!(" and {n} more"),
     };
-    let what = if matches!(kind, Kind::DepthMaps | Kind::Renders | Kind::Mpis) {
+    let what = if kind.written_into() {
         "refusing to write into it, which could overwrite them"
     } else {
         "refusing to replace it, which would delete them"

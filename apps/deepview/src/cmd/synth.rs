@@ -108,15 +108,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             });
         if llff_out {
             for v in &scene.views {
-                let (k, w, h) = (
-                    v.camera.intrinsics,
-                    v.camera.width as f64,
-                    v.camera.height as f64,
-                );
-                if (k.fx - k.fy).abs() > 1e-9 * k.fx
-                    || (k.cx - w / 2.0).abs() > 1e-9 * w
-                    || (k.cy - h / 2.0).abs() > 1e-9 * h
-                {
+                if !deepview_data::formats::llff::llff_representable(&v.camera) {
                     anyhow::bail!(
                         "view {} of {} is {}x{} with its principal point off centre at this --downscale {}: \
                          LLFF output needs a centred one; use a --downscale that divides the image size, or \

@@ -167,6 +167,16 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     })
 }
 
+/// Whether `cam` fits LLFF's `poses_bounds.npy`: one focal length (`fx == fy`) and a centred principal
+/// point.
+pub fn llff_representable(cam: &Camera) -> bool {
+    let k = &cam.intrinsics;
+    let (w, h) = (cam.width as f64, cam.height as f64);
+    (k.fx - k.fy).abs() <= 1e-9 * k.fx
+        && (k.cx - w / 2.0).abs() <= 1e-9 * w
+        && (k.cy - h / 2.0).abs() <= 1e-9 * h
+}
+
 /// Write an LLFF scene: `poses_bounds.npy` (full size = camera size x `factor`) and the images as
 /// `images_<factor>/imageNNN.png` (`images/` when `factor == 1`). LLFF stores one focal length and a centred
 /// principal point, so cameras must have `fx == fy` and `(cx, cy) = (w/2, h/2)`.
@@ -198,10 +208,7 @@ pub fn write_llff(
     for (i, ((cam, &(near, far)), img)) in cameras.iter().zip(bounds).zip(images).enumerate() {
         let k = &cam.intrinsics;
         let (w, h) = (cam.width as f64, cam.height as f64);
-        if (k.fx - k.fy).abs() > 1e-9 * k.fx
-            || (k.cx - w / 2.0).abs() > 1e-9 * w
-            || (k.cy - h / 2.0).abs() > 1e-9 * h
-        {
+        if !llff_representable(cam) {
             return Err(DataError::invalid(
                 &npy,
                 format!(

@@ -118,16 +118,16 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
     })?;
     let mut model = read_colmap(&dir)?;
     model.images.sort_by(|a, b| a.name.cmp(&b.name));
+    let images_file = dir.join(if dir.join("images.bin").is_file() {
+        "images.bin"
+    } else {
+        "images.txt"
+    });
     // One photo listed twice would be two distinct inputs (and its own nearest view); an image id twice
     // is a damaged model.
     let mut ids: Vec<_> = model.images.iter().map(|i| i.id).collect();
     ids.sort_unstable();
     if let Some(w) = ids.windows(2).find(|w| w[0] == w[1]) {
-        let images_file = dir.join(if dir.join("images.bin").is_file() {
-            "images.bin"
-        } else {
-            "images.txt"
-        });
         return Err(DataError::invalid(
             &images_file,
             format!(
@@ -137,11 +137,6 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         ));
     }
     if let Some(w) = model.images.windows(2).find(|w| w[0].name == w[1].name) {
-        let images_file = dir.join(if dir.join("images.bin").is_file() {
-            "images.bin"
-        } else {
-            "images.txt"
-        });
         return Err(DataError::invalid(
             &images_file,
             format!(
@@ -156,11 +151,6 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         None if dir == root && root.join("../../images").is_dir() => root.join("../../images"),
         None => root.join("images"),
     };
-    let images_file = dir.join(if dir.join("images.bin").is_file() {
-        "images.bin"
-    } else {
-        "images.txt"
-    });
     let cameras_file = dir.join(if dir.join("cameras.bin").is_file() {
         "cameras.bin"
     } else {
