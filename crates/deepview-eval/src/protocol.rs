@@ -12,9 +12,10 @@
 //!   (Kalantari: the 60 in-between views of an 8x8 grid); 16 px border crop.
 
 use crate::error::EvalError;
-use crate::inputs::{InputRule, join, parse_count, parse_list};
 use deepview_data::{Scene, SceneFormat};
 use deepview_geometry::{Camera, DMat3, DVec3, camera::orthonormalize};
+use deepview_methods::MethodError;
+use deepview_methods::inputs::{InputRule, join, parse_count, parse_list};
 use deepview_metrics::BorderCrop;
 use std::fmt;
 use std::str::FromStr;
@@ -95,7 +96,7 @@ impl FromStr for TargetRule {
     fn from_str(s: &str) -> Result<Self, EvalError> {
         match parse_count(s, "every:")? {
             Some(n) => Ok(TargetRule::Every(n)),
-            None => parse_list(s).map(TargetRule::List),
+            None => Ok(TargetRule::List(parse_list(s)?)),
         }
     }
 }
@@ -136,10 +137,11 @@ impl Protocol {
         let key = name.trim().to_ascii_lowercase().replace('-', "_");
         let fixed = |p: Protocol| -> Result<Protocol, EvalError> {
             if targets.is_some() || inputs.is_some() {
-                return Err(EvalError::BadRule {
+                return Err(MethodError::BadRule {
                     rule: name.into(),
                     msg: "this protocol fixes its views; target and input rules apply to posed and light-field".into(),
-                });
+                }
+                .into());
             }
             Ok(p)
         };
@@ -155,10 +157,11 @@ impl Protocol {
             }),
             "light_field" | "lightfield" | "kalantari" => {
                 if inputs.is_some() {
-                    return Err(EvalError::BadRule {
+                    return Err(MethodError::BadRule {
                         rule: name.into(),
                         msg: "the light-field protocol's inputs are the 4 corner views; an input rule does not apply".into(),
-                    });
+                    }
+                    .into());
                 }
                 Ok(Protocol::LightField { targets })
             }
@@ -252,7 +255,7 @@ impl Protocol {
                     let ins = inputs
                         .select(&cams, Some(t), &target_set)
                         .map_err(|e| match e {
-                            EvalError::TooFewViews {
+                            MethodError::TooFewViews {
                                 wanted, available, ..
                             } => EvalError::NotEnoughInputs {
                                 protocol: name.clone(),
@@ -260,12 +263,12 @@ impl Protocol {
                                 wanted,
                                 available,
                             },
-                            EvalError::ViewIndex { index, views } => EvalError::ViewOutOfRange {
+                            MethodError::ViewIndex { index, views } => EvalError::ViewOutOfRange {
                                 protocol: name.clone(),
                                 index,
                                 views,
                             },
-                            e => e,
+                            e => e.into(),
                         })?;
                     out.push(ViewSplit {
                         target: t,

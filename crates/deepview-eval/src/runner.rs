@@ -1,7 +1,7 @@
 //! The eval runner: predict every target of a protocol, score it, and report like nerfstudio's `eval`.
 
 use crate::error::EvalError;
-use crate::method::Method;
+use crate::predictor::MpiPredictor;
 use crate::protocol::{Protocol, ViewSplit};
 use deepview_data::Scene;
 use deepview_geometry::Camera;
@@ -28,7 +28,7 @@ pub struct EvalOptions {
     /// Write `prediction | ground truth | error` images here, one PNG per target.
     pub save_renders: Option<PathBuf>,
     /// Write the MPI each target was rendered from here, one MPI folder per target named like the
-    /// renders (`012_name/`), for methods that make one ([`Method::last_mpi`]).
+    /// renders (`012_name/`), ([`MpiPredictor::last_mpi`]).
     pub save_mpis: Option<PathBuf>,
     /// Recorded in the report (the learned model's weights).
     pub checkpoint: Option<String>,
@@ -158,7 +158,7 @@ impl EvalReport {
 pub fn evaluate(
     scene: &Scene,
     protocol: &Protocol,
-    method: &mut dyn Method,
+    method: &mut MpiPredictor<'_>,
     options: &EvalOptions,
 ) -> Result<EvalReport, EvalError> {
     let resolved = protocol.resolve(scene)?;
@@ -171,7 +171,7 @@ pub fn evaluate_splits(
     scene: &Scene,
     protocol: &str,
     splits: &[ViewSplit],
-    method: &mut dyn Method,
+    method: &mut MpiPredictor<'_>,
     options: &EvalOptions,
 ) -> Result<EvalReport, EvalError> {
     if options.downscale == 0 {
@@ -211,30 +211,14 @@ pub fn evaluate_splits(
             split.inputs.iter().map(|i| cache[i].clone()).collect();
         let (gt, target_cam) = &cache[&split.target];
         let start = Instant::now();
-        let pred = method.predict_views(&inputs, &split.inputs, target_cam, near_far)?;
+        let pred = method.predict(&inputs, &split.inputs, target_cam, near_far)?;
         let seconds = start.elapsed().as_secs_f64();
-        if (pred.width, pred.height) != (target_cam.width, target_cam.height) || pred.channels < 3 {
-            return Err(EvalError::Method {
-                method: method.name().into(),
-                msg: format!(
-                    "prediction for view {} is {}x{}x{}, expected {}x{}x3",
-                    split.target,
-                    pred.width,
-                    pred.height,
-                    pred.channels,
-                    target_cam.width,
-                    target_cam.height
-                ),
-            });
-        }
         if !pred.is_finite() {
-            return Err(EvalError::Method {
-                method: method.name().into(),
-                msg: format!(
-                    "prediction for view {} has NaN or infinite values",
-                    split.target
-                ),
-            });
+            return Err(EvalError::Invalid(format!(
+                "method {}: prediction for view {} has NaN or infinite values",
+                method.name(),
+                split.target
+            )));
         }
         let crop = scaled_crop(split.crop, options.crop, options.downscale);
         let (p, g) = if options.quantize {

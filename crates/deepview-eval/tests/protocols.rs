@@ -4,8 +4,9 @@ mod common;
 
 use common::camera_at;
 use deepview_data::{Scene, SceneFormat, View};
-use deepview_eval::{EvalError, InputRule, Protocol, SpacesConfig, TargetRule};
+use deepview_eval::{EvalError, Protocol, SpacesConfig, TargetRule};
 use deepview_geometry::{Camera, DVec3};
+use deepview_methods::{InputRule, MethodError};
 use deepview_metrics::BorderCrop;
 use std::path::PathBuf;
 
@@ -305,7 +306,7 @@ fn posed_errors() {
 fn rule_parsing_errors() {
     assert!(matches!(
         "every:0".parse::<TargetRule>(),
-        Err(EvalError::BadRule { .. })
+        Err(EvalError::Method(MethodError::BadRule { .. }))
     ));
     assert!("every:x".parse::<TargetRule>().is_err());
     assert!("nearest:-1".parse::<InputRule>().is_err());

@@ -4,9 +4,14 @@ mod common;
 
 use common::render_plane;
 use deepview_data::{LoadOptions, light_field_cameras, load_scene, write_light_field};
-use deepview_eval::{EvalError, EvalOptions, Method, NearestView, Protocol, evaluate};
+use deepview_eval::{EvalOptions, MpiPredictor, Protocol, evaluate};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
+use deepview_methods::{
+    MadeMpi, MethodError, MethodEvent, MethodKind, MethodOptions, MpiMethod, MpiRequest, Planes,
+    make_method,
+};
+use deepview_mpi::Mpi;
 
 /// Depth of the textured plane: light-field cameras of a 64 px wide grid have focal 64, baseline 1 and focus
 /// depth 4, so depth 3.2 has disparity (1/3.2 - 1/4) 64 = 4 px between neighbouring views (an integer shift).
@@ -24,26 +29,58 @@ fn write_grid(dir: &std::path::Path, depth: f64) -> Vec<ImageF32> {
     images
 }
 
-/// Returns the ground truth it is given (looked up by camera): SSIM 1, infinite PSNR.
+/// `eval --method nearest`, as the program scores it.
+fn nearest() -> MpiPredictor<'static> {
+    let options = MethodOptions {
+        planes: Planes::Count(1),
+        ..Default::default()
+    };
+    MpiPredictor::new(
+        make_method(MethodKind::Nearest, &options, 1 << 30).unwrap(),
+        |_| {},
+    )
+}
+
+/// One opaque plane in `camera` holding `image` (rendered into `camera`, exactly the image).
+fn picture(camera: Camera, image: &ImageF32) -> Mpi {
+    Mpi {
+        camera,
+        depths: vec![2.0],
+        layers: image
+            .data
+            .chunks_exact(3)
+            .flat_map(|p| [p[0], p[1], p[2], 1.0])
+            .collect(),
+    }
+}
+
+/// Makes the ground truth it is given (looked up by the target's camera) as a picture in the target's
+/// camera: SSIM 1, infinite PSNR.
 struct Oracle(Vec<(Camera, ImageF32)>);
 
-impl Method for Oracle {
+impl MpiMethod for Oracle {
     fn name(&self) -> &str {
         "oracle"
     }
-    fn predict(
+    fn uses_target(&self) -> bool {
+        true
+    }
+    fn make_mpi(
         &mut self,
-        _: &[(ImageF32, Camera)],
-        target: &Camera,
-        _: (f64, f64),
-    ) -> Result<ImageF32, EvalError> {
-        Ok(self
+        request: &MpiRequest<'_>,
+        _: &mut dyn FnMut(MethodEvent<'_>),
+    ) -> Result<MadeMpi, MethodError> {
+        let target = request.toward.expect("eval names the target");
+        let (_, image) = self
             .0
             .iter()
             .find(|(c, _)| c == target)
-            .expect("known camera")
-            .1
-            .clone())
+            .expect("known camera");
+        Ok(MadeMpi {
+            mpi: picture(*target, image),
+            planes: None,
+            note: None,
+        })
     }
 }
 
@@ -61,7 +98,7 @@ fn evaluate_writes_report_and_renders() {
         save_renders: Some(renders.clone()),
         ..Default::default()
     };
-    let report = evaluate(&scene, &Protocol::Auto, &mut NearestView, &options).unwrap();
+    let report = evaluate(&scene, &Protocol::Auto, &mut nearest(), &options).unwrap();
     assert_eq!(report.method, "nearest");
     assert_eq!(report.results.num_views, 5);
     assert_eq!(
@@ -121,7 +158,8 @@ fn oracle_scores_one_and_downscale_halves_everything() {
         downscale: 2,
         ..Default::default()
     };
-    let report = evaluate(&scene, &Protocol::Auto, &mut Oracle(truth), &options).unwrap();
+    let mut oracle = MpiPredictor::new(Box::new(Oracle(truth)), |_| {});
+    let report = evaluate(&scene, &Protocol::Auto, &mut oracle, &options).unwrap();
     assert!((report.results.ssim - 1.0).abs() < 1e-12);
     assert_eq!(report.results.psnr, f64::INFINITY);
     // Default light-field crop 16 px at full resolution -> 8 px at half resolution.
@@ -144,34 +182,41 @@ fn runner_errors() {
         crop: Some(30),
         ..Default::default()
     };
-    let e = evaluate(&scene, &Protocol::Auto, &mut NearestView, &options).unwrap_err();
+    let e = evaluate(&scene, &Protocol::Auto, &mut nearest(), &options).unwrap_err();
     assert!(e.to_string().contains("border crop"), "{e}");
-    // A method returning the wrong size.
+    // A method whose MPI holds NaNs.
     struct Bad;
-    impl Method for Bad {
+    impl MpiMethod for Bad {
         fn name(&self) -> &str {
             "bad"
         }
-        fn predict(
+        fn make_mpi(
             &mut self,
-            _: &[(ImageF32, Camera)],
-            _: &Camera,
-            _: (f64, f64),
-        ) -> Result<ImageF32, EvalError> {
-            Ok(ImageF32::new(3, 3, 3))
+            request: &MpiRequest<'_>,
+            _: &mut dyn FnMut(MethodEvent<'_>),
+        ) -> Result<MadeMpi, MethodError> {
+            let camera = request.inputs[0].1;
+            let mut nan = ImageF32::new(camera.width, camera.height, 3);
+            nan.data.fill(f32::NAN);
+            Ok(MadeMpi {
+                mpi: picture(camera, &nan),
+                planes: None,
+                note: None,
+            })
         }
     }
     let options = EvalOptions {
         near_far: Some((1.0, 100.0)),
         ..Default::default()
     };
-    let e = evaluate(&scene, &Protocol::Auto, &mut Bad, &options)
+    let mut bad = MpiPredictor::new(Box::new(Bad), |_| {});
+    let e = evaluate(&scene, &Protocol::Auto, &mut bad, &options)
         .unwrap_err()
         .to_string();
-    assert!(e.contains("method bad") && e.contains("3x3x3"), "{e}");
+    assert!(e.contains("method bad") && e.contains("NaN"), "{e}");
     // A missing image names the file.
     std::fs::remove_file(dir.path().join("input_Cam004.png")).unwrap();
-    let e = evaluate(&scene, &Protocol::Auto, &mut NearestView, &options)
+    let e = evaluate(&scene, &Protocol::Auto, &mut nearest(), &options)
         .unwrap_err()
         .to_string();
     assert!(e.contains("input_Cam004.png"), "{e}");

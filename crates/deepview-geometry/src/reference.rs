@@ -151,6 +151,19 @@ fn enlarge_to_cover(
     out
 }
 
+/// The reference camera every MPI is made in (every method of `infer`, and training's plane rule): the
+/// inputs' centroid and average orientation ([`reference_camera`]), its field of view enlarged to cover
+/// them between near and far.
+pub fn mpi_reference(cameras: &[Camera], near_far: (f64, f64)) -> Result<Camera, GeometryError> {
+    reference_camera(
+        cameras,
+        &ReferenceOptions {
+            cover: Some(near_far),
+            ..Default::default()
+        },
+    )
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

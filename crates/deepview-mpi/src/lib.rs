@@ -7,6 +7,7 @@
 //! planes (the plane sweep volume). [`io`] reads and writes the interoperable folder format, [`interchange`]
 //! converts it to and from other tools' MPI formats, [`depth`] turns an MPI into depth and disparity maps.
 
+pub mod agreement;
 pub mod composite;
 pub mod depth;
 mod error;

@@ -14,7 +14,7 @@ pub enum ConfigError {
 }
 
 /// Temperature `s` of the `cpu` preset's agreement prior (the `psv-mean` baseline's default).
-pub const CPU_PRIOR_TEMPERATURE: f64 = 0.0005;
+pub const CPU_PRIOR_TEMPERATURE: f64 = deepview_mpi::agreement::TEMPERATURE;
 
 /// The architecture and the plane counts of a DeepView model.
 ///
@@ -53,7 +53,7 @@ pub struct DeepViewConfig {
     /// **Deviation from the paper (CPU training only):** a classical prior for the initial state. With
     /// `Some(s)`, `M_0 = prior + N_0(PSVs)` where the prior's RGBA logits are `logit(clamp(mean colour))`
     /// and `logit(clamp(alpha))` of the cross-view agreement MPI (the `psv-mean` baseline of
-    /// `deepview_eval::agreement_mpi`: mean of the valid PSV samples over views; depth weights = softmax
+    /// `deepview_mpi::agreement`: mean of the valid PSV samples over views; depth weights = softmax
     /// over planes of `-variance / s`, turned into back-to-front alphas whose visible shares equal the
     /// weights), and 0 for the extra channels. The last conv of every net is zero-initialised, so an
     /// untrained model outputs exactly the agreement MPI and training learns residual corrections (learned

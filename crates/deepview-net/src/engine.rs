@@ -10,11 +10,12 @@
 
 use crate::forward::{Hom, invert, mpi_to_view_homographies};
 use crate::kernels::{NetScratch, PackedNet, for_each_chunk_with};
-use crate::network::{DeepViewModel, PRIOR_EPS, PRIOR_SINGLE_VIEW_VARIANCE};
+use crate::network::DeepViewModel;
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
+use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
 use deepview_mpi::warp::{RowTaps, Sampler};
 use rayon::prelude::*;
 
@@ -444,7 +445,7 @@ fn prior_stats(psv: &[&mut [f32]], plane: Plane, temperature: f64, o: &mut [f32]
             let denom = n.max(1.0);
             let mut q = (var[x] / denom + var[w + x] / denom + var[2 * w + x] / denom) / 3.0;
             if n == 1.0 {
-                q = PRIOR_SINGLE_VIEW_VARIANCE as f32;
+                q = SINGLE_VIEW_VARIANCE as f32;
             }
             let seen = if n > 0.5 { 1.0 } else { 0.0 };
             *l = (-q / t) * seen + (1.0 - seen) * -1e30;

@@ -212,17 +212,14 @@ pub fn state_to_rgba(state: Tensor<4>) -> Tensor<4> {
     Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)
 }
 
-/// Variance assumed where only one view sees a plane point (as `deepview_eval`'s `psv-mean` default).
-pub const PRIOR_SINGLE_VIEW_VARIANCE: f64 = 0.02;
-/// Probabilities are clamped to `[eps, 1 - eps]` before the logit of the prior.
-pub const PRIOR_EPS: f64 = 1e-4;
+use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
 
 /// The cross-view agreement MPI of plane sweep volumes as RGBA *logits* `[D, 4, h, w]` (see
-/// `DeepViewConfig::init_prior`), computed exactly like `deepview_eval::agreement_mpi`: per plane and
+/// `DeepViewConfig::init_prior`), computed exactly like [`deepview_mpi::agreement::agreement_mpi`] (its one definition): per plane and
 /// pixel, colour = mean of the valid samples; variance = mean over RGB of the valid samples' variance
-/// (`PRIOR_SINGLE_VIEW_VARIANCE` where one view sees the point; no weight where none does); weights =
+/// (`SINGLE_VIEW_VARIANCE` where one view sees the point; no weight where none does); weights =
 /// softmax over planes of `-variance / temperature`; alpha `a_d = w_d / sum_{i<=d} w_i` (back to front).
-/// Colour and alpha are clamped to `[PRIOR_EPS, 1 - PRIOR_EPS]` and turned into logits.
+/// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits.
 /// `per_view`: K tensors `[D, 4, h, w]` (PSV RGB, validity) as built by [`DeepViewModel::init_input`].
 pub fn agreement_prior_logits(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
     let valid: Vec<Tensor<4>> = per_view.iter().map(|v| v.clone().narrow(1, 3, 1)).collect();
@@ -248,7 +245,7 @@ pub fn agreement_prior_logits(per_view: &[Tensor<4>], temperature: f64) -> Tenso
         / denom;
     let var = var.mean_dim(1);
     let single = count.clone().equal_elem(1.0);
-    let var = var.mask_fill(single, PRIOR_SINGLE_VIEW_VARIANCE);
+    let var = var.mask_fill(single, SINGLE_VIEW_VARIANCE);
     let seen = count.greater_elem(0.5).float();
     let logit = var.neg() / temperature;
     // Unseen (plane, pixel) pairs get no weight; a ray no view sees at all stays transparent.

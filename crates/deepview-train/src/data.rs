@@ -614,13 +614,14 @@ impl TrainData {
         others.iter().take(views.max(1)).map(|x| x.1).collect()
     }
 
-    /// The inference plane rule ([`deepview_geometry::auto_plane_count`]) for these input views of scene
-    /// `si`: the count `infer --planes auto` would use for them (before clamping).
+    /// The inference plane rule ([`deepview_geometry::auto_plane_count`] in
+    /// [`deepview_geometry::mpi_reference`]) for these input views of scene `si`: the count
+    /// `infer --planes auto` uses for them (before the memory clamp).
     fn auto_planes_for(&self, si: usize, inputs: &[usize]) -> Result<usize, DataError> {
         let s = &self.scenes[si];
         let cams: Vec<Camera> = inputs.iter().map(|&i| s.cameras[i]).collect();
         let reference =
-            reference_camera(&cams, &ReferenceOptions::default()).map_err(|source| {
+            deepview_geometry::mpi_reference(&cams, (s.near, s.far)).map_err(|source| {
                 DataError::Geometry {
                     scene: s.name.clone(),
                     source,

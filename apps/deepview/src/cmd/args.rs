@@ -1,5 +1,5 @@
 //! The flags every command spells the same way: `--data DIR` (a dataset), `--mpi DIR`, `--max-memory
-//! auto|SIZE` and the memory budget behind it (the plane rule of `--planes` is `deepview_eval::Planes`).
+//! auto|SIZE` and the memory budget behind it (the plane rule of `--planes` is `deepview_methods::Planes`).
 
 use anyhow::{Context, bail};
 use deepview_geometry::Camera;
@@ -79,7 +79,7 @@ impl OutArg {
     }
 }
 
-pub use deepview_eval::human;
+pub use deepview_methods::human;
 
 /// The smallest `--max-memory` value (whole MiB, rounded up) that is at least `bytes`.
 pub fn min_arg(bytes: u64) -> String {
@@ -116,7 +116,7 @@ fn px(w: u32, h: u32) -> u64 {
     w as u64 * h as u64
 }
 
-pub use deepview_eval::planes::mpi_bytes;
+pub use deepview_methods::planes::mpi_bytes;
 
 /// Bytes of rendering one `w x h` image from an MPI (f32 accumulation, output conversion, PNG encoding).
 pub fn render_bytes(camera: &Camera) -> u64 {

@@ -379,7 +379,7 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
         budget,
     )?;
     let (views, reference, depths) = synthetic_views(args.views, args.planes, w, h);
-    deepview_eval::check_learned(&model, &views, &reference, &depths, budget)?;
+    deepview_methods::check_learned(&model, &views, &reference, &depths, budget)?;
     let mut times = Vec::new();
     for i in 0..=args.repeats.max(1) {
         let t = Instant::now();

@@ -3,10 +3,8 @@
 use super::method::Reporter;
 use anyhow::Context;
 use deepview_data::{LoadOptions, load_scene};
-use deepview_eval::{
-    EvalOptions, EvalReport, InputRule, MethodKind, MethodOptions, MpiPredictor, MpiRequest,
-    Planes, Protocol, TargetRule, evaluate, make_method,
-};
+use deepview_eval::{EvalOptions, EvalReport, MpiPredictor, Protocol, TargetRule, evaluate};
+use deepview_methods::{InputRule, MethodKind, MethodOptions, MpiRequest, Planes, make_method};
 use deepview_synth::{Rig, SynthOptions, synthesize};
 use std::path::PathBuf;
 
@@ -28,7 +26,7 @@ pub struct Args {
     #[arg(long)]
     pub no_optimize: bool,
     /// MPI planes of every method (see `deepview infer --help`).
-    #[arg(long, default_value = "auto", help = deepview_eval::PLANES_HELP)]
+    #[arg(long, default_value = "auto", help = deepview_methods::PLANES_HELP)]
     pub planes: Planes,
     #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
     pub max_memory: Option<String>,

@@ -5,10 +5,8 @@ use super::args;
 use super::method::{INPUTS_HELP, Reporter};
 use super::safety::{CreatedDirs, Input, Kind, check_output, write_file};
 use anyhow::Context;
-use deepview_eval::{
-    EvalOptions, InputRule, MethodKind, MethodOptions, MpiPredictor, Protocol, TargetRule,
-    evaluate, make_method,
-};
+use deepview_eval::{EvalOptions, MpiPredictor, Protocol, TargetRule, evaluate};
+use deepview_methods::{InputRule, MethodKind, MethodOptions, make_method};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]

@@ -5,6 +5,7 @@ use super::args::{min_arg, more_memory_hint, total_memory};
 use deepview_data::DataError;
 use deepview_eval::EvalError;
 use deepview_media::MediaError;
+use deepview_methods::MethodError;
 use deepview_net::weights::WeightsError;
 use deepview_process::ProcessError;
 use deepview_synth::SynthError;
@@ -16,6 +17,9 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
     e.chain().find_map(|cause| {
         if let Some(e) = cause.downcast_ref::<EvalError>() {
             return eval(e);
+        }
+        if let Some(e) = cause.downcast_ref::<MethodError>() {
+            return method(e);
         }
         if let Some(e) = cause.downcast_ref::<WeightsError>() {
             return weights(e);
@@ -49,7 +53,23 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
 
 fn eval(e: &EvalError) -> Option<String> {
     Some(match e {
-        EvalError::PlanesOverBudget { need, .. } => match total_memory() {
+        EvalError::Method(m) => return method(m),
+        EvalError::NotEnoughInputs { available: 0, .. } => NO_INPUT_LEFT.into(),
+        EvalError::NotEnoughInputs { wanted, .. } => fewer_inputs(*wanted),
+        _ => return None,
+    })
+}
+
+const NO_INPUT_LEFT: &str =
+    "every view is a target, so none is left as an input: choose fewer --targets";
+
+fn fewer_inputs(wanted: usize) -> String {
+    format!("ask for fewer than {wanted} inputs (--inputs nearest:K, all, or a list)")
+}
+
+fn method(e: &MethodError) -> Option<String> {
+    Some(match e {
+        MethodError::PlanesOverBudget { need, .. } => match total_memory() {
             Some(t) if *need > t => format!(
                 "use fewer planes (--planes) or smaller images (--downscale): it needs more than this \
                  machine's {} of memory",
@@ -60,27 +80,22 @@ fn eval(e: &EvalError) -> Option<String> {
                 min_arg(*need)
             ),
         },
-        EvalError::OverBudget { need, .. } => more_memory_hint(*need, total_memory()),
-        EvalError::StateOverBudget { fewer_than, .. } => format!(
+        MethodError::OverBudget { need, .. } => more_memory_hint(*need, total_memory()),
+        MethodError::StateOverBudget { fewer_than, .. } => format!(
             "use fewer than {fewer_than} planes (--planes), smaller images (--downscale) or far more \
              --max-memory"
         ),
-        EvalError::PlanesNeedWeights => {
+        MethodError::PlanesNeedWeights => {
             "--planes weights needs a learned model (--method deepview): use --planes auto or a number"
                 .into()
         }
-        EvalError::NoPlanes => "--planes takes auto, weights or a count of at least 1".into(),
-        EvalError::NoWeights { .. } => {
+        MethodError::NoPlanes => "--planes takes auto, weights or a count of at least 1".into(),
+        MethodError::NoWeights { .. } => {
             "train some with `deepview train`, or pass --weights DIR (default: the built-in weights)".into()
         }
-        EvalError::TooFewViews { available: 0, .. }
-        | EvalError::NotEnoughInputs { available: 0, .. } => {
-            "every view is a target, so none is left as an input: choose fewer --targets".into()
-        }
-        EvalError::TooFewViews { wanted, .. } | EvalError::NotEnoughInputs { wanted, .. } => {
-            format!("ask for fewer than {wanted} inputs (--inputs nearest:K, all, or a list)")
-        }
-        EvalError::Weights(w) => return weights(w),
+        MethodError::TooFewViews { available: 0, .. } => NO_INPUT_LEFT.into(),
+        MethodError::TooFewViews { wanted, .. } => fewer_inputs(*wanted),
+        MethodError::Weights(w) => return weights(w),
         _ => return None,
     })
 }

@@ -7,7 +7,7 @@ use super::method::{INPUTS_HELP, Reporter};
 use super::safety::{Input, Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
-use deepview_eval::{InputRule, MethodKind, MethodOptions, MpiRequest, make_method};
+use deepview_methods::{InputRule, MethodKind, MethodOptions, MpiRequest, make_method};
 use std::path::PathBuf;
 
 /// What every MPI-making command takes besides the method.

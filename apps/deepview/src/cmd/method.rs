@@ -1,7 +1,7 @@
 //! What the commands that make, score or render MPIs share: the `--inputs` help and the display of the
 //! libraries' progress (the libraries report events; the binary prints them).
 
-use deepview_eval::{MethodEvent, MethodKind};
+use deepview_methods::{MethodEvent, MethodKind};
 
 /// The help text of `--inputs`.
 pub const INPUTS_HELP: &str = "Input views: nearest:K (the K views nearest the target; where there is no \

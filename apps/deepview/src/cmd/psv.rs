@@ -4,8 +4,8 @@ use super::args::{self, DataArg};
 use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
 use deepview_data::{SceneArgs, load_scene};
-use deepview_eval::Planes;
 use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
+use deepview_methods::Planes;
 use deepview_mpi::plane_sweep;
 use std::path::PathBuf;
 
@@ -55,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let (near, far) = scene.near_far()?;
     let view_camera = scene.views[args.view].camera;
-    let choice = deepview_eval::choose_planes(
+    let choice = deepview_methods::choose_planes(
         args.planes,
         &reference,
         &[view_camera],

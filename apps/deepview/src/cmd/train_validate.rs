@@ -8,10 +8,8 @@
 
 use super::progress::Progress;
 use deepview_data::{LoadOptions, Scene, SceneFormat};
-use deepview_eval::{
-    EvalOptions, InputRule, MethodKind, MethodOptions, MpiPredictor, Protocol, TargetRule,
-    evaluate, make_method,
-};
+use deepview_eval::{EvalOptions, MpiPredictor, Protocol, TargetRule, evaluate};
+use deepview_methods::{InputRule, MethodKind, MethodOptions, make_method};
 use deepview_train::{DataSpec, TrainEvent};
 use std::io::Write;
 use std::path::{Path, PathBuf};

@@ -103,11 +103,11 @@ fn tiled_equals_untiled() {
 }
 
 /// With the agreement prior and zero-initialised output convs, the model's MPI is the `psv-mean`
-/// baseline's MPI (`deepview_eval::agreement_mpi`, an independent f64 implementation on the CPU).
+/// baseline's MPI ([`deepview_mpi::agreement::agreement_mpi`], the prior's one definition: f64 sums, per plane).
 #[test]
 fn untrained_prior_model_equals_agreement_mpi() {
-    use deepview_eval::{PsvMeanOptions, agreement_mpi};
     use deepview_geometry::{ReferenceOptions, reference_camera};
+    use deepview_mpi::agreement::{SINGLE_VIEW_VARIANCE, TEMPERATURE, agreement_mpi};
     let dev = Device::flex();
     for (k, planes, smooth) in [(3, 8, true), (4, 5, false), (2, 6, true)] {
         let cfg = DeepViewConfig {
@@ -131,11 +131,6 @@ fn untrained_prior_model_equals_agreement_mpi() {
             }
         }
         let near_far = (1.5, 12.0);
-        let options = PsvMeanOptions {
-            planes,
-            ..Default::default()
-        };
-        let expected = agreement_mpi(&views, near_far, &options).unwrap();
         let cams: Vec<Camera> = views.iter().map(|(_, c)| *c).collect();
         let reference = reference_camera(
             &cams,
@@ -146,7 +141,13 @@ fn untrained_prior_model_equals_agreement_mpi() {
         )
         .unwrap();
         let depths = plane_depths(1.5, 12.0, planes, PlaneSpacing::InverseDepth).unwrap();
-        assert_eq!(expected.camera, reference);
+        let expected = agreement_mpi(
+            &views,
+            &reference,
+            depths.clone(),
+            TEMPERATURE,
+            SINGLE_VIEW_VARIANCE,
+        );
         let mpi = infer_mpi_tiled(&model, &views, &reference, &depths, 16, &mut |_| {}).unwrap();
         assert_eq!(mpi.layers.len(), expected.layers.len());
         let (mut max, mut mixed) = (0f32, 0usize);

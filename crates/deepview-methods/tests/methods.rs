@@ -1,20 +1,44 @@
-//! Each baseline on a textured fronto-parallel plane whose images are known exactly.
+//! Each classical method, as `infer --method M` runs it, on a textured fronto-parallel plane whose images
+//! are known exactly.
 
 mod common;
 
 use common::*;
-use deepview_eval::{
-    EvalError, Method, NearestView, OptimizeOptions, PsvMean, PsvMeanOptions, agreement_mpi,
-    optimize_mpi_with_history,
-};
 use deepview_geometry::{Camera, DVec3};
 use deepview_image::ImageF32;
+use deepview_methods::{
+    MethodError, MethodKind, MethodOptions, MpiRequest, OptimizeOptions, Planes, PsvMeanOptions,
+    agreement_mpi, make_method, optimize_mpi_with_history,
+};
 use deepview_mpi::render;
 
 const W: u32 = 48;
 const H: u32 = 32;
 const F: f64 = 40.0;
 const DEPTH: f64 = 2.0;
+
+/// The target's image as `eval --method kind --planes planes` predicts it: the method's MPI rendered into it.
+fn predict(
+    kind: MethodKind,
+    planes: usize,
+    inputs: &[(ImageF32, Camera)],
+    target: &Camera,
+    near_far: (f64, f64),
+) -> Result<ImageF32, MethodError> {
+    let options = MethodOptions {
+        planes: Planes::Count(planes),
+        ..Default::default()
+    };
+    let mut method = make_method(kind, &options, 1 << 30)?;
+    let request = MpiRequest {
+        inputs,
+        ids: &[],
+        near_far,
+        toward: Some(target),
+    };
+    let made = method.make_mpi(&request, &mut |_| {})?;
+    Ok(render(&made.mpi, target).to_rgb())
+}
 
 fn quad_inputs(offset: f64) -> Vec<(ImageF32, Camera)> {
     [(-1.0, -1.0), (1.0, -1.0), (-1.0, 1.0), (1.0, 1.0)]
@@ -38,9 +62,14 @@ fn nearest_at_the_right_depth_reproduces_the_target() {
     ];
     let target = camera_at(DVec3::new(0.1, 0.0, 0.0), W, H, F);
     let truth = render_plane(&target, DEPTH);
-    let pred = NearestView
-        .predict(&inputs, &target, bounds_around(DEPTH))
-        .unwrap();
+    let pred = predict(
+        MethodKind::Nearest,
+        1,
+        &inputs,
+        &target,
+        bounds_around(DEPTH),
+    )
+    .unwrap();
     assert_eq!((pred.width, pred.height, pred.channels), (W, H, 3));
     let mut max_err = 0.0f32;
     for y in 0..H {
@@ -54,9 +83,14 @@ fn nearest_at_the_right_depth_reproduces_the_target() {
     // The last 2 columns see beyond the input image: black.
     assert!(pred.pixel(W - 1, 5).iter().all(|&v| v == 0.0));
     // At a wrong depth the same method is clearly worse.
-    let wrong = NearestView
-        .predict(&inputs, &target, bounds_around(DEPTH * 3.0))
-        .unwrap();
+    let wrong = predict(
+        MethodKind::Nearest,
+        1,
+        &inputs,
+        &target,
+        bounds_around(DEPTH * 3.0),
+    )
+    .unwrap();
     assert!(psnr_interior(&wrong, &truth, 4) < psnr_interior(&pred, &truth, 4) - 10.0);
 }
 
@@ -112,10 +146,10 @@ fn psv_mean_finds_the_plane_and_renders_the_target() {
         argmax_right as f64 > 0.9 * pixels as f64,
         "true plane strongest at {argmax_right} of {pixels} pixels"
     );
-    let pred = PsvMean { options }.predict(&inputs, &target, nf).unwrap();
+    let pred = predict(MethodKind::PsvMean, options.planes, &inputs, &target, nf).unwrap();
     let p = psnr_interior(&pred, &truth, 6);
     assert!(p > 25.0, "psv-mean PSNR {p}");
-    // predict is the render of agreement_mpi.
+    // `psv-mean` renders agreement_mpi.
     assert_eq!(render(&mpi, &target).to_rgb(), pred);
     eprintln!(
         "psv-mean: weight on the true plane {:.3}, PSNR {p:.2}",
@@ -165,21 +199,19 @@ fn optimize_works_at_reduced_resolution() {
 #[test]
 fn bad_inputs_are_clear_errors() {
     let target = camera_at(DVec3::ZERO, W, H, F);
-    let e = NearestView.predict(&[], &target, (1.0, 2.0)).unwrap_err();
+    let e = predict(MethodKind::Nearest, 1, &[], &target, (1.0, 2.0)).unwrap_err();
     assert!(
-        matches!(e, EvalError::Method { .. }) && e.to_string().contains("no input views"),
+        matches!(e, MethodError::Method { .. }) && e.to_string().contains("no input views"),
         "{e}"
     );
     let inputs = quad_inputs(0.1);
-    let e = PsvMean::default()
-        .predict(&inputs, &target, (2.0, 1.0))
+    let e = predict(MethodKind::PsvMean, 32, &inputs, &target, (2.0, 1.0))
         .unwrap_err()
         .to_string();
     assert!(e.contains("near 2") && e.contains("far 1"), "{e}");
     let mut wrong_size = inputs.clone();
     wrong_size[0].0 = ImageF32::new(5, 5, 3);
-    let e = NearestView
-        .predict(&wrong_size, &target, (1.0, 2.0))
+    let e = predict(MethodKind::Nearest, 1, &wrong_size, &target, (1.0, 2.0))
         .unwrap_err()
         .to_string();
     assert!(e.contains("input 0") && e.contains("5x5"), "{e}");

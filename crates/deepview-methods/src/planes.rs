@@ -2,11 +2,9 @@
 //! clamped to the memory budget; the learned model's own count; or an explicit count), the reference
 //! camera every method places its MPI in, and the memory estimates of the classical methods.
 
-use crate::error::EvalError;
+use crate::error::MethodError;
 pub use crate::error::{PlanesHow, human};
-use deepview_geometry::{
-    AUTO_MAX_SPACING_PX, AUTO_PLANES_MIN, Camera, ReferenceOptions, auto_planes, reference_camera,
-};
+use deepview_geometry::{AUTO_MAX_SPACING_PX, AUTO_PLANES_MIN, Camera, auto_planes};
 use deepview_mpi::PlanesRule;
 use std::str::FromStr;
 
@@ -58,16 +56,10 @@ pub struct PlaneChoice {
     pub message: String,
 }
 
-/// The reference camera every method places its MPI in: the inputs' centroid and average orientation,
-/// its field of view enlarged to cover them between near and far.
-pub fn mpi_reference(cameras: &[Camera], near_far: (f64, f64)) -> Result<Camera, EvalError> {
-    Ok(reference_camera(
-        cameras,
-        &ReferenceOptions {
-            cover: Some(near_far),
-            ..Default::default()
-        },
-    )?)
+/// The reference camera every method places its MPI in ([`deepview_geometry::mpi_reference`], which
+/// training's plane rule uses too).
+pub fn mpi_reference(cameras: &[Camera], near_far: (f64, f64)) -> Result<Camera, MethodError> {
+    Ok(deepview_geometry::mpi_reference(cameras, near_far)?)
 }
 
 /// Resolve `rule` for an MPI in `reference` from input cameras `views` (dataset indices `view_ids`, for the
@@ -84,8 +76,8 @@ pub fn choose_planes(
     weights: Option<usize>,
     fits: &mut dyn FnMut(usize) -> bool,
     minimum: &mut dyn FnMut(usize) -> u64,
-) -> Result<PlaneChoice, EvalError> {
-    let mut refuse = |planes: usize, how: PlanesHow| EvalError::PlanesOverBudget {
+) -> Result<PlaneChoice, MethodError> {
+    let mut refuse = |planes: usize, how: PlanesHow| MethodError::PlanesOverBudget {
         planes,
         how,
         need: minimum(planes),
@@ -102,7 +94,7 @@ pub fn choose_planes(
         message,
     };
     match rule {
-        Planes::Count(0) => Err(EvalError::NoPlanes),
+        Planes::Count(0) => Err(MethodError::NoPlanes),
         Planes::Count(n) if !fits(n) => Err(refuse(n, PlanesHow::Explicit)),
         Planes::Count(n) => Ok(simple(n, "explicit", format!("planes: {n} (explicit)"))),
         Planes::Weights => match weights {
@@ -112,7 +104,7 @@ pub fn choose_planes(
                 "weights",
                 format!("planes: weights -> {n} (the weights' inference plane count)"),
             )),
-            None => Err(EvalError::PlanesNeedWeights),
+            None => Err(MethodError::PlanesNeedWeights),
         },
         Planes::Auto => {
             let auto = auto_planes(
@@ -169,9 +161,9 @@ pub fn choose_planes(
 }
 
 /// Refuse work estimated at `need` bytes that does not fit `budget`, before anything is allocated.
-pub fn check_memory(what: &str, need: u64, budget: u64) -> Result<(), EvalError> {
+pub fn check_memory(what: &str, need: u64, budget: u64) -> Result<(), MethodError> {
     if need > budget {
-        return Err(EvalError::OverBudget {
+        return Err(MethodError::OverBudget {
             what: what.into(),
             need,
             budget,
@@ -278,18 +270,18 @@ mod tests {
         assert_eq!(choose(Planes::Weights, Some(32), 100).unwrap().count, 32);
         assert!(matches!(
             choose(Planes::Count(0), None, 100),
-            Err(EvalError::NoPlanes)
+            Err(MethodError::NoPlanes)
         ));
         let e = choose(Planes::Count(100000), None, 100).unwrap_err();
         assert!(
-            matches!(e, EvalError::PlanesOverBudget { planes: 100000, need, .. } if need == 100000 << 20),
+            matches!(e, MethodError::PlanesOverBudget { planes: 100000, need, .. } if need == 100000 << 20),
             "{e}"
         );
         let e = choose(Planes::Auto, None, 2).unwrap_err();
         assert!(
             matches!(
                 e,
-                EvalError::PlanesOverBudget {
+                MethodError::PlanesOverBudget {
                     planes: 8,
                     how: PlanesHow::AutoMinimum,
                     ..
@@ -300,7 +292,7 @@ mod tests {
         assert!(!e.to_string().contains("--"), "{e}");
         assert!(matches!(
             choose(Planes::Weights, None, 100),
-            Err(EvalError::PlanesNeedWeights)
+            Err(MethodError::PlanesNeedWeights)
         ));
     }
 }

@@ -9,14 +9,14 @@
 //! low resolution (inputs box-downscaled by an integer factor so they are at most `max_width` wide); the MPI is
 //! then rendered into targets at any resolution.
 
-use crate::baselines::{PsvMeanOptions, baseline_reference, sweep_statistics};
+use crate::baselines::baseline_reference;
 use crate::check::check_inputs;
-use crate::error::EvalError;
-use crate::method::Method;
+use crate::error::MethodError;
 use deepview_geometry::{Camera, PlaneSpacing, plane_depths};
 use deepview_image::ImageF32;
+use deepview_mpi::agreement::{SINGLE_VIEW_VARIANCE, TEMPERATURE, sweep_statistics};
 use deepview_mpi::warp::{Sampler, target_to_plane_homographies};
-use deepview_mpi::{Mpi, render, render_components};
+use deepview_mpi::{Mpi, render_components};
 use rayon::prelude::*;
 
 /// Settings of [`optimize_mpi`].
@@ -42,35 +42,13 @@ impl Default for OptimizeOptions {
     }
 }
 
-/// The `optimize` baseline: [`optimize_mpi`] rendered into the target.
-#[derive(Clone, Copy, Debug, Default)]
-pub struct OptimizeMethod {
-    pub options: OptimizeOptions,
-}
-
-impl Method for OptimizeMethod {
-    fn name(&self) -> &str {
-        "optimize"
-    }
-
-    fn predict(
-        &mut self,
-        inputs: &[(ImageF32, Camera)],
-        target: &Camera,
-        near_far: (f64, f64),
-    ) -> Result<ImageF32, EvalError> {
-        let mpi = optimize_mpi(inputs, near_far, &self.options)?;
-        Ok(render(&mpi, target).to_rgb())
-    }
-}
-
 /// Optimise an MPI to reproduce `inputs` (see the module docs). The MPI's reference camera is the inputs'
 /// centroid camera at the working resolution, enlarged to cover them between near and far.
 pub fn optimize_mpi(
     inputs: &[(ImageF32, Camera)],
     near_far: (f64, f64),
     options: &OptimizeOptions,
-) -> Result<Mpi, EvalError> {
+) -> Result<Mpi, MethodError> {
     optimize_mpi_with_history(inputs, near_far, options).map(|(m, _)| m)
 }
 
@@ -79,11 +57,11 @@ pub fn optimize_mpi_with_history(
     inputs: &[(ImageF32, Camera)],
     near_far: (f64, f64),
     options: &OptimizeOptions,
-) -> Result<(Mpi, Vec<f64>), EvalError> {
+) -> Result<(Mpi, Vec<f64>), MethodError> {
     check_inputs("optimize", inputs, near_far)?;
     if options.max_width == 0 || !(options.learning_rate.is_finite() && options.learning_rate > 0.0)
     {
-        return Err(EvalError::Method {
+        return Err(MethodError::Method {
             method: "optimize".into(),
             msg: format!(
                 "max width {} and learning rate {} must be positive",
@@ -147,7 +125,7 @@ fn sigmoid(x: f32) -> f32 {
 /// Start: every plane's colour the PSV mean colour (grey where no view sees it), alpha `1 / (d + 1)` so every
 /// plane contributes equally (`1/D`) in the reference view.
 fn initial_logits(views: &[(ImageF32, Camera)], reference: &Camera, depths: Vec<f64>) -> Vec<f32> {
-    let (mean, _) = sweep_statistics(views, reference, depths, &PsvMeanOptions::default());
+    let (mean, _) = sweep_statistics(views, reference, depths, TEMPERATURE, SINGLE_VIEW_VARIANCE);
     let plane_len = mean.plane_len();
     let mut z = mean.layers;
     z.par_chunks_mut(plane_len)

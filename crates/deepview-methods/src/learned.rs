@@ -2,7 +2,7 @@
 //! memory budget, the plane count by the shared rule ([`choose_planes`]), and the memory checks that refuse
 //! a plane count before anything is allocated.
 
-use crate::error::EvalError;
+use crate::error::MethodError;
 use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
 use crate::planes::{Planes, choose_planes, mpi_reference};
 use deepview_geometry::{Camera, PlaneSpacing, plane_depths};
@@ -43,13 +43,13 @@ pub struct LearnedMethod {
 impl LearnedMethod {
     /// Load the weights in `weights` (a weights folder or a checkpoint folder; `None`: the built-in
     /// ones); `budget` bounds the inference's memory (bytes).
-    pub fn load(weights: Option<&Path>, planes: Planes, budget: u64) -> Result<Self, EvalError> {
+    pub fn load(weights: Option<&Path>, planes: Planes, budget: u64) -> Result<Self, MethodError> {
         let device = deepview_net::burn::tensor::Device::flex();
         let (source, (model, config)) = match weights {
             None => (WeightsSource::Shipped, weights::load_shipped(&device)?),
             Some(dir) => {
                 if !dir.join(weights::CONFIG_FILE).is_file() && !weights::is_checkpoint(dir) {
-                    return Err(EvalError::NoWeights {
+                    return Err(MethodError::NoWeights {
                         dir: dir.to_path_buf(),
                     });
                 }
@@ -96,7 +96,7 @@ impl MpiMethod for LearnedMethod {
         &mut self,
         request: &MpiRequest<'_>,
         events: &mut dyn FnMut(MethodEvent<'_>),
-    ) -> Result<MadeMpi, EvalError> {
+    ) -> Result<MadeMpi, MethodError> {
         let near_far = request.near_far;
         let cams: Vec<Camera> = request.inputs.iter().map(|(_, c)| *c).collect();
         weights::check_views(&self.config, cams.len())?;
@@ -237,7 +237,7 @@ pub fn precheck_planes(
     rule: Planes,
     weights_planes: usize,
     budget: u64,
-) -> Result<(), EvalError> {
+) -> Result<(), MethodError> {
     let n = match rule {
         Planes::Count(n) => n,
         Planes::Weights => weights_planes,
@@ -256,7 +256,7 @@ pub fn check_learned(
     reference: &Camera,
     depths: &[f64],
     budget: u64,
-) -> Result<(), EvalError> {
+) -> Result<(), MethodError> {
     let lower = learned_lower_bound(model, views, reference, depths.len());
     if lower <= budget && plan_inference(model, views, reference, depths, budget).is_ok() {
         return Ok(());
@@ -268,7 +268,7 @@ pub fn check_learned(
 
 /// The refusal of `planes` planes that do not fit `budget`. When even the quick lower bound is over the
 /// budget (planning itself would take long), it names the plane count that no longer fits
-/// ([`EvalError::StateOverBudget`]); otherwise the smallest budget that does ([`EvalError::OverBudget`]).
+/// ([`MethodError::StateOverBudget`]); otherwise the smallest budget that does ([`MethodError::OverBudget`]).
 fn too_many_planes(
     model: &DeepViewModel,
     views: &[(ImageF32, Camera)],
@@ -276,7 +276,7 @@ fn too_many_planes(
     planes: usize,
     budget: u64,
     minimum: &mut dyn FnMut(usize) -> u64,
-) -> Result<(), EvalError> {
+) -> Result<(), MethodError> {
     let what = format!(
         "inferring {planes} planes of {}x{}",
         reference.width, reference.height
@@ -293,14 +293,14 @@ fn too_many_planes(
                 hi = mid
             }
         }
-        return Err(EvalError::StateOverBudget {
+        return Err(MethodError::StateOverBudget {
             what,
             lower,
             budget,
             fewer_than: lo + 1,
         });
     }
-    Err(EvalError::OverBudget {
+    Err(MethodError::OverBudget {
         what,
         need: minimum(planes).max(budget + 1),
         budget,

@@ -3,7 +3,7 @@
 
 use crate::baselines::{PsvMeanOptions, agreement_mpi, nearest_view_mpi};
 use crate::check::check_inputs;
-use crate::error::EvalError;
+use crate::error::MethodError;
 use crate::learned::LearnedMethod;
 use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
 use crate::optimize::{OptimizeOptions, optimize_mpi_with_history};
@@ -56,14 +56,14 @@ impl std::fmt::Display for MethodKind {
 }
 
 impl FromStr for MethodKind {
-    type Err = EvalError;
-    fn from_str(s: &str) -> Result<Self, EvalError> {
+    type Err = MethodError;
+    fn from_str(s: &str) -> Result<Self, MethodError> {
         match s.trim().to_ascii_lowercase().replace('_', "-").as_str() {
             "deepview" => Ok(MethodKind::Deepview),
             "nearest" => Ok(MethodKind::Nearest),
             "psv-mean" | "psvmean" => Ok(MethodKind::PsvMean),
             "optimize" | "optimise" => Ok(MethodKind::Optimize),
-            _ => Err(EvalError::UnknownMethod(s.into())),
+            _ => Err(MethodError::UnknownMethod(s.into())),
         }
     }
 }
@@ -134,7 +134,7 @@ pub fn make_method(
     kind: MethodKind,
     options: &MethodOptions,
     budget: u64,
-) -> Result<Box<dyn MpiMethod>, EvalError> {
+) -> Result<Box<dyn MpiMethod>, MethodError> {
     Ok(match kind {
         MethodKind::Deepview => Box::new(LearnedMethod::load(
             options.weights.as_deref(),
@@ -181,7 +181,7 @@ pub fn classical_planes(
     ids: &[usize],
     near_far: (f64, f64),
     max_width: u32,
-) -> Result<PlaneChoice, EvalError> {
+) -> Result<PlaneChoice, MethodError> {
     let reference = mpi_reference(cams, near_far)?;
     let (fixed, per_plane) = match kind {
         MethodKind::Optimize => optimize_bytes(&reference, cams, max_width),
@@ -230,7 +230,7 @@ impl MpiMethod for Classical {
         &mut self,
         request: &MpiRequest<'_>,
         events: &mut dyn FnMut(MethodEvent<'_>),
-    ) -> Result<MadeMpi, EvalError> {
+    ) -> Result<MadeMpi, MethodError> {
         let (inputs, near_far) = (request.inputs, request.near_far);
         check_inputs(self.kind.name(), inputs, near_far)?;
         let cams: Vec<Camera> = inputs.iter().map(|(_, c)| *c).collect();

@@ -1,7 +1,7 @@
 //! Which views are a method's inputs: one rule for every command that makes an MPI (`infer`, `eval`, the
 //! demo), with one default.
 
-use crate::error::EvalError;
+use crate::error::MethodError;
 use deepview_geometry::{Camera, DVec3};
 use std::fmt;
 use std::str::FromStr;
@@ -61,13 +61,13 @@ impl InputRule {
         cameras: &[Camera],
         target: Option<usize>,
         exclude: &[usize],
-    ) -> Result<Vec<usize>, EvalError> {
+    ) -> Result<Vec<usize>, MethodError> {
         let n = cameras.len();
-        let check = |i: usize| -> Result<usize, EvalError> {
+        let check = |i: usize| -> Result<usize, MethodError> {
             if i < n {
                 Ok(i)
             } else {
-                Err(EvalError::ViewIndex { index: i, views: n })
+                Err(MethodError::ViewIndex { index: i, views: n })
             }
         };
         let candidates = || -> Vec<usize> {
@@ -75,9 +75,9 @@ impl InputRule {
                 .filter(|i| !exclude.contains(i) && Some(*i) != target)
                 .collect()
         };
-        let enough = |cand: &[usize], k: usize| -> Result<(), EvalError> {
+        let enough = |cand: &[usize], k: usize| -> Result<(), MethodError> {
             if cand.len() < k {
-                return Err(EvalError::TooFewViews {
+                return Err(MethodError::TooFewViews {
                     rule: self.to_string(),
                     wanted: k,
                     available: cand.len(),
@@ -85,7 +85,7 @@ impl InputRule {
             }
             Ok(())
         };
-        let nearest = |anchor: DVec3, k: usize| -> Result<Vec<usize>, EvalError> {
+        let nearest = |anchor: DVec3, k: usize| -> Result<Vec<usize>, MethodError> {
             let mut cand = candidates();
             enough(&cand, k)?;
             cand.sort_by(|&a, &b| {
@@ -98,9 +98,9 @@ impl InputRule {
             cand.truncate(k);
             Ok(cand)
         };
-        let centroid = |k: usize| -> Result<Vec<usize>, EvalError> {
+        let centroid = |k: usize| -> Result<Vec<usize>, MethodError> {
             if n == 0 {
-                return Err(EvalError::TooFewViews {
+                return Err(MethodError::TooFewViews {
                     rule: self.to_string(),
                     wanted: k,
                     available: 0,
@@ -134,7 +134,7 @@ impl InputRule {
                 for &i in v {
                     check(i)?;
                     if Some(i) == target {
-                        return Err(EvalError::BadRule {
+                        return Err(MethodError::BadRule {
                             rule: self.to_string(),
                             msg: format!("target view {i} is also an input"),
                         });
@@ -163,8 +163,8 @@ fn spread(cand: &[usize], k: usize) -> Vec<usize> {
 }
 
 /// A comma-separated list of view indices, no duplicates.
-pub(crate) fn parse_list(rule: &str) -> Result<Vec<usize>, EvalError> {
-    let bad = |msg: String| EvalError::BadRule {
+pub fn parse_list(rule: &str) -> Result<Vec<usize>, MethodError> {
+    let bad = |msg: String| MethodError::BadRule {
         rule: rule.into(),
         msg,
     };
@@ -185,17 +185,17 @@ pub(crate) fn parse_list(rule: &str) -> Result<Vec<usize>, EvalError> {
 }
 
 /// `prefix` and a positive count (`nearest:4`), `None` when `rule` does not start with `prefix`.
-pub(crate) fn parse_count(rule: &str, prefix: &str) -> Result<Option<usize>, EvalError> {
+pub fn parse_count(rule: &str, prefix: &str) -> Result<Option<usize>, MethodError> {
     match rule.strip_prefix(prefix) {
         None => Ok(None),
         Some(n) => positive(rule, n).map(Some),
     }
 }
 
-fn positive(rule: &str, n: &str) -> Result<usize, EvalError> {
+fn positive(rule: &str, n: &str) -> Result<usize, MethodError> {
     match n.trim().parse::<usize>() {
         Ok(n) if n > 0 => Ok(n),
-        _ => Err(EvalError::BadRule {
+        _ => Err(MethodError::BadRule {
             rule: rule.into(),
             msg: format!("'{n}' is not a positive count"),
         }),
@@ -203,11 +203,11 @@ fn positive(rule: &str, n: &str) -> Result<usize, EvalError> {
 }
 
 impl FromStr for InputRule {
-    type Err = EvalError;
-    fn from_str(s: &str) -> Result<Self, EvalError> {
+    type Err = MethodError;
+    fn from_str(s: &str) -> Result<Self, MethodError> {
         let t = s.trim();
-        let with_rules = |e: EvalError| match e {
-            EvalError::BadRule { rule, msg } => EvalError::BadRule {
+        let with_rules = |e: MethodError| match e {
+            MethodError::BadRule { rule, msg } => MethodError::BadRule {
                 rule,
                 msg: format!("{msg} (expected {INPUT_RULES})"),
             },
@@ -221,7 +221,7 @@ impl FromStr for InputRule {
                 Some((k, v)) => Ok(InputRule::NearestTo {
                     count: positive(s, k).map_err(with_rules)?,
                     view: v.trim().parse().map_err(|_| {
-                        with_rules(EvalError::BadRule {
+                        with_rules(MethodError::BadRule {
                             rule: s.into(),
                             msg: format!("'{}' is not a view index", v.trim()),
                         })
@@ -240,7 +240,7 @@ impl FromStr for InputRule {
     }
 }
 
-pub(crate) fn join(v: &[usize]) -> String {
+pub fn join(v: &[usize]) -> String {
     v.iter()
         .map(|i| i.to_string())
         .collect::<Vec<_>>()

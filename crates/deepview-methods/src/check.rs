@@ -1,6 +1,6 @@
 //! Checks every method makes of its inputs.
 
-use crate::error::EvalError;
+use crate::error::MethodError;
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 
@@ -10,8 +10,8 @@ pub(crate) fn check_inputs(
     method: &str,
     inputs: &[(ImageF32, Camera)],
     near_far: (f64, f64),
-) -> Result<(), EvalError> {
-    let err = |msg: String| EvalError::Method {
+) -> Result<(), MethodError> {
+    let err = |msg: String| MethodError::Method {
         method: method.into(),
         msg,
     };

@@ -1,0 +1,88 @@
+//! What the eval runner scores: an [`MpiMethod`]'s MPI rendered into the target, so `eval` scores exactly the
+//! MPI that `infer` writes.
+
+use deepview_geometry::Camera;
+use deepview_image::ImageF32;
+use deepview_methods::{MadeMpi, MethodError, MethodEvent, MpiMethod, MpiRequest};
+use deepview_mpi::{Mpi, PlanesRule};
+
+/// The request an MPI was made for: input cameras, their ids, the bounds and, when the method uses it,
+/// the target camera.
+type RequestKey = (Vec<Camera>, Vec<usize>, (f64, f64), Option<Camera>);
+
+/// An [`MpiMethod`] scored by the eval runner: the MPI rendered into the target. The last MPI is kept, so
+/// targets that share inputs (and, for `nearest`, the target) reuse it.
+pub struct MpiPredictor<'e> {
+    method: Box<dyn MpiMethod + 'e>,
+    events: Box<dyn FnMut(MethodEvent<'_>) + 'e>,
+    last: Option<(RequestKey, MadeMpi)>,
+}
+
+impl<'e> MpiPredictor<'e> {
+    /// Score `method`, reporting its events to `events`.
+    pub fn new(method: Box<dyn MpiMethod + 'e>, events: impl FnMut(MethodEvent<'_>) + 'e) -> Self {
+        Self {
+            method,
+            events: Box::new(events),
+            last: None,
+        }
+    }
+
+    /// The method.
+    pub fn method(&self) -> &dyn MpiMethod {
+        self.method.as_ref()
+    }
+
+    /// Forget the last MPI (so that timings include making it).
+    pub fn clear(&mut self) {
+        self.last = None;
+    }
+
+    /// The MPI of `request` (the kept one when the request is the last one's).
+    pub fn mpi(&mut self, request: &MpiRequest<'_>) -> Result<&MadeMpi, MethodError> {
+        let key: RequestKey = (
+            request.inputs.iter().map(|(_, c)| *c).collect(),
+            request.ids.to_vec(),
+            request.near_far,
+            request
+                .toward
+                .filter(|_| self.method.uses_target())
+                .copied(),
+        );
+        if self.last.as_ref().is_none_or(|(k, _)| *k != key) {
+            self.last = None;
+            let made = self.method.make_mpi(request, &mut *self.events)?;
+            self.last = Some((key, made));
+        }
+        Ok(&self.last.as_ref().expect("just made").1)
+    }
+
+    /// The method's name.
+    pub fn name(&self) -> &str {
+        self.method.name()
+    }
+
+    /// The target's image: the MPI of `inputs` (dataset indices `ids`) rendered into `target`, RGB.
+    pub fn predict(
+        &mut self,
+        inputs: &[(ImageF32, Camera)],
+        ids: &[usize],
+        target: &Camera,
+        near_far: (f64, f64),
+    ) -> Result<ImageF32, MethodError> {
+        let made = self.mpi(&MpiRequest {
+            inputs,
+            ids,
+            near_far,
+            toward: Some(target),
+        })?;
+        Ok(deepview_mpi::render(&made.mpi, target).to_rgb())
+    }
+
+    /// The MPI the last prediction rendered and how its planes were chosen.
+    pub fn last_mpi(&self) -> Option<(&Mpi, Option<&PlanesRule>)> {
+        self.last
+            .as_ref()
+            .map(|(_, m)| (&m.mpi, m.planes.as_ref().map(|c| &c.rule)))
+    }
+}

@@ -1,0 +1,168 @@
+//! The cross-view agreement MPI: the one definition of `psv-mean`'s MPI and of the learned model's
+//! agreement prior (`deepview_net`'s burn graph and its CPU engine compute the same arithmetic in their own
+//! layouts and are tested against [`agreement_mpi`]).
+//!
+//! For every plane `d` and reference pixel: colour = mean of the views' valid plane-sweep samples;
+//! agreement logit `l_d = -v_d / s` with `v_d` the variance of the valid samples (mean over RGB;
+//! [`SINGLE_VIEW_VARIANCE`] where one view sees the point, no weight where none does) and `s` the
+//! temperature ([`TEMPERATURE`] by default). A softmax over planes turns the logits into a depth
+//! distribution `w_d` (sum 1), which becomes alpha so that each plane's visible contribution in the
+//! reference view is exactly `w_d`: `a_d = w_d / sum_{i<=d} w_i` (planes back to front, so the farthest
+//! plane with weight is opaque).
+
+use crate::{Mpi, plane_sweep};
+use deepview_geometry::Camera;
+use deepview_image::ImageF32;
+use rayon::prelude::*;
+
+/// `s` in `exp(-variance / s)`: the colour variance (mean over RGB, values in 0..1) that counts as
+/// disagreement (0.0005, a colour standard deviation of about 0.02, worked best of 0.002 / 0.0005 / 0.0002 /
+/// 0.00005 on LLFF fern at 1/8 resolution).
+pub const TEMPERATURE: f64 = 0.0005;
+/// The variance assumed where only one view sees a plane point (no agreement can be measured).
+pub const SINGLE_VIEW_VARIANCE: f64 = 0.02;
+/// The learned model's prior clamps colour and alpha to `[LOGIT_EPS, 1 - LOGIT_EPS]` before their logits.
+pub const LOGIT_EPS: f64 = 1e-4;
+
+/// The agreement MPI of `inputs` (RGB) in `reference` at `depths` (see the module docs): mean colour
+/// premultiplied by the alpha of the depth distribution.
+pub fn agreement_mpi(
+    inputs: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: Vec<f64>,
+    temperature: f64,
+    single_view_variance: f64,
+) -> Mpi {
+    let (mut mpi, logits) =
+        sweep_statistics(inputs, reference, depths, temperature, single_view_variance);
+    let n = reference.width as usize * reference.height as usize;
+    let alphas = depth_distribution_to_alpha(&logits, mpi.planes(), n);
+    // Premultiply: texel (mean colour) * alpha.
+    let (plane_len, planes) = (mpi.plane_len(), mpi.planes());
+    mpi.layers
+        .par_chunks_mut(plane_len)
+        .enumerate()
+        .for_each(|(d, plane)| {
+            for (p, t) in plane.chunks_exact_mut(4).enumerate() {
+                let a = alphas[p * planes + d];
+                t[0] *= a;
+                t[1] *= a;
+                t[2] *= a;
+                t[3] = a;
+            }
+        });
+    mpi
+}
+
+/// Per plane: the mean colour of the valid samples in the MPI texels (alpha still 0), and the agreement logits
+/// `[D][n]`, computed one plane at a time so memory stays at one MPI.
+pub fn sweep_statistics(
+    inputs: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: Vec<f64>,
+    temperature: f64,
+    single_view_variance: f64,
+) -> (Mpi, Vec<f32>) {
+    let n = reference.width as usize * reference.height as usize;
+    let mut mpi = Mpi::transparent(*reference, depths);
+    let mut logits = vec![f32::NEG_INFINITY; mpi.planes() * n];
+    let depths = mpi.depths.clone();
+    let s = temperature;
+    let single = -(single_view_variance / s) as f32;
+    mpi.layers
+        .par_chunks_mut(n * 4)
+        .zip(logits.par_chunks_mut(n))
+        .zip(depths.par_iter())
+        .for_each(|((texels, logit), &depth)| {
+            // Running sums per pixel: [sum r, g, b, sum r^2, g^2, b^2, count].
+            let mut acc = vec![[0.0f64; 7]; n];
+            for (img, cam) in inputs {
+                let psv = plane_sweep(img, cam, reference, &[depth]);
+                for (a, s) in acc.iter_mut().zip(psv.data.chunks_exact(4)) {
+                    if s[3] > 0.0 {
+                        for c in 0..3 {
+                            a[c] += s[c] as f64;
+                            a[3 + c] += (s[c] as f64) * (s[c] as f64);
+                        }
+                        a[6] += 1.0;
+                    }
+                }
+            }
+            for ((t, l), a) in texels.chunks_exact_mut(4).zip(logit.iter_mut()).zip(&acc) {
+                let k = a[6];
+                if k == 0.0 {
+                    continue;
+                }
+                let mut var = 0.0;
+                for c in 0..3 {
+                    let m = a[c] / k;
+                    t[c] = m as f32;
+                    var += (a[3 + c] / k - m * m).max(0.0);
+                }
+                *l = if k >= 2.0 {
+                    -(var / 3.0 / s) as f32
+                } else {
+                    single
+                };
+            }
+        });
+    (mpi, logits)
+}
+
+/// Softmax over planes of `logits` (`[D][n]`) and conversion to alphas (`[n][D]`, pixel-major) such that plane
+/// `d`'s visible contribution in the reference view is its weight: `a_d = w_d / sum_{i<=d} w_i`.
+pub fn depth_distribution_to_alpha(logits: &[f32], planes: usize, n: usize) -> Vec<f32> {
+    let mut alphas = vec![0.0f32; planes * n];
+    alphas
+        .par_chunks_mut(planes)
+        .enumerate()
+        .for_each(|(p, out)| {
+            let max = (0..planes)
+                .map(|d| logits[d * n + p])
+                .fold(f32::NEG_INFINITY, f32::max);
+            if max == f32::NEG_INFINITY {
+                return; // no view sees this ray: transparent
+            }
+            let w: Vec<f64> = (0..planes)
+                .map(|d| ((logits[d * n + p] - max) as f64).exp())
+                .collect();
+            let total: f64 = w.iter().sum();
+            let mut cum = 0.0f64;
+            for d in 0..planes {
+                cum += w[d] / total;
+                out[d] = if cum > 0.0 {
+                    ((w[d] / total) / cum).min(1.0) as f32
+                } else {
+                    0.0
+                };
+            }
+        });
+    alphas
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn alphas_reproduce_the_depth_distribution() {
+        // Visible contribution a_d prod_{i>d} (1 - a_i) equals the softmax weight.
+        let logits = [0.3f32, -1.0, 2.0, f32::NEG_INFINITY, 0.0];
+        let alphas = depth_distribution_to_alpha(&logits, 5, 1);
+        let z: f64 = logits.iter().map(|&l| (l as f64).exp()).sum();
+        for d in 0..5 {
+            let front: f64 = (d + 1..5).map(|i| 1.0 - alphas[i] as f64).product();
+            let expect = (logits[d] as f64).exp() / z;
+            assert!(
+                (alphas[d] as f64 * front - expect).abs() < 1e-6,
+                "plane {d}"
+            );
+        }
+        assert_eq!(alphas[0], 1.0);
+        assert!(
+            depth_distribution_to_alpha(&[f32::NEG_INFINITY; 3], 3, 1)
+                .iter()
+                .all(|&a| a == 0.0)
+        );
+    }
+}
