@@ -80,6 +80,8 @@ pub enum MethodError {
     Weights(#[from] deepview_net::weights::WeightsError),
     #[error(transparent)]
     Infer(#[from] deepview_net::infer::InferError),
+    #[error(transparent)]
+    Device(#[from] deepview_net::device::DeviceError),
 }
 
 /// How a refused plane count came about (in [`MethodError::PlanesOverBudget`]).

@@ -7,8 +7,9 @@ use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
 use crate::planes::{Planes, choose_planes, mpi_reference};
 use deepview_geometry::{Camera, PlaneSpacing, plane_depths};
 use deepview_image::ImageF32;
+use deepview_net::burn::tensor::Device;
 use deepview_net::config::DeepViewConfig;
-use deepview_net::infer::{InferError, infer_mpi, plan_inference};
+use deepview_net::infer::{self, InferError, Plan, lower_bound_bytes};
 use deepview_net::network::DeepViewModel;
 use deepview_net::weights::{self, SHIPPED_NAME};
 use std::path::Path;
@@ -42,9 +43,15 @@ pub struct LearnedMethod {
 
 impl LearnedMethod {
     /// Load the weights in `weights` (a weights folder or a checkpoint folder; `None`: the built-in
-    /// ones); `budget` bounds the inference's memory (bytes).
-    pub fn load(weights: Option<&Path>, planes: Planes, budget: u64) -> Result<Self, MethodError> {
-        let device = deepview_net::burn::tensor::Device::flex();
+    /// ones) onto `device` (the CPU: `Device::flex()`, whose inference runs on the CPU engine when it
+    /// fits); `budget` bounds the inference's memory (bytes).
+    pub fn load(
+        weights: Option<&Path>,
+        planes: Planes,
+        budget: u64,
+        device: &Device,
+    ) -> Result<Self, MethodError> {
+        let device = device.clone();
         let (source, (model, config)) = match weights {
             None => (WeightsSource::Shipped, weights::load_shipped(&device)?),
             Some(dir) => {
@@ -136,13 +143,13 @@ impl MpiMethod for LearnedMethod {
             choice.count,
             PlaneSpacing::InverseDepth,
         )?;
-        check_learned(model, &views, &reference, &depths, budget)?;
+        let plan = check_learned(model, &views, &reference, &depths, budget)?;
         events(MethodEvent::Start {
             planes: depths.len(),
             width: reference.width,
             height: reference.height,
         });
-        let mpi = infer_mpi(model, &views, &reference, &depths, budget, &mut |p| {
+        let mpi = infer::run(model, &views, &reference, &depths, &plan, &mut |p| {
             events(MethodEvent::Progress {
                 done: p.done,
                 total: p.total,
@@ -156,37 +163,17 @@ impl MpiMethod for LearnedMethod {
     }
 }
 
-/// A quick lower bound of the inference's memory for `planes` planes (the MPI state at half precision,
-/// twice when there are several nets, and the input images): larger counts are refused without planning.
-pub fn learned_lower_bound(
-    model: &DeepViewModel,
-    views: &[(ImageF32, Camera)],
-    reference: &Camera,
-    planes: usize,
-) -> u64 {
-    let store = (reference.width as u64 * reference.height as u64)
-        .saturating_mul(planes as u64)
-        .saturating_mul(model.state_channels as u64)
-        .saturating_mul(2);
-    let stores = if model.nets.len() > 1 { 2 } else { 1 };
-    let images: u64 = views
-        .iter()
-        .map(|(i, _)| 24 * i.width as u64 * i.height as u64)
-        .sum();
-    store.saturating_mul(stores).saturating_add(images)
-}
-
-/// The smallest memory budget the tiled inference of `depths` plans within: from below, each refusal of
-/// the planner names what its net needs, until a plan fits.
+/// The smallest memory budget the inference of `depths` plans within: from below, each refusal of the
+/// planner names what its net needs, until a plan fits.
 pub fn learned_minimum_depths(
     model: &DeepViewModel,
     views: &[(ImageF32, Camera)],
     reference: &Camera,
     depths: &[f64],
 ) -> u64 {
-    let mut b = learned_lower_bound(model, views, reference, depths.len()).max(1);
+    let mut b = lower_bound_bytes(model, views, reference, depths.len()).max(1);
     for _ in 0..64 {
-        match plan_inference(model, views, reference, depths, b) {
+        match infer::plan(model, views, reference, depths, b) {
             Ok(_) => return b,
             Err(InferError::BudgetTooSmall {
                 fixed, min_tile, ..
@@ -223,9 +210,9 @@ pub fn learned_fits(
     count: usize,
     budget: u64,
 ) -> bool {
-    learned_lower_bound(model, views, reference, count) <= budget
+    lower_bound_bytes(model, views, reference, count) <= budget
         && plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth)
-            .is_ok_and(|d| plan_inference(model, views, reference, &d, budget).is_ok())
+            .is_ok_and(|d| infer::plan(model, views, reference, &d, budget).is_ok())
 }
 
 /// Refuse at once an explicit plane count (`Count(n)` or `Weights`) whose quick lower bound is far over
@@ -243,27 +230,31 @@ pub fn precheck_planes(
         Planes::Weights => weights_planes,
         Planes::Auto => return Ok(()),
     };
-    if learned_lower_bound(model, views, reference, n) > budget {
+    if lower_bound_bytes(model, views, reference, n) > budget {
         too_many_planes(model, views, reference, n, budget, &mut |_| 0)?;
     }
     Ok(())
 }
 
-/// Refuse an inference that cannot be planned within `budget`, naming the smallest budget that can.
+/// The plan of the inference of `depths` within `budget` ([`infer::plan`]), or its refusal naming the
+/// smallest budget that can hold it.
 pub fn check_learned(
     model: &DeepViewModel,
     views: &[(ImageF32, Camera)],
     reference: &Camera,
     depths: &[f64],
     budget: u64,
-) -> Result<(), MethodError> {
-    let lower = learned_lower_bound(model, views, reference, depths.len());
-    if lower <= budget && plan_inference(model, views, reference, depths, budget).is_ok() {
-        return Ok(());
+) -> Result<Plan, MethodError> {
+    let lower = lower_bound_bytes(model, views, reference, depths.len());
+    if lower <= budget
+        && let Ok(plan) = infer::plan(model, views, reference, depths, budget)
+    {
+        return Ok(plan);
     }
     too_many_planes(model, views, reference, depths.len(), budget, &mut |_| {
         learned_minimum_depths(model, views, reference, depths)
     })
+    .map(|never| match never {})
 }
 
 /// The refusal of `planes` planes that do not fit `budget`. When even the quick lower bound is over the
@@ -276,18 +267,18 @@ fn too_many_planes(
     planes: usize,
     budget: u64,
     minimum: &mut dyn FnMut(usize) -> u64,
-) -> Result<(), MethodError> {
+) -> Result<std::convert::Infallible, MethodError> {
     let what = format!(
         "inferring {planes} planes of {}x{}",
         reference.width, reference.height
     );
-    let lower = learned_lower_bound(model, views, reference, planes);
+    let lower = lower_bound_bytes(model, views, reference, planes);
     if lower > budget {
         // The most planes whose lower bound fits (the plan may need a little more).
         let (mut lo, mut hi) = (0usize, planes);
         while lo + 1 < hi {
             let mid = lo + (hi - lo) / 2;
-            if learned_lower_bound(model, views, reference, mid) <= budget {
+            if lower_bound_bytes(model, views, reference, mid) <= budget {
                 lo = mid
             } else {
                 hi = mid

@@ -100,6 +100,10 @@ pub struct MethodOptions {
     /// weights built into the program (the repository's weights/cpu).
     #[arg(long, visible_alias = "checkpoint")]
     pub weights: Option<PathBuf>,
+    /// Device of the learned model: cpu (the CPU engine, or tiles within --max-memory), wgpu, wgpu:N,
+    /// wgpu:cpu, cuda, cuda:N (GPU devices in builds with `--features wgpu` or `--features cuda`).
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
     /// Colour variance treated as disagreement, s in exp(-variance / s) (psv-mean).
     #[arg(long, default_value_t = PsvMeanOptions::default().temperature, value_parser = positive_f64)]
     pub temperature: f64,
@@ -121,6 +125,7 @@ impl Default for MethodOptions {
         Self {
             planes: Planes::Auto,
             weights: None,
+            device: "cpu".into(),
             temperature: PsvMeanOptions::default().temperature,
             steps: o.steps,
             lr: o.learning_rate,
@@ -129,7 +134,8 @@ impl Default for MethodOptions {
     }
 }
 
-/// The method `kind` with `options`; `budget` bounds its memory (bytes).
+/// The method `kind` with `options` (the learned model on `options.device`); `budget` bounds its memory
+/// (bytes).
 pub fn make_method(
     kind: MethodKind,
     options: &MethodOptions,
@@ -140,6 +146,7 @@ pub fn make_method(
             options.weights.as_deref(),
             options.planes,
             budget,
+            &deepview_net::device::parse_device(&options.device)?,
         )?),
         _ => Box::new(Classical {
             kind,

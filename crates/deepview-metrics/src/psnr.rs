@@ -8,7 +8,8 @@ use rayon::prelude::*;
 pub fn mse(a: &ImageF32, b: &ImageF32) -> Result<f64, MetricsError> {
     let n = check_sizes(a, b)?;
     let (ca, cb) = (a.channels, b.channels);
-    let sum: f64 = a
+    // Chunk sums in parallel, added in order (deterministic, unlike a parallel reduction).
+    let chunks: Vec<f64> = a
         .data
         .par_chunks(ca * 4096)
         .zip(b.data.par_chunks(cb * 4096))
@@ -22,7 +23,8 @@ pub fn mse(a: &ImageF32, b: &ImageF32) -> Result<f64, MetricsError> {
             }
             s
         })
-        .sum();
+        .collect();
+    let sum: f64 = chunks.iter().sum();
     Ok(sum / (a.width as f64 * a.height as f64 * n as f64))
 }
 

@@ -140,8 +140,9 @@ fn channel_ssim(a: &ImageF32, b: &ImageF32, c: usize, g: &[f64], o: &SsimOptions
 
     let c1 = (o.k1 * o.data_range).powi(2);
     let c2 = (o.k2 * o.data_range).powi(2);
-    // Vertical pass fused with the SSIM formula; sum per output row.
-    let total: f64 = (0..oh)
+    // Vertical pass fused with the SSIM formula; sum per output row, the rows summed in order (a parallel
+    // reduction's order depends on work stealing: scores would differ in the last digit between runs).
+    let rows: Vec<f64> = (0..oh)
         .into_par_iter()
         .map(|y| {
             let mut row_sum = 0.0f64;
@@ -163,8 +164,8 @@ fn channel_ssim(a: &ImageF32, b: &ImageF32, c: usize, g: &[f64], o: &SsimOptions
             }
             row_sum
         })
-        .sum();
-    total / (ow * oh) as f64
+        .collect();
+    rows.iter().sum::<f64>() / (ow * oh) as f64
 }
 
 #[cfg(test)]

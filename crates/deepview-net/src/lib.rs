@@ -1,9 +1,10 @@
 //! The learned-gradient-descent network of DeepView (Flynn et al., CVPR 2019) on burn: the differentiable
 //! forward model ([`forward`]), the network and its presets ([`network`], [`config`]), weights I/O
-//! ([`weights`]), tiled inference ([`infer`]), the CPU kernels ([`kernels`]) and the whole-image CPU
+//! ([`weights`]), devices by name ([`device`]), inference ([`infer`]), the CPU kernels ([`kernels`]) and the whole-image CPU
 //! engine ([`engine`]). Training (the loss, VGG, the trainer) is the `deepview-train` crate.
 
 pub mod config;
+pub mod device;
 pub mod engine;
 pub mod forward;
 pub mod fused;

@@ -172,21 +172,6 @@ pub fn with_parameter_values<M: Module>(module: M, values: &[f32]) -> M {
     m
 }
 
-/// The rank of this process among those of its machine, from the launcher's environment (Open MPI,
-/// MPICH/Intel MPI, Slurm, PMI); 0 outside a launcher. `--devices cuda:local` means `cuda:<this>`.
-pub fn local_rank() -> usize {
-    [
-        "OMPI_COMM_WORLD_LOCAL_RANK",
-        "MPI_LOCALRANKID",
-        "MPI_LOCAL_RANK",
-        "SLURM_LOCALID",
-        "PMI_LOCAL_RANK",
-    ]
-    .iter()
-    .find_map(|k| std::env::var(k).ok()?.parse().ok())
-    .unwrap_or(0)
-}
-
 /// A 64-bit FNV-1a hash of the bits of parameter values (replicas must agree exactly).
 pub fn hash_values(values: &[f32]) -> u64 {
     values.iter().fold(0xcbf2_9ce4_8422_2325, |h, v| {

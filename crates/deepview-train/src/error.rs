@@ -20,8 +20,8 @@ pub enum TrainError {
     Run { path: PathBuf, message: String },
     #[error("invalid training configuration: {0}")]
     Config(String),
-    #[error("device `{name}`: {message}")]
-    Device { name: String, message: String },
+    #[error(transparent)]
+    Device(#[from] deepview_net::device::DeviceError),
     /// The ranks of a distributed run disagree (weights out of sync, no common checkpoint).
     #[error("rank {rank}: {message}")]
     Rank { rank: usize, message: String },

@@ -47,7 +47,6 @@ pub mod checkpoint;
 pub mod clip;
 pub mod config;
 pub mod data;
-pub mod device;
 pub mod dist;
 pub mod error;
 pub mod events;
@@ -68,7 +67,6 @@ pub use checkpoint::{
 };
 pub use config::{PAPER_LEARNING_RATE, RunConfig, TrainConfig};
 pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
-pub use device::parse_device;
 pub use dist::Collective;
 pub use error::TrainError;
 pub use events::{Notice, TrainEvent};

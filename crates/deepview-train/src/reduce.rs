@@ -49,7 +49,7 @@ use std::cell::Cell;
 #[cfg(any(feature = "wgpu", feature = "cuda"))]
 use std::sync::{Arc, Mutex, Weak};
 
-use crate::device::{DeviceFamily, device_family};
+use deepview_net::device::{DeviceFamily, device_family};
 
 /// How the replicas of one process are summed (see the module documentation).
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -118,7 +118,7 @@ fn shared_context(devices: &[Device]) -> Arc<DistributedContext> {
     c
 }
 
-/// Choose how to sum the replicas on `devices` (named `names`, as [`crate::parse_device`] read them).
+/// Choose how to sum the replicas on `devices` (named `names`, as [`deepview_net::device::parse_device`] read them).
 pub(crate) fn choose(names: &[String], devices: &[Device]) -> (Reducer, LocalReduction) {
     let copy = |why: &str| {
         (

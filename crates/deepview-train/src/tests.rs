@@ -9,6 +9,7 @@ use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor};
 use deepview_net::config::DeepViewConfig;
+use deepview_net::device::parse_device;
 use deepview_net::network::DeepViewModel;
 use std::rc::Rc;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -667,7 +668,7 @@ fn wgpu_collectives_are_refused_by_cubecl() {
 /// Which way the replicas of one process are summed, by device set (without initialising GPUs).
 #[test]
 fn local_reduction_by_device_set() {
-    use crate::device::{DeviceFamily, device_family};
+    use deepview_net::device::{DeviceFamily, device_family};
     for (name, family) in [
         ("cpu", Some(DeviceFamily::Cpu)),
         ("wgpu", Some(DeviceFamily::Wgpu)),

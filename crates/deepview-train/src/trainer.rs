@@ -8,7 +8,6 @@ use crate::checkpoint::{
 use crate::clip;
 use crate::config::RunConfig;
 use crate::data::{Example, Rng, TrainData};
-use crate::device::parse_device;
 use crate::dist::{self, Collective};
 use crate::error::{TrainError, io_err, run_err};
 use crate::events::{Notice, TrainEvent};
@@ -22,6 +21,7 @@ use crate::vgg::Vgg16;
 use burn::module::Module;
 use burn::optim::{GradientsParams, ModuleOptimizer};
 use burn::tensor::Device;
+use deepview_net::device::parse_device;
 use deepview_net::network::DeepViewModel;
 use std::path::{Path, PathBuf};
 use std::rc::Rc;
@@ -320,7 +320,7 @@ impl Trainer {
     fn devices(names: &[String]) -> Result<Vec<Device>, TrainError> {
         names
             .iter()
-            .map(|n| parse_device(n).map(|d| d.autodiff()))
+            .map(|n| Ok(parse_device(n)?.autodiff()))
             .collect()
     }
 

@@ -60,6 +60,9 @@ pub struct NetArgs {
     /// Timed forward passes (after one warm-up pass).
     #[arg(long, default_value_t = 1, value_parser = args::parse_positive)]
     pub repeats: usize,
+    /// Device: cpu, wgpu, wgpu:N, wgpu:cpu, cuda, cuda:N (GPU devices in builds with their feature).
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
 }
 
 #[derive(clap::Args, Debug)]
@@ -350,15 +353,14 @@ fn parse_size(spec: &str) -> anyhow::Result<(usize, usize)> {
 }
 
 fn bench_net(args: NetArgs) -> anyhow::Result<()> {
-    use deepview_net::burn::tensor::Device;
     use deepview_net::config::DeepViewConfig;
-    use deepview_net::infer::{infer_mpi, synthetic_views};
+    use deepview_net::infer::{run, synthetic_views};
     use deepview_net::network::DeepViewModel;
     let (w, h) = parse_size(&args.size)?;
     if args.views == 0 || args.planes == 0 {
         bail!("--views and --planes must be positive");
     }
-    let device = Device::flex();
+    let device = deepview_net::device::parse_device(&args.device)?;
     let (model, name) = match &args.weights {
         Some(dir) => {
             let (m, c) = deepview_net::weights::load_model(dir, &device)?;
@@ -379,11 +381,11 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
         budget,
     )?;
     let (views, reference, depths) = synthetic_views(args.views, args.planes, w, h);
-    deepview_methods::check_learned(&model, &views, &reference, &depths, budget)?;
+    let plan = deepview_methods::check_learned(&model, &views, &reference, &depths, budget)?;
     let mut times = Vec::new();
     for i in 0..=args.repeats.max(1) {
         let t = Instant::now();
-        let mpi = infer_mpi(&model, &views, &reference, &depths, budget, &mut |_| {})?;
+        let mpi = run(&model, &views, &reference, &depths, &plan, &mut |_| {})?;
         std::hint::black_box(&mpi.layers);
         if i > 0 {
             times.push(t.elapsed().as_secs_f64());
@@ -400,6 +402,8 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
         "peak_rss_mb": peak_rss_mb(),
         "model": name,
         "engine": if deepview_net::kernels::fast_device(&device) { "kernels" } else { "burn" },
+        "plan": plan.describe(),
+        "peak_estimate_mb": plan.peak_bytes >> 20,
         "threads": rayon::current_num_threads(),
     });
     println!("{line}");

@@ -603,7 +603,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
             train.devices = d;
         }
         for d in &train.devices {
-            deepview_train::parse_device(d)?;
+            deepview_net::device::parse_device(d)?;
         }
         let data = load_data(&train.data, &opts, train.holdout_every)?;
         check_views(&data, train.sample.views_max, train.sample.crop)?;

@@ -40,14 +40,134 @@ pub use state::StatePrecision;
 pub use synthetic::synthetic_views;
 
 use crate::network::DeepViewModel;
+use burn::tensor::Device;
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_mpi::Mpi;
 use error::validate;
 use run::model_device;
 
+/// How an inference runs (see [`plan`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Execution {
+    /// The whole image at once on the CPU kernels ([`crate::engine`]): the same result as the tiled path.
+    Engine,
+    /// Net after net, tile after tile, on the model's device.
+    Tiled(InferPlan),
+}
+
+/// What an inference will do, on which device, and its estimated peak memory: the one answer used both
+/// to admit a plane count and to run ([`run`]).
+#[derive(Clone, Debug)]
+pub struct Plan {
+    pub execution: Execution,
+    /// The model's device, on which the inference runs.
+    pub device: Device,
+    /// Estimated peak resident bytes.
+    pub peak_bytes: u64,
+}
+
+impl Plan {
+    /// A short description: `whole image on the CPU engine` or `N tiles of net 0 on <device>`.
+    pub fn describe(&self) -> String {
+        match &self.execution {
+            Execution::Engine => "whole image on the CPU engine".into(),
+            Execution::Tiled(p) => format!(
+                "tiled ({}-pixel tiles of net 0, {} state) on {:?}",
+                p.nets.first().map_or(0, |n| n.tile),
+                p.precision.name(),
+                self.device
+            ),
+        }
+    }
+}
+
+/// A quick lower bound of an inference's memory for `planes` planes (the MPI state at half precision,
+/// twice when there are several nets, and the input images): the planner need not be asked about counts
+/// over it.
+pub fn lower_bound_bytes(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    planes: usize,
+) -> u64 {
+    let store = (reference.width as u64 * reference.height as u64)
+        .saturating_mul(planes as u64)
+        .saturating_mul(model.state_channels as u64)
+        .saturating_mul(2);
+    let stores = if model.nets.len() > 1 { 2 } else { 1 };
+    let images: u64 = views
+        .iter()
+        .map(|(i, _)| 24 * i.width as u64 * i.height as u64)
+        .sum();
+    store.saturating_mul(stores).saturating_add(images)
+}
+
+/// The plan of inferring planes at `depths` in front of `reference` within `max_memory_bytes`: the whole
+/// image on the CPU engine when the model is on the CPU and its estimate fits, else the tiled plan
+/// ([`plan_inference`]) on the model's device.
+pub fn plan(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    max_memory_bytes: u64,
+) -> Result<Plan, InferError> {
+    validate(model, views, depths)?;
+    let device = model_device(model);
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    if crate::kernels::fast_device(&device) {
+        // The engine's buffers and, as the tiled estimates count it, the process itself.
+        let bytes =
+            crate::engine::engine_bytes(model, views, w, h, depths.len()) + plan::BASE_BYTES;
+        if bytes <= max_memory_bytes {
+            return Ok(Plan {
+                execution: Execution::Engine,
+                device,
+                peak_bytes: bytes,
+            });
+        }
+    }
+    let tiled = plan_inference(model, views, reference, depths, max_memory_bytes)?;
+    Ok(Plan {
+        peak_bytes: tiled.peak_bytes(),
+        execution: Execution::Tiled(tiled),
+        device,
+    })
+}
+
+/// Run `plan` (from [`plan`] for the same arguments).
+pub fn run(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    plan: &Plan,
+    progress: &mut dyn FnMut(InferProgress),
+) -> Result<Mpi, InferError> {
+    validate(model, views, depths)?;
+    match &plan.execution {
+        Execution::Engine => {
+            let total = model.nets.len();
+            let layers = crate::engine::infer_engine(model, views, reference, depths, &mut |n| {
+                progress(InferProgress {
+                    done: n + 1,
+                    total,
+                    net: n,
+                })
+            });
+            Ok(Mpi {
+                camera: *reference,
+                depths: depths.to_vec(),
+                layers,
+            })
+        }
+        Execution::Tiled(p) => infer_mpi_planned(model, views, reference, depths, p, progress),
+    }
+}
+
 /// Infer an MPI with planes at `depths` (back to front, decreasing) in front of `reference` from posed
-/// images, keeping peak memory within `max_memory_bytes` (see [`plan_inference`]). Runs on the model's
+/// images, keeping peak memory within `max_memory_bytes`: [`plan`], then [`run`]. Runs on the model's
 /// device; use a model on a non-autodiff device.
 pub fn infer_mpi(
     model: &DeepViewModel,
@@ -57,28 +177,8 @@ pub fn infer_mpi(
     max_memory_bytes: u64,
     progress: &mut dyn FnMut(InferProgress),
 ) -> Result<Mpi, InferError> {
-    validate(model, views, depths)?;
-    let (w, h) = (reference.width as usize, reference.height as usize);
-    if crate::kernels::fast_device(&model_device(model))
-        && crate::engine::engine_bytes(model, views, w, h, depths.len()) <= max_memory_bytes
-    {
-        // Whole image at once on the CPU kernels (see `engine`): the same result as the tiled path.
-        let total = model.nets.len();
-        let layers = crate::engine::infer_engine(model, views, reference, depths, &mut |n| {
-            progress(InferProgress {
-                done: n + 1,
-                total,
-                net: n,
-            })
-        });
-        return Ok(Mpi {
-            camera: *reference,
-            depths: depths.to_vec(),
-            layers,
-        });
-    }
-    let plan = plan_inference(model, views, reference, depths, max_memory_bytes)?;
-    infer_mpi_planned(model, views, reference, depths, &plan, progress)
+    let plan = plan(model, views, reference, depths, max_memory_bytes)?;
+    run(model, views, reference, depths, &plan, progress)
 }
 
 /// [`infer_mpi`] with an explicit (even) tile side in MPI pixels, all planes at once and an f32 state.

@@ -63,7 +63,7 @@ impl InferPlan {
 pub const MIN_TILE: usize = 32;
 
 /// Resident bytes of the process besides the tensors (code, runtime, thread stacks, allocator slack).
-const BASE_BYTES: u64 = 32 << 20;
+pub(crate) const BASE_BYTES: u64 = 32 << 20;
 
 /// Whether net `n` may run on a subset of the planes: the core nets treat planes independently
 /// ([`crate::network::CoreNet`]: convs per (view, plane) slice, maxima over views per plane), but

@@ -14,6 +14,14 @@ pub enum StatePrecision {
 }
 
 impl StatePrecision {
+    /// `f32` or `f16`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::F32 => "f32",
+            Self::F16 => "f16",
+        }
+    }
+
     pub fn bytes(self) -> u64 {
         match self {
             Self::F32 => 4,

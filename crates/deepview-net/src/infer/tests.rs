@@ -568,3 +568,51 @@ fn measure_fern_peak() {
     );
     assert_eq!(mpi.layers.len(), planes * geom.w * geom.h * 4);
 }
+
+/// One plan for admission and running: on the CPU a budget that holds the engine's estimate runs the whole
+/// image on the engine; a smaller one gets the tiled plan, whose estimate fits the budget; both give the
+/// same MPI, and a budget below the smallest tile is refused by the same function.
+#[test]
+fn one_plan_chooses_engine_or_tiles_within_the_budget() {
+    let dev = Device::flex();
+    let model = DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev);
+    let (views, _, _) = scene(3);
+    // An MPI large enough that tiles save memory over the whole image.
+    let reference = Camera::new(
+        184,
+        152,
+        Intrinsics::centred(160.0, 184, 152),
+        Pose::IDENTITY,
+    );
+    let depths = plane_depths(1.5, 12.0, 24, PlaneSpacing::InverseDepth).unwrap();
+    let (w, h) = (reference.width as usize, reference.height as usize);
+    let engine_bytes =
+        crate::engine::engine_bytes(&model, &views, w, h, depths.len()) + plan::BASE_BYTES;
+    let whole = plan(&model, &views, &reference, &depths, engine_bytes).unwrap();
+    assert_eq!(whole.execution, Execution::Engine);
+    assert_eq!(whole.peak_bytes, engine_bytes);
+    assert_eq!(whole.device, dev);
+    let tiled = plan(&model, &views, &reference, &depths, engine_bytes - 1).unwrap();
+    let Execution::Tiled(p) = &tiled.execution else {
+        panic!("a budget under the engine's estimate is tiled");
+    };
+    assert!(tiled.peak_bytes <= engine_bytes - 1 && tiled.peak_bytes == p.peak_bytes());
+    let a = run(&model, &views, &reference, &depths, &whole, &mut |_| {}).unwrap();
+    let b = run(&model, &views, &reference, &depths, &tiled, &mut |_| {}).unwrap();
+    let diff = a
+        .layers
+        .iter()
+        .zip(&b.layers)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+    // An f16 state between the nets rounds to ~1e-3 on RGBA (the module docs).
+    let tolerance = match p.precision {
+        StatePrecision::F32 => 2e-5,
+        StatePrecision::F16 => 2e-3,
+    };
+    assert!(
+        diff < tolerance,
+        "engine and tiles ({p:?}) differ by {diff}"
+    );
+    let e = plan(&model, &views, &reference, &depths, 1 << 20).unwrap_err();
+    assert!(matches!(e, InferError::BudgetTooSmall { .. }), "{e}");
+}

@@ -1,8 +1,29 @@
-//! Training devices by name: `cpu`, `wgpu[:N]`, `wgpu:cpu`, `cuda[:N]`.
+//! Devices by name, for inference and training: `cpu`, `wgpu[:N]`, `wgpu:cpu`, `cuda[:N]`, `cuda:local`.
 
-use crate::dist;
-use crate::error::TrainError;
 use burn::tensor::Device;
+
+/// A device name that cannot be used in this build or on this machine.
+#[derive(Debug, thiserror::Error)]
+#[error("device `{name}`: {message}")]
+pub struct DeviceError {
+    pub name: String,
+    pub message: String,
+}
+
+/// The process's rank on its machine under an MPI launcher (Open MPI, MPICH, Slurm, PMI), 0 without one:
+/// the index of `cuda:local`.
+pub fn local_rank() -> usize {
+    [
+        "OMPI_COMM_WORLD_LOCAL_RANK",
+        "MPI_LOCALRANKID",
+        "MPI_LOCAL_RANK",
+        "SLURM_LOCALID",
+        "PMI_LOCAL_RANK",
+    ]
+    .iter()
+    .find_map(|k| std::env::var(k).ok()?.parse().ok())
+    .unwrap_or(0)
+}
 
 /// A wgpu device, initialised once per name (burn refuses a second initialisation of the same runtime)
 /// through the options API, which reports a missing adapter as an error instead of panicking at the
@@ -69,9 +90,9 @@ pub fn device_family(name: &str) -> Option<DeviceFamily> {
 
 /// Parse a device name: `cpu` (burn's flex backend), `wgpu`/`wgpu:N`/`wgpu:cpu` (feature `wgpu`),
 /// `cuda`/`cuda:N` (feature `cuda`). The index `local` is the process's rank on its machine under an MPI launcher
-/// (`cuda:local`: one GPU per rank), see [`dist::local_rank`].
-pub fn parse_device(name: &str) -> Result<Device, TrainError> {
-    let err = |m: &str| TrainError::Device {
+/// (`cuda:local`: one GPU per rank), see [`local_rank`].
+pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
+    let err = |m: &str| DeviceError {
         name: name.to_string(),
         message: m.to_string(),
     };
@@ -82,7 +103,7 @@ pub fn parse_device(name: &str) -> Result<Device, TrainError> {
         return Err(err(NO_WGPU));
     }
     let (kind, index) = match name.split_once(':') {
-        Some((k, "local")) => (k, Some(dist::local_rank())),
+        Some((k, "local")) => (k, Some(local_rank())),
         Some((k, i)) => (
             k,
             Some(
