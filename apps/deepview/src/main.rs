@@ -63,8 +63,6 @@ enum Command {
     Import(cmd::import::Args),
     /// Score a method (nearest, psv-mean, optimize, deepview) on a scene under a protocol: SSIM, PSNR, JSON.
     Eval(cmd::eval::Args),
-    /// Fit an MPI to input views by classical gradient descent (`infer --method optimize`).
-    Optimize(cmd::infer::OptimizeArgs),
     /// Train the network (runs/<name>/: config, metrics, checkpoints; --resume; Ctrl-C saves).
     Train(cmd::train::Args),
     /// An MPI from a few posed views: the learned network (tiled, bounded memory) or --method psv-mean,
@@ -72,8 +70,6 @@ enum Command {
     Infer(cmd::infer::Args),
     /// Turn a training checkpoint into a weights folder (config.json + model.safetensors).
     ExportWeights(cmd::export_weights::Args),
-    /// Write the MPI of a classical baseline (`infer --method psv-mean|nearest`; no weights needed).
-    Baseline(cmd::infer::BaselineArgs),
     /// Poses for your own photos (or a video): run COLMAP and write a scene folder every command reads.
     Process(cmd::process::Args),
 }
@@ -98,11 +94,9 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(a) => cmd::export::run(a),
         Command::Import(a) => cmd::import::run(a),
         Command::Eval(a) => cmd::eval::run(a),
-        Command::Optimize(a) => cmd::infer::run_optimize(a),
         Command::Train(a) => cmd::train::run(a),
         Command::Infer(a) => cmd::infer::run(a),
         Command::ExportWeights(a) => cmd::export_weights::run(a),
-        Command::Baseline(a) => cmd::infer::run_baseline(a),
         Command::Process(a) => cmd::process::run(a),
     }
 }
@@ -121,11 +115,61 @@ fn tune_allocator() {
     }
 }
 
+/// What replaced a spelling of earlier releases that the command line used (they are errors now).
+fn old_spelling_hint(e: &clap::Error) -> Option<String> {
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
+    let value = |kind| match e.get(kind) {
+        Some(ContextValue::String(s)) => Some(s.clone()),
+        _ => None,
+    };
+    match e.kind() {
+        ErrorKind::InvalidSubcommand => match value(ContextKind::InvalidSubcommand)?.as_str() {
+            "baseline" => {
+                Some("`deepview baseline --method M` is now `deepview infer --method M`".into())
+            }
+            "optimize" => {
+                Some("`deepview optimize` is now `deepview infer --method optimize`".into())
+            }
+            _ => None,
+        },
+        ErrorKind::UnknownArgument => {
+            let arg = value(ContextKind::InvalidArg)?;
+            let flag = arg.split('=').next().unwrap_or(&arg);
+            Some(match flag {
+                "--checkpoint" => "the weights of a method are --weights DIR".into(),
+                "--weights" => {
+                    "training starts from weights with --init DIR (or --init builtin)".into()
+                }
+                "--scene" | "--cameras" => "a dataset is --data DIR".into(),
+                "--run" => {
+                    "export-weights takes --checkpoint DIR (a checkpoint or a run folder)".into()
+                }
+                f if !f.starts_with('-') => format!(
+                    "folders are named by their option: --data DIR (a dataset), --mpi DIR, --out DIR, \
+                     --checkpoint DIR (export-weights); a bare {f:?} is not accepted"
+                ),
+                _ => return None,
+            })
+        }
+        _ => None,
+    }
+}
+
 fn main() -> ExitCode {
     tune_allocator();
     // Before any other thread starts: Ctrl-C and SIGTERM clean up unfinished outputs (cmd::signals).
     cmd::signals::install();
-    let cli = Cli::parse();
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            let hint = old_spelling_hint(&e);
+            let _ = e.print();
+            if let Some(h) = hint {
+                eprintln!("  hint: {h}");
+            }
+            return ExitCode::from(e.exit_code().clamp(0, 255) as u8);
+        }
+    };
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

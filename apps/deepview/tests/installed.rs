@@ -21,7 +21,6 @@ fn a_copied_binary_infers_and_trains_from_another_folder() {
         Command::new(&bin)
             .current_dir(&work)
             .env_remove("DEEPVIEW_DATA")
-            .env_remove("DEEPVIEW_VGG_WEIGHTS")
             .args(args)
             .output()
             .expect("binary runs")
@@ -46,6 +45,25 @@ fn a_copied_binary_infers_and_trains_from_another_folder() {
         "b",
     ]));
     assert!(files(&work.join("a")) == files(&work.join("b")));
+    // `builtin` names them where a weights folder is asked for: for a method, and to fine-tune.
+    succeeds(&run(&[
+        "infer",
+        "--data",
+        "grid",
+        "--inputs",
+        "0,2,6,8",
+        "--weights",
+        "builtin",
+        "--out",
+        "c",
+    ]));
+    assert!(files(&work.join("a")) == files(&work.join("c")));
+    succeeds(&run(&[
+        "train", "--data", "grid", "--init", "builtin", "--name", "ft", "--steps", "2", "--crop",
+        "8", "--planes", "4", "--loss", "l1", "--quiet",
+    ]));
+    let cfg = std::fs::read_to_string(work.join("runs/ft/config.json")).unwrap();
+    assert!(cfg.contains("\"init\": \"builtin\""), "{cfg}");
 
     // Training with the VGG loss needs its weights named: without them, a clear error before any work.
     let train = [
@@ -64,20 +82,29 @@ fn a_copied_binary_infers_and_trains_from_another_folder() {
         .copied()
         .chain(["--planes", "4", "--quiet"])
         .collect();
-    let o = run(&train);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(
-        err.contains("--vgg-weights") && err.contains("DEEPVIEW_VGG_WEIGHTS"),
-        "{err}"
-    );
-    assert!(!work.join("runs/r/config.json").exists());
     let vgg = deepview_data::data_dir().join("vgg16/vgg16_conv1_1-conv3_3.safetensors");
     assert!(
         vgg.is_file(),
         "VGG weights missing at {} (set DEEPVIEW_DATA)",
         vgg.display()
     );
+    // The environment variable of earlier releases, DEEPVIEW_VGG_WEIGHTS, is not read (nor named).
+    let o = Command::new(&bin)
+        .current_dir(&work)
+        .env_remove("DEEPVIEW_DATA")
+        .env("DEEPVIEW_VGG_WEIGHTS", &vgg)
+        .args(&train)
+        .output()
+        .expect("binary runs");
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("--vgg-weights") && err.contains("--loss l1"),
+        "{err}"
+    );
+    assert!(!err.contains("DEEPVIEW_VGG_WEIGHTS"), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!work.join("runs/r/config.json").exists());
     let with: Vec<&str> = train
         .iter()
         .copied()
@@ -85,4 +112,9 @@ fn a_copied_binary_infers_and_trains_from_another_folder() {
         .collect();
     succeeds(&run(&with));
     assert!(work.join("runs/r/config.json").is_file());
+    // The run keeps the file it was given: --resume needs no --vgg-weights.
+    succeeds(&run(&[
+        "train", "--name", "r", "--resume", "--steps", "3", "--quiet",
+    ]));
+    assert_eq!(common::metric_steps(&work.join("runs/r")), [1, 2, 3]);
 }

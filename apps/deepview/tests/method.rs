@@ -1,10 +1,10 @@
 //! One MPI-method interface: `deepview infer --method M` writes exactly the MPI that `deepview eval --method
 //! M` scores from the same inputs (same plane rule, budget and input views), for the classical `psv-mean`
-//! and the learned `deepview`; `baseline` and `optimize` are its aliases.
+//! and the learned `deepview`; the old verbs `baseline` and `optimize` are usage errors naming it.
 
 mod common;
 
-use common::{deepview, files, s, succeeds, synth_grid as grid};
+use common::{deepview, fails_with, files, s, succeeds, synth_grid as grid};
 use std::path::{Path, PathBuf};
 
 /// `infer --method M --inputs 0,2,6,8` and `eval --method M --targets 4 --inputs 0,2,6,8 --save-mpi` write the
@@ -65,20 +65,24 @@ fn infer_writes_the_mpi_eval_scores() {
     let learned = infer_equals_eval(tmp.path(), &scene, "deepview", &["--max-memory", "1GiB"]);
     let (meta, _) = deepview_mpi::MpiMeta::read(&learned).unwrap();
     assert_eq!(meta.planes_rule.unwrap().rule, "auto");
-    // The alias writes what `infer --method psv-mean` writes.
+    // The old alias `baseline` is a usage error naming `infer --method`, and writes nothing.
     let alias = tmp.path().join("alias");
-    succeeds(&deepview(&[
-        "baseline",
-        "--data",
-        s(&scene),
-        "--method",
-        "psv-mean",
-        "--inputs",
-        "0,2,6,8",
-        "--out",
-        s(&alias),
-    ]));
-    assert!(files(&alias) == files(&psv));
+    fails_with(
+        &deepview(&[
+            "baseline",
+            "--data",
+            s(&scene),
+            "--method",
+            "psv-mean",
+            "--inputs",
+            "0,2,6,8",
+            "--out",
+            s(&alias),
+        ]),
+        &["hint: `deepview baseline --method M` is now `deepview infer --method M`"],
+    );
+    assert!(!alias.exists());
+    assert!(psv.join("mpi.json").is_file());
 }
 
 /// The default inputs are the same rule everywhere: `nearest:4`, around the target in `eval` and around the
@@ -123,20 +127,26 @@ fn one_input_rule_with_one_default() {
         s(&around),
     ]));
     assert!(stdout.contains("views [0, 1, 3]"), "{stdout}");
-    for cmd in ["infer", "eval", "baseline", "optimize"] {
+    // (What `baseline --method nearest` and `optimize` were: `infer --method nearest|optimize`.)
+    for (cmd, method) in [
+        ("infer", None),
+        ("eval", None),
+        ("infer", Some("nearest")),
+        ("infer", Some("optimize")),
+    ] {
         let mut a = vec![cmd, "--data", s(&scene), "--inputs", "nearest:two"];
         if cmd != "eval" {
             a.extend(["--out", "x"]);
         }
-        if cmd == "baseline" {
-            a.extend(["--method", "nearest"]);
+        if let Some(m) = method {
+            a.extend(["--method", m]);
         }
         let o = deepview(&a);
         let err = String::from_utf8_lossy(&o.stderr);
-        assert_eq!(o.status.code(), Some(2), "{cmd}: {err}");
+        assert_eq!(o.status.code(), Some(2), "{cmd} {method:?}: {err}");
         assert!(
             err.contains("--inputs") && err.contains("centroid:K") && err.contains("all"),
-            "{cmd}: {err}"
+            "{cmd} {method:?}: {err}"
         );
     }
     // More inputs than views: refused, with the flag that fixes it.

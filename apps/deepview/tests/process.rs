@@ -9,22 +9,6 @@ use std::process::{Command, Output};
 use std::sync::{Mutex, OnceLock};
 use std::time::{Duration, Instant};
 
-/// Run `deepview CMD --data DIR ARGS` (the new spelling), else with the folder after `old_flag`
-/// (`""` = positional), for branches where a command does not take `--data` yet.
-fn with_data(cmd: &str, dir: &Path, old_flag: &str, args: &[&str]) -> Output {
-    let d = dir.to_str().unwrap();
-    let o = deepview(&[&[cmd, "--data", d], args].concat());
-    if o.status.success() || !String::from_utf8_lossy(&o.stderr).contains("'--data'") {
-        return o;
-    }
-    let old: Vec<&str> = if old_flag.is_empty() {
-        vec![cmd, d]
-    } else {
-        vec![cmd, old_flag, d]
-    };
-    deepview(&[&old[..], args].concat())
-}
-
 static COLMAP: Mutex<()> = Mutex::new(());
 
 fn have_colmap() -> bool {
@@ -162,14 +146,22 @@ fn processed_fern_infers_and_renders() {
     );
     let tmp = tempfile::tempdir().unwrap();
     let mpi = tmp.path().join("mpi");
-    let o = with_data("infer", &f.scene, "", &["--planes", "8", "--out", s(&mpi)]);
+    let o = deepview(&[
+        "infer",
+        "--data",
+        s(&f.scene),
+        "--planes",
+        "8",
+        "--out",
+        s(&mpi),
+    ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let png = tmp.path().join("view3.png");
     let o = deepview(&[
         "render",
         "--mpi",
         s(&mpi),
-        "--scene",
+        "--data",
         s(&f.scene),
         "--view",
         "3",

@@ -57,11 +57,11 @@ fn outputs_that_are_or_lie_inside_inputs_are_refused() {
     );
     let cases: Vec<(Vec<&str>, Vec<&str>)> = vec![
         (
-            vec!["synth", "--cameras", s(&scene), "--out", s(&scene)],
-            vec!["--out", "--cameras", "refusing"],
+            vec!["synth", "--data", s(&scene), "--out", s(&scene)],
+            vec!["--out", "--data", "refusing"],
         ),
         (
-            vec!["synth", "--cameras", s(&scene), "--out", s(&gt)],
+            vec!["synth", "--data", s(&scene), "--out", s(&gt)],
             vec!["lies inside"],
         ),
         (
@@ -74,7 +74,7 @@ fn outputs_that_are_or_lie_inside_inputs_are_refused() {
         ),
         (
             vec![
-                "baseline",
+                "infer",
                 "--data",
                 s(&scene),
                 "--method",
@@ -86,7 +86,7 @@ fn outputs_that_are_or_lie_inside_inputs_are_refused() {
         ),
         (
             vec![
-                "baseline",
+                "infer",
                 "--data",
                 s(&scene),
                 "--method",
@@ -145,7 +145,7 @@ fn outputs_that_are_or_lie_inside_inputs_are_refused() {
     let other_before = snapshot(&other);
     refused(
         &deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&scene),
             "--method",
@@ -181,23 +181,47 @@ fn runs_and_weights_are_never_overwritten_and_images_follow_their_extension() {
     let run = t.join("runs/r");
     let before = snapshot(&run);
     refused(
-        &deepview_in(t, &["export-weights", "runs/r", "--out", "runs/r"]),
+        &deepview_in(
+            t,
+            &[
+                "export-weights",
+                "--checkpoint",
+                "runs/r",
+                "--out",
+                "runs/r",
+            ],
+        ),
         &["runs/r", "refusing"],
     );
     refused(
-        &deepview_in(t, &["export-weights", "runs/r", "--out", "runs/r/w"]),
+        &deepview_in(
+            t,
+            &[
+                "export-weights",
+                "--checkpoint",
+                "runs/r",
+                "--out",
+                "runs/r/w",
+            ],
+        ),
         &["lies inside"],
     );
-    ok(&deepview_in(t, &["export-weights", "runs/r", "--out", "w"]));
+    ok(&deepview_in(
+        t,
+        &["export-weights", "--checkpoint", "runs/r", "--out", "w"],
+    ));
     // Weights may replace weights, nothing else may.
-    ok(&deepview_in(t, &["export-weights", "runs/r", "--out", "w"]));
+    ok(&deepview_in(
+        t,
+        &["export-weights", "--checkpoint", "runs/r", "--out", "w"],
+    ));
     let scene = grid(t, "scene");
     let gt = scene.join("ground_truth_mpi");
     refused(
         &deepview_in(
             t,
             &[
-                "baseline", "--data", "scene", "--method", "nearest", "--out", "w",
+                "infer", "--data", "scene", "--method", "nearest", "--out", "w",
             ],
         ),
         &["weights folder"],
@@ -206,7 +230,7 @@ fn runs_and_weights_are_never_overwritten_and_images_follow_their_extension() {
         &deepview_in(
             t,
             &[
-                "baseline", "--data", "scene", "--method", "nearest", "--out", "runs/r",
+                "infer", "--data", "scene", "--method", "nearest", "--out", "runs/r",
             ],
         ),
         &["training run"],
@@ -321,8 +345,8 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
             ],
         ),
         (
-            "baseline",
-            vec!["baseline", "--data", s(&scene), "--method", "nearest"],
+            "infer-nearest",
+            vec!["infer", "--data", s(&scene), "--method", "nearest"],
         ),
         (
             "render",
@@ -349,7 +373,10 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
             vec!["export", "--mpi", s(&gt), "--format", "compact"],
         ),
         ("export-web", vec!["export-web", "--mpi", s(&gt)]),
-        ("export-weights", vec!["export-weights", s(&run)]),
+        (
+            "export-weights",
+            vec!["export-weights", "--checkpoint", s(&run)],
+        ),
         ("import", vec!["import", "--mpi", s(&gt)]),
         ("psv", vec!["psv", "--data", s(&scene), "--planes", "4"]),
         (
@@ -473,7 +500,7 @@ fn written_into_folders_datasets_views_and_absurd_cameras() {
     );
     refused(
         &deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&scene),
             "--method",
@@ -587,7 +614,7 @@ fn sigterm_leaves_the_old_mpi_folder_intact() {
     let out = tmp.path().join("mpi");
     let base = |planes: &str| {
         vec![
-            "baseline".to_string(),
+            "infer".to_string(),
             "--data".into(),
             s(&data).into(),
             "--images".into(),
@@ -641,7 +668,7 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
     let scene = grid(t, "scene");
     let out = t.join("mpi");
     ok(&deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&scene),
         "--method",
@@ -741,7 +768,7 @@ fn failed_commands_leave_no_output_folder() {
     // Fails after the checks (view 99 does not exist): nothing is created.
     refused(
         &deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&scene),
             "--method",
@@ -839,7 +866,7 @@ fn huge_sizes_are_refused_at_once() {
             o("p"),
         ],
         vec![
-            "baseline".into(),
+            "infer".into(),
             "--data".into(),
             s(&fern).into(),
             "--images".into(),
@@ -852,6 +879,8 @@ fn huge_sizes_are_refused_at_once() {
             o("b"),
         ],
         vec![
+            "infer".into(),
+            "--method".into(),
             "optimize".into(),
             "--data".into(),
             s(&fern).into(),
@@ -906,7 +935,7 @@ fn huge_sizes_are_refused_at_once() {
     }
     // The minimum the message names is enough.
     let out = deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&scene),
         "--method",
@@ -927,7 +956,7 @@ fn huge_sizes_are_refused_at_once() {
         .trim()
         .to_string();
     ok(&deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&scene),
         "--method",
@@ -976,7 +1005,7 @@ fn truncated_and_corrupt_images_are_refused_with_their_name() {
     let view = scene.views[0].image_path.clone();
     let bytes = std::fs::read(&view).unwrap();
     ok(&deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&room),
         "--method",
@@ -990,7 +1019,7 @@ fn truncated_and_corrupt_images_are_refused_with_their_name() {
     for cut in [bytes.len() * 2 / 3, bytes.len() - 2] {
         std::fs::write(&view, &bytes[..cut]).unwrap();
         let out = deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&room),
             "--method",
@@ -1044,7 +1073,7 @@ fn bad_arguments_are_usage_errors() {
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (
             vec![
-                "baseline", "--data", sc, "--method", "nearest", "--inputs", "0,2,0", "--out", "x",
+                "infer", "--data", sc, "--method", "nearest", "--inputs", "0,2,0", "--out", "x",
             ],
             "twice",
         ),
@@ -1054,7 +1083,7 @@ fn bad_arguments_are_usage_errors() {
         ),
         (
             vec![
-                "baseline", "--data", sc, "--method", "nearest", "--inputs", "0,a", "--out", "x",
+                "infer", "--data", sc, "--method", "nearest", "--inputs", "0,a", "--out", "x",
             ],
             "not a view index",
         ),
@@ -1104,10 +1133,7 @@ fn bad_arguments_are_usage_errors() {
             "--supersample",
         ),
         (vec!["synth", "--width", "-5", "--out", "x"], "-5"),
-        (
-            vec!["synth", "--cameras", "gird", "--out", "x"],
-            "--cameras",
-        ),
+        (vec!["synth", "--data", "gird", "--out", "x"], "--data"),
         (
             vec!["bench", "render", "--synthetic", "8x8x2", "--repeats", "0"],
             "--repeats",
@@ -1115,7 +1141,7 @@ fn bad_arguments_are_usage_errors() {
         (vec!["bench", "net", "--repeats", "0"], "--repeats"),
         (
             vec![
-                "baseline",
+                "infer",
                 "--data",
                 sc,
                 "--method",
@@ -1129,7 +1155,7 @@ fn bad_arguments_are_usage_errors() {
         ),
         (
             vec![
-                "baseline",
+                "infer",
                 "--data",
                 sc,
                 "--method",
@@ -1142,7 +1168,7 @@ fn bad_arguments_are_usage_errors() {
         ),
         (
             vec![
-                "baseline",
+                "infer",
                 "--data",
                 sc,
                 "--method",

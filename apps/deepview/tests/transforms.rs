@@ -10,15 +10,9 @@ use common::deepview;
 use std::path::Path;
 use std::process::Output;
 
-/// `deepview info --data DIR ARGS` (the new spelling), else `deepview info DIR ARGS` (positional).
+/// `deepview info --data DIR ARGS`.
 fn info(dir: &Path, args: &[&str]) -> Output {
-    let d = dir.to_str().unwrap();
-    let with_flag = deepview(&[&["info", "--data", d], args].concat());
-    let err = String::from_utf8_lossy(&with_flag.stderr);
-    if with_flag.status.success() || !err.contains("--data") {
-        return with_flag;
-    }
-    deepview(&[&["info", d], args].concat())
+    deepview(&[&["info", "--data", dir.to_str().unwrap()], args].concat())
 }
 
 /// `transforms.json` for fern `images_8`, from the raw numbers of `poses_bounds.npy`.

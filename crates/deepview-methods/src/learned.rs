@@ -54,6 +54,9 @@ impl LearnedMethod {
         let device = device.clone();
         let (source, (model, config)) = match weights {
             None => (WeightsSource::Shipped, weights::load_shipped(&device)?),
+            Some(dir) if weights::is_builtin(dir) => {
+                (WeightsSource::Shipped, weights::load_shipped(&device)?)
+            }
             Some(dir) => {
                 if !dir.join(weights::CONFIG_FILE).is_file() && !weights::is_checkpoint(dir) {
                     return Err(MethodError::NoWeights {

@@ -21,13 +21,11 @@ pub enum MethodKind {
     /// The learned network (weights: --weights, default the built-in ones).
     Deepview,
     /// Plane sweep volume mean colour per plane, alpha from cross-view colour agreement.
-    #[value(alias = "psvmean", alias = "psv_mean")]
     PsvMean,
     /// One opaque plane holding the input view nearest the target (without a target: nearest the
     /// inputs' centroid) at the inverse-depth midpoint of near/far.
     Nearest,
     /// An MPI fitted to the inputs by classical gradient descent (Adam; no learning).
-    #[value(alias = "optimise")]
     Optimize,
 }
 
@@ -61,8 +59,8 @@ impl FromStr for MethodKind {
         match s.trim().to_ascii_lowercase().replace('_', "-").as_str() {
             "deepview" => Ok(MethodKind::Deepview),
             "nearest" => Ok(MethodKind::Nearest),
-            "psv-mean" | "psvmean" => Ok(MethodKind::PsvMean),
-            "optimize" | "optimise" => Ok(MethodKind::Optimize),
+            "psv-mean" => Ok(MethodKind::PsvMean),
+            "optimize" => Ok(MethodKind::Optimize),
             _ => Err(MethodError::UnknownMethod(s.into())),
         }
     }
@@ -96,9 +94,9 @@ pub struct MethodOptions {
     #[arg(long, default_value = "auto", help = PLANES_HELP)]
     pub planes: Planes,
     /// Trained weights of the learned method (deepview): a weights folder (config.json +
-    /// model.safetensors) or a training checkpoint folder (runs/<name>/checkpoints/step-N). Default: the
-    /// weights built into the program (the repository's weights/cpu).
-    #[arg(long, visible_alias = "checkpoint")]
+    /// model.safetensors), a training checkpoint folder (runs/<name>/checkpoints/step-N), or `builtin`:
+    /// the weights built into the program (the repository's weights/cpu; the default).
+    #[arg(long)]
     pub weights: Option<PathBuf>,
     /// Device of the learned model: cpu (the CPU engine, or tiles within --max-memory), wgpu, wgpu:N,
     /// wgpu:cpu, cuda, cuda:N (GPU devices in builds with `--features wgpu` or `--features cuda`).

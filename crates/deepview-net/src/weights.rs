@@ -221,8 +221,12 @@ fn run_config_path(dir: &Path) -> PathBuf {
         .unwrap_or_else(|| PathBuf::from(CONFIG_FILE))
 }
 
-/// The model configuration saved with a weights folder or a training checkpoint folder.
+/// The model configuration saved with a weights folder or a training checkpoint folder (or of the
+/// built-in weights, named [`BUILTIN`]).
 pub fn load_config_any(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
+    if is_builtin(dir) {
+        return parse_config(&Path::new(SHIPPED_NAME).join(CONFIG_FILE), SHIPPED_CONFIG);
+    }
     check_weights_folder(dir)?;
     if is_checkpoint(dir) {
         checkpoint_config(dir)
@@ -267,12 +271,15 @@ pub fn export_checkpoint(checkpoint: &Path, out: &Path) -> Result<DeepViewConfig
     Ok(config)
 }
 
-/// Load the model saved in `dir` onto `device`: a weights folder, or a training checkpoint folder
-/// ([`load_checkpoint`]).
+/// Load the model saved in `dir` onto `device`: a weights folder, a training checkpoint folder
+/// ([`load_checkpoint`]), or the built-in weights ([`BUILTIN`]).
 pub fn load_model(
     dir: &Path,
     device: &Device,
 ) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {
+    if is_builtin(dir) {
+        return load_shipped(device);
+    }
     check_weights_folder(dir)?;
     if is_checkpoint(dir) {
         return load_checkpoint(dir, device);
@@ -291,6 +298,15 @@ pub const SHIPPED_CONFIG: &[u8] = include_bytes!("../../../weights/cpu/config.js
 pub const SHIPPED_MODEL: &[u8] = include_bytes!("../../../weights/cpu/model.safetensors");
 /// How the shipped weights are named in messages and reports.
 pub const SHIPPED_NAME: &str = "built-in weights/cpu";
+/// How a user names the shipped weights where a weights folder is asked for (`--weights builtin`,
+/// `train --init builtin`), so that an installed program can name them; a folder of that name is
+/// `./builtin`.
+pub const BUILTIN: &str = "builtin";
+
+/// Whether `dir` names the built-in weights ([`BUILTIN`]).
+pub fn is_builtin(dir: &Path) -> bool {
+    dir.as_os_str() == BUILTIN
+}
 
 /// Load the shipped weights ([`SHIPPED_CONFIG`], [`SHIPPED_MODEL`]) from memory onto `device`.
 pub fn load_shipped(device: &Device) -> Result<(DeepViewModel, DeepViewConfig), WeightsError> {

@@ -16,7 +16,7 @@ pub const PAPER_LEARNING_RATE: f64 = 1.5e-4;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TrainConfig {
     /// The datasets: folders (`synthetic:two-planes` for the built-in analytic scene) with their load
-    /// options (bare paths in older `config.json` files, see [`DataSpec`]).
+    /// options ([`DataSpec`]).
     pub data: Vec<DataSpec>,
     /// Total number of steps of the run.
     pub steps: u64,
@@ -35,18 +35,19 @@ pub struct TrainConfig {
     /// Hold out every n-th view of LLFF/COLMAP/light-field scenes (0 or 1: none).
     pub holdout_every: usize,
     /// Recompute each net's activations during the backward pass instead of keeping them (the paper's
-    /// gradient checkpointing; see [`crate::recompute`]). Default: on for models with more than 2 nets. Absent
-    /// in older `config.json` files: off (their behaviour then).
-    #[serde(default)]
+    /// gradient checkpointing; see [`crate::recompute`]). Default: on for models with more than 2 nets.
     pub recompute: bool,
     /// Weights folder (or checkpoint) the run started from instead of a random initialisation
     /// (fine-tuning); the model configuration is then the one saved with those weights.
-    #[serde(default)]
     pub init: Option<PathBuf>,
     /// The folder the run was started from: relative dataset paths are read against it on resume, from
-    /// wherever the run is resumed. Absent in older `config.json` files (then against the current folder).
+    /// wherever the run is resumed (`None`: against the current folder).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub base: Option<PathBuf>,
+    /// The VGG-16 weights file of the VGG losses (`--vgg-weights`, absolute; `None`: give `--vgg-weights`
+    /// on resume).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vgg_weights: Option<PathBuf>,
 }
 
 /// The largest batch (tuples per step) a run may ask for.
@@ -87,6 +88,7 @@ impl TrainConfig {
             recompute: model.nets() > 2,
             init: None,
             base: None,
+            vgg_weights: None,
         }
     }
 

@@ -210,16 +210,13 @@ pub struct SampleConfig {
     /// Plane count per tuple from its cameras by the inference rule (`--planes auto`,
     /// [`deepview_geometry::auto_plane_count`] between the tuple's reference and its inputs), at least
     /// [`deepview_geometry::AUTO_PLANES_MIN`] and at most `planes`. Off: always `planes`.
-    #[serde(default)]
     pub auto_planes: bool,
     /// Colour and exposure jitter: one random exposure and per-channel gain for the whole tuple, plus a
     /// small exposure difference per input view (captures from phones and video change exposure).
-    #[serde(default)]
     pub colour_jitter: bool,
     /// Probability that a tuple's K inputs are K random views among the target's 3K nearest training
     /// views instead of its K nearest: wider and uneven baselines, targets inside or beyond the inputs
     /// (like the Spaces quads or the demo's corner views). 0: always the K nearest.
-    #[serde(default)]
     pub wide_inputs: f64,
     /// Probability that a tuple's K inputs surround the target (the case of rendering between the
     /// inputs, like the demo's four corners around its held-out views): the directions from the target
@@ -227,13 +224,10 @@ pub struct SampleConfig {
     /// sectors at a random angle, and one random view is drawn from each sector. A target with an empty
     /// sector (outside the views around it: an edge or corner view of a grid) is redrawn, up to 64 times
     /// (then the empty sectors are filled from the rest of the pool). Drawn before `wide_inputs`; 0: never.
-    #[serde(default)]
     pub surround_inputs: f64,
     /// Render the views for the update nets' gradient components from the agreement prior outside the
     /// training window (with the window's state inside) instead of a transparent MPI there: the rays of
     /// wide inputs leave the window, which inference never sees (`deepview_net::network` module docs).
-    /// Off in configs written before it existed.
-    #[serde(default)]
     pub window_context: bool,
 }
 

@@ -20,6 +20,16 @@ pub enum TrainError {
     Run { path: PathBuf, message: String },
     #[error("invalid training configuration: {0}")]
     Config(String),
+    /// The weights of `--init` cannot be read.
+    #[error("--init {}: {source}", .dir.display())]
+    Init {
+        dir: PathBuf,
+        #[source]
+        source: deepview_net::weights::WeightsError,
+    },
+    /// What the user asked for cannot be done as asked (the message names the option that fixes it).
+    #[error("{0}")]
+    Refused(String),
     #[error(transparent)]
     Device(#[from] deepview_net::device::DeviceError),
     /// The ranks of a distributed run disagree (weights out of sync, no common checkpoint).

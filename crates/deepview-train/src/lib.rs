@@ -9,8 +9,9 @@
 //!
 //! Modules: [`config`] (what a run is), [`load`] (its datasets), [`data`] (tuple sampling),
 //! [`synthetic`] (a built-in scene), [`example`] (one tuple through the model), [`recompute`],
-//! [`clip`], [`reduce`] (replicas of one process), [`dist`] (ranks), [`device`], [`trainer`] (the loop), [`checkpoint`], [`metrics`],
-//! [`events`], [`error`].
+//! [`clip`], [`reduce`] (replicas of one process), [`dist`] (ranks), [`trainer`] (the loop),
+//! [`checkpoint`], [`metrics`], [`events`], [`error`]; [`options`] (`deepview train`'s options and how
+//! they map onto a run's config) and [`session`] (opening a run: new, resumed or started over).
 //!
 //! A run lives in `runs/<name>/`:
 //! - `config.json`: [`RunConfig`] (model + training config, with each dataset's load options, so a
@@ -55,8 +56,10 @@ mod files;
 pub mod load;
 pub mod loss;
 pub mod metrics;
+pub mod options;
 pub mod recompute;
 pub mod reduce;
+pub mod session;
 pub mod synthetic;
 pub mod trainer;
 pub mod vgg;
@@ -74,7 +77,9 @@ pub use example::{example_inputs, example_loss, loss_and_grads_full, loss_tail, 
 pub use files::is_run_folder;
 pub use load::{DataSpec, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, is_synthetic, load_data};
 pub use metrics::StepReport;
+pub use options::TrainOptions;
 pub use reduce::LocalReduction;
+pub use session::{Request, Session, Start};
 pub use trainer::Trainer;
 
 #[cfg(test)]

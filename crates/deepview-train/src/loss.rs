@@ -195,7 +195,7 @@ mod tests {
 
     fn losses(device: &Device) -> Vec<Loss> {
         let mut v = vec![Loss::L1];
-        match Vgg16::load_default(device) {
+        match Vgg16::load(&crate::vgg::test_weights_path(), device) {
             Ok(vgg) => {
                 v.push(Loss::VggSsim(Box::new(vgg.clone())));
                 v.push(Loss::Vgg(Box::new(vgg)));
@@ -357,7 +357,7 @@ mod tests {
         }
         assert_eq!(feature_loss_padding(32, 32), (4, 4));
 
-        let vgg = match Vgg16::load_default(&device) {
+        let vgg = match Vgg16::load(&crate::vgg::test_weights_path(), &device) {
             Ok(vgg) => vgg,
             Err(e) => {
                 eprintln!("SKIP vgg padding rule: {e}");

@@ -379,9 +379,10 @@ fn ranks_run(
                     reports.extend(t.run(&never(), &mut |_| {}).unwrap());
                     if resume_at.is_some() {
                         drop(t);
+                        let mut cfg = crate::session::read_run_config(dir).unwrap();
+                        cfg.train.steps = steps;
                         let mut t =
-                            Trainer::resume_on(dir, small_data(), Some(steps), None, Some(comm))
-                                .unwrap();
+                            Trainer::resume_from(dir, cfg, small_data(), Some(comm)).unwrap();
                         assert_eq!(Some(t.step), resume_at);
                         reports.extend(t.run(&never(), &mut |_| {}).unwrap());
                         return (parameter_values(&t.model), reports);
@@ -397,7 +398,7 @@ fn ranks_run(
 /// Ranks that split a global batch (drawn from one seed on every rank) and all-reduce their gradients
 /// end with the weights of one process training on the whole batch: bit for bit with 2 ranks (one sum,
 /// in either order), to rounding with 3 (another summation order) and with ranks that split their share
-/// across devices; only rank 0 writes, and `resume_on` continues exactly.
+/// across devices; only rank 0 writes, and `resume_from` continues exactly.
 #[test]
 fn ranks_match_one_process() {
     let dir = tempfile::tempdir().unwrap();
@@ -808,7 +809,9 @@ fn profile_step() {
     );
     let device = Device::flex().autodiff();
     let model = DeepViewModel::new(&model_cfg, &device);
-    let loss = Loss::Vgg(Box::new(Vgg16::load_default(&device).unwrap()));
+    let loss = Loss::Vgg(Box::new(
+        Vgg16::load(&crate::vgg::test_weights_path(), &device).unwrap(),
+    ));
     for _ in 0..2 {
         let t0 = Instant::now();
         let l = example_loss(&model, &loss, &ex, &device);
@@ -866,7 +869,7 @@ fn recompute_gradients_match_full_backward() {
     let device = Device::flex().autodiff();
     let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.12)]).unwrap();
     let mut losses = vec![Loss::L1];
-    if let Ok(vgg) = Vgg16::load_default(&device) {
+    if let Ok(vgg) = Vgg16::load(&crate::vgg::test_weights_path(), &device) {
         losses.push(Loss::Vgg(Box::new(vgg)));
     }
     let cases = [
@@ -1012,7 +1015,9 @@ fn recompute_bench() {
     let device = Device::flex().autodiff();
     let model = DeepViewModel::new(&cfg, &device);
     parameter_values(&model);
-    let loss = Loss::Vgg(Box::new(Vgg16::load_default(&device).unwrap()));
+    let loss = Loss::Vgg(Box::new(
+        Vgg16::load(&crate::vgg::test_weights_path(), &device).unwrap(),
+    ));
     let modes: Vec<bool> = match mode.as_str() {
         "full" => vec![false],
         "recompute" => vec![true],
@@ -1037,128 +1042,28 @@ fn recompute_bench() {
     }
 }
 
-/// The `config.json` of runs from before the dataset load options were kept (this repository's
-/// `runs/gen1`, and `runs/gen2` with the later sampling fields) still load: bare dataset paths, which
-/// take the program's load options.
+/// Every run committed in the repository (`runs/*/config.json`) reads in the current format and writes
+/// back unchanged (they were migrated when the readers of older formats went).
 #[test]
-fn old_run_configs_still_load() {
-    const GEN1: &str = r#"{
-  "model": {
-    "name": "cpu-large",
-    "views": null,
-    "train_planes": 32,
-    "infer_planes": 32,
-    "updates": 2,
-    "features_large": 12,
-    "features_small": 12,
-    "large_nets": 3,
-    "unet_nets": 0,
-    "extra_channels": 4,
-    "max_pool_stages": 1,
-    "init_prior": 0.0005
-  },
-  "train": {
-    "data": [
-      "../shared/data/llff/fern",
-      "../shared/data/llff/flower",
-      "../shared/data/llff/statue",
-      "../shared/data/llff/canclip",
-      "synthetic:two-planes"
-    ],
-    "steps": 100000,
-    "batch": 1,
-    "sample": {
-      "crop": 16,
-      "views_min": 2,
-      "views_max": 6,
-      "planes": 32,
-      "jitter": true
-    },
-    "loss": "vgg",
-    "learning_rate": 0.00015,
-    "clip_norm": 8.0,
-    "checkpoint_every": 100,
-    "keep_checkpoints": 2,
-    "seed": 0,
-    "devices": [
-      "cpu"
-    ],
-    "holdout_every": 8,
-    "recompute": false,
-    "init": null
-  }
-}"#;
-    const GEN2: &str = r#"{
-  "model": {
-    "name": "cpu",
-    "views": null,
-    "train_planes": 32,
-    "infer_planes": 32,
-    "updates": 1,
-    "features_large": 8,
-    "features_small": 8,
-    "large_nets": 2,
-    "unet_nets": 0,
-    "extra_channels": 4,
-    "max_pool_stages": 1,
-    "init_prior": 0.0005
-  },
-  "train": {
-    "data": [
-      "../shared/data/llff/fern",
-      "../shared/data/llff/flower",
-      "../shared/data/llff/statue",
-      "synthetic:two-planes",
-      "runs/synth/grid-7",
-      "runs/synth/grid-8"
-    ],
-    "steps": 100000,
-    "batch": 1,
-    "sample": {
-      "crop": 24,
-      "views_min": 2,
-      "views_max": 6,
-      "planes": 64,
-      "jitter": true,
-      "auto_planes": true,
-      "colour_jitter": true,
-      "wide_inputs": 0.3
-    },
-    "loss": "vgg",
-    "learning_rate": 0.00015,
-    "clip_norm": 8.0,
-    "checkpoint_every": 100,
-    "keep_checkpoints": 2,
-    "seed": 0,
-    "devices": [
-      "cpu"
-    ],
-    "holdout_every": 8,
-    "recompute": false,
-    "init": "weights/cpu"
-  }
-}"#;
-    let gen1: RunConfig = serde_json::from_str(GEN1).unwrap();
-    assert_eq!(gen1.model.name, "cpu-large");
-    assert_eq!(gen1.train.data.len(), 5);
-    assert!(gen1.train.data.iter().all(|d| d.load.is_none()));
-    assert_eq!(
-        gen1.train.data[0].path,
-        std::path::Path::new("../shared/data/llff/fern")
-    );
-    assert!(!gen1.train.sample.auto_planes && !gen1.train.sample.colour_jitter);
-    let gen2: RunConfig = serde_json::from_str(GEN2).unwrap();
-    assert_eq!(gen2.train.data[3].path.to_str(), Some(SYNTHETIC_TWO_PLANES));
-    assert!(gen2.train.data.iter().all(|d| d.load.is_none()));
-    assert!(gen2.train.sample.auto_planes && gen2.train.sample.colour_jitter);
-    assert_eq!(gen2.train.sample.wide_inputs, 0.3);
-    assert_eq!(
-        gen2.train.init.as_deref(),
-        Some(std::path::Path::new("weights/cpu"))
-    );
-    // Written back, a new-style config keeps the bare paths bare.
-    let again: RunConfig = serde_json::from_str(&serde_json::to_string(&gen2).unwrap()).unwrap();
-    assert_eq!(again, gen2);
+fn committed_run_configs_load() {
+    let runs = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../runs");
+    let mut n = 0;
+    for entry in std::fs::read_dir(&runs).unwrap() {
+        let path = entry.unwrap().path().join("config.json");
+        let Ok(text) = std::fs::read_to_string(&path) else {
+            continue;
+        };
+        let value: serde_json::Value = serde_json::from_str(&text).unwrap();
+        if value.get("train").is_none() {
+            continue; // a weights folder's config
+        }
+        let cfg: RunConfig =
+            serde_json::from_value(value).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+        let again: RunConfig = serde_json::from_str(&serde_json::to_string(&cfg).unwrap()).unwrap();
+        assert_eq!(again, cfg, "{}", path.display());
+        n += 1;
+    }
+    assert!(n >= 5, "only {n} run configs under {}", runs.display());
 }
 
 /// The training path (a tuple's window, shrinking nets, the context, the render into the target crop)

@@ -90,11 +90,16 @@ pub struct Trainer {
     notices: Vec<Notice>,
 }
 
-fn make_losses(kind: LossKind, devices: &[Device]) -> Result<Vec<Loss>, TrainError> {
+fn make_losses(
+    kind: LossKind,
+    vgg_weights: Option<&Path>,
+    devices: &[Device],
+) -> Result<Vec<Loss>, TrainError> {
     match kind {
         LossKind::L1 => Ok(devices.iter().map(|_| Loss::L1).collect()),
         LossKind::Vgg | LossKind::VggSsim => {
-            let vgg = Vgg16::load_default(&devices[0])?;
+            let path = vgg_weights.ok_or(crate::vgg::VggError::NotGiven)?;
+            let vgg = Vgg16::load(path, &devices[0])?;
             Ok(devices
                 .iter()
                 .map(|d| {
@@ -150,7 +155,7 @@ impl Trainer {
             let _ = std::fs::remove_file(run_dir.join("metrics.jsonl"));
         }
         // A run killed while writing its first checkpoint is started over here: remove its temporary
-        // checkpoint folder (resuming does the same in `resume_on`).
+        // checkpoint folder (resuming does the same in `resume_from`).
         let mut notices = Vec::new();
         if writer {
             remove_leftovers(run_dir, &mut notices);
@@ -192,7 +197,11 @@ impl Trainer {
             }
             None => model,
         };
-        let losses = make_losses(config.train.loss, &devices)?;
+        let losses = make_losses(
+            config.train.loss,
+            config.train.vgg_weights.as_deref(),
+            &devices,
+        )?;
         let (reducer, local_reduction) = reduce::choose(&config.train.devices, &devices);
         Ok(Self {
             run_dir: run_dir.to_path_buf(),
@@ -225,29 +234,27 @@ impl Trainer {
         steps: Option<u64>,
         devices: Option<Vec<String>>,
     ) -> Result<Self, TrainError> {
-        Self::resume_on(run_dir, data, steps, devices, None)
-    }
-
-    /// [`Trainer::resume`] as one rank of `comm`: rank 0 chooses the checkpoint (its latest one that
-    /// loads), every rank loads that one (the runs folder must be visible to every rank), and the ranks
-    /// check that they hold the same weights.
-    pub fn resume_on(
-        run_dir: &Path,
-        data: TrainData,
-        steps: Option<u64>,
-        devices: Option<Vec<String>>,
-        comm: Option<Rc<dyn Collective>>,
-    ) -> Result<Self, TrainError> {
-        let cfg_path = run_dir.join("config.json");
-        let text = std::fs::read_to_string(&cfg_path).map_err(io_err(&cfg_path))?;
-        let mut config: RunConfig =
-            serde_json::from_str(&text).map_err(|e| run_err(&cfg_path, e))?;
+        let mut config = crate::session::read_run_config(run_dir)?;
         if let Some(s) = steps {
             config.train.steps = s;
         }
         if let Some(d) = devices {
             config.train.devices = d;
         }
+        Self::resume_from(run_dir, config, data, None)
+    }
+
+    /// Continue the run in `run_dir`, whose `config.json` is `config` (with what may change on resume
+    /// changed: [`crate::TrainOptions::adjust_on_resume`]), from its latest checkpoint, as one rank of
+    /// `comm`: rank 0 chooses the checkpoint (its latest one that loads), every rank loads that one (the
+    /// runs folder must be visible to every rank), and the ranks check that they hold the same weights.
+    pub fn resume_from(
+        run_dir: &Path,
+        config: RunConfig,
+        data: TrainData,
+        comm: Option<Rc<dyn Collective>>,
+    ) -> Result<Self, TrainError> {
+        let cfg_path = run_dir.join("config.json");
         config
             .model
             .validate()
@@ -286,7 +293,11 @@ impl Trainer {
             (step, l)
         };
         let (step, (model, optim, state)) = loaded;
-        let losses = make_losses(config.train.loss, &devices)?;
+        let losses = make_losses(
+            config.train.loss,
+            config.train.vgg_weights.as_deref(),
+            &devices,
+        )?;
         let (reducer, local_reduction) = reduce::choose(&config.train.devices, &devices);
         let mut trainer = Self {
             run_dir: run_dir.to_path_buf(),

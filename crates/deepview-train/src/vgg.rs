@@ -43,7 +43,7 @@ pub const LAYERS: [(&str, usize, usize); 7] = [
 pub enum VggError {
     #[error(
         "no VGG-16 weights given: the VGG loss needs vgg16_conv1_1-conv3_3.safetensors (see \
-         data/vgg16/README.md for how to obtain it); set DEEPVIEW_VGG_WEIGHTS to its path"
+         data/vgg16/README.md for how to obtain it); pass its path with --vgg-weights"
     )]
     NotGiven,
     #[error(
@@ -63,34 +63,6 @@ pub enum VggError {
         name: String,
         detail: String,
     },
-}
-
-/// The environment variable naming the weights file when no path was configured
-/// ([`set_weights_path`]).
-pub const WEIGHTS_ENV: &str = "DEEPVIEW_VGG_WEIGHTS";
-
-/// The weights file set by the program (e.g. from a command-line option); wins over [`WEIGHTS_ENV`].
-static CONFIGURED: std::sync::RwLock<Option<PathBuf>> = std::sync::RwLock::new(None);
-
-/// Configure the weights file [`Vgg16::load_default`] reads (`None`: back to [`WEIGHTS_ENV`]).
-pub fn set_weights_path(path: Option<PathBuf>) {
-    *CONFIGURED.write().unwrap_or_else(|e| e.into_inner()) = path;
-}
-
-/// The weights file [`Vgg16::load_default`] reads: the configured one ([`set_weights_path`]), else the
-/// environment's [`WEIGHTS_ENV`]; unit tests of this crate fall back to the shared data folder
-/// ([`deepview_data::data_dir`]). No path is compiled in: without either, [`VggError::NotGiven`].
-pub fn weights_path() -> Result<PathBuf, VggError> {
-    if let Some(p) = CONFIGURED.read().unwrap_or_else(|e| e.into_inner()).clone() {
-        return Ok(p);
-    }
-    match std::env::var_os(WEIGHTS_ENV) {
-        Some(p) if !p.is_empty() => Ok(PathBuf::from(p)),
-        #[cfg(test)]
-        _ => Ok(test_weights_path()),
-        #[cfg(not(test))]
-        _ => Err(VggError::NotGiven),
-    }
 }
 
 /// Where the tests find the weights: `<data>/vgg16/vgg16_conv1_1-conv3_3.safetensors` in the shared
@@ -230,11 +202,6 @@ pub struct VggFeatures {
 }
 
 impl Vgg16 {
-    /// Load the configured weights file (see [`weights_path`]).
-    pub fn load_default(device: &Device) -> Result<Self, VggError> {
-        Self::load(&weights_path()?, device)
-    }
-
     /// Load the weights file at `path` onto `device` (parameters frozen).
     pub fn load(path: &Path, device: &Device) -> Result<Self, VggError> {
         let mut tensors = read_safetensors_f32(path)?;
@@ -327,7 +294,7 @@ mod tests {
     use super::*;
 
     fn weights() -> Option<PathBuf> {
-        let p = weights_path().unwrap();
+        let p = test_weights_path();
         if p.exists() {
             Some(p)
         } else {

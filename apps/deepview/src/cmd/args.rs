@@ -6,76 +6,45 @@ use deepview_geometry::Camera;
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 
-/// `--data DIR`: a dataset folder. The bare positional folder of earlier releases is still accepted (hidden,
-/// for one release).
+/// `--data DIR`: a dataset folder.
 #[derive(clap::Args, Debug, Clone)]
 pub struct DataArg {
-    /// Dataset folder (LLFF, COLMAP, Spaces or light-field grid; the format is detected).
-    #[arg(
-        long = "data",
-        value_name = "DIR",
-        required_unless_present = "data_positional"
-    )]
-    pub data: Option<PathBuf>,
-    /// The dataset folder as a bare argument (the old spelling; use --data).
-    #[arg(hide = true, value_name = "DIR", conflicts_with = "data")]
-    pub data_positional: Option<PathBuf>,
+    /// Dataset folder (LLFF, COLMAP, Spaces, light-field grid or transforms.json; the format is detected).
+    #[arg(long = "data", value_name = "DIR")]
+    pub data: PathBuf,
 }
 
 impl DataArg {
     pub fn path(&self) -> &Path {
-        self.data
-            .as_deref()
-            .or(self.data_positional.as_deref())
-            .expect("clap requires --data")
+        &self.data
     }
 }
 
-/// `--mpi DIR`: an MPI folder; the bare positional folder of earlier releases is still accepted (hidden).
+/// `--mpi DIR`: an MPI folder.
 #[derive(clap::Args, Debug, Clone)]
 pub struct MpiArg {
     /// MPI folder (mpi.json + layer_NNN.png, or a compact export).
-    #[arg(
-        long = "mpi",
-        value_name = "DIR",
-        required_unless_present = "mpi_positional"
-    )]
-    pub mpi: Option<PathBuf>,
-    /// The MPI folder as a bare argument (the old spelling; use --mpi).
-    #[arg(hide = true, value_name = "DIR", conflicts_with = "mpi")]
-    pub mpi_positional: Option<PathBuf>,
+    #[arg(long = "mpi", value_name = "DIR")]
+    pub mpi: PathBuf,
 }
 
 impl MpiArg {
     pub fn path(&self) -> &Path {
-        self.mpi
-            .as_deref()
-            .or(self.mpi_positional.as_deref())
-            .expect("clap requires --mpi")
+        &self.mpi
     }
 }
 
-/// `--out DIR` with the bare second positional of earlier releases still accepted (hidden).
+/// `--out DIR`: an output folder.
 #[derive(clap::Args, Debug, Clone)]
 pub struct OutArg {
     /// Output folder (created).
-    #[arg(
-        long = "out",
-        value_name = "DIR",
-        required_unless_present = "out_positional"
-    )]
-    pub out: Option<PathBuf>,
-    /// The output folder as a bare argument (the old spelling; use --out).
-    #[arg(hide = true, value_name = "OUT", conflicts_with = "out")]
-    pub out_positional: Option<PathBuf>,
+    #[arg(long = "out", value_name = "DIR")]
+    pub out: PathBuf,
 }
 
 impl OutArg {
     pub fn path(&self) -> &Path {
-        self.out
-            .as_deref()
-            .or(self.out_positional.as_deref())
-            .expect("clap requires --out")
+        &self.out
     }
 }
 

@@ -86,8 +86,9 @@ pub struct TrainArgs {
     /// Recompute each net's activations in the backward pass (default: the preset's training default).
     #[arg(long)]
     pub recompute: Option<bool>,
-    #[command(flatten)]
-    pub vgg: super::train::VggArg,
+    /// The VGG-16 weights of the VGG loss (vgg16_conv1_1-conv3_3.safetensors).
+    #[arg(long, value_name = "FILE")]
+    pub vgg_weights: Option<PathBuf>,
 }
 
 #[derive(clap::Args, Debug)]
@@ -416,18 +417,18 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
         DataSpec, RunConfig, SYNTHETIC_TWO_PLANES, TrainConfig, Trainer, load_data,
     };
     let model = DeepViewConfig::preset(&args.preset)?;
-    args.vgg.configure()?;
     let mut train = TrainConfig::defaults(&model);
     train.data = vec![DataSpec::new(SYNTHETIC_TWO_PLANES, Default::default())];
     train.sample.views_min = args.views;
     train.sample.views_max = args.views;
     train.sample.planes = args.planes;
     train.sample.crop = args.crop;
+    train.vgg_weights = args.vgg_weights.clone();
     if let Some(r) = args.recompute {
         train.recompute = r;
     }
     let recompute = train.recompute;
-    let data = load_data(&train.data, &Default::default(), train.holdout_every)?;
+    let data = load_data(&train.data, train.holdout_every)?;
     let dir = std::env::temp_dir().join(format!("deepview-bench-train-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     let result = (|| -> anyhow::Result<Vec<f64>> {

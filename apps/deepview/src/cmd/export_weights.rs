@@ -12,26 +12,15 @@ use std::path::{Path, PathBuf};
     deepview export-weights --checkpoint runs/cpu-prior/checkpoints/step-0005000 --out my_weights")]
 pub struct Args {
     /// Checkpoint folder (checkpoints/step-N) or run folder (its latest checkpoint is used).
-    #[arg(
-        long,
-        visible_alias = "run",
-        value_name = "DIR",
-        required_unless_present = "checkpoint_positional"
-    )]
-    pub checkpoint: Option<PathBuf>,
-    /// The checkpoint as a bare argument (the old spelling; use --checkpoint).
-    #[arg(hide = true, value_name = "DIR", conflicts_with = "checkpoint")]
-    pub checkpoint_positional: Option<PathBuf>,
+    #[arg(long, value_name = "DIR")]
+    pub checkpoint: PathBuf,
     /// Output weights folder.
     #[arg(long)]
     pub out: PathBuf,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let given = args
-        .checkpoint
-        .or(args.checkpoint_positional)
-        .expect("clap requires --checkpoint");
+    let given = args.checkpoint;
     check_output(
         "--out",
         &args.out,

@@ -103,8 +103,8 @@ fn method(e: &MethodError) -> Option<String> {
 fn vgg(e: &VggError) -> Option<String> {
     match e {
         VggError::NotGiven => Some(
-            "pass --vgg-weights PATH (vgg16_conv1_1-conv3_3.safetensors) or set DEEPVIEW_VGG_WEIGHTS \
-             (`deepview train` also takes --loss l1, which needs none)"
+            "pass --vgg-weights FILE (vgg16_conv1_1-conv3_3.safetensors; `deepview train` also takes \
+             --loss l1, which needs none)"
                 .into(),
         ),
         _ => None,

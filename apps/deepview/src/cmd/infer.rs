@@ -43,58 +43,8 @@ pub struct Args {
     pub mpi: MpiArgs,
 }
 
-/// The classical methods `deepview baseline` writes.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum BaselineKind {
-    /// Plane sweep volume mean colour per plane, alpha from cross-view colour agreement.
-    PsvMean,
-    /// One opaque plane holding the input view nearest the inputs' centroid, at the inverse-depth
-    /// midpoint of near/far.
-    Nearest,
-}
-
-/// `deepview baseline`: `deepview infer --method psv-mean|nearest`.
-#[derive(clap::Args, Debug)]
-#[command(
-    after_help = "The same as `deepview infer --method psv-mean|nearest`.\n\nExamples:\n  \
-    deepview baseline --data ../shared/data/llff/fern --images images_8 --method psv-mean --out fern_psv/\n  \
-    deepview baseline --data ../shared/data/llff/fern --images images_8 --method nearest --inputs 3,4,5 --out fern_nearest/\n  \
-    deepview render --mpi fern_psv/ --data ../shared/data/llff/fern --images images_8 --view 0 --out v0.png"
-)]
-pub struct BaselineArgs {
-    /// The baseline.
-    #[arg(long, value_enum)]
-    pub method: BaselineKind,
-    #[command(flatten)]
-    pub mpi: MpiArgs,
-}
-
-/// `deepview optimize`: `deepview infer --method optimize`.
-#[derive(clap::Args, Debug)]
-#[command(
-    after_help = "The same as `deepview infer --method optimize`.\n\nExamples:\n  \
-    deepview optimize --data ../shared/data/llff/fern --images images_8 --out mpi/\n  \
-    deepview optimize --data ../shared/data/llff/fern --images images_8 --inputs 0,1,2,3 --planes 32 --steps 500 --out mpi/"
-)]
-pub struct OptimizeArgs {
-    #[command(flatten)]
-    pub mpi: MpiArgs,
-}
-
 pub fn run(args: Args) -> anyhow::Result<()> {
     make(args.method, args.mpi)
-}
-
-pub fn run_baseline(args: BaselineArgs) -> anyhow::Result<()> {
-    let kind = match args.method {
-        BaselineKind::PsvMean => MethodKind::PsvMean,
-        BaselineKind::Nearest => MethodKind::Nearest,
-    };
-    make(kind, args.mpi)
-}
-
-pub fn run_optimize(args: OptimizeArgs) -> anyhow::Result<()> {
-    make(MethodKind::Optimize, args.mpi)
 }
 
 /// Make the MPI of `kind` from the inputs `args` name and write it.

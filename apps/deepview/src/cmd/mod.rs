@@ -43,7 +43,7 @@ pub struct CameraSource {
     #[arg(long, conflicts_with = "scene_dir")]
     pub camera: Option<std::path::PathBuf>,
     /// A dataset folder whose view `--view` gives the camera.
-    #[arg(long = "data", alias = "scene", value_name = "DIR", requires = "view")]
+    #[arg(long = "data", value_name = "DIR", requires = "view")]
     pub scene_dir: Option<std::path::PathBuf>,
     /// View index in `--data`.
     #[arg(long)]

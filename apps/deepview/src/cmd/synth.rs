@@ -9,19 +9,18 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 #[command(after_help = "Examples:\n  deepview synth --out synth/grid\n  \
-    deepview synth --cameras ../shared/data/spaces/scene_000 --out synth/spaces_000\n  \
+    deepview synth --data ../shared/data/spaces/scene_000 --out synth/spaces_000\n  \
     deepview synth --data ../shared/data/llff/fern --images images_8 --out synth/fern_rig\n  \
     deepview synth --out synth/grid_ns --out-format transforms")]
 pub struct Args {
     /// Output folder: a dataset in the rig's own format, plus ground_truth_mpi/ and synth.json.
     #[arg(long)]
     pub out: PathBuf,
-    /// The rig: `grid` (a generated N x N light-field grid) or a dataset folder whose cameras to use
-    /// (Spaces models.json, LLFF, COLMAP, light field).
+    /// The rig: `grid` (a generated N x N light-field grid, the default) or a dataset folder whose
+    /// cameras to use (Spaces models.json, LLFF, COLMAP, light field, transforms.json).
     #[arg(
-        long,
+        long = "data",
         default_value = "grid",
-        visible_alias = "data",
         value_name = "grid|DIR",
         value_parser = parse_rig
     )]
@@ -63,7 +62,7 @@ fn parse_planes(s: &str) -> Result<u64, String> {
     }
 }
 
-/// `--cameras`: `grid` or an existing dataset folder.
+/// `--data`: `grid` or an existing dataset folder.
 fn parse_rig(s: &str) -> Result<String, String> {
     if s == "grid" || std::path::Path::new(s).is_dir() {
         Ok(s.to_string())
@@ -89,7 +88,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         )
     } else {
         let cams = std::path::Path::new(&args.cameras);
-        check_output("--out", &args.out, Kind::SynthScene, &[("--cameras", cams)])?;
+        check_output("--out", &args.out, Kind::SynthScene, &[("--data", cams)])?;
         if (args.width, args.height, args.grid) != (256, 192, 4) {
             anyhow::bail!(
                 "--width, --height and --grid shape a generated grid; the rig {} brings its own cameras \

@@ -30,14 +30,9 @@ pub struct Validation {
 }
 
 impl Validation {
-    /// The posed real datasets of `specs` (each with its own load options, else `fallback`), scored every
-    /// `every` steps into `run_dir/validation.jsonl`.
-    pub fn new(
-        specs: &[DataSpec],
-        fallback: &LoadOptions,
-        run_dir: &Path,
-        every: u64,
-    ) -> anyhow::Result<Self> {
+    /// The posed real datasets of `specs` (each with its own load options), scored every `every` steps
+    /// into `run_dir/validation.jsonl`.
+    pub fn new(specs: &[DataSpec], run_dir: &Path, every: u64) -> anyhow::Result<Self> {
         let mut scenes = Vec::new();
         for spec in specs {
             if deepview_train::is_synthetic(&spec.path) {
@@ -46,7 +41,7 @@ impl Validation {
             // Full size: the validation chooses its own downscale.
             let load = LoadOptions {
                 downscale: 1,
-                ..spec.options(fallback).clone()
+                ..spec.load.clone()
             };
             let scene = deepview_data::load_scene(&spec.path, &load)?;
             if !matches!(
@@ -95,8 +90,9 @@ impl Validation {
             return Ok(None);
         }
         self.last = Some(step);
-        let budget =
-            super::args::default_budget(super::args::available_memory().unwrap_or(4 << 30));
+        let budget = crate::cmd::args::default_budget(
+            crate::cmd::args::available_memory().unwrap_or(4 << 30),
+        );
         let options = MethodOptions {
             weights: Some(ck.to_path_buf()),
             ..Default::default()

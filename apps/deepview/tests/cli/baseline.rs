@@ -1,4 +1,5 @@
-//! `deepview baseline`: the baselines' MPIs rendered into held-out and input views; `--planes auto`.
+//! `deepview infer --method psv-mean|nearest`: the baselines' MPIs rendered into held-out and input views;
+//! `--planes auto`; the old spellings (`deepview baseline`, bare folders, ...) are usage errors.
 
 use crate::common::{deepview, fails_with, s, succeeds, synth_grid};
 use std::path::Path;
@@ -31,7 +32,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     // psv-mean from the four corners of the 3 x 3 grid, scored on the held-out centre view.
     let psv = tmp.path().join("psv_mpi");
     let o = deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&scene),
         "--method",
@@ -57,7 +58,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     // ground-truth MPI. Measured: psv-mean 19.5 dB, corner 13.0 dB, ground truth 58.5 dB.
     let corner = tmp.path().join("corner_mpi");
     let o = deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&scene),
         "--method",
@@ -78,7 +79,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     // opaque plane in its camera, so rendering into that camera is an identity warp.
     let near = tmp.path().join("nearest_mpi");
     let o = deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&scene),
         "--method",
@@ -100,7 +101,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     let bad = tmp.path().join("bad_mpi");
     fails_with(
         &deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&scene),
             "--method",
@@ -114,7 +115,7 @@ fn baseline_mpis_render_held_out_and_input_views() {
     );
     fails_with(
         &deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&scene),
             "--method",
@@ -130,9 +131,10 @@ fn baseline_mpis_render_held_out_and_input_views() {
 }
 
 /// `--planes auto` (the default): the count from the cameras' disparity, printed and stored in mpi.json;
-/// clamped by the memory budget; an explicit count wins. Old spellings (bare folders) still work.
+/// clamped by the memory budget; an explicit count wins. The old spellings (`deepview baseline`, bare
+/// folders) are usage errors with a hint.
 #[test]
-fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
+fn planes_auto_follows_the_scene_and_old_spellings_are_usage_errors() {
     let tmp = tempfile::tempdir().unwrap();
     let scene = synth_grid(tmp.path());
     // A wider stated disparity range than the grid's own +-2 px (HCI `parameters.cfg`): enough planes
@@ -144,7 +146,7 @@ fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
     .unwrap();
     let mpi = tmp.path().join("psv_auto");
     let o = deepview(&[
-        "baseline",
+        "infer",
         "--data",
         s(&scene),
         "--method",
@@ -174,7 +176,7 @@ fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
     let small = tmp.path().join("psv_small");
     let run = |budget: &str| {
         deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&scene),
             "--method",
@@ -205,7 +207,7 @@ fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
     );
     fails_with(
         &deepview(&[
-            "baseline",
+            "infer",
             "--data",
             s(&scene),
             "--method",
@@ -218,43 +220,36 @@ fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
         &["--planes weights needs a learned model"],
     );
 
-    // The old spellings: a bare dataset folder, a bare MPI folder and output.
-    let old = tmp.path().join("psv_old");
+    // An explicit count wins over the rule.
+    let explicit = tmp.path().join("psv_explicit");
     succeeds(&deepview(&[
-        "baseline",
+        "infer",
+        "--data",
         s(&scene),
         "--method",
         "psv-mean",
         "--planes",
         "6",
         "--out",
-        s(&old),
+        s(&explicit),
     ]));
-    assert_eq!(deepview_mpi::read_mpi::<f32>(&old).unwrap().planes(), 6);
-    let (meta, _) = deepview_mpi::MpiMeta::read(&old).unwrap();
+    assert_eq!(
+        deepview_mpi::read_mpi::<f32>(&explicit).unwrap().planes(),
+        6
+    );
+    let (meta, _) = deepview_mpi::MpiMeta::read(&explicit).unwrap();
     assert_eq!(meta.planes_rule.unwrap().rule, "explicit");
-    let llff_old = tmp.path().join("llff_old");
     let llff_new = tmp.path().join("llff_new");
     succeeds(&deepview(&[
         "export",
-        s(&old),
-        s(&llff_old),
-        "--format",
-        "llff",
-    ]));
-    succeeds(&deepview(&[
-        "export",
         "--mpi",
-        s(&old),
+        s(&explicit),
         "--out",
         s(&llff_new),
         "--format",
         "llff",
     ]));
-    assert_eq!(
-        std::fs::read(llff_old.join("mpi.b")).unwrap(),
-        std::fs::read(llff_new.join("mpi.b")).unwrap()
-    );
+    assert!(llff_new.join("mpi.b").is_file());
     let back = tmp.path().join("back");
     succeeds(&deepview(&[
         "import",
@@ -264,9 +259,82 @@ fn planes_auto_follows_the_scene_and_old_spellings_still_work() {
         s(&back),
     ]));
     assert_eq!(deepview_mpi::read_mpi::<f32>(&back).unwrap().planes(), 6);
-    // Both spellings at once is an error.
+
+    // The old spellings are usage errors (exit 2) whose hint names the new one, and write nothing: the
+    // verbs `baseline` and `optimize`, a bare dataset folder, a bare MPI folder and output.
+    let old = tmp.path().join("psv_old");
+    let folders = "folders are named by their option";
+    let old_spellings: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec![
+                "baseline",
+                "--data",
+                s(&scene),
+                "--method",
+                "psv-mean",
+                "--planes",
+                "6",
+                "--out",
+                s(&old),
+            ],
+            "`deepview baseline --method M` is now `deepview infer --method M`",
+        ),
+        (
+            vec![
+                "optimize",
+                "--data",
+                s(&scene),
+                "--planes",
+                "6",
+                "--out",
+                s(&old),
+            ],
+            "`deepview optimize` is now `deepview infer --method optimize`",
+        ),
+        (
+            vec![
+                "baseline",
+                s(&scene),
+                "--method",
+                "psv-mean",
+                "--planes",
+                "6",
+                "--out",
+                s(&old),
+            ],
+            "is now `deepview infer --method M`",
+        ),
+        (
+            vec![
+                "infer",
+                s(&scene),
+                "--method",
+                "psv-mean",
+                "--planes",
+                "6",
+                "--out",
+                s(&old),
+            ],
+            folders,
+        ),
+        (
+            vec!["export", s(&explicit), s(&old), "--format", "llff"],
+            folders,
+        ),
+        (
+            vec!["export", "--mpi", s(&explicit), s(&old), "--format", "llff"],
+            folders,
+        ),
+        (vec!["import", s(&llff_new), "--out", s(&old)], folders),
+    ];
+    for (args, hint) in &old_spellings {
+        let o = deepview(args);
+        fails_with(&o, &["hint: ", hint]);
+        assert!(!old.exists(), "{args:?} wrote {}", old.display());
+    }
+    // Both spellings at once is an error too: the bare folder is refused, with the same hint.
     fails_with(
         &deepview(&["info", s(&scene), "--data", s(&scene)]),
-        &["cannot be used with"],
+        &["unexpected argument", folders],
     );
 }

@@ -13,7 +13,7 @@ fn synth_then_render_ground_truth_into_a_view() {
         "render",
         "--mpi",
         s(&gt),
-        "--scene",
+        "--data",
         s(&scene),
         "--view",
         "4",
@@ -66,9 +66,8 @@ fn synth_then_render_ground_truth_into_a_view() {
     let o = deepview(&["bench", "render", "--mpi", s(&gt), "--repeats", "2"]);
     let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(line["fps"].as_f64().unwrap() > 0.0 && line["planes"] == 8);
-    // `info --camera N` writes view N's camera JSON: rendering into it equals `--scene S --view N`. (The
-    // old spellings, a bare dataset folder and `render --scene`, still work for one release.)
-    let o = deepview(&["info", s(&scene), "--camera", "4"]);
+    // `info --camera N` writes view N's camera JSON: rendering into it equals `--data S --view N`.
+    let o = deepview(&["info", "--data", s(&scene), "--camera", "4"]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let cam4 = tmp.path().join("cam4.json");
     std::fs::write(&cam4, &o.stdout).unwrap();
@@ -91,6 +90,27 @@ fn synth_then_render_ground_truth_into_a_view() {
         &deepview(&["info", "--data", s(&scene), "--camera", "99"]),
         &["view 99 is out of range", "9 views"],
     );
+    // The old spellings, a bare dataset folder and `render --scene`, are usage errors naming `--data`.
+    fails_with(
+        &deepview(&["info", s(&scene), "--camera", "4"]),
+        &["hint: folders are named by their option", "--data DIR"],
+    );
+    let old = tmp.path().join("v4_old.png");
+    fails_with(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--scene",
+            s(&scene),
+            "--view",
+            "4",
+            "--out",
+            s(&old),
+        ]),
+        &["'--scene'", "hint: a dataset is --data DIR"],
+    );
+    assert!(!old.exists());
 }
 
 #[test]

@@ -99,30 +99,46 @@ fn resume_reads_the_data_with_the_options_of_the_run() {
     );
     train(&runs, "resumed", 3, &["--resume", "--downscale", "2"]);
 
-    // A config.json from before the options were kept (bare dataset paths) takes the scene flags given
-    // now, as it always did: without --downscale, full-size images and another step 2...
-    for (name, extra) in [
-        ("old-full", &[][..]),
-        ("old-half", &["--downscale", "2"][..]),
-    ] {
+    // A config.json in the old format is refused on resume (exit 2), naming the file, with or without
+    // the scene flags, and the run is left as it was: bare dataset paths (from before the load options
+    // were kept), and a sampling field missing (from before it existed).
+    for (name, edit) in [("old-paths", "data"), ("old-sampling", "window_context")] {
         train(&runs, name, 1, &half);
-        let path = runs.join(name).join("config.json");
+        let run = runs.join(name);
+        let path = run.join("config.json");
         let mut cfg: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
-        cfg["train"]["data"] = serde_json::json!([s(&grid)]);
+        if edit == "data" {
+            cfg["train"]["data"] = serde_json::json!([s(&grid)]);
+        } else {
+            let sample = cfg["train"]["sample"].as_object_mut().unwrap();
+            assert!(sample.remove(edit).is_some(), "{edit} not in {cfg}");
+        }
         std::fs::write(&path, serde_json::to_string_pretty(&cfg).unwrap()).unwrap();
-        let mut args = vec!["--resume"];
-        args.extend_from_slice(extra);
-        train(&runs, name, 2, &args);
+        let before = std::fs::read(run.join("metrics.jsonl")).unwrap();
+        for extra in [&[][..], &["--downscale", "2"][..]] {
+            let mut args = vec![
+                "train",
+                "--runs",
+                s(&runs),
+                "--name",
+                name,
+                "--resume",
+                "--steps",
+                "2",
+                "--quiet",
+            ];
+            args.extend_from_slice(extra);
+            // The value or field the old format has wrong is named too.
+            let what = if edit == "data" { s(&grid) } else { edit };
+            fails_with(
+                &deepview(&args),
+                &[s(&path), "invalid run configuration", what],
+            );
+        }
+        assert_eq!(std::fs::read(run.join("metrics.jsonl")).unwrap(), before);
+        assert_eq!(losses(&run).len(), 1);
     }
-    let full = losses(&runs.join("old-full"));
-    assert_eq!(full[0], straight[0]);
-    assert_ne!(
-        full[1], straight[1],
-        "full-size images gave the half-size step"
-    );
-    // ... and with it, the same step as the run that kept its options.
-    assert_eq!(losses(&runs.join("old-half")), straight);
 }
 
 /// `--max-width W` gives each dataset its own factor: the smallest that brings its images to at most W

@@ -5,7 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-/// The binary under test, with the shared data folder (`DEEPVIEW_DATA`, for the VGG weights).
+/// The binary under test, with the shared data folder of the tests in `DEEPVIEW_DATA` (the VGG weights
+/// are passed with `--vgg-weights`).
 pub fn bin() -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_deepview"));
     c.env("DEEPVIEW_DATA", deepview_data::data_dir());

@@ -1,0 +1,430 @@
+//! `deepview train`'s options as one clap struct ([`TrainOptions`], flattened into the command): what the
+//! user chose, every field optional. A new run applies them onto [`TrainConfig::defaults`]
+//! ([`TrainOptions::config`]); a resumed run keeps its `config.json` and refuses a choice that differs
+//! from it ([`TrainOptions::fixed_on_resume`]). Both directions live here, beside the config they map to.
+
+use crate::config::{RunConfig, TrainConfig};
+use crate::error::TrainError;
+use crate::load::DataSpec;
+use crate::loss::LossKind;
+use deepview_net::config::DeepViewConfig;
+use std::path::PathBuf;
+
+/// Largest plane count of `--planes auto` in training (the cost of a step grows with it).
+pub const TRAIN_AUTO_PLANES_MAX: usize = 64;
+
+/// The training options of `deepview train` (see each one's help).
+#[derive(clap::Args, Debug, Clone, Default, PartialEq)]
+pub struct TrainOptions {
+    /// Network preset: cpu, cpu-large, paper-kalantari, paper-spaces-4view, paper-spaces-12view
+    /// (default: cpu). With --init: grow those weights into this larger preset first (the grown model
+    /// computes the same MPI; the new feature channels and update nets then train).
+    #[arg(long)]
+    pub preset: Option<String>,
+    /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
+    /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
+    /// program). The network
+    /// configuration is the one saved with them, unless --preset names a larger one to grow them into.
+    /// The optimizer starts afresh.
+    #[arg(long, value_name = "WEIGHTS_DIR")]
+    pub init: Option<PathBuf>,
+    /// Total number of steps of the run (with --resume: the new total). Default 1000.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub steps: Option<u64>,
+    /// Training tuples per step, split over the devices (default 1).
+    #[arg(long, value_parser = parse_positive)]
+    pub batch: Option<usize>,
+    /// Target crop side in pixels (paper and default: 32).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(4..=4096))]
+    pub crop: Option<u64>,
+    /// Number of input views: `K` or a range `A..B` (inclusive) drawn per batch. Default: the preset's
+    /// fixed count, or 2..4.
+    #[arg(long, value_parser = parse_views)]
+    pub views: Option<(usize, usize)>,
+    /// MPI planes during training: a count (default: the preset's training plane count), or `auto` /
+    /// `auto:MAX`: per tuple, the count `infer --planes auto` chooses for its inputs (1 px of disparity
+    /// between planes), from 8 to MAX (default 64).
+    #[arg(long, value_parser = parse_train_planes)]
+    pub planes: Option<(bool, usize)>,
+    /// Training loss: vgg (the paper's feature loss, default), vgg+ssim (plus 1e5 x (1 - SSIM), the
+    /// evaluation metric) or l1.
+    #[arg(long)]
+    pub loss: Option<LossKind>,
+    /// Learning rate (paper and default: 1.5e-4).
+    #[arg(long, value_parser = parse_positive_f64)]
+    pub lr: Option<f64>,
+    /// Global gradient-norm clipping threshold (paper and default: 8).
+    #[arg(long, value_parser = parse_positive_f64)]
+    pub clip: Option<f64>,
+    /// Comma-separated devices for data parallelism: cpu, wgpu[:N], wgpu:cpu (the CPU Vulkan
+    /// adapter), cuda[:N] (GPU ones need a build with the features `wgpu` / `cuda`). Example: cpu,cpu.
+    #[arg(long, value_parser = parse_devices)]
+    pub devices: Option<Vec<String>>,
+    /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
+    pub checkpoint_every: Option<u64>,
+    /// Keep the last N checkpoints (older ones are removed after each new one). Default: 3, or the
+    /// run's own setting with --resume.
+    #[arg(long, value_name = "N", value_parser = parse_positive)]
+    pub keep_checkpoints: Option<usize>,
+    /// Random seed (weights initialisation and tuple sampling; default 0).
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Disable the random jitter of plane depths.
+    #[arg(long)]
+    pub no_jitter: bool,
+    /// Disable the colour and exposure jitter of training tuples (one random exposure and channel gain
+    /// per tuple, +-5% exposure per input view).
+    #[arg(long)]
+    pub no_colour_jitter: bool,
+    /// Probability (0..1) that a tuple's K inputs are K random views among the target's 3K nearest
+    /// instead of its K nearest: wider, uneven baselines (default 0).
+    #[arg(long, value_name = "P", value_parser = parse_probability)]
+    pub wide_inputs: Option<f64>,
+    /// Probability (0..1) that a tuple's K inputs surround the target: one random view per angular sector
+    /// around it among its 3K nearest (rendering between the inputs, like the demo's corner views). A
+    /// target with an empty sector (an edge view: extrapolation) is redrawn. Drawn before --wide-inputs;
+    /// default 0.
+    #[arg(long, value_name = "P", value_parser = parse_probability)]
+    pub surround_inputs: Option<f64>,
+    /// Render the views for the update nets' gradient components from the agreement prior outside the
+    /// training window (with the window's state inside) instead of a transparent MPI there: closer to
+    /// inference's full MPI where wide inputs' rays leave the window. Off by default: it did not change
+    /// the demo's outcome (BENCHMARKS.md, "The training window's context"). Kept in the run's config.
+    #[arg(long)]
+    pub window_context: bool,
+    /// Downscale each dataset by the smallest integer factor that brings its images to at most W pixels
+    /// wide, instead of one --downscale for all: scenes of different sizes train at their own factor
+    /// (e.g. LLFF `images_4` at 2 and 256 px synthetic grids at 1 with `--max-width 512`). Each factor is
+    /// kept in the run's config.json; with --resume it applies only to datasets the run did not have.
+    #[arg(long, value_name = "W", conflicts_with = "downscale", value_parser = clap::value_parser!(u32).range(16..))]
+    pub max_width: Option<u32>,
+    /// Hold out every N-th view of LLFF/COLMAP/light-field scenes for evaluation (0: none; 1 would hold out
+    /// every view). Default 8.
+    #[arg(long, value_parser = parse_holdout)]
+    pub holdout_every: Option<usize>,
+    /// Recompute each net's activations during the backward pass (the paper's gradient checkpointing:
+    /// peak memory of one net instead of all nets, one extra forward pass per step). Default: on for
+    /// presets with more than 2 nets (all paper-* presets). Kept in the run's config.json.
+    #[arg(long, conflicts_with = "no_recompute")]
+    pub recompute: bool,
+    /// Keep all activations for the backward pass (faster, more memory).
+    #[arg(long)]
+    pub no_recompute: bool,
+    /// The VGG-16 weights of the VGG loss (vgg16_conv1_1-conv3_3.safetensors; the data folder's
+    /// vgg16/README.md), kept in the run's config.json (as an absolute path) for --resume; give it again
+    /// on resume to use another copy.
+    #[arg(long, value_name = "FILE")]
+    pub vgg_weights: Option<PathBuf>,
+}
+
+impl TrainOptions {
+    /// The network of a new run: `--init`'s saved configuration, or `--preset` (default `cpu`), which
+    /// `--init`'s weights must be able to grow into.
+    pub fn model(&self) -> Result<DeepViewConfig, TrainError> {
+        let load = |dir: &std::path::Path| {
+            deepview_net::weights::load_config_any(dir).map_err(|source| TrainError::Init {
+                dir: dir.to_path_buf(),
+                source,
+            })
+        };
+        let cfg_err = TrainError::Refused;
+        match (&self.init, &self.preset) {
+            (Some(dir), None) => load(dir),
+            (init, preset) => {
+                let to = DeepViewConfig::preset(preset.as_deref().unwrap_or("cpu"))
+                    .map_err(|e| cfg_err(e.to_string()))?;
+                if let Some(dir) = init {
+                    // Refuse a preset the weights cannot grow into now, not after loading the data.
+                    let from = load(dir)?;
+                    if from != to {
+                        deepview_net::grow::check_growth(&from, &to).map_err(|e| {
+                            cfg_err(format!(
+                                "--init {} --preset {}: {e}",
+                                dir.display(),
+                                to.name
+                            ))
+                        })?;
+                    }
+                }
+                Ok(to)
+            }
+        }
+    }
+
+    /// The configuration of a new run of `model` on `data`: the defaults with every given option applied.
+    pub fn config(&self, model: &DeepViewConfig, data: Vec<DataSpec>) -> TrainConfig {
+        let mut train = TrainConfig::defaults(model);
+        train.init = self.init.clone();
+        train.base = std::env::current_dir().ok();
+        train.data = data;
+        train.steps = self.steps.unwrap_or(train.steps);
+        train.batch = self.batch.unwrap_or(train.batch);
+        if let Some(c) = self.crop {
+            train.sample.crop = c as usize;
+        }
+        if let Some((a, b)) = self.views {
+            (train.sample.views_min, train.sample.views_max) = (a, b);
+        }
+        if let Some((auto, p)) = self.planes {
+            (train.sample.auto_planes, train.sample.planes) = (auto, p);
+        }
+        train.sample.jitter = !self.no_jitter;
+        train.sample.colour_jitter = !self.no_colour_jitter;
+        train.sample.wide_inputs = self.wide_inputs.unwrap_or(0.0);
+        train.sample.surround_inputs = self.surround_inputs.unwrap_or(0.0);
+        train.sample.window_context = self.window_context;
+        if let Some(l) = self.loss {
+            train.loss = l;
+        }
+        train.learning_rate = self.lr.unwrap_or(train.learning_rate);
+        train.clip_norm = self.clip.unwrap_or(train.clip_norm);
+        train.checkpoint_every = self.checkpoint_every.unwrap_or(train.checkpoint_every);
+        if let Some(k) = self.keep_checkpoints {
+            train.keep_checkpoints = k;
+        }
+        train.seed = self.seed.unwrap_or(train.seed);
+        train.holdout_every = self.holdout_every.unwrap_or(train.holdout_every);
+        if self.recompute || self.no_recompute {
+            train.recompute = self.recompute;
+        }
+        if let Some(d) = &self.devices {
+            train.devices = d.clone();
+        }
+        train.vgg_weights = self.vgg_weights.as_deref().map(absolute);
+        train
+    }
+
+    /// What may change when a run resumes: the total steps, the devices, how many checkpoints are kept
+    /// and where the VGG weights are.
+    pub fn adjust_on_resume(&self, train: &mut TrainConfig) {
+        if let Some(s) = self.steps {
+            train.steps = s;
+        }
+        if let Some(d) = &self.devices {
+            train.devices = d.clone();
+        }
+        if let Some(k) = self.keep_checkpoints {
+            train.keep_checkpoints = k;
+        }
+        if let Some(v) = &self.vgg_weights {
+            train.vgg_weights = Some(absolute(v));
+        }
+    }
+
+    /// The options given that differ from a resumed run's own (they cannot take effect). Repeating the
+    /// run's own value is fine: scripts re-run the same command with --resume.
+    pub fn fixed_on_resume(&self, cfg: &RunConfig) -> Vec<&'static str> {
+        let t = &cfg.train;
+        let differs = [
+            (
+                self.preset.as_ref().is_some_and(|p| *p != cfg.model.name),
+                "--preset",
+            ),
+            (
+                self.init
+                    .as_ref()
+                    .is_some_and(|i| Some(i) != t.init.as_ref()),
+                "--init",
+            ),
+            (self.batch.is_some_and(|b| b != t.batch), "--batch"),
+            (
+                self.crop.is_some_and(|c| c as usize != t.sample.crop),
+                "--crop",
+            ),
+            (
+                self.views
+                    .is_some_and(|v| v != (t.sample.views_min, t.sample.views_max)),
+                "--views",
+            ),
+            (
+                self.planes
+                    .is_some_and(|p| p != (t.sample.auto_planes, t.sample.planes)),
+                "--planes",
+            ),
+            (self.loss.is_some_and(|l| l != t.loss), "--loss"),
+            (self.lr.is_some_and(|l| l != t.learning_rate), "--lr"),
+            (self.clip.is_some_and(|c| c != t.clip_norm), "--clip"),
+            (
+                self.checkpoint_every
+                    .is_some_and(|c| c != t.checkpoint_every),
+                "--checkpoint-every",
+            ),
+            (self.seed.is_some_and(|v| v != t.seed), "--seed"),
+            (self.no_jitter && t.sample.jitter, "--no-jitter"),
+            (
+                self.no_colour_jitter && t.sample.colour_jitter,
+                "--no-colour-jitter",
+            ),
+            (
+                self.wide_inputs.is_some_and(|p| p != t.sample.wide_inputs),
+                "--wide-inputs",
+            ),
+            (
+                self.surround_inputs
+                    .is_some_and(|p| p != t.sample.surround_inputs),
+                "--surround-inputs",
+            ),
+            (
+                self.window_context && !t.sample.window_context,
+                "--window-context",
+            ),
+            (
+                self.holdout_every.is_some_and(|h| h != t.holdout_every),
+                "--holdout-every",
+            ),
+            (self.recompute && !t.recompute, "--recompute"),
+            (self.no_recompute && t.recompute, "--no-recompute"),
+        ];
+        differs.iter().filter(|g| g.0).map(|g| g.1).collect()
+    }
+}
+
+/// `path` made absolute against the current folder (no file system access).
+fn absolute(path: &std::path::Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
+/// A whole number of at least 1.
+pub fn parse_positive(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!("{s:?} is not a positive whole number")),
+    }
+}
+
+/// A finite number above zero.
+pub fn parse_positive_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
+        Ok(_) => Err(format!("{s:?} must be a finite number above 0")),
+        Err(_) => Err(format!("{s:?} is not a number")),
+    }
+}
+
+fn parse_holdout(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(1) => Err("1 would hold out every view: use 0 (none) or 2 and more".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!("{s:?} is not a whole number")),
+    }
+}
+
+fn parse_probability(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(p) if (0.0..=1.0).contains(&p) => Ok(p),
+        _ => Err(format!("expected a probability between 0 and 1, got `{s}`")),
+    }
+}
+
+fn parse_devices(s: &str) -> Result<Vec<String>, String> {
+    let d: Vec<String> = s
+        .split(',')
+        .map(|d| d.trim().to_string())
+        .filter(|d| !d.is_empty())
+        .collect();
+    if d.is_empty() {
+        return Err("no device named (e.g. cpu, or cpu,cpu)".into());
+    }
+    Ok(d)
+}
+
+/// `--planes N`, `auto` or `auto:MAX` -> (auto, count or maximum).
+pub fn parse_train_planes(s: &str) -> Result<(bool, usize), String> {
+    let count = |v: &str| match v.parse::<usize>() {
+        Ok(n) if (2..=1024).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "expected a plane count in 2..=1024, `auto` or `auto:MAX`, got `{s}`"
+        )),
+    };
+    match s.strip_prefix("auto") {
+        Some("") => Ok((true, TRAIN_AUTO_PLANES_MAX)),
+        Some(rest) => match rest.strip_prefix(':') {
+            Some(m) => count(m).map(|n| (true, n)),
+            None => count(s).map(|n| (false, n)),
+        },
+        None => count(s).map(|n| (false, n)),
+    }
+}
+
+/// `--views K` or `A..B` / `A..=B` (inclusive).
+pub fn parse_views(s: &str) -> Result<(usize, usize), String> {
+    let parse = |t: &str| {
+        t.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("{t:?} is not a number"))
+    };
+    let (a, b) = match s.split_once("..") {
+        Some((a, b)) => (parse(a)?, parse(b.trim_start_matches('='))?),
+        None => (parse(s)?, parse(s)?),
+    };
+    if a == 0 || a > b {
+        return Err(format!("{s}: need 1 <= A <= B"));
+    }
+    Ok((a, b))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn views_ranges() {
+        assert_eq!(parse_views("4").unwrap(), (4, 4));
+        assert_eq!(parse_views("2..4").unwrap(), (2, 4));
+        assert_eq!(parse_views("2..=5").unwrap(), (2, 5));
+        assert!(parse_views("4..2").is_err());
+        assert!(parse_views("0").is_err());
+        assert!(parse_views("x").is_err());
+    }
+
+    /// A new run's config holds what was given; resuming with the same options refuses nothing, with a
+    /// different one names it, and only the resumable ones change the config.
+    #[test]
+    fn options_map_onto_the_config_and_back() {
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let given = TrainOptions {
+            steps: Some(77),
+            crop: Some(24),
+            views: Some((3, 4)),
+            planes: Some((true, 48)),
+            lr: Some(5e-5),
+            wide_inputs: Some(0.25),
+            no_jitter: true,
+            devices: Some(vec!["cpu".into(), "cpu".into()]),
+            vgg_weights: Some("v.safetensors".into()),
+            ..Default::default()
+        };
+        let train = given.config(&model, Vec::new());
+        assert_eq!(train.steps, 77);
+        assert_eq!(train.sample.crop, 24);
+        assert_eq!((train.sample.views_min, train.sample.views_max), (3, 4));
+        assert_eq!((train.sample.auto_planes, train.sample.planes), (true, 48));
+        assert_eq!(train.learning_rate, 5e-5);
+        assert_eq!(train.sample.wide_inputs, 0.25);
+        assert!(!train.sample.jitter && train.sample.colour_jitter);
+        assert_eq!(train.devices, ["cpu", "cpu"]);
+        assert!(train.vgg_weights.as_ref().unwrap().is_absolute());
+        let cfg = RunConfig {
+            model: model.clone(),
+            train,
+        };
+        assert!(given.fixed_on_resume(&cfg).is_empty());
+        let other = TrainOptions {
+            crop: Some(32),
+            lr: Some(5e-5),
+            no_colour_jitter: true,
+            steps: Some(500),
+            ..Default::default()
+        };
+        assert_eq!(
+            other.fixed_on_resume(&cfg),
+            ["--crop", "--no-colour-jitter"]
+        );
+        let mut resumed = cfg.train.clone();
+        other.adjust_on_resume(&mut resumed);
+        assert_eq!(resumed.steps, 500);
+        assert_eq!(resumed.sample.crop, 24, "fixed options stay the run's");
+    }
+}
