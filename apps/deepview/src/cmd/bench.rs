@@ -334,7 +334,8 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
 }
 
 /// Peak resident memory of this process in MB (`VmHWM`), if known.
-fn peak_rss_mb() -> Option<f64> {
+/// The process's peak resident memory (VmHWM) in MiB.
+pub(crate) fn peak_rss_mb() -> Option<f64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
     let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;

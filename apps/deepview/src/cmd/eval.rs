@@ -142,6 +142,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         c.keep();
     }
     print!("{}", report.table());
+    if let Some(mb) = super::bench::peak_rss_mb() {
+        println!("peak memory {:.2} GiB (resident, the whole run)", mb / 1024.0);
+    }
     if let Some(out) = &args.out {
         write_file(out, |out| Ok(report.write_json(out)?))?;
         println!("wrote {}", out.display());

@@ -111,8 +111,11 @@ fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
         (Some(n), _) => format!(" ({n})"),
         (None, _) => String::new(),
     };
+    let peak = super::bench::peak_rss_mb()
+        .map(|mb| format!(", peak memory {:.2} GiB", mb / 1024.0))
+        .unwrap_or_default();
     println!(
-        "wrote {}: {kind} MPI of views {ids:?}{note}, {planes} ({:.1} s)",
+        "wrote {}: {kind} MPI of views {ids:?}{note}, {planes} ({:.1} s{peak})",
         args.out.display(),
         start.elapsed().as_secs_f64()
     );
