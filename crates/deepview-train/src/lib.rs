@@ -7,10 +7,11 @@
 //! [`TrainEvent`]s to a callback and stops (after the current step, with a checkpoint) when the flag it
 //! is given is set; the program draws the progress bar and sets the flag on Ctrl-C / SIGTERM.
 //!
-//! Modules: [`config`] (what a run is), [`load`] (its datasets), [`data`] (tuple sampling),
-//! [`synthetic`] (a built-in scene), [`example`] (one tuple through the model), [`recompute`],
-//! [`clip`], [`reduce`] (replicas of one process), [`dist`] (ranks), [`device`], [`trainer`] (the loop), [`checkpoint`], [`metrics`],
-//! [`events`], [`error`].
+//! Modules: [`config`] (what a run is), [`load`] (its datasets), [`scene`] (a training scene and its
+//! held-out views), [`data`] (tuple sampling), [`synthetic`] (a built-in scene), [`example`] (one tuple
+//! through the model), [`recompute`], [`clip`], [`reduce`] (replicas of one process), [`dist`] (ranks),
+//! [`trainer`] (the loop), [`checkpoint`], [`metrics`], [`events`], [`error`]; devices by name are
+//! [`deepview_net::device`].
 //!
 //! A run lives in `runs/<name>/`:
 //! - `config.json`: [`RunConfig`] (model + training config, with each dataset's load options, so a
@@ -57,6 +58,7 @@ pub mod loss;
 pub mod metrics;
 pub mod recompute;
 pub mod reduce;
+pub mod scene;
 pub mod synthetic;
 pub mod trainer;
 pub mod vgg;
@@ -66,7 +68,7 @@ pub use checkpoint::{
     list_checkpoints,
 };
 pub use config::{PAPER_LEARNING_RATE, RunConfig, TrainConfig};
-pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
+pub use data::{Example, Rng, SampleConfig, TrainData};
 pub use dist::Collective;
 pub use error::TrainError;
 pub use events::{Notice, TrainEvent};
@@ -75,6 +77,7 @@ pub use files::is_run_folder;
 pub use load::{DataSpec, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, is_synthetic, load_data};
 pub use metrics::StepReport;
 pub use reduce::LocalReduction;
+pub use scene::{Holdout, TrainScene};
 pub use trainer::Trainer;
 
 #[cfg(test)]
