@@ -75,7 +75,7 @@ enum Command {
 }
 
 fn run(cli: Cli) -> anyhow::Result<()> {
-    deepview_net::kernels::use_burn_ops(cli.engine == Engine::Burn);
+    deepview_net::cpu::ops::use_burn_ops(cli.engine == Engine::Burn);
     deepview_kernels::set_process_isa(match cli.isa {
         IsaArg::Auto | IsaArg::Avx512 => deepview_kernels::Isa::Avx512,
         IsaArg::Avx2 => deepview_kernels::Isa::Avx2,

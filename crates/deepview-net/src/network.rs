@@ -26,10 +26,11 @@
 //! from the full MPI.
 
 use crate::config::{CPU_PRIOR_TEMPERATURE, DeepViewConfig};
+use crate::cpu::ops::{conv3x3_act, core_net_train, fast_device};
+use crate::cpu::packed::core_net_inference;
 use crate::forward::{
     GRADIENT_CHANNELS, Hom, crop_output, gradient_components, plane_sweep_volume,
 };
-use crate::kernels::{conv3x3_act, core_net_inference, core_net_train, fast_device};
 use burn::module::{Module, Param};
 use burn::nn::PaddingConfig2d;
 use burn::nn::conv::{Conv2d, Conv2dConfig};

@@ -29,6 +29,7 @@
 //! the input crops' rays cross, clipped to the reference image, with its own input crops for the
 //! agreement prior there.)
 
+use crate::scene::{DataError, Holdout, TrainScene};
 use deepview_geometry::{
     Camera, DVec2, PlaneSpacing, ReferenceOptions, plane_homography, reference_camera,
 };
@@ -36,26 +37,7 @@ use deepview_image::ImageF32;
 use deepview_net::config::DeepViewConfig;
 use deepview_net::forward::{Hom, crop_output, crop_source};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
-
-/// Errors building training data.
-#[derive(Debug, thiserror::Error)]
-pub enum DataError {
-    #[error("cannot load training scene {path}: {source}")]
-    Scene {
-        path: PathBuf,
-        source: deepview_data::DataError,
-    },
-    #[error("training scene {path}: {message}")]
-    Invalid { path: PathBuf, message: String },
-    #[error("no training data: {0}")]
-    Empty(String),
-    #[error("geometry error in scene {scene}: {source}")]
-    Geometry {
-        scene: String,
-        source: deepview_geometry::GeometryError,
-    },
-}
+use std::path::PathBuf;
 
 /// A small, serialisable random number generator (SplitMix64): its whole state is one `u64`, saved in
 /// checkpoints so a resumed run draws the same tuples.
@@ -84,114 +66,6 @@ impl Rng {
     /// Uniform integer in `0..n` (`n > 0`).
     pub fn below(&mut self, n: usize) -> usize {
         (self.uniform() * n as f64) as usize % n.max(1)
-    }
-}
-
-/// Which views of a scene are held out (never used in training).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Holdout {
-    /// None.
-    Nothing,
-    /// Every n-th view (`index % n == 0`): the general protocol for posed captures.
-    EveryNth(usize),
-}
-
-/// A scene ready for sampling: cameras, decoded images (cached in memory), depth bounds.
-#[derive(Clone, Debug)]
-pub struct TrainScene {
-    pub name: String,
-    pub cameras: Vec<Camera>,
-    pub images: Vec<ImageF32>,
-    pub near: f64,
-    pub far: f64,
-    /// Views used for training (targets and inputs).
-    pub train_views: Vec<usize>,
-}
-
-impl TrainScene {
-    /// A scene from cameras and RGB images (e.g. a synthetic scene), with a holdout rule.
-    pub fn new(
-        name: &str,
-        cameras: Vec<Camera>,
-        images: Vec<ImageF32>,
-        near: f64,
-        far: f64,
-        holdout: Holdout,
-    ) -> Result<Self, DataError> {
-        let invalid = |message: String| DataError::Invalid {
-            path: PathBuf::from(name),
-            message,
-        };
-        if cameras.len() != images.len() {
-            return Err(invalid(format!(
-                "{} cameras but {} images",
-                cameras.len(),
-                images.len()
-            )));
-        }
-        for (i, (c, im)) in cameras.iter().zip(&images).enumerate() {
-            if (c.width, c.height) != (im.width, im.height) || im.channels != 3 {
-                return Err(invalid(format!(
-                    "view {i}: camera {}x{} but image {}x{}x{}",
-                    c.width, c.height, im.width, im.height, im.channels
-                )));
-            }
-        }
-        if !(near > 0.0 && far > near && far.is_finite()) {
-            return Err(invalid(format!("bad depth bounds near {near}, far {far}")));
-        }
-        let train_views: Vec<usize> = (0..cameras.len())
-            .filter(|i| match holdout {
-                Holdout::Nothing => true,
-                Holdout::EveryNth(n) => n == 0 || i % n != 0,
-            })
-            .collect();
-        if train_views.len() < 2 {
-            return Err(invalid(format!(
-                "{} training views after holding out evaluation views; need at least 2 (one input, one target)",
-                train_views.len()
-            )));
-        }
-        Ok(Self {
-            name: name.to_string(),
-            cameras,
-            images,
-            near,
-            far,
-            train_views,
-        })
-    }
-
-    /// Load a dataset folder with `deepview_data` and decode every image. LLFF, COLMAP and light fields
-    /// hold out every `holdout_every`-th view; Spaces holds out nothing (its test scenes are separate).
-    pub fn load(
-        path: &Path,
-        opts: &deepview_data::LoadOptions,
-        holdout_every: usize,
-    ) -> Result<Self, DataError> {
-        let scene_err = |source| DataError::Scene {
-            path: path.to_path_buf(),
-            source,
-        };
-        let scene = deepview_data::load_scene(path, opts).map_err(scene_err)?;
-        let (near, far) = scene.near_far().map_err(scene_err)?;
-        let images = (0..scene.len())
-            .map(|i| scene.load_image(i))
-            .collect::<Result<Vec<_>, _>>()
-            .map_err(scene_err)?;
-        let holdout = match scene.format {
-            deepview_data::SceneFormat::Spaces => Holdout::Nothing,
-            _ if holdout_every > 1 => Holdout::EveryNth(holdout_every),
-            _ => Holdout::Nothing,
-        };
-        Self::new(
-            &path.display().to_string(),
-            scene.cameras(),
-            images,
-            near,
-            far,
-            holdout,
-        )
     }
 }
 
@@ -893,21 +767,6 @@ mod tests {
                 .iter()
                 .all(|x| x.is_finite() && *x > 0.0)
         );
-    }
-
-    #[test]
-    fn holdout_every_8th() {
-        let s = two_plane_scene(3, 3, 24, 0.1);
-        let t = TrainScene::new(
-            "t",
-            s.cameras,
-            s.images,
-            s.near,
-            s.far,
-            Holdout::EveryNth(8),
-        )
-        .unwrap();
-        assert_eq!(t.train_views, vec![1, 2, 3, 4, 5, 6, 7]);
     }
 
     /// `synthetic:procedural`: half the tuples (with dataset scenes beside it) come from a new procedural

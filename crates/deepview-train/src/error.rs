@@ -1,6 +1,6 @@
 //! The errors of a training run.
 
-use crate::data::DataError;
+use crate::scene::DataError;
 use crate::vgg::VggError;
 use std::path::{Path, PathBuf};
 

@@ -7,11 +7,12 @@
 //! [`TrainEvent`]s to a callback and stops (after the current step, with a checkpoint) when the flag it
 //! is given is set; the program draws the progress bar and sets the flag on Ctrl-C / SIGTERM.
 //!
-//! Modules: [`config`] (what a run is), [`load`] (its datasets), [`data`] (tuple sampling),
-//! [`synthetic`] (a built-in scene), [`example`] (one tuple through the model), [`recompute`],
-//! [`clip`], [`reduce`] (replicas of one process), [`dist`] (ranks), [`trainer`] (the loop),
-//! [`checkpoint`], [`metrics`], [`events`], [`error`]; [`options`] (`deepview train`'s options and how
-//! they map onto a run's config) and [`session`] (opening a run: new, resumed or started over).
+//! Modules: [`config`] (what a run is), [`load`] (its datasets), [`scene`] (a training scene and its
+//! held-out views), [`data`] (tuple sampling), [`synthetic`] (a built-in scene), [`example`] (one tuple
+//! through the model), [`recompute`], [`clip`], [`reduce`] (replicas of one process), [`dist`] (ranks),
+//! [`trainer`] (the loop), [`checkpoint`], [`metrics`], [`events`], [`error`]; [`options`] (`deepview
+//! train`'s options and how they map onto a run's config) and [`session`] (opening a run: new, resumed
+//! or started over); devices by name are [`deepview_net::device`].
 //!
 //! A run lives in `runs/<name>/`:
 //! - `config.json`: [`RunConfig`] (model + training config, with each dataset's load options, so a
@@ -59,6 +60,7 @@ pub mod metrics;
 pub mod options;
 pub mod recompute;
 pub mod reduce;
+pub mod scene;
 pub mod session;
 pub mod synthetic;
 pub mod trainer;
@@ -69,7 +71,7 @@ pub use checkpoint::{
     list_checkpoints,
 };
 pub use config::{PAPER_LEARNING_RATE, RunConfig, TrainConfig};
-pub use data::{Example, Holdout, Rng, SampleConfig, TrainData, TrainScene};
+pub use data::{Example, Rng, SampleConfig, TrainData};
 pub use dist::Collective;
 pub use error::TrainError;
 pub use events::{Notice, TrainEvent};
@@ -79,6 +81,7 @@ pub use load::{DataSpec, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, is_syntheti
 pub use metrics::StepReport;
 pub use options::TrainOptions;
 pub use reduce::LocalReduction;
+pub use scene::{Holdout, TrainScene};
 pub use session::{Request, Session, Start};
 pub use trainer::Trainer;
 

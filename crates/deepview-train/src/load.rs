@@ -1,8 +1,9 @@
 //! Training data: the datasets of a run ([`DataSpec`]: a folder and how it is loaded) and their loading
 //! ([`load_data`]), from dataset folders and the built-in synthetic scenes.
 
-use crate::data::{TrainData, TrainScene};
+use crate::data::TrainData;
 use crate::error::TrainError;
+use crate::scene::TrainScene;
 use crate::synthetic;
 use deepview_data::LoadOptions;
 use serde::{Deserialize, Serialize};

@@ -3,7 +3,7 @@
 //! depth 4, seen by a grid of cameras on the plane z = 0 looking down +z (OpenCV axes), rendered by ray
 //! casting with 2x2 supersampling.
 
-use crate::data::{Holdout, TrainScene};
+use crate::scene::{Holdout, TrainScene};
 use deepview_geometry::{Camera, DMat3, DVec3, Intrinsics, Pose};
 use deepview_image::ImageF32;
 

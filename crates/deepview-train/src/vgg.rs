@@ -17,7 +17,7 @@ use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
 use burn::tensor::{Device, Tensor, TensorData};
 use deepview_kernels::Act;
-use deepview_net::kernels::conv3x3_act;
+use deepview_net::cpu::ops::conv3x3_act;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 

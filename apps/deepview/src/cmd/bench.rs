@@ -403,7 +403,7 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
         "height": h,
         "peak_rss_mb": peak_rss_mb(),
         "model": name,
-        "engine": if deepview_net::kernels::fast_device(&device) { "kernels" } else { "burn" },
+        "engine": if deepview_net::cpu::ops::fast_device(&device) { "kernels" } else { "burn" },
         "plan": plan.describe(),
         "peak_estimate_mb": plan.peak_bytes >> 20,
         "threads": rayon::current_num_threads(),
@@ -461,7 +461,7 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
         "recompute": recompute,
         "steps": times.len(),
         "peak_rss_mb": peak_rss_mb(),
-        "engine": if deepview_net::kernels::fast_device(&deepview_net::burn::tensor::Device::flex()) { "kernels" } else { "burn" },
+        "engine": if deepview_net::cpu::ops::fast_device(&deepview_net::burn::tensor::Device::flex()) { "kernels" } else { "burn" },
     });
     println!("{line}");
     Ok(())

@@ -1,7 +1,8 @@
 //! Over-compositing with net transmittance `T` and accumulated over `A`, renders into views, plane sweep
 //! volumes, the gradient components, and images as tensors.
 
-use super::warp::{Hom, WarpTable, crop_output, invert};
+use super::taps::{Hom, WarpTable};
+use super::warp::{crop_output, invert};
 use burn::tensor::{Device, Tensor, TensorData};
 
 /// The over-composite of `rgba` `[D, 4, h, w]` (premultiplied, back to front) and its per-plane gradient
@@ -19,10 +20,10 @@ pub struct Composite {
 /// Over-composite `rgba` `[D, 4, h, w]` (premultiplied colour, plane 0 the farthest). A loop over planes
 /// (no division, so alpha = 1 is safe); `d render / d c_d = T_d` and `d render / d a_d = -A_d T_d`.
 pub fn composite(rgba: Tensor<4>) -> Composite {
-    if crate::kernels::fast_device(&rgba.device()) {
+    if crate::cpu::ops::fast_device(&rgba.device()) {
         let [d, _, h, w] = rgba.dims();
         // One operation: `[D + 1, 4, h, w]`, planes `..D` (A, T), plane D the render.
-        let out = crate::kernels::composite(rgba);
+        let out = crate::cpu::ops::composite(rgba);
         let planes = out.clone().narrow(0, 0, d);
         return Composite {
             render: out.narrow(0, d, 1).narrow(1, 0, 3).reshape([3, h, w]),

@@ -16,6 +16,7 @@
 //! scatter-add) and a weighted sum: no `grid_sample`, whose backward is ~10x its forward on `flex`.
 
 mod composite;
+mod taps;
 #[cfg(test)]
 mod tests;
 mod warp;
@@ -24,7 +25,8 @@ pub use composite::{
     Composite, GRADIENT_CHANNELS, composite, composite_burn, gradient_components, image_tensor,
     plane_sweep_volume, render_view,
 };
+pub use taps::{Hom, WarpTable};
 pub use warp::{
-    Hom, WarpTable, crop_output, crop_source, invert, mpi_to_view_homographies, mul, warp_planes,
+    crop_output, crop_source, invert, mpi_to_view_homographies, mul, warp_planes,
     warp_planes_grid_sample,
 };

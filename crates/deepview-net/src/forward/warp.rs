@@ -1,10 +1,8 @@
-//! Homography warps of plane stacks: the bilinear taps ([`WarpTable`]) and the 3x3 homography helpers.
+//! Homography warps of plane stacks: the bilinear taps ([`WarpTable`]) applied to tensors and the 3x3
+//! homography helpers.
 
+use super::taps::{Hom, WarpTable};
 use burn::tensor::{Device, Int, Tensor, TensorData};
-use std::sync::Arc;
-
-/// A row-major 3x3 homography (f64), output pixels -> source pixels.
-pub type Hom = [f64; 9];
 
 /// The plane homographies from the reference camera's pixels to each camera's pixels at every depth,
 /// `[camera][depth]` (the `mpi_to_view` of [`crate::network::ModelInputs`]).
@@ -24,130 +22,17 @@ pub fn mpi_to_view_homographies<'a>(
         .collect()
 }
 
-/// Precomputed bilinear taps of `planes` homography warps from a `src_w x src_h` source to an
-/// `out_w x out_h` output.
-#[derive(Clone, Debug)]
-pub struct WarpTable {
-    pub planes: usize,
-    pub src_w: usize,
-    pub src_h: usize,
-    pub out_w: usize,
-    pub out_h: usize,
-    /// `[4][planes * out_h * out_w]` texel indices within one source plane (`y * src_w + x`). Shared
-    /// (as the weights and the mask), so that a clone is cheap: [`Self::apply`] hands one to the CPU
-    /// operation, which keeps it for the backward.
-    idx: Arc<[i64]>,
-    /// `[4][planes * out_h * out_w]` bilinear weights (0 for invalid samples).
-    w: Arc<[f32]>,
-    /// `[planes * out_h * out_w]`: 1 where the sample is inside the source.
-    valid: Arc<[f32]>,
-}
-
 impl WarpTable {
-    /// Taps of `homs.len()` warps (one per plane). Empty sources or outputs are allowed (all invalid).
-    pub fn new(homs: &[Hom], src_w: usize, src_h: usize, out_w: usize, out_h: usize) -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if deepview_kernels::simd() {
-            // SAFETY: the CPU has AVX2 and FMA (checked): the same code with hardware `fma`/`floor`
-            // instead of libm calls (identical results: `mul_add` is exact either way).
-            return unsafe { Self::new_fma(homs, src_w, src_h, out_w, out_h) };
-        }
-        Self::new_portable(homs, src_w, src_h, out_w, out_h)
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2,fma")]
-    unsafe fn new_fma(
-        homs: &[Hom],
-        src_w: usize,
-        src_h: usize,
-        out_w: usize,
-        out_h: usize,
-    ) -> Self {
-        Self::new_portable(homs, src_w, src_h, out_w, out_h)
-    }
-
-    #[inline(always)]
-    fn new_portable(homs: &[Hom], src_w: usize, src_h: usize, out_w: usize, out_h: usize) -> Self {
-        let n = homs.len() * out_w * out_h;
-        let mut idx = vec![0i64; 4 * n];
-        let mut w = vec![0f32; 4 * n];
-        let mut valid = vec![0f32; n];
-        let (wf, hf) = (src_w as f32, src_h as f32);
-        let (wmax, hmax) = (src_w as i32 - 1, src_h as i32 - 1);
-        for (d, h) in homs.iter().enumerate() {
-            let a = [h[0] as f32, h[3] as f32, h[6] as f32];
-            for y in 0..out_h {
-                let v = y as f64 + 0.5;
-                let b = [
-                    (h[1] * v + h[2]) as f32,
-                    (h[4] * v + h[5]) as f32,
-                    (h[7] * v + h[8]) as f32,
-                ];
-                for x in 0..out_w {
-                    let o = (d * out_h + y) * out_w + x;
-                    let u = x as f32 + 0.5;
-                    let wn = a[2].mul_add(u, b[2]);
-                    if wn <= 0.0 || src_w == 0 || src_h == 0 {
-                        continue;
-                    }
-                    let inv = 1.0 / wn;
-                    let sx = a[0].mul_add(u, b[0]) * inv;
-                    let sy = a[1].mul_add(u, b[1]) * inv;
-                    if !(sx >= 0.0 && sx <= wf && sy >= 0.0 && sy <= hf) {
-                        continue;
-                    }
-                    let (fx, fy) = (sx - 0.5, sy - 0.5);
-                    let (x0, y0) = (fx.floor(), fy.floor());
-                    let (tx, ty) = (fx - x0, fy - y0);
-                    let (x0, y0) = (x0 as i32, y0 as i32);
-                    let xa = x0.clamp(0, wmax) as i64;
-                    let xb = (x0 + 1).clamp(0, wmax) as i64;
-                    let ya = y0.clamp(0, hmax) as i64 * src_w as i64;
-                    let yb = (y0 + 1).clamp(0, hmax) as i64 * src_w as i64;
-                    let taps = [ya + xa, ya + xb, yb + xa, yb + xb];
-                    let ws = [
-                        (1.0 - tx) * (1.0 - ty),
-                        tx * (1.0 - ty),
-                        (1.0 - tx) * ty,
-                        tx * ty,
-                    ];
-                    for t in 0..4 {
-                        idx[t * n + o] = taps[t];
-                        w[t * n + o] = ws[t];
-                    }
-                    valid[o] = 1.0;
-                }
-            }
-        }
-        Self {
-            planes: homs.len(),
-            src_w,
-            src_h,
-            out_w,
-            out_h,
-            idx: idx.into(),
-            w: w.into(),
-            valid: valid.into(),
-        }
-    }
-
     /// Warp `src` `[S, C, src_h, src_w]` -> `[planes, C, out_h, out_w]`. `S` is `planes` (plane `d` is
     /// warped by homography `d`) or 1 (the one source is broadcast to every plane: a plane sweep).
-    /// On the CPU one operation with its own backward ([`crate::kernels::KernelOps::warp`]), elsewhere
+    /// On the CPU one operation with its own backward ([`crate::cpu::ops::KernelOps::warp`]), elsewhere
     /// [`Self::apply_burn`].
     pub fn apply(&self, src: Tensor<4>) -> Tensor<4> {
-        if crate::kernels::fast_device(&src.device()) {
+        if crate::cpu::ops::fast_device(&src.device()) {
             self.check_source(&src);
-            return crate::kernels::warp(src, std::sync::Arc::new(self.clone()));
+            return crate::cpu::ops::warp(src, std::sync::Arc::new(self.clone()));
         }
         self.apply_burn(src)
-    }
-
-    /// The bilinear taps: `[4][planes * out_h * out_w]` source texel indices within one plane and
-    /// weights (0 for invalid samples).
-    pub fn taps(&self) -> (&[i64], &[f32]) {
-        (&self.idx, &self.w)
     }
 
     fn check_source(&self, src: &Tensor<4>) {
@@ -203,11 +88,6 @@ impl WarpTable {
             ),
             device,
         )
-    }
-
-    /// The validity mask as plain data, `[planes][out_h][out_w]`.
-    pub fn valid_data(&self) -> &[f32] {
-        &self.valid
     }
 }
 

@@ -50,7 +50,7 @@ use run::model_device;
 /// How an inference runs (see [`plan`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Execution {
-    /// The whole image at once on the CPU kernels ([`crate::engine`]): the same result as the tiled path.
+    /// The whole image at once on the CPU kernels ([`crate::cpu::engine`]): the same result as the tiled path.
     Engine,
     /// Net after net, tile after tile, on the model's device.
     Tiled(InferPlan),
@@ -116,10 +116,10 @@ pub fn plan(
     validate(model, views, depths)?;
     let device = model_device(model);
     let (w, h) = (reference.width as usize, reference.height as usize);
-    if crate::kernels::fast_device(&device) {
+    if crate::cpu::ops::fast_device(&device) {
         // The engine's buffers and, as the tiled estimates count it, the process itself.
         let bytes =
-            crate::engine::engine_bytes(model, views, w, h, depths.len()) + plan::BASE_BYTES;
+            crate::cpu::engine::engine_bytes(model, views, w, h, depths.len()) + plan::BASE_BYTES;
         if bytes <= max_memory_bytes {
             return Ok(Plan {
                 execution: Execution::Engine,
@@ -149,13 +149,14 @@ pub fn run(
     match &plan.execution {
         Execution::Engine => {
             let total = model.nets.len();
-            let layers = crate::engine::infer_engine(model, views, reference, depths, &mut |n| {
-                progress(InferProgress {
-                    done: n + 1,
-                    total,
-                    net: n,
-                })
-            });
+            let layers =
+                crate::cpu::engine::infer_engine(model, views, reference, depths, &mut |n| {
+                    progress(InferProgress {
+                        done: n + 1,
+                        total,
+                        net: n,
+                    })
+                });
             Ok(Mpi {
                 camera: *reference,
                 depths: depths.to_vec(),

@@ -1,5 +1,5 @@
 //! The forward model's two hot operations on plain arrays, for the CPU operations of
-//! [`crate::kernels::KernelOps`]: the bilinear homography warp of a [`WarpTable`] (forward: four taps
+//! [`crate::cpu::ops::KernelOps`]: the bilinear homography warp of a [`WarpTable`] (forward: four taps
 //! per output texel; backward: the same taps scattered back) and over-compositing with its net
 //! transmittance `T` and accumulated over `A` (one pass over the planes per pixel, and one back).
 //! burn's tensor ops ([`WarpTable::apply_burn`], [`crate::forward::composite_burn`]) are the

@@ -3,14 +3,14 @@
 //! walks them back (ELU derivatives from the outputs, the max over views routed to the first view that
 //! holds it, as burn's `max_dim` does), one plane's `K` slices per task. Training then costs one
 //! operation per net instead of dozens of burn tensors per layer (concatenations, repeats, per-layer
-//! padding); the arithmetic of each convolution is the per-layer op's ([`crate::kernels`]), so the
-//! forward equals [`crate::kernels::core_net_inference`] bit for bit (training's per-net recompute
+//! padding); the arithmetic of each convolution is the per-layer op's ([`crate::cpu::ops`]), so the
+//! forward equals [`crate::cpu::packed::core_net_inference`] bit for bit (training's per-net recompute
 //! relies on it).
 //!
 //! Parameters travel as one flat vector: for each convolution in the order `input[0], input[1],
 //! stages..., head, out`, its `[cout, cin, 3, 3]` weights then its `[cout]` bias ([`NetShape::convs`]).
 
-use crate::kernels::{max_into, per_thread};
+use crate::cpu::planes::{max_into, per_thread};
 use deepview_kernels::{
     Act, PackedConv, Plane, conv3x3, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
 };
