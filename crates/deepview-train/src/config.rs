@@ -7,7 +7,7 @@ use crate::load::DataSpec;
 use crate::loss::LossKind;
 use deepview_net::config::DeepViewConfig;
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// The paper's learning rate.
 pub const PAPER_LEARNING_RATE: f64 = 1.5e-4;
@@ -147,4 +147,22 @@ impl TrainConfig {
 pub struct RunConfig {
     pub model: DeepViewConfig,
     pub train: TrainConfig,
+}
+
+impl RunConfig {
+    /// Read a run's `config.json`.
+    pub fn read(run_dir: &Path) -> Result<RunConfig, TrainError> {
+        let path = run_dir.join("config.json");
+        let text = std::fs::read_to_string(&path).map_err(|source| TrainError::Io {
+            path: path.clone(),
+            source,
+        })?;
+        serde_json::from_str(&text).map_err(|e| TrainError::Run {
+            path,
+            message: format!(
+                "invalid run configuration ({e}); a run from an earlier release cannot be resumed: start a \
+                 new --name"
+            ),
+        })
+    }
 }

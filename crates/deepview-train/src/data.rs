@@ -273,7 +273,7 @@ impl TrainData {
     pub fn scene_name(&self, scene: usize) -> &str {
         match self.scenes.get(scene) {
             Some(s) => &s.name,
-            None => crate::load::SYNTHETIC_PROCEDURAL,
+            None => crate::scene::SYNTHETIC_PROCEDURAL,
         }
     }
 
@@ -296,7 +296,7 @@ impl TrainData {
         };
         let g = deepview_synth::procedural::generate(seed, &photos, &options);
         TrainScene::new(
-            &format!("{}#{seed}", crate::load::SYNTHETIC_PROCEDURAL),
+            &format!("{}#{seed}", crate::scene::SYNTHETIC_PROCEDURAL),
             g.cameras,
             g.images,
             g.near,

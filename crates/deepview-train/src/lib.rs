@@ -77,11 +77,11 @@ pub use error::TrainError;
 pub use events::{Notice, TrainEvent};
 pub use example::{example_inputs, example_loss, loss_and_grads_full, loss_tail, parameter_values};
 pub use files::is_run_folder;
-pub use load::{DataSpec, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, is_synthetic, load_data};
+pub use load::{DataSpec, load_data};
 pub use metrics::StepReport;
 pub use options::TrainOptions;
 pub use reduce::LocalReduction;
-pub use scene::{Holdout, TrainScene};
+pub use scene::{Holdout, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, TrainScene, is_synthetic};
 pub use session::{Request, Session, Start};
 pub use trainer::Trainer;
 

@@ -3,23 +3,11 @@
 
 use crate::data::TrainData;
 use crate::error::TrainError;
-use crate::scene::TrainScene;
+use crate::scene::{SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, TrainScene};
 use crate::synthetic;
 use deepview_data::LoadOptions;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
-
-/// The built-in analytic scene (a 4 x 4 rig looking at two planes).
-pub const SYNTHETIC_TWO_PLANES: &str = "synthetic:two-planes";
-
-/// Procedural 3D scenes made on the fly, one per tuple, from a seed ([`crate::data::Procedural`]).
-pub const SYNTHETIC_PROCEDURAL: &str = "synthetic:procedural";
-
-/// Whether `path` names a built-in synthetic dataset rather than a folder.
-pub fn is_synthetic(path: &std::path::Path) -> bool {
-    path.to_str()
-        .is_some_and(|p| p == SYNTHETIC_TWO_PLANES || p == SYNTHETIC_PROCEDURAL)
-}
 
 /// One dataset of a run: its folder (or a built-in synthetic scene) and how it is loaded (format, image
 /// folder, downscale, rig, depth bounds), so that resuming the run reads the same images.

@@ -6,6 +6,18 @@ use deepview_image::ImageF32;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+/// The built-in analytic scene (a 4 x 4 rig looking at two planes).
+pub const SYNTHETIC_TWO_PLANES: &str = "synthetic:two-planes";
+
+/// Procedural 3D scenes made on the fly, one per tuple, from a seed ([`crate::data::Procedural`]).
+pub const SYNTHETIC_PROCEDURAL: &str = "synthetic:procedural";
+
+/// Whether `path` names a built-in synthetic dataset rather than a folder.
+pub fn is_synthetic(path: &std::path::Path) -> bool {
+    path.to_str()
+        .is_some_and(|p| p == SYNTHETIC_TWO_PLANES || p == SYNTHETIC_PROCEDURAL)
+}
+
 /// Errors building training data.
 #[derive(Debug, thiserror::Error)]
 pub enum DataError {

@@ -8,9 +8,10 @@ use crate::config::RunConfig;
 use crate::data::TrainData;
 use crate::dist::Collective;
 use crate::error::TrainError;
-use crate::load::{DataSpec, SYNTHETIC_PROCEDURAL, is_synthetic, load_data};
+use crate::load::{DataSpec, load_data};
 use crate::loss::LossKind;
 use crate::options::TrainOptions;
+use crate::scene::{SYNTHETIC_PROCEDURAL, is_synthetic};
 use crate::trainer::Trainer;
 use deepview_data::LoadOptions;
 use std::path::{Path, PathBuf};
@@ -54,22 +55,6 @@ const RESTART: u64 = 2;
 
 fn config_err(message: String) -> TrainError {
     TrainError::Refused(message)
-}
-
-/// Read a run's `config.json`.
-pub fn read_run_config(run_dir: &Path) -> Result<RunConfig, TrainError> {
-    let path = run_dir.join("config.json");
-    let text = std::fs::read_to_string(&path).map_err(|source| TrainError::Io {
-        path: path.clone(),
-        source,
-    })?;
-    serde_json::from_str(&text).map_err(|e| TrainError::Run {
-        path,
-        message: format!(
-            "invalid run configuration ({e}); a run from an earlier release cannot be resumed: start a \
-             new --name"
-        ),
-    })
 }
 
 /// Open the run `request` names (see the module docs); every rank of `comm` calls it.
@@ -132,7 +117,7 @@ pub fn open(
     if mode[0] == FRESH {
         return fresh(request, comm, notices);
     }
-    let mut cfg = read_run_config(run_dir).map_err(|e| match mode[0] {
+    let mut cfg = RunConfig::read(run_dir).map_err(|e| match mode[0] {
         RESTART => config_err(format!(
             "--resume: the run {} has no checkpoints yet, and its config.json (to start it over from) \
              cannot be used: {e}",

@@ -379,7 +379,7 @@ fn ranks_run(
                     reports.extend(t.run(&never(), &mut |_| {}).unwrap());
                     if resume_at.is_some() {
                         drop(t);
-                        let mut cfg = crate::session::read_run_config(dir).unwrap();
+                        let mut cfg = RunConfig::read(dir).unwrap();
                         cfg.train.steps = steps;
                         let mut t =
                             Trainer::resume_from(dir, cfg, small_data(), Some(comm)).unwrap();

@@ -234,7 +234,7 @@ impl Trainer {
         steps: Option<u64>,
         devices: Option<Vec<String>>,
     ) -> Result<Self, TrainError> {
-        let mut config = crate::session::read_run_config(run_dir)?;
+        let mut config = RunConfig::read(run_dir)?;
         if let Some(s) = steps {
             config.train.steps = s;
         }

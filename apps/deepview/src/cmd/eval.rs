@@ -143,7 +143,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     print!("{}", report.table());
     if let Some(mb) = super::bench::peak_rss_mb() {
-        println!("peak memory {:.2} GiB (resident, the whole run)", mb / 1024.0);
+        println!(
+            "peak memory {:.2} GiB (resident, the whole run)",
+            mb / 1024.0
+        );
     }
     if let Some(out) = &args.out {
         write_file(out, |out| Ok(report.write_json(out)?))?;
