@@ -607,21 +607,4 @@ mod tests {
         let y = b.nets[0].head.weight.val().into_data();
         assert_eq!(x, y);
     }
-
-    /// Untrained `cpu` weights for smoke-testing `deepview infer`:
-    /// `DEEPVIEW_WEIGHTS_OUT=/tmp/w cargo test --release -p deepview-net -- --ignored write_untrained`
-    #[test]
-    #[ignore]
-    fn write_untrained_cpu_weights() {
-        let Ok(out) = std::env::var("DEEPVIEW_WEIGHTS_OUT") else {
-            return;
-        };
-        let c = DeepViewConfig::preset("cpu").unwrap();
-        save_model(
-            Path::new(&out),
-            &DeepViewModel::new(&c, &Device::flex()),
-            &c,
-        )
-        .unwrap();
-    }
 }

@@ -2,7 +2,6 @@
 
 use super::safety::{Input, Kind, check_output, parse_component};
 use super::signals;
-use anyhow::bail;
 use deepview_train::{
     Collective, SYNTHETIC_PROCEDURAL, SYNTHETIC_TWO_PLANES, TrainOptions, list_checkpoints,
 };
@@ -101,7 +100,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     #[cfg(not(feature = "openmpi"))]
     if let Some(n) = launcher_ranks().filter(|&n| n > 1) {
-        bail!(
+        anyhow::bail!(
             "started by an MPI launcher as one of {n} ranks, but this deepview was built without MPI \
              support: rebuild it with `cargo build --release -p deepview --features openmpi`"
         );
