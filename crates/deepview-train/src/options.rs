@@ -59,7 +59,7 @@ pub struct TrainOptions {
     /// Comma-separated devices for data parallelism: cpu, wgpu[:N], wgpu:cpu (the CPU Vulkan
     /// adapter), cuda[:N] (GPU ones need a build with the features `wgpu` / `cuda`). Example: cpu,cpu.
     #[arg(long, value_parser = parse_devices)]
-    pub devices: Option<Vec<String>>,
+    pub devices: Option<DeviceList>,
     /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub checkpoint_every: Option<u64>,
@@ -189,7 +189,7 @@ impl TrainOptions {
             train.recompute = self.recompute;
         }
         if let Some(d) = &self.devices {
-            train.devices = d.clone();
+            train.devices = d.0.clone();
         }
         train.vgg_weights = self.vgg_weights.as_deref().map(absolute);
         train
@@ -202,7 +202,7 @@ impl TrainOptions {
             train.steps = s;
         }
         if let Some(d) = &self.devices {
-            train.devices = d.clone();
+            train.devices = d.0.clone();
         }
         if let Some(k) = self.keep_checkpoints {
             train.keep_checkpoints = k;
@@ -318,7 +318,11 @@ fn parse_probability(s: &str) -> Result<f64, String> {
     }
 }
 
-fn parse_devices(s: &str) -> Result<Vec<String>, String> {
+/// `--devices a,b,c`: the device names in order (one value, comma-separated).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DeviceList(pub Vec<String>);
+
+fn parse_devices(s: &str) -> Result<DeviceList, String> {
     let d: Vec<String> = s
         .split(',')
         .map(|d| d.trim().to_string())
@@ -327,7 +331,7 @@ fn parse_devices(s: &str) -> Result<Vec<String>, String> {
     if d.is_empty() {
         return Err("no device named (e.g. cpu, or cpu,cpu)".into());
     }
-    Ok(d)
+    Ok(DeviceList(d))
 }
 
 /// `--planes N`, `auto` or `auto:MAX` -> (auto, count or maximum).
@@ -369,6 +373,78 @@ pub fn parse_views(s: &str) -> Result<(usize, usize), String> {
 mod tests {
     use super::*;
 
+    /// Every option parses from a command line into its field (clap checks the types only when a field is
+    /// read: a mismatch would panic in the program).
+    #[test]
+    fn every_option_parses() {
+        use clap::Parser;
+        #[derive(clap::Parser)]
+        struct Cli {
+            #[command(flatten)]
+            options: TrainOptions,
+        }
+        let cli = Cli::try_parse_from([
+            "train",
+            "--preset",
+            "cpu-large",
+            "--init",
+            "builtin",
+            "--steps",
+            "9",
+            "--batch",
+            "2",
+            "--crop",
+            "24",
+            "--views",
+            "2..4",
+            "--planes",
+            "auto:32",
+            "--loss",
+            "l1",
+            "--lr",
+            "1e-4",
+            "--clip",
+            "4",
+            "--devices",
+            "cpu, cpu",
+            "--checkpoint-every",
+            "5",
+            "--keep-checkpoints",
+            "2",
+            "--seed",
+            "7",
+            "--no-jitter",
+            "--no-colour-jitter",
+            "--wide-inputs",
+            "0.5",
+            "--surround-inputs",
+            "0.25",
+            "--window-context",
+            "--max-width",
+            "512",
+            "--holdout-every",
+            "4",
+            "--recompute",
+            "--vgg-weights",
+            "v.safetensors",
+        ])
+        .unwrap();
+        let o = cli.options;
+        assert_eq!(o.preset.as_deref(), Some("cpu-large"));
+        assert_eq!(o.views, Some((2, 4)));
+        assert_eq!(o.planes, Some((true, 32)));
+        assert_eq!(o.loss, Some(LossKind::L1));
+        assert_eq!(
+            o.devices,
+            Some(DeviceList(vec!["cpu".into(), "cpu".into()]))
+        );
+        assert_eq!((o.wide_inputs, o.surround_inputs), (Some(0.5), Some(0.25)));
+        assert!(o.no_jitter && o.no_colour_jitter && o.window_context && o.recompute);
+        assert_eq!(o.max_width, Some(512));
+        assert!(Cli::try_parse_from(["train", "--devices", ","]).is_err());
+        assert!(Cli::try_parse_from(["train", "--holdout-every", "1"]).is_err());
+    }
+
     #[test]
     fn views_ranges() {
         assert_eq!(parse_views("4").unwrap(), (4, 4));
@@ -392,7 +468,7 @@ mod tests {
             lr: Some(5e-5),
             wide_inputs: Some(0.25),
             no_jitter: true,
-            devices: Some(vec!["cpu".into(), "cpu".into()]),
+            devices: Some(DeviceList(vec!["cpu".into(), "cpu".into()])),
             vgg_weights: Some("v.safetensors".into()),
             ..Default::default()
         };
