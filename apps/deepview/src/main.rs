@@ -70,6 +70,8 @@ enum Command {
     Infer(cmd::infer::Args),
     /// Turn a training checkpoint into a weights folder (config.json + model.safetensors).
     ExportWeights(cmd::export_weights::Args),
+    /// Fewer planes for faster rendering: empty planes dropped, near-empty neighbours merged.
+    Compact(cmd::compact::Args),
     /// Poses for your own photos (or a video): run COLMAP and write a scene folder every command reads.
     Process(cmd::process::Args),
 }
@@ -97,6 +99,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => cmd::train::run(a),
         Command::Infer(a) => cmd::infer::run(a),
         Command::ExportWeights(a) => cmd::export_weights::run(a),
+        Command::Compact(a) => cmd::compact::run(a),
         Command::Process(a) => cmd::process::run(a),
     }
 }

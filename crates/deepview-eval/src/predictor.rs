@@ -4,7 +4,7 @@
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_methods::{MadeMpi, MethodError, MethodEvent, MpiMethod, MpiRequest};
-use deepview_mpi::{Mpi, PlanesRule};
+use deepview_mpi::{CompactOptions, Mpi, PlanesRule};
 
 /// The request an MPI was made for: input cameras, their ids, the bounds and, when the method uses it,
 /// the target camera.
@@ -16,6 +16,7 @@ pub struct MpiPredictor<'e> {
     method: Box<dyn MpiMethod + 'e>,
     events: Box<dyn FnMut(MethodEvent<'_>) + 'e>,
     last: Option<(RequestKey, MadeMpi)>,
+    compact: Option<CompactOptions>,
 }
 
 impl<'e> MpiPredictor<'e> {
@@ -25,7 +26,15 @@ impl<'e> MpiPredictor<'e> {
             method,
             events: Box::new(events),
             last: None,
+            compact: None,
         }
+    }
+
+    /// Compact every MPI the method makes before it is rendered and kept ([`deepview_mpi::compact`]):
+    /// what `deepview compact` does to an `infer` output, scored.
+    pub fn compacted(mut self, options: CompactOptions) -> Self {
+        self.compact = Some(options);
+        self
     }
 
     /// The method.
@@ -51,7 +60,10 @@ impl<'e> MpiPredictor<'e> {
         );
         if self.last.as_ref().is_none_or(|(k, _)| *k != key) {
             self.last = None;
-            let made = self.method.make_mpi(request, &mut *self.events)?;
+            let mut made = self.method.make_mpi(request, &mut *self.events)?;
+            if let Some(options) = &self.compact {
+                made.mpi = deepview_mpi::compact(&made.mpi, options).mpi;
+            }
             self.last = Some((key, made));
         }
         Ok(&self.last.as_ref().expect("just made").1)

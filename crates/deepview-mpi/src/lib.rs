@@ -8,6 +8,7 @@
 //! converts it to and from other tools' MPI formats, [`depth`] turns an MPI into depth and disparity maps.
 
 pub mod agreement;
+pub mod compact;
 pub mod composite;
 pub mod depth;
 mod error;
@@ -19,6 +20,7 @@ pub mod render;
 pub mod simd;
 pub mod warp;
 
+pub use compact::{CompactOptions, Compacted, compact};
 pub use composite::{RenderComponents, render_components};
 pub use depth::{DepthMaps, depth_maps, turbo};
 pub use error::MpiError;

@@ -55,6 +55,12 @@ pub struct Args {
     /// renders): the MPI `deepview infer --method M --inputs ...` writes from the same inputs.
     #[arg(long, value_name = "DIR")]
     pub save_mpi: Option<PathBuf>,
+    /// Score each MPI after `deepview compact` (empty planes dropped, near-empty neighbours merged):
+    /// what compaction costs on held-out views.
+    #[arg(long)]
+    pub compact: bool,
+    #[command(flatten)]
+    pub compaction: super::compact::CompactArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -113,6 +119,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let checkpoint = method.weights();
     let mut reporter = Reporter::new(args.method, &[], None, false);
     let mut predictor = MpiPredictor::new(method, move |e| reporter.event(e));
+    if args.compact {
+        predictor = predictor.compacted(args.compaction.options());
+    }
     let options = EvalOptions {
         downscale: args.scene.downscale.max(1),
         near_far: None,

@@ -2,6 +2,7 @@
 
 pub mod args;
 pub mod bench;
+pub mod compact;
 pub mod demo;
 pub mod depth;
 pub mod eval;

@@ -156,3 +156,75 @@ fn bad_mpi_files_and_flags_give_clear_errors_and_exit_code_2() {
         fails_with(&o, &["--planes", "at least 2", &format!("got {planes}")]);
     }
 }
+
+/// `compact` writes an MPI with fewer planes that renders the same reference view (to 8-bit rounding of
+/// the written layers), and `eval --compact` scores the compacted MPI.
+#[test]
+fn compact_keeps_the_reference_view_with_fewer_planes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = synth_grid(tmp.path());
+    let mpi = tmp.path().join("mpi");
+    succeeds(&deepview(&[
+        "infer",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--inputs",
+        "0,2,6,8",
+        "--planes",
+        "16",
+        "--out",
+        s(&mpi),
+    ]));
+    let small = tmp.path().join("small");
+    let out = succeeds(&deepview(&[
+        "compact",
+        "--mpi",
+        s(&mpi),
+        "--out",
+        s(&small),
+        "--merge-coverage",
+        "1",
+        "--max-run",
+        "4",
+    ]));
+    assert!(out.contains("of 16"), "{out}");
+    let a = deepview_mpi::read_mpi::<f32>(&mpi).unwrap();
+    let b = deepview_mpi::read_mpi::<f32>(&small).unwrap();
+    // Runs of at most 4 planes, each covering at most the whole image.
+    assert!(
+        b.planes() >= a.planes().div_ceil(4) && b.planes() < a.planes(),
+        "{} planes",
+        b.planes()
+    );
+    assert!(b.depths.windows(2).all(|w| w[0] > w[1]));
+    let (ra, rb) = (
+        deepview_mpi::render(&a, &a.camera),
+        deepview_mpi::render(&b, &a.camera),
+    );
+    let diff = ra
+        .data
+        .iter()
+        .zip(&rb.data)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+    assert!(diff < 4.0 / 255.0, "reference view changed by {diff}");
+    // Its output is an MPI like any other: refused over a dataset, scored by eval.
+    fails_with(
+        &deepview(&["compact", "--mpi", s(&mpi), "--out", s(&scene)]),
+        &["--out"],
+    );
+    let e = succeeds(&deepview(&[
+        "eval",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--targets",
+        "4",
+        "--inputs",
+        "0,2,6,8",
+        "--compact",
+    ]));
+    assert!(e.contains("mean"), "{e}");
+}
