@@ -208,8 +208,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("  depth/            depth_color.png (turbo), depth_disparity16.png");
     println!("  spiral.gif        a camera path through the MPI");
     println!("  eval.json, eval.md  the table above");
+    // Built in a checkout (the README's first command runs it through cargo): say it the same way; an
+    // installed binary by name.
+    let through_cargo = std::env::current_exe()
+        .is_ok_and(|p| p.components().any(|c| c.as_os_str() == "target"));
     println!(
-        "\nLook at it in the browser:  cargo run --release -- view --mpi {}",
+        "\nLook at it in the browser:  {} view --mpi {}",
+        if through_cargo {
+            "cargo run --release --"
+        } else {
+            "deepview"
+        },
         shown.join("mpi").display()
     );
     Ok(())
