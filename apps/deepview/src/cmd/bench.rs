@@ -89,6 +89,10 @@ pub struct TrainArgs {
     /// The VGG-16 weights of the VGG loss (vgg16_conv1_1-conv3_3.safetensors).
     #[arg(long, value_name = "FILE")]
     pub vgg_weights: Option<PathBuf>,
+    /// Device: cpu, wgpu, wgpu:N, wgpu:cpu, cuda, cuda:N (as `train --devices`; GPU devices in builds with
+    /// their feature).
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
 }
 
 #[derive(clap::Args, Debug)]
@@ -425,6 +429,8 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
     train.sample.planes = args.planes;
     train.sample.crop = args.crop;
     train.vgg_weights = args.vgg_weights.clone();
+    deepview_net::device::parse_device(&args.device)?;
+    train.devices = vec![args.device.clone()];
     if let Some(r) = args.recompute {
         train.recompute = r;
     }
@@ -462,6 +468,7 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
         "steps": times.len(),
         "peak_rss_mb": peak_rss_mb(),
         "engine": if deepview_net::cpu::ops::fast_device(&deepview_net::burn::tensor::Device::flex()) { "kernels" } else { "burn" },
+        "device": args.device,
     });
     println!("{line}");
     Ok(())
