@@ -210,8 +210,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!("  eval.json, eval.md  the table above");
     // Built in a checkout (the README's first command runs it through cargo): say it the same way; an
     // installed binary by name.
-    let through_cargo = std::env::current_exe()
-        .is_ok_and(|p| p.components().any(|c| c.as_os_str() == "target"));
+    let through_cargo =
+        std::env::current_exe().is_ok_and(|p| p.components().any(|c| c.as_os_str() == "target"));
     println!(
         "\nLook at it in the browser:  {} view --mpi {}",
         if through_cargo {
