@@ -2,20 +2,9 @@
 //! activation, the input gradient (a convolution with transposed, flipped weights) and the weight and
 //! bias gradients (correlations of the input with the output gradient).
 
+use crate::act::{Act, CO_BLOCK};
 use crate::{Isa, Plane, isa, scalar};
 
-/// The activation fused into a convolution's output.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Act {
-    Linear,
-    /// `x` for `x > 0`, `exp(x) - 1` otherwise (ELU with alpha 1).
-    Elu,
-    /// `max(x, 0)`.
-    Relu,
-}
-
-/// Output channels per kernel pass.
-pub const CO_BLOCK: usize = 8;
 /// Rows of a band (see [`conv3x3`]).
 const ROWS_PER_BAND: usize = 8;
 

@@ -13,6 +13,7 @@
 //! AVX-512 or AVX2 + FMA path is chosen at run time; a portable path gives the same results (to rounding)
 //! elsewhere.
 
+mod act;
 pub mod conv;
 mod elu;
 pub mod fastmath;
@@ -22,8 +23,9 @@ mod x86;
 #[cfg(target_arch = "x86_64")]
 mod x86_512;
 
+pub use act::Act;
 pub use conv::{
-    Act, PackedConv, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
+    PackedConv, conv3x3, conv3x3_from, conv3x3_input_grad, conv3x3_weight_grad, elu_backward,
     relu_backward,
 };
 

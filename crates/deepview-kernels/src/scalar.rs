@@ -1,6 +1,6 @@
 //! Portable kernels (any CPU): the same loops as the AVX2 ones, one output at a time.
 
-use crate::conv::{Act, CO_BLOCK};
+use crate::act::{Act, CO_BLOCK};
 use crate::elu::elu;
 
 /// One block of up to 8 output channels over flat indices `start..end`; the sums start from the bias

@@ -4,7 +4,7 @@
 //! weight within the 16 registers: 12 accumulators spilled), broadcasting each weight once per 2 FMAs;
 //! the weight gradient keeps the nine taps of one output and input channel in 9 accumulators.
 
-use crate::conv::{Act, CO_BLOCK};
+use crate::act::{Act, CO_BLOCK};
 use crate::elu::{C2, C3, C4, C5, C6, C7, LN2_HI, LN2_LO};
 use std::arch::x86_64::*;
 

@@ -6,7 +6,7 @@
 //! slower). The weight gradient keeps the nine taps of one output and input channel in 9 accumulators,
 //! 16 lanes each.
 
-use crate::conv::{Act, CO_BLOCK};
+use crate::act::{Act, CO_BLOCK};
 use crate::elu::{C2, C3, C4, C5, C6, C7, LN2_HI, LN2_LO};
 use std::arch::x86_64::*;
 
