@@ -67,8 +67,9 @@ pub struct NetArgs {
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Examples:\n  deepview bench train --preset cpu --views 4 --planes 32 --crop 16\n  \
-    deepview bench train --preset paper-spaces-4view --views 4 --planes 8 --crop 16 --steps 3"
+    after_help = "Examples (VGG=../shared/data/vgg16/vgg16_conv1_1-conv3_3.safetensors):\n  \
+    deepview bench train --preset cpu --views 4 --planes 32 --crop 16 --vgg-weights $VGG\n  \
+    deepview bench train --preset paper-spaces-4view --views 4 --planes 8 --crop 16 --steps 3 --vgg-weights $VGG"
 )]
 pub struct TrainArgs {
     #[arg(long, default_value = "cpu")]

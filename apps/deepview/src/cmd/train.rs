@@ -26,13 +26,14 @@ use validate::Validation;
 /// continues a run exactly where its last checkpoint left it.
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Examples:\n  deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000\n  \
+    after_help = "Examples (VGG=../shared/data/vgg16/vgg16_conv1_1-conv3_3.safetensors):\n  \
+    deepview train --data ../shared/data/llff/fern --preset cpu --name fern --steps 2000 --vgg-weights $VGG\n  \
     deepview train --name fern --resume --steps 4000\n  \
-    deepview train --init weights/cpu --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16\n  \
-    deepview train --init weights/cpu --preset cpu-large --data ../shared/data/llff/flower --name grown --steps 500\n  \
+    deepview train --init builtin --data ../shared/data/llff/flower --name flower-ft --steps 500 --crop 16 --vgg-weights $VGG\n  \
+    deepview train --init builtin --preset cpu-large --data ../shared/data/llff/flower --name grown --steps 500 --loss l1\n  \
     deepview train --data synthetic:two-planes --preset cpu --name smoke --steps 50 --loss l1 --devices cpu,cpu\n  \
     deepview train --data ../shared/data/llff/fern --data runs/synth/grid-20 --images images_4 --max-width 512 \
-    --views 4 --surround-inputs 1 --name mixed\n\n\
+    --views 4 --surround-inputs 1 --name mixed --vgg-weights $VGG\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
     --steps, --devices, --data, --keep-checkpoints and --vgg-weights may be given: the others are the run's own, \
     and its datasets load with the scene options they were first loaded with (kept in its config.json).\n\n\
