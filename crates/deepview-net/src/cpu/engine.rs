@@ -6,19 +6,24 @@
 //! Memory: the state between nets (`D x S x H x W`), for update nets the views' renders (`K x D x 4`
 //! texels per view pixel: `A` and `T` of every plane, plus `I` and `R`), and per thread one plane's
 //! activations. [`engine_bytes`] estimates it; `infer` falls back to the tiled burn path
-//! ([`crate::infer`]) when it exceeds the budget.
+//! ([`crate::infer`]) when it exceeds the budget. The renders `A`, `T` (the largest part at wide
+//! captures' plane counts) can be stored as half floats ([`StatePrecision::F16`]: 11 significant bits,
+//! relative error <= 4.9e-4 on values in 0..1), half their memory, where the f32 ones do not fit.
 
 use crate::cpu::packed::{NetScratch, PackedNet};
 use crate::cpu::planes::for_each_chunk_with;
 use crate::cpu::prior::{prior_logits, prior_stats};
 use crate::cpu::warps::{warp_into, warp_pair_into};
 use crate::forward::{Hom, invert, mpi_to_view_homographies};
+use crate::infer::StatePrecision;
 use crate::network::DeepViewModel;
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
 use deepview_mpi::warp::{RowTaps, Sampler};
+use half::f16;
+use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 /// Estimated peak bytes of [`infer_engine`] (besides the inputs' images).
@@ -28,6 +33,7 @@ pub fn engine_bytes(
     w: usize,
     h: usize,
     d: usize,
+    renders: StatePrecision,
 ) -> u64 {
     let k = views.len() as u64;
     let (hw, d64) = ((w * h) as u64, d as u64);
@@ -55,12 +61,25 @@ pub fn engine_bytes(
         })
         .max()
         .unwrap_or(0);
-    let renders = if model.nets.len() > 1 {
-        view_px * (4 * d64 + 6)
+    let (at, convert) = if model.nets.len() > 1 {
+        let at = view_px * 4 * d64 * renders.bytes();
+        // Half floats are widened one view plane at a time, per thread.
+        let widest = views
+            .iter()
+            .map(|(i, _)| i.width as u64 * i.height as u64)
+            .max()
+            .unwrap_or(0);
+        let row = views.iter().map(|(i, _)| i.width as u64).max().unwrap_or(0);
+        let convert = match renders {
+            StatePrecision::F32 => 0,
+            // A widened view plane per thread, and a view row of every plane per thread.
+            StatePrecision::F16 => threads * (widest * 4 * 4 + d64 * row * 4 * 4),
+        };
+        (at + view_px * 6 * 4, convert)
     } else {
-        0
+        (0, 0)
     };
-    4 * (d64 * s * hw + d64 * 4 * hw + renders + threads * scratch)
+    4 * (d64 * s * hw + d64 * 4 * hw + threads * scratch) + at + convert
 }
 
 /// Run `f` compiled with AVX-512 or AVX2 + FMA where the CPU has them (the warps' `mul_add` and `floor`
@@ -105,10 +124,29 @@ fn state_to_rgba(state: &[f32], s: usize, hw: usize) -> Vec<f32> {
 }
 
 /// The views' renders of an RGBA MPI (`[D][H][W][4]`, premultiplied): per view, `[y][x][6]` of `I` and
-/// `R`, and `[D][y][x][4]` of `A` (3) and `T` (1) in view pixels.
+/// `R`, and `[D][y][x][4]` of `A` (3) and `T` (1) in view pixels, in f32 or half floats.
 struct Renders {
     ir: Vec<Vec<f32>>,
-    at: Vec<Vec<f32>>,
+    at: AtStore,
+}
+
+enum AtStore {
+    F32(Vec<Vec<f32>>),
+    F16(Vec<Vec<f16>>),
+}
+
+impl Renders {
+    /// Plane `p` of view `v`'s `A`/`T` (`vpx * 4` values), widened into `buf` when stored as half floats.
+    fn at_plane<'a>(&'a self, v: usize, p: usize, vpx: usize, buf: &'a mut Vec<f32>) -> &'a [f32] {
+        match &self.at {
+            AtStore::F32(at) => &at[v][p * vpx * 4..][..vpx * 4],
+            AtStore::F16(at) => {
+                buf.resize(vpx * 4, 0.0);
+                at[v][p * vpx * 4..][..vpx * 4].convert_to_f32_slice(buf);
+                buf
+            }
+        }
+    }
 }
 
 fn render_views(
@@ -118,9 +156,11 @@ fn render_views(
     w: usize,
     h: usize,
     d: usize,
+    precision: StatePrecision,
 ) -> Renders {
     let mut ir = Vec::with_capacity(views.len());
-    let mut at = Vec::with_capacity(views.len());
+    let mut at32 = Vec::new();
+    let mut at16 = Vec::new();
     for (v, (img, _)) in views.iter().enumerate() {
         let (vw, vh) = (img.width as usize, img.height as usize);
         let samplers: Vec<Sampler> = homs[v]
@@ -128,19 +168,67 @@ fn render_views(
             .map(|m| Sampler::new(invert(m), w as u32, h as u32))
             .collect();
         let mut irv = vec![0f32; vw * vh * 6];
-        let mut atv = deepview_kernels::zeroed_buffer(d * vw * vh * 4);
-        let at_ptr = atv.as_mut_ptr() as usize;
-        irv.par_chunks_mut(vw * 6).enumerate().for_each(|(y, row)| {
-            render_row(rgba, img, &samplers, y, row, at_ptr, w, h, d);
-        });
+        match precision {
+            StatePrecision::F32 => {
+                let mut atv = deepview_kernels::zeroed_buffer(d * vw * vh * 4);
+                let at_ptr = atv.as_mut_ptr() as usize;
+                irv.par_chunks_mut(vw * 6).enumerate().for_each(|(y, row)| {
+                    let at = AtRows {
+                        ptr: at_ptr,
+                        plane_stride: vh * vw * 4,
+                        row_offset: y * vw * 4,
+                    };
+                    render_row(rgba, img, &samplers, y, row, at, w, h, d);
+                });
+                at32.push(atv);
+            }
+            StatePrecision::F16 => {
+                // Each row of every plane in f32 first (the arithmetic of the f32 store), then rounded.
+                let mut atv = vec![f16::ZERO; d * vw * vh * 4];
+                let at_ptr = atv.as_mut_ptr() as usize;
+                irv.par_chunks_mut(vw * 6).enumerate().for_each_init(
+                    || vec![0f32; d * vw * 4],
+                    |rows, (y, row)| {
+                        let at = AtRows {
+                            ptr: rows.as_mut_ptr() as usize,
+                            plane_stride: vw * 4,
+                            row_offset: 0,
+                        };
+                        render_row(rgba, img, &samplers, y, row, at, w, h, d);
+                        for p in 0..d {
+                            // SAFETY: row `y` of plane `p` of the store, written by this task only.
+                            let dst = unsafe {
+                                std::slice::from_raw_parts_mut(
+                                    (at_ptr as *mut f16).add((p * vh + y) * vw * 4),
+                                    vw * 4,
+                                )
+                            };
+                            dst.convert_from_f32_slice(&rows[p * vw * 4..(p + 1) * vw * 4]);
+                        }
+                    },
+                );
+                at16.push(atv);
+            }
+        }
         ir.push(irv);
-        at.push(atv);
     }
+    let at = match precision {
+        StatePrecision::F32 => AtStore::F32(at32),
+        StatePrecision::F16 => AtStore::F16(at16),
+    };
     Renders { ir, at }
 }
 
-/// Row `y` of one view's render: `row` gets `[x][I (3), R (3)]`, the `A`/`T` store (at `at_ptr`,
-/// `[D][vh][vw][4]`) row `y` of every plane.
+/// Where a render row writes `A`/`T`: plane `p`'s row at `ptr + p * plane_stride + row_offset` (floats).
+#[derive(Clone, Copy)]
+struct AtRows {
+    ptr: usize,
+    plane_stride: usize,
+    row_offset: usize,
+}
+
+/// Row `y` of one view's render: `row` gets `[x][I (3), R (3)]`, and `at` row `y` of every plane's
+/// `A`/`T`.
 #[allow(clippy::too_many_arguments)]
 fn render_row(
     rgba: &[f32],
@@ -148,14 +236,14 @@ fn render_row(
     samplers: &[Sampler],
     y: usize,
     row: &mut [f32],
-    at_ptr: usize,
+    at: AtRows,
     w: usize,
     h: usize,
     d: usize,
 ) {
     with_fma(
         #[inline(always)]
-        || render_row_portable(rgba, img, samplers, y, row, at_ptr, w, h, d),
+        || render_row_portable(rgba, img, samplers, y, row, at, w, h, d),
     )
 }
 
@@ -167,12 +255,12 @@ fn render_row_portable(
     samplers: &[Sampler],
     y: usize,
     row: &mut [f32],
-    at_ptr: usize,
+    at: AtRows,
     w: usize,
     h: usize,
     d: usize,
 ) {
-    let (vw, vh) = (img.width as usize, img.height as usize);
+    let vw = img.width as usize;
     // Plane by plane (each plane's row is one sequential stream of taps and of `A`/`T` writes; a
     // pixel-major order would follow `2 d` streams at once), back to front: `acc[x]` is the
     // composite of the planes behind `p` (`A_p`), stored with plane `p`'s alpha, which the front-to-back
@@ -180,10 +268,13 @@ fn render_row_portable(
     // and its order are those of the composite's definition.
     let mut acc = vec![[0f32; 3]; vw];
     let mut taps = RowTaps::default();
-    // SAFETY (for every write through `at_ptr` below): row `y` of every plane of the store, `[D][vh][vw][4]`,
-    // is written by this task only.
+    // SAFETY (for every write through `at` below): row `y` of every plane of the store is written by
+    // this task only.
     let at_row = |p: usize| unsafe {
-        std::slice::from_raw_parts_mut((at_ptr as *mut f32).add((p * vh + y) * vw * 4), vw * 4)
+        std::slice::from_raw_parts_mut(
+            (at.ptr as *mut f32).add(p * at.plane_stride + at.row_offset),
+            vw * 4,
+        )
     };
     for (p, sampler) in samplers.iter().enumerate().take(d) {
         sampler.row(y as u32).taps_into(vw, &mut taps);
@@ -319,6 +410,7 @@ pub fn infer_engine(
     views: &[(ImageF32, Camera)],
     reference: &Camera,
     depths: &[f64],
+    renders_precision: StatePrecision,
     progress: &mut dyn FnMut(usize),
 ) -> Vec<f32> {
     let (w, h, d) = (
@@ -445,46 +537,52 @@ pub fn infer_engine(
         } else {
             // RGBA of the current state, `[D][H][W][4]`.
             let rgba = state_to_rgba(&state, s, hw);
-            let renders = render_views(&rgba, views, &homs, w, h, d);
+            let renders = render_views(&rgba, views, &homs, w, h, d, renders_precision);
             drop(rgba);
             // In place: plane p's update reads only its own state and the renders (made before).
-            for_each_chunk_with(&mut state, s * hw, scratch, |(sc, full), (p, st)| {
-                for (v, (img, _)) in views.iter().enumerate() {
-                    let (vw, vh) = (img.width, img.height);
-                    let vpx = vw as usize * vh as usize;
-                    let mut ins = match full {
-                        Some(f) => f.view_mut(v),
-                        None => sc.view_inputs_mut(v),
-                    };
-                    // [I (3), R (3), A (3), T (1), validity (1), state (S)].
-                    let (ir, rest) = ins.split_at_mut(6);
-                    let (atp, rest) = rest.split_at_mut(4);
-                    let (valid, st_planes) = rest.split_at_mut(1);
-                    let at_plane = &renders.at[v][p * vpx * 4..][..vpx * 4];
-                    warp_pair_into(
-                        (&renders.ir[v], at_plane),
-                        (vw, vh),
-                        &homs[v][p],
-                        plane,
-                        (ir, atp),
-                        valid[0],
-                    );
-                    // The net reads the shared state from view 0's planes only.
-                    if v == 0 {
-                        for (c, dst) in st_planes.iter_mut().enumerate() {
-                            plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
+            let scratch = || (scratch(), Vec::new());
+            for_each_chunk_with(
+                &mut state,
+                s * hw,
+                scratch,
+                |((sc, full), wide), (p, st)| {
+                    for (v, (img, _)) in views.iter().enumerate() {
+                        let (vw, vh) = (img.width, img.height);
+                        let vpx = vw as usize * vh as usize;
+                        let mut ins = match full {
+                            Some(f) => f.view_mut(v),
+                            None => sc.view_inputs_mut(v),
+                        };
+                        // [I (3), R (3), A (3), T (1), validity (1), state (S)].
+                        let (ir, rest) = ins.split_at_mut(6);
+                        let (atp, rest) = rest.split_at_mut(4);
+                        let (valid, st_planes) = rest.split_at_mut(1);
+                        let at_plane = renders.at_plane(v, p, vpx, wide);
+                        warp_pair_into(
+                            (&renders.ir[v], at_plane),
+                            (vw, vh),
+                            &homs[v][p],
+                            plane,
+                            (ir, atp),
+                            valid[0],
+                        );
+                        // The net reads the shared state from view 0's planes only.
+                        if v == 0 {
+                            for (c, dst) in st_planes.iter_mut().enumerate() {
+                                plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
+                            }
                         }
                     }
-                }
-                debug_assert_eq!((cin, net.shared_inputs()), (11 + s, s));
-                if let Some(f) = full {
-                    f.pool_into(plane, np, sc, s);
-                }
-                sc.run(net);
-                for c in 0..s {
-                    take_output(sc, c, &mut st[c * hw..(c + 1) * hw], true);
-                }
-            });
+                    debug_assert_eq!((cin, net.shared_inputs()), (11 + s, s));
+                    if let Some(f) = full {
+                        f.pool_into(plane, np, sc, s);
+                    }
+                    sc.run(net);
+                    for c in 0..s {
+                        take_output(sc, c, &mut st[c * hw..(c + 1) * hw], true);
+                    }
+                },
+            );
         }
         progress(n);
     }
@@ -582,7 +680,14 @@ mod tests {
                 .try_to_vec()
                 .unwrap();
             let mut calls = 0;
-            let got = infer_engine(&model, &views, &reference, &depths, &mut |_| calls += 1);
+            let got = infer_engine(
+                &model,
+                &views,
+                &reference,
+                &depths,
+                StatePrecision::F32,
+                &mut |_| calls += 1,
+            );
             assert_eq!(calls, 1 + updates);
             let hw = 29 * 37;
             let mut max = 0f32;

@@ -587,17 +587,33 @@ fn one_plan_chooses_engine_or_tiles_within_the_budget() {
     let depths = plane_depths(1.5, 12.0, 24, PlaneSpacing::InverseDepth).unwrap();
     let (w, h) = (reference.width as usize, reference.height as usize);
     let engine_bytes =
-        crate::cpu::engine::engine_bytes(&model, &views, w, h, depths.len()) + plan::BASE_BYTES;
+        crate::cpu::engine::engine_bytes(&model, &views, w, h, depths.len(), StatePrecision::F32)
+            + plan::BASE_BYTES;
+    let half_bytes =
+        crate::cpu::engine::engine_bytes(&model, &views, w, h, depths.len(), StatePrecision::F16)
+            + plan::BASE_BYTES;
     let whole = plan(&model, &views, &reference, &depths, engine_bytes).unwrap();
-    assert_eq!(whole.execution, Execution::Engine);
+    assert_eq!(whole.execution, Execution::Engine(StatePrecision::F32));
     assert_eq!(whole.peak_bytes, engine_bytes);
     assert_eq!(whole.device, dev);
-    let tiled = plan(&model, &views, &reference, &depths, engine_bytes - 1).unwrap();
+    // Below it, the engine with its renders stored as f16, then the tiles.
+    let half = plan(&model, &views, &reference, &depths, engine_bytes - 1).unwrap();
+    assert_eq!(half.execution, Execution::Engine(StatePrecision::F16));
+    assert!(half_bytes < engine_bytes && half.peak_bytes == half_bytes);
+    let tiled = plan(&model, &views, &reference, &depths, half_bytes - 1).unwrap();
     let Execution::Tiled(p) = &tiled.execution else {
         panic!("a budget under the engine's estimate is tiled");
     };
-    assert!(tiled.peak_bytes < engine_bytes && tiled.peak_bytes == p.peak_bytes());
+    assert!(tiled.peak_bytes < half_bytes && tiled.peak_bytes == p.peak_bytes());
     let a = run(&model, &views, &reference, &depths, &whole, &mut |_| {}).unwrap();
+    // f16 renders: the update net's inputs rounded to 11 significant bits.
+    let c = run(&model, &views, &reference, &depths, &half, &mut |_| {}).unwrap();
+    let half_diff = a
+        .layers
+        .iter()
+        .zip(&c.layers)
+        .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+    assert!(half_diff < 2e-3, "f16 renders differ by {half_diff}");
     let b = run(&model, &views, &reference, &depths, &tiled, &mut |_| {}).unwrap();
     let diff = a
         .layers
