@@ -1,5 +1,6 @@
 //! Protocol index sets, the Spaces crop rule, and errors for scenes or rules that do not fit.
 
+#[path = "../../deepview-methods/tests/common/mod.rs"]
 mod common;
 
 use common::camera_at;

@@ -1,5 +1,6 @@
 //! The runner end to end on a light-field grid written to disk and loaded by deepview-data.
 
+#[path = "../../deepview-methods/tests/common/mod.rs"]
 mod common;
 
 use common::render_plane;

@@ -201,23 +201,9 @@ impl ViewList {
     }
 }
 
-/// A count of at least one (`--repeats`, `--frames`, `--supersample`, ...).
-pub fn parse_positive(s: &str) -> Result<usize, String> {
-    match s.trim().parse::<usize>() {
-        Ok(0) => Err("must be at least 1".into()),
-        Ok(n) => Ok(n),
-        Err(_) => Err(format!("{s:?} is not a positive whole number")),
-    }
-}
-
-/// A finite number above zero (`--fps`, `--radius`, `--lr`, ...).
-pub fn parse_positive_f64(s: &str) -> Result<f64, String> {
-    match s.trim().parse::<f64>() {
-        Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
-        Ok(_) => Err(format!("{s:?} must be a finite number above 0")),
-        Err(_) => Err(format!("{s:?} is not a number")),
-    }
-}
+/// A count of at least one (`--repeats`, `--frames`, ...) and a finite number above zero (`--fps`, `--lr`,
+/// ...): the parsers of the training options, shared by every command.
+pub use deepview_train::options::{parse_positive, parse_positive_f64};
 
 /// The help text of `--max-memory`.
 pub const MEMORY_HELP: &str = "Memory budget, e.g. 2GiB, 512MiB, 1500000000, or auto (default): three \
