@@ -208,8 +208,8 @@ pub use deepview_train::options::{parse_positive, parse_positive_f64};
 /// The help text of `--max-memory`.
 pub const MEMORY_HELP: &str = "Memory budget, e.g. 2GiB, 512MiB, 1500000000, or auto (default): three \
     quarters of the memory available now (MemAvailable in /proc/meminfo), leaving at least 1 GiB free; 2 GiB \
-    when that cannot be read. More than the machine's memory is refused. A larger budget lets inference run \
-    on the whole image at once instead of in tiles (up to 15x faster at the plane counts wide captures need).";
+    when that cannot be read. More than the machine's memory is refused. Inference keeps its state between \
+    the nets in f32 when that fits, else in half floats, else runs in tiles (many times slower).";
 
 /// Bytes of `MemAvailable` in `/proc/meminfo`.
 pub fn available_memory() -> Option<u64> {

@@ -3,28 +3,27 @@
 //! and their inverse warps, every net), with no tensor per operation. Each net runs one plane at a time
 //! per thread ([`NetScratch`]): its inputs are warped straight into the kernels' padded planes.
 //!
-//! Memory: the state between nets (`D x S x H x W`), for update nets the views' renders (`K x D x 4`
-//! texels per view pixel: `A` and `T` of every plane, plus `I` and `R`), and per thread one plane's
-//! activations. [`engine_bytes`] estimates it; `infer` falls back to the tiled burn path
-//! ([`crate::infer`]) when it exceeds the budget. The renders `A`, `T` (the largest part at wide
-//! captures' plane counts) can be stored as half floats ([`StatePrecision::F16`]: 11 significant bits,
-//! relative error <= 4.9e-4 on values in 0..1), half their memory, where the f32 ones do not fit.
+//! Memory: the state between nets (`D x S x H x W`); for the first net the prior's depth weights (`D x
+//! H x W`); for update nets the views' renders streamed a block of planes at a time ([`ViewRenders`]:
+//! per view `I`, `R`, the transmittance, a composite per block and one block's `A`/`T`, instead of `A`
+//! and `T` of every plane); per thread one plane's activations. [`engine_bytes`] estimates it; `infer`
+//! falls back to the tiled burn path ([`crate::infer`]) when it exceeds the budget.
 
 use crate::cpu::packed::{NetScratch, PackedNet};
-use crate::cpu::planes::for_each_chunk_with;
-use crate::cpu::prior::{prior_logits, prior_stats};
+use crate::cpu::planes::{for_each_with, per_thread};
+use crate::cpu::prior::{add_colour_logits, prior_logits, prior_stats};
+use crate::cpu::renders::{ViewRenders, block_size, blocks, stream_bytes};
+use crate::cpu::state::EngineState;
 use crate::cpu::warps::{warp_into, warp_pair_into};
-use crate::forward::{Hom, invert, mpi_to_view_homographies};
+use crate::forward::mpi_to_view_homographies;
 use crate::infer::StatePrecision;
 use crate::network::DeepViewModel;
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
-use deepview_mpi::warp::{RowTaps, Sampler};
-use half::f16;
-use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
+use std::ops::Range;
 
 /// Estimated peak bytes of [`infer_engine`] (besides the inputs' images).
 pub fn engine_bytes(
@@ -33,290 +32,136 @@ pub fn engine_bytes(
     w: usize,
     h: usize,
     d: usize,
-    renders: StatePrecision,
+    precision: StatePrecision,
 ) -> u64 {
-    let k = views.len() as u64;
     let (hw, d64) = ((w * h) as u64, d as u64);
     let view_px: u64 = views
         .iter()
         .map(|(i, _)| i.width as u64 * i.height as u64)
         .sum();
     let s = model.state_channels as u64;
-    let plane = Plane::new(h, w).len() as u64;
     let threads = rayon::current_num_threads() as u64;
-    let half = Plane::new(h.div_ceil(2), w.div_ceil(2)).len() as u64;
-    let scratch = model
-        .nets
-        .iter()
-        .map(|n| {
-            let cin = n.input[0].weight.dims()[1] as u64;
-            let f = n.head.weight.dims()[1] as u64;
-            let planes = k * (cin + 2 * f) + 3 * f + s;
-            // A U-Net net's scratch is at half resolution, beside its full-resolution inputs.
-            if n.unet {
-                planes * half + k * cin * plane
-            } else {
-                planes * plane
-            }
-        })
-        .max()
-        .unwrap_or(0);
-    let (at, convert) = if model.nets.len() > 1 {
-        let at = view_px * 4 * d64 * renders.bytes();
-        // Half floats are widened one view plane at a time, per thread.
-        let widest = views
-            .iter()
-            .map(|(i, _)| i.width as u64 * i.height as u64)
-            .max()
-            .unwrap_or(0);
-        let row = views.iter().map(|(i, _)| i.width as u64).max().unwrap_or(0);
-        let convert = match renders {
-            StatePrecision::F32 => 0,
-            // A widened view plane per thread, and a view row of every plane per thread.
-            StatePrecision::F16 => threads * (widest * 4 * 4 + d64 * row * 4 * 4),
+    // The widened plane of a half-float state, per thread.
+    let widened = match precision {
+        StatePrecision::F32 => 0,
+        StatePrecision::F16 => s * hw,
+    };
+    // One thread's scratch of net `n` (floats), and the height of its strips.
+    let scratch = |n: usize| {
+        let net = &model.nets[n];
+        let k = views.len() as u64;
+        let strip = Strips::new(h, if net.unet { h } else { STRIP_ROWS }, model.margin(n)).height;
+        let plane = Plane::new(strip, w).len() as u64;
+        let half = Plane::new(h.div_ceil(2), w.div_ceil(2)).len() as u64;
+        let cin = net.input[0].weight.dims()[1] as u64;
+        let f = net.head.weight.dims()[1] as u64;
+        let planes = k * (cin + 2 * f) + 3 * f + s;
+        // A U-Net net's scratch is at half resolution, beside its full-resolution inputs.
+        let floats = if net.unet {
+            planes * half + k * cin * plane
+        } else {
+            planes * plane
         };
-        (at + view_px * 6 * 4, convert)
-    } else {
-        (0, 0)
+        (floats, (strip * w) as u64)
     };
-    4 * (d64 * s * hw + d64 * 4 * hw + threads * scratch) + at + convert
+    // Besides the state: the first net's scratch, the mean colour and the prior's depth weights; an
+    // update net's scratch, the plane's update and the streamed renders; at the end the RGBA result.
+    let first = (!model.nets.is_empty())
+        .then(|| scratch(0))
+        .map_or(0, |(sc, px)| {
+            4 * (threads * (sc + 4 * px + widened) + d64 * hw)
+        });
+    let update = (1..model.nets.len())
+        .map(|n| scratch(n).0)
+        .max()
+        .map_or(0, |sc| {
+            let block = block_size(d, threads as usize, view_px, hw);
+            4 * threads * (sc + s * hw + widened) + stream_bytes(d, block, view_px, hw)
+        });
+    d64 * s * hw * precision.bytes() + first.max(update).max(4 * d64 * 4 * hw)
 }
 
-/// Run `f` compiled with AVX-512 or AVX2 + FMA where the CPU has them (the warps' `mul_add` and `floor`
-/// become instructions instead of libm calls; `f`'s body is inlined into the feature-enabled function),
-/// else as is.
-#[inline(always)]
-fn with_fma<R>(f: impl FnOnce() -> R) -> R {
-    fastmath::with_simd(f)
-}
-
-/// The state `[D][S][H*W]` -> premultiplied RGBA `[D][H*W][4]` (see `network::state_to_rgba`): the
-/// sigmoids of a run of pixels as vector loops ([`fastmath::with_simd`]), then interleaved.
-fn state_to_rgba(state: &[f32], s: usize, hw: usize) -> Vec<f32> {
+/// Planes `planes` of the state -> premultiplied RGBA `[plane][H*W][4]` in `rgba` (see
+/// `network::state_to_rgba`), a plane per task: the sigmoids of a run of pixels as vector loops
+/// ([`fastmath::with_simd`]), then interleaved.
+fn state_to_rgba_into(state: &EngineState, planes: Range<usize>, hw: usize, rgba: &mut [f32]) {
     const RUN: usize = 256;
-    let mut rgba = deepview_kernels::zeroed_buffer(state.len() / s * 4);
-    rgba.par_chunks_mut(hw * 4).enumerate().for_each(|(p, r)| {
-        let st = &state[p * s * hw..];
-        fastmath::with_simd(
-            #[inline(always)]
-            || {
-                let mut tmp = [[0f32; RUN]; 4];
-                for (k, out) in r.chunks_mut(4 * RUN).enumerate() {
-                    let (i0, n) = (k * RUN, out.len() / 4);
-                    for (a, &x) in tmp[3][..n].iter_mut().zip(&st[3 * hw + i0..][..n]) {
-                        *a = fastmath::sigmoid(x);
-                    }
-                    let (rgb, a) = tmp.split_at_mut(3);
-                    for c in 0..3 {
-                        let src = &st[c * hw + i0..][..n];
-                        for ((t, &x), &a) in rgb[c][..n].iter_mut().zip(src).zip(&a[0][..n]) {
-                            *t = fastmath::sigmoid(x) * a;
-                        }
-                    }
-                    for (i, t) in out.chunks_exact_mut(4).enumerate() {
-                        t.copy_from_slice(&[tmp[0][i], tmp[1][i], tmp[2][i], tmp[3][i]]);
-                    }
-                }
-            },
-        )
-    });
-    rgba
-}
-
-/// The views' renders of an RGBA MPI (`[D][H][W][4]`, premultiplied): per view, `[y][x][6]` of `I` and
-/// `R`, and `[D][y][x][4]` of `A` (3) and `T` (1) in view pixels, in f32 or half floats.
-struct Renders {
-    ir: Vec<Vec<f32>>,
-    at: AtStore,
-}
-
-enum AtStore {
-    F32(Vec<Vec<f32>>),
-    F16(Vec<Vec<f16>>),
-}
-
-impl Renders {
-    /// Plane `p` of view `v`'s `A`/`T` (`vpx * 4` values), widened into `buf` when stored as half floats.
-    fn at_plane<'a>(&'a self, v: usize, p: usize, vpx: usize, buf: &'a mut Vec<f32>) -> &'a [f32] {
-        match &self.at {
-            AtStore::F32(at) => &at[v][p * vpx * 4..][..vpx * 4],
-            AtStore::F16(at) => {
-                buf.resize(vpx * 4, 0.0);
-                at[v][p * vpx * 4..][..vpx * 4].convert_to_f32_slice(buf);
-                buf
+    rgba.par_chunks_mut(hw * 4)
+        .zip(planes)
+        .for_each_init(Vec::new, |buf, (r, p)| {
+            // SAFETY: nothing writes the state meanwhile (the engine converts between updates).
+            unsafe {
+                state.with_plane_ref(p, buf, |st| {
+                    fastmath::with_simd(
+                        #[inline(always)]
+                        || {
+                            let mut tmp = [[0f32; RUN]; 4];
+                            for (k, out) in r.chunks_mut(4 * RUN).enumerate() {
+                                let (i0, n) = (k * RUN, out.len() / 4);
+                                for (a, &x) in tmp[3][..n].iter_mut().zip(&st[3 * hw + i0..][..n]) {
+                                    *a = fastmath::sigmoid(x);
+                                }
+                                let (rgb, a) = tmp.split_at_mut(3);
+                                for c in 0..3 {
+                                    let src = &st[c * hw + i0..][..n];
+                                    for ((t, &x), &a) in
+                                        rgb[c][..n].iter_mut().zip(src).zip(&a[0][..n])
+                                    {
+                                        *t = fastmath::sigmoid(x) * a;
+                                    }
+                                }
+                                for (i, t) in out.chunks_exact_mut(4).enumerate() {
+                                    t.copy_from_slice(&[
+                                        tmp[0][i], tmp[1][i], tmp[2][i], tmp[3][i],
+                                    ]);
+                                }
+                            }
+                        },
+                    )
+                })
             }
-        }
-    }
+        });
 }
 
-fn render_views(
-    rgba: &[f32],
-    views: &[(ImageF32, Camera)],
-    homs: &[Vec<Hom>],
-    w: usize,
-    h: usize,
-    d: usize,
-    precision: StatePrecision,
-) -> Renders {
-    let mut ir = Vec::with_capacity(views.len());
-    let mut at32 = Vec::new();
-    let mut at16 = Vec::new();
-    for (v, (img, _)) in views.iter().enumerate() {
-        let (vw, vh) = (img.width as usize, img.height as usize);
-        let samplers: Vec<Sampler> = homs[v]
-            .iter()
-            .map(|m| Sampler::new(invert(m), w as u32, h as u32))
-            .collect();
-        let mut irv = vec![0f32; vw * vh * 6];
-        match precision {
-            StatePrecision::F32 => {
-                let mut atv = deepview_kernels::zeroed_buffer(d * vw * vh * 4);
-                let at_ptr = atv.as_mut_ptr() as usize;
-                irv.par_chunks_mut(vw * 6).enumerate().for_each(|(y, row)| {
-                    let at = AtRows {
-                        ptr: at_ptr,
-                        plane_stride: vh * vw * 4,
-                        row_offset: y * vw * 4,
-                    };
-                    render_row(rgba, img, &samplers, y, row, at, w, h, d);
-                });
-                at32.push(atv);
-            }
-            StatePrecision::F16 => {
-                // Each row of every plane in f32 first (the arithmetic of the f32 store), then rounded.
-                let mut atv = vec![f16::ZERO; d * vw * vh * 4];
-                let at_ptr = atv.as_mut_ptr() as usize;
-                irv.par_chunks_mut(vw * 6).enumerate().for_each_init(
-                    || vec![0f32; d * vw * 4],
-                    |rows, (y, row)| {
-                        let at = AtRows {
-                            ptr: rows.as_mut_ptr() as usize,
-                            plane_stride: vw * 4,
-                            row_offset: 0,
-                        };
-                        render_row(rgba, img, &samplers, y, row, at, w, h, d);
-                        for p in 0..d {
-                            // SAFETY: row `y` of plane `p` of the store, written by this task only.
-                            let dst = unsafe {
-                                std::slice::from_raw_parts_mut(
-                                    (at_ptr as *mut f16).add((p * vh + y) * vw * 4),
-                                    vw * 4,
-                                )
-                            };
-                            dst.convert_from_f32_slice(&rows[p * vw * 4..(p + 1) * vw * 4]);
-                        }
-                    },
-                );
-                at16.push(atv);
-            }
-        }
-        ir.push(irv);
-    }
-    let at = match precision {
-        StatePrecision::F32 => AtStore::F32(at32),
-        StatePrecision::F16 => AtStore::F16(at16),
-    };
-    Renders { ir, at }
+/// Rows of the MPI a net computes at once (besides the margins its receptive field needs): a strip's
+/// activations stay closer to the caches than a whole plane's. `bench net` on fern's size (1008x756,
+/// 32 planes, 4 views, weights/cpu, 2 cores): 6.2-6.6 s at 64 rows, 6.4 at 48, 6.8 at 32, 8.4 at 16,
+/// 6.9 at 128 and 256, 6.9-7.1 for whole planes (3.0 GB instead of 1.5).
+pub(crate) const STRIP_ROWS: usize = 64;
+
+/// A net's strips of rows: each computes `height` rows from `top` and keeps the rows `keep` (all rows
+/// that are at least the net's receptive-field margin away from the strip's edges, or at the image's
+/// edge, where the strip's zero padding is the image's). Every strip has the same height, so that one
+/// scratch serves them all.
+struct Strips {
+    height: usize,
+    strips: Vec<Strip>,
 }
 
-/// Where a render row writes `A`/`T`: plane `p`'s row at `ptr + p * plane_stride + row_offset` (floats).
-#[derive(Clone, Copy)]
-struct AtRows {
-    ptr: usize,
-    plane_stride: usize,
-    row_offset: usize,
+struct Strip {
+    top: usize,
+    keep: std::ops::Range<usize>,
 }
 
-/// Row `y` of one view's render: `row` gets `[x][I (3), R (3)]`, and `at` row `y` of every plane's
-/// `A`/`T`.
-#[allow(clippy::too_many_arguments)]
-fn render_row(
-    rgba: &[f32],
-    img: &ImageF32,
-    samplers: &[Sampler],
-    y: usize,
-    row: &mut [f32],
-    at: AtRows,
-    w: usize,
-    h: usize,
-    d: usize,
-) {
-    with_fma(
-        #[inline(always)]
-        || render_row_portable(rgba, img, samplers, y, row, at, w, h, d),
-    )
-}
-
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-fn render_row_portable(
-    rgba: &[f32],
-    img: &ImageF32,
-    samplers: &[Sampler],
-    y: usize,
-    row: &mut [f32],
-    at: AtRows,
-    w: usize,
-    h: usize,
-    d: usize,
-) {
-    let vw = img.width as usize;
-    // Plane by plane (each plane's row is one sequential stream of taps and of `A`/`T` writes; a
-    // pixel-major order would follow `2 d` streams at once), back to front: `acc[x]` is the
-    // composite of the planes behind `p` (`A_p`), stored with plane `p`'s alpha, which the front-to-back
-    // pass then replaces by the transmittance `T_p` of the planes in front. Per pixel the arithmetic
-    // and its order are those of the composite's definition.
-    let mut acc = vec![[0f32; 3]; vw];
-    let mut taps = RowTaps::default();
-    // SAFETY (for every write through `at` below): row `y` of every plane of the store is written by
-    // this task only.
-    let at_row = |p: usize| unsafe {
-        std::slice::from_raw_parts_mut(
-            (at.ptr as *mut f32).add(p * at.plane_stride + at.row_offset),
-            vw * 4,
-        )
-    };
-    for (p, sampler) in samplers.iter().enumerate().take(d) {
-        sampler.row(y as u32).taps_into(vw, &mut taps);
-        let plane = &rgba[p * h * w * 4..][..h * w * 4];
-        let out = at_row(p);
-        for x in 0..vw {
-            let (c, a) = match taps.tap(x) {
-                None => ([0f32; 3], 0f32),
-                Some(t) => {
-                    let mut s = [0f32; 4];
-                    for j in 0..4 {
-                        let q = &plane[t.idx[j] as usize * 4..][..4];
-                        for c in 0..4 {
-                            s[c] += t.w[j] * q[c];
-                        }
-                    }
-                    ([s[0], s[1], s[2]], s[3])
-                }
+impl Strips {
+    fn new(h: usize, rows: usize, margin: usize) -> Self {
+        let height = rows.max(1) + 2 * margin;
+        if height >= h {
+            return Self {
+                height: h,
+                strips: vec![Strip { top: 0, keep: 0..h }],
             };
-            let ax = &mut acc[x];
-            out[x * 4..x * 4 + 4].copy_from_slice(&[ax[0], ax[1], ax[2], a]);
-            let om = 1.0 - a;
-            for ch in 0..3 {
-                ax[ch] = ax[ch] * om + c[ch];
-            }
         }
-    }
-    for x in 0..vw {
-        let src = &img.data[(y * vw + x) * img.channels..];
-        row[x * 6..x * 6 + 3].copy_from_slice(&src[..3]);
-        row[x * 6 + 3..x * 6 + 6].copy_from_slice(&acc[x]);
-    }
-    let mut t = vec![1f32; vw];
-    for p in (0..d).rev() {
-        let out = at_row(p);
-        for x in 0..vw {
-            let alpha = out[x * 4 + 3];
-            out[x * 4 + 3] = t[x];
-            if p > 0 {
-                t[x] *= 1.0 - alpha;
-            }
-        }
+        let strips = (0..h.div_ceil(rows))
+            .map(|i| {
+                let keep = i * rows..((i + 1) * rows).min(h);
+                Strip {
+                    top: keep.start.saturating_sub(margin).min(h - height),
+                    keep,
+                }
+            })
+            .collect();
+        Self { height, strips }
     }
 }
 
@@ -410,7 +255,34 @@ pub fn infer_engine(
     views: &[(ImageF32, Camera)],
     reference: &Camera,
     depths: &[f64],
-    renders_precision: StatePrecision,
+    precision: StatePrecision,
+    progress: &mut dyn FnMut(usize),
+) -> Vec<f32> {
+    let hw = reference.width as u64 * reference.height as u64;
+    let view_px = views
+        .iter()
+        .map(|(i, _)| i.width as u64 * i.height as u64)
+        .sum();
+    let threads = rayon::current_num_threads();
+    let block = block_size(depths.len(), threads, view_px, hw);
+    infer_engine_blocks(
+        model,
+        views,
+        reference,
+        depths,
+        (block, STRIP_ROWS, precision),
+        progress,
+    )
+}
+
+/// [`infer_engine`] with update nets' renders streamed `block` planes at a time and the nets run on
+/// strips of `strip_rows` rows (the result depends on neither).
+pub(crate) fn infer_engine_blocks(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    (block, strip_rows, precision): (usize, usize, StatePrecision),
     progress: &mut dyn FnMut(usize),
 ) -> Vec<f32> {
     let (w, h, d) = (
@@ -420,7 +292,6 @@ pub fn infer_engine(
     );
     let k = views.len();
     let hw = w * h;
-    let plane = Plane::new(h, w);
     let s = model.state_channels;
     let homs = mpi_to_view_homographies(reference, views.iter().map(|(_, c)| c), depths);
     let nets: Vec<PackedNet> = model
@@ -440,154 +311,222 @@ pub fn infer_engine(
         })
         .collect();
     // The state `[D][S][H*W]`.
-    let mut state = deepview_kernels::zeroed_buffer(d * s * hw);
+    let state = EngineState::new(d, s, hw, precision);
     for (n, net) in nets.iter().enumerate() {
         let cin = net.in_channels();
-        // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch.
+        // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch, on the
+        // whole plane; other nets on strips of rows.
         let unet = model.nets[n].unet;
+        let strips = Strips::new(h, if unet { h } else { strip_rows }, model.margin(n));
+        // The planes of a strip, and the net's (half of them for a U-Net).
+        let sp = Plane::new(strips.height, w);
         let np = if unet {
             Plane::new(h.div_ceil(2), w.div_ceil(2))
         } else {
-            plane
+            sp
         };
         let scratch = || {
             (
                 NetScratch::new(net, np, k),
-                unet.then(|| FullInputs::new(plane, k, cin)),
+                unet.then(|| FullInputs::new(sp, k, cin)),
             )
         };
-        // The net's output channel `c` into (`add`: onto) the unpadded state plane `dst`.
-        let take_output = |sc: &NetScratch, c: usize, dst: &mut [f32], add: bool| {
+        // The net's output channel `c` at the strip's kept rows (from row `off` of the strip) into
+        // (`add`: onto) `dst` (those rows, unpadded).
+        let take_output = |sc: &NetScratch, c: usize, off: usize, dst: &mut [f32], add: bool| {
             if unet {
-                upsample_into(np, sc.output(c), plane, dst, add);
-            } else if add {
-                let out = sc.output(c);
-                for (y, row) in dst.chunks_exact_mut(w).enumerate() {
-                    let i = plane.index(y, 0);
+                upsample_into(np, sc.output(c), sp, dst, add);
+                return;
+            }
+            let out = sc.output(c);
+            for (y, row) in dst.chunks_exact_mut(w).enumerate() {
+                let i = sp.index(off + y, 0);
+                if add {
                     for (x, &u) in row.iter_mut().zip(&out[i..i + w]) {
                         *x += u;
                     }
+                } else {
+                    row.copy_from_slice(&out[i..i + w]);
                 }
-            } else {
-                plane.unpad_into(sc.output(c), dst);
             }
         };
         if n == 0 {
-            // The plane sweeps feed both the net and the agreement prior's first pass.
+            // The plane sweeps feed both the net and the agreement prior's first pass: the mean
+            // colour's logits go onto the plane's state at once, the depth weights' wait for every
+            // plane (`[D][H*W]`).
             let temperature = model.prior_temperature;
-            let mut prior =
-                deepview_kernels::zeroed_buffer(if temperature > 0.0 { d * 4 * hw } else { 0 });
-            let prior_ptr = prior.as_mut_ptr() as usize;
-            for_each_chunk_with(&mut state, s * hw, scratch, |(sc, full), (p, st)| {
-                for (v, (img, _)) in views.iter().enumerate() {
-                    let mut ins = match full {
-                        Some(f) => f.view_mut(v),
-                        None => sc.view_inputs_mut(v),
-                    };
-                    let (rgb, rest) = ins.split_at_mut(3);
-                    let valid = &mut *rest[0];
-                    warp_into(
-                        &img.data,
-                        img.channels,
-                        img.width,
-                        img.height,
-                        &homs[v][p],
-                        plane,
-                        rgb,
-                        Some(valid),
-                    );
-                }
-                if temperature > 0.0 {
-                    let psv = match full {
-                        Some(f) => f.all_mut(),
-                        None => sc.inputs_mut(),
-                    };
-                    // SAFETY: plane p's `4 * hw` values of the prior, written by this task only.
-                    let o = unsafe {
-                        std::slice::from_raw_parts_mut(
-                            (prior_ptr as *mut f32).add(p * 4 * hw),
-                            4 * hw,
-                        )
-                    };
-                    prior_stats(&psv, plane, temperature, o);
-                }
-                if let Some(f) = full {
-                    f.pool_into(plane, np, sc, 0);
-                }
-                sc.run(net);
-                for c in 0..s {
-                    take_output(sc, c, &mut st[c * hw..(c + 1) * hw], false);
-                }
+            let mut weights =
+                deepview_kernels::zeroed_buffer(if temperature > 0.0 { d * hw } else { 0 });
+            let weights_ptr = weights.as_mut_ptr() as usize;
+            let scratch = || (scratch(), Vec::new(), Vec::new(), Vec::new());
+            per_thread(0..d, scratch, |((sc, full), mean, lg, buf), p| {
+                let body = |st: &mut [f32]| {
+                    for strip in &strips.strips {
+                        for (v, (img, _)) in views.iter().enumerate() {
+                            let mut ins = match full {
+                                Some(f) => f.view_mut(v),
+                                None => sc.view_inputs_mut(v),
+                            };
+                            let (rgb, rest) = ins.split_at_mut(3);
+                            let valid = &mut *rest[0];
+                            warp_into(
+                                &img.data,
+                                img.channels,
+                                img.width,
+                                img.height,
+                                &homs[v][p],
+                                (sp, strip.top),
+                                rgb,
+                                Some(valid),
+                            );
+                        }
+                        let (off, rows) = (strip.keep.start - strip.top, strip.keep.clone());
+                        let kept = |c: usize| c * hw + rows.start * w..c * hw + rows.end * w;
+                        if temperature > 0.0 {
+                            let psv = match full {
+                                Some(f) => f.all_mut(),
+                                None => sc.inputs_mut(),
+                            };
+                            let spx = sp.h * sp.w;
+                            mean.resize(3 * spx, 0.0);
+                            lg.resize(spx, 0.0);
+                            prior_stats(&psv, sp, temperature, mean, lg);
+                            // SAFETY: the strip's kept rows of plane p's depth weights, written by
+                            // this task only.
+                            let dst = unsafe {
+                                std::slice::from_raw_parts_mut(
+                                    (weights_ptr as *mut f32).add(p * hw + rows.start * w),
+                                    rows.len() * w,
+                                )
+                            };
+                            dst.copy_from_slice(&lg[off * w..(off + rows.len()) * w]);
+                        }
+                        if let Some(f) = full {
+                            f.pool_into(sp, np, sc, 0);
+                        }
+                        sc.run(net);
+                        for c in 0..s {
+                            take_output(sc, c, off, &mut st[kept(c)], false);
+                        }
+                        if temperature > 0.0 {
+                            let spx = sp.h * sp.w;
+                            for c in 0..3 {
+                                let m = &mean[c * spx + off * w..][..rows.len() * w];
+                                add_colour_logits(m, &mut st[kept(c)]);
+                            }
+                        }
+                    }
+                };
+                // SAFETY: plane p, this task's only.
+                unsafe { state.with_plane(p, buf, body) }
             });
             if temperature > 0.0 {
-                prior_logits(&mut prior, d, hw);
-                state
-                    .par_chunks_mut(s * hw)
+                prior_logits(&mut weights, d, hw);
+                weights
+                    .par_chunks(hw)
                     .enumerate()
-                    .for_each(|(p, st)| {
-                        for (o, &q) in st[..4 * hw]
-                            .iter_mut()
-                            .zip(&prior[p * 4 * hw..(p + 1) * 4 * hw])
-                        {
-                            *o += q;
+                    .for_each_init(Vec::new, |buf, (p, q)| {
+                        // SAFETY: plane p, this task's only.
+                        unsafe {
+                            state.with_plane(p, buf, |st| {
+                                for (o, &q) in st[3 * hw..4 * hw].iter_mut().zip(q) {
+                                    *o += q;
+                                }
+                            })
                         }
                     });
             }
             debug_assert_eq!(cin, crate::network::INIT_CHANNELS);
         } else {
-            // RGBA of the current state, `[D][H][W][4]`.
-            let rgba = state_to_rgba(&state, s, hw);
-            let renders = render_views(&rgba, views, &homs, w, h, d, renders_precision);
-            drop(rgba);
-            // In place: plane p's update reads only its own state and the renders (made before).
-            let scratch = || (scratch(), Vec::new());
-            for_each_chunk_with(
-                &mut state,
-                s * hw,
-                scratch,
-                |((sc, full), wide), (p, st)| {
-                    for (v, (img, _)) in views.iter().enumerate() {
-                        let (vw, vh) = (img.width, img.height);
-                        let vpx = vw as usize * vh as usize;
-                        let mut ins = match full {
-                            Some(f) => f.view_mut(v),
-                            None => sc.view_inputs_mut(v),
-                        };
-                        // [I (3), R (3), A (3), T (1), validity (1), state (S)].
-                        let (ir, rest) = ins.split_at_mut(6);
-                        let (atp, rest) = rest.split_at_mut(4);
-                        let (valid, st_planes) = rest.split_at_mut(1);
-                        let at_plane = renders.at_plane(v, p, vpx, wide);
-                        warp_pair_into(
-                            (&renders.ir[v], at_plane),
-                            (vw, vh),
-                            &homs[v][p],
-                            plane,
-                            (ir, atp),
-                            valid[0],
-                        );
-                        // The net reads the shared state from view 0's planes only.
-                        if v == 0 {
-                            for (c, dst) in st_planes.iter_mut().enumerate() {
-                                plane.pad_into(&st[c * hw..(c + 1) * hw], dst);
-                            }
-                        }
-                    }
-                    debug_assert_eq!((cin, net.shared_inputs()), (11 + s, s));
-                    if let Some(f) = full {
-                        f.pool_into(plane, np, sc, s);
-                    }
-                    sc.run(net);
-                    for c in 0..s {
-                        take_output(sc, c, &mut st[c * hw..(c + 1) * hw], true);
-                    }
-                },
+            // The views' renders of the current state, a block of planes at a time from the front: a
+            // block's planes are updated in place after its renders (which read only planes not yet
+            // updated, [`ViewRenders`]).
+            let blocks = blocks(d, block);
+            let mut rgba = Vec::new();
+            let to_rgba = |state: &EngineState, blk: Range<usize>, out: &mut Vec<f32>| {
+                out.resize(blk.len() * 4 * hw, 0.0);
+                state_to_rgba_into(state, blk, hw, out);
+            };
+            let mut renders = ViewRenders::new(
+                views,
+                &homs,
+                (w, h),
+                blocks.clone(),
+                &mut |b, o| to_rgba(&state, b, o),
+                &mut rgba,
             );
+            // Per thread the scratch and the plane's update (the strips read the plane's state around
+            // their rows, so it changes only once every strip has run).
+            let mut scratches: Vec<_> = (0..rayon::current_num_threads().min(block).max(1))
+                .map(|_| (scratch(), Vec::new(), Vec::new()))
+                .collect();
+            for (i, blk) in blocks.iter().enumerate().rev() {
+                to_rgba(&state, blk.clone(), &mut rgba);
+                renders.render_block(i, &rgba, (w, h));
+                for_each_with(
+                    blk.clone(),
+                    &mut scratches,
+                    |((sc, full), update, buf), p| {
+                        update.resize(s * hw, 0.0);
+                        let body = |st: &mut [f32]| {
+                            for strip in &strips.strips {
+                                let ext = strip.top..strip.top + sp.h;
+                                for (v, (img, _)) in views.iter().enumerate() {
+                                    let mut ins = match full {
+                                        Some(f) => f.view_mut(v),
+                                        None => sc.view_inputs_mut(v),
+                                    };
+                                    // [I (3), R (3), A (3), T (1), validity (1), state (S)].
+                                    let (ir, rest) = ins.split_at_mut(6);
+                                    let (atp, rest) = rest.split_at_mut(4);
+                                    let (valid, st_planes) = rest.split_at_mut(1);
+                                    warp_pair_into(
+                                        (&renders.ir[v], renders.at_plane(v, i, p)),
+                                        (img.width, img.height),
+                                        &homs[v][p],
+                                        (sp, strip.top),
+                                        (ir, atp),
+                                        valid[0],
+                                    );
+                                    // The net reads the shared state from view 0's planes only.
+                                    if v == 0 {
+                                        for (c, dst) in st_planes.iter_mut().enumerate() {
+                                            sp.pad_into(
+                                                &st[c * hw + ext.start * w..c * hw + ext.end * w],
+                                                dst,
+                                            );
+                                        }
+                                    }
+                                }
+                                debug_assert_eq!((cin, net.shared_inputs()), (11 + s, s));
+                                if let Some(f) = full {
+                                    f.pool_into(sp, np, sc, s);
+                                }
+                                sc.run(net);
+                                let (off, rows) =
+                                    (strip.keep.start - strip.top, strip.keep.clone());
+                                for c in 0..s {
+                                    let dst =
+                                        &mut update[c * hw + rows.start * w..c * hw + rows.end * w];
+                                    take_output(sc, c, off, dst, false);
+                                }
+                            }
+                            for (x, &u) in st.iter_mut().zip(update.iter()) {
+                                *x += u;
+                            }
+                        };
+                        // SAFETY: plane p, this task's only.
+                        unsafe { state.with_plane(p, buf, body) }
+                    },
+                );
+            }
         }
         progress(n);
     }
     // Premultiplied RGBA `[D][H][W][4]`.
-    state_to_rgba(&state, s, hw)
+    let mut rgba = deepview_kernels::zeroed_buffer(d * 4 * hw);
+    state_to_rgba_into(&state, 0..d, hw, &mut rgba);
+    rgba
 }
 
 #[cfg(test)]
@@ -690,19 +629,51 @@ mod tests {
             );
             assert_eq!(calls, 1 + updates);
             let hw = 29 * 37;
-            let mut max = 0f32;
-            for p in 0..d {
-                for c in 0..4 {
-                    for i in 0..hw {
-                        max =
-                            max.max((want[(p * 4 + c) * hw + i] - got[(p * hw + i) * 4 + c]).abs());
+            let max_diff = |got: &[f32]| {
+                let mut max = 0f32;
+                for p in 0..d {
+                    for c in 0..4 {
+                        for i in 0..hw {
+                            max = max.max(
+                                (want[(p * 4 + c) * hw + i] - got[(p * hw + i) * 4 + c]).abs(),
+                            );
+                        }
                     }
                 }
-            }
-            assert!(
-                max < 2e-5,
-                "{k} views, {d} planes, {updates} updates, prior {prior}, {unet_nets} U-Net: {max}"
+                max
+            };
+            let max = max_diff(&got);
+            let case = format!(
+                "{k} views, {d} planes, {updates} updates, prior {prior}, {unet_nets} U-Net"
             );
+            assert!(max < 2e-5, "{case}: {max}");
+            // The renders streamed in blocks of any size and the nets run on strips of any height
+            // (down to 1 row: every strip's margin reaches its neighbours' rows) give the same bits.
+            for (block, rows) in [(1, 1), (2, 3), (d, 7), (d + 3, 29), (3, 100)] {
+                let other = infer_engine_blocks(
+                    &model,
+                    &views,
+                    &reference,
+                    &depths,
+                    (block, rows, StatePrecision::F32),
+                    &mut |_| {},
+                );
+                assert!(
+                    other == got,
+                    "{case}: blocks of {block}, strips of {rows} rows differ"
+                );
+            }
+            // A half-float state: the nets in f32, the stored state rounded to 11 bits.
+            let half = infer_engine(
+                &model,
+                &views,
+                &reference,
+                &depths,
+                StatePrecision::F16,
+                &mut |_| {},
+            );
+            let max = max_diff(&half);
+            assert!(max < 5e-3 && half != got, "{case}: f16 state {max}");
         }
     }
 }

@@ -7,6 +7,8 @@
 //!   their backward passes, for the `flex` CPU backend and autodiff on top of it;
 //! - [`packed`]: a core net packed into plain arrays for inference, one plane per thread;
 //! - `prior`, `warps`: the engine's agreement prior and its warps into the nets' padded planes;
+//! - `renders`: the views' renders an update net reads, streamed a block of planes at a time;
+//! - `state`: the engine's state between nets, in f32 or half floats;
 //! - [`engine`]: whole-image inference with the packed nets.
 
 pub mod engine;
@@ -16,4 +18,6 @@ pub mod packed;
 mod planes;
 mod prior;
 pub mod renderops;
+mod renders;
+mod state;
 mod warps;

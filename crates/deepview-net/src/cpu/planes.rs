@@ -82,6 +82,25 @@ where
         .collect()
 }
 
+/// `f(state, item)` for every item, the items dealt round-robin to `states` (one task each; states made
+/// once and kept across calls).
+pub(crate) fn for_each_with<T, S, F>(items: impl IntoIterator<Item = T>, states: &mut [S], f: F)
+where
+    T: Send,
+    S: Send,
+    F: Fn(&mut S, T) + Sync,
+{
+    let n = states.len().max(1);
+    let mut groups: Vec<Vec<T>> = (0..n).map(|_| Vec::new()).collect();
+    for (i, item) in items.into_iter().enumerate() {
+        groups[i % n].push(item);
+    }
+    states
+        .par_iter_mut()
+        .zip(groups)
+        .for_each(|(s, g)| g.into_iter().for_each(|item| f(s, item)));
+}
+
 /// `f(scratch, (i, chunk))` for every `len`-sized chunk of `data`, with one scratch per thread
 /// ([`per_thread`]).
 pub(crate) fn for_each_chunk_with<S: Send, I, F>(data: &mut [f32], len: usize, init: I, f: F)

@@ -1,6 +1,7 @@
 //! The agreement prior of the first net's input on plain arrays, in two passes: [`prior_stats`] per
-//! plane (while the plane's sweeps are in the net's scratch), then [`prior_logits`] over all planes; the
-//! same arithmetic as [`crate::network::agreement_prior_logits`].
+//! plane (while the plane's sweeps are in the net's scratch; the mean colour's logits go straight onto
+//! the plane's state, [`add_colour_logits`]), then [`prior_logits`] of the depth weights over all
+//! planes; the same arithmetic as [`crate::network::agreement_prior_logits`].
 
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
@@ -15,12 +16,17 @@ fn logit(p: f32) -> f32 {
 
 /// Pass 1 of the agreement prior (see [`crate::network::agreement_prior_logits`], same arithmetic) on
 /// one plane: from the views' plane sweeps `psv` (per view: R, G, B, validity planes of `plane`), the mean
-/// colour and the masked logit of the depth weight into `o` (`[4][H*W]`).
-pub(crate) fn prior_stats(psv: &[&mut [f32]], plane: Plane, temperature: f64, o: &mut [f32]) {
+/// colour into `mean` (`[3][H*W]`) and the masked logit of the depth weight into `lg` (`[H*W]`).
+pub(crate) fn prior_stats(
+    psv: &[&mut [f32]],
+    plane: Plane,
+    temperature: f64,
+    mean: &mut [f32],
+    lg: &mut [f32],
+) {
     let hw = plane.h * plane.w;
     let w = plane.w;
     let k = psv.len() / 4;
-    let (mean, lg) = o.split_at_mut(3 * hw);
     // Row by row with the columns innermost (vectorised by the compiler); the same operations per
     // pixel, in the same order, as the per-pixel definition.
     let mut count = vec![0f32; w];
@@ -76,9 +82,22 @@ pub(crate) fn prior_stats(psv: &[&mut [f32]], plane: Plane, temperature: f64, o:
     }
 }
 
-/// Pass 2 of the agreement prior over all `d` planes of `out` (`[D][4][H*W]` from [`prior_stats`]): per
-/// pixel, back to front, `alpha_d = w_d / sum_{i<=d} w_i` in the log domain; then every value turned into
-/// its clamped logit.
+/// The clamped logits of a plane's mean colour (`[3][H*W]` from [`prior_stats`]) added onto its state's
+/// first three channels (`st`, `[S][H*W]`).
+pub(crate) fn add_colour_logits(mean: &[f32], st: &mut [f32]) {
+    fastmath::with_simd(
+        #[inline(always)]
+        || {
+            for (o, &m) in st[..mean.len()].iter_mut().zip(mean) {
+                *o += logit(m);
+            }
+        },
+    )
+}
+
+/// Pass 2 of the agreement prior over all `d` planes' depth-weight logits `out` (`[D][H*W]` from
+/// [`prior_stats`]): per pixel, back to front, `alpha_d = w_d / sum_{i<=d} w_i` in the log domain,
+/// turned into its clamped logit.
 pub(crate) fn prior_logits(out: &mut [f32], d: usize, hw: usize) {
     // Pass 2, per pixel over planes back to front: alpha_d = w_d / sum_{i<=d} w_i (log domain), on
     // runs of pixels with the pixels innermost (vector loops, [`fastmath::with_simd`]).
@@ -88,15 +107,13 @@ pub(crate) fn prior_logits(out: &mut [f32], d: usize, hw: usize) {
         let (o0, n) = (k * RUN, RUN.min(hw - k * RUN));
         let ptr = base as *mut f32;
         // SAFETY: each task touches only pixels `o0..o0 + n` of every plane (disjoint across tasks).
-        let row = |p: usize, c: usize| unsafe {
-            std::slice::from_raw_parts_mut(ptr.add((p * 4 + c) * hw + o0), n)
-        };
+        let row = |p: usize| unsafe { std::slice::from_raw_parts_mut(ptr.add(p * hw + o0), n) };
         fastmath::with_simd(
             #[inline(always)]
             || {
                 let (mut m, mut s) = ([0f32; RUN], [0f32; RUN]);
                 for p in 0..d {
-                    let lg = row(p, 3);
+                    let lg = row(p);
                     if p == 0 {
                         m[..n].copy_from_slice(lg);
                         s[..n].fill(1.0);
@@ -111,11 +128,6 @@ pub(crate) fn prior_logits(out: &mut [f32], d: usize, hw: usize) {
                         let alpha = fastmath::exp(*l - (m + fastmath::ln(s))).min(1.0);
                         // `seen` is encoded in the masked logit (unseen: -1e30, alpha 0 there too).
                         *l = logit(if *l > -1e29 { alpha } else { 0.0 });
-                    }
-                    for c in 0..3 {
-                        for q in row(p, c) {
-                            *q = logit(*q);
-                        }
                     }
                 }
             },

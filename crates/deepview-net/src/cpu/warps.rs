@@ -7,15 +7,15 @@ use deepview_kernels::Plane;
 use deepview_mpi::warp::{RowTaps, Sampler};
 
 /// Bilinear warp of an interleaved `channels`-channel `src_w x src_h` source by `hom` (output pixels ->
-/// source pixels, the project's sampling rule) into channel planes `dst[c]` of `plane`; `valid` gets 1
-/// where the sample is inside the source. Outside: 0.
+/// source pixels, the project's sampling rule) into channel planes `dst[c]` of `plane`, whose row `y`
+/// is output row `y0 + y`; `valid` gets 1 where the sample is inside the source. Outside: 0.
 pub(crate) fn warp_into(
     src: &[f32],
     channels: usize,
     src_w: u32,
     src_h: u32,
     hom: &Hom,
-    plane: Plane,
+    (plane, y0): (Plane, usize),
     dst: &mut [&mut [f32]],
     valid: Option<&mut [f32]>,
 ) {
@@ -30,11 +30,12 @@ pub(crate) fn warp_into(
             src_w: u32,
             src_h: u32,
             hom: &Hom,
-            plane: Plane,
+            plane: (Plane, usize),
             dst: &mut [&mut [f32]],
             valid: Option<&mut [f32]>,
         ) {
-            warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
+            let (plane, y0) = plane;
+            warp_into_portable(src, channels, src_w, src_h, hom, (plane, y0), dst, valid)
         }
         #[target_feature(enable = "avx512f,avx2,fma")]
         #[allow(clippy::too_many_arguments)]
@@ -44,22 +45,23 @@ pub(crate) fn warp_into(
             src_w: u32,
             src_h: u32,
             hom: &Hom,
-            plane: Plane,
+            plane: (Plane, usize),
             dst: &mut [&mut [f32]],
             valid: Option<&mut [f32]>,
         ) {
-            warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
+            let (plane, y0) = plane;
+            warp_into_portable(src, channels, src_w, src_h, hom, (plane, y0), dst, valid)
         }
         if deepview_kernels::isa() == deepview_kernels::Isa::Avx512 {
             // SAFETY: AVX-512F, AVX2 and FMA are present (checked).
-            unsafe { avx512(src, channels, src_w, src_h, hom, plane, dst, valid) };
+            unsafe { avx512(src, channels, src_w, src_h, hom, (plane, y0), dst, valid) };
         } else {
             // SAFETY: AVX2 and FMA are present (checked).
-            unsafe { fma(src, channels, src_w, src_h, hom, plane, dst, valid) };
+            unsafe { fma(src, channels, src_w, src_h, hom, (plane, y0), dst, valid) };
         }
         return;
     }
-    warp_into_portable(src, channels, src_w, src_h, hom, plane, dst, valid)
+    warp_into_portable(src, channels, src_w, src_h, hom, (plane, y0), dst, valid)
 }
 
 #[inline(always)]
@@ -69,14 +71,14 @@ fn warp_into_portable(
     src_w: u32,
     src_h: u32,
     hom: &Hom,
-    plane: Plane,
+    (plane, y0): (Plane, usize),
     dst: &mut [&mut [f32]],
     valid: Option<&mut [f32]>,
 ) {
     match dst.len() {
-        3 => warp_into_c::<3>(src, channels, src_w, src_h, hom, plane, dst, valid),
-        4 => warp_into_c::<4>(src, channels, src_w, src_h, hom, plane, dst, valid),
-        6 => warp_into_c::<6>(src, channels, src_w, src_h, hom, plane, dst, valid),
+        3 => warp_into_c::<3>(src, channels, src_w, src_h, hom, (plane, y0), dst, valid),
+        4 => warp_into_c::<4>(src, channels, src_w, src_h, hom, (plane, y0), dst, valid),
+        6 => warp_into_c::<6>(src, channels, src_w, src_h, hom, (plane, y0), dst, valid),
         n => panic!("warp of {n} channels"),
     }
 }
@@ -89,7 +91,7 @@ fn warp_into_c<const C: usize>(
     src_w: u32,
     src_h: u32,
     hom: &Hom,
-    plane: Plane,
+    (plane, y0): (Plane, usize),
     dst: &mut [&mut [f32]],
     valid: Option<&mut [f32]>,
 ) {
@@ -103,7 +105,7 @@ fn warp_into_c<const C: usize>(
     let sampler = Sampler::new(*hom, src_w, src_h);
     let mut taps = RowTaps::default();
     for y in 0..plane.h {
-        sampler.row(y as u32).taps_into(plane.w, &mut taps);
+        sampler.row((y0 + y) as u32).taps_into(plane.w, &mut taps);
         let base = plane.index(y, 0);
         for x in 0..plane.w {
             let i = base + x;
@@ -139,12 +141,13 @@ fn warp_into_c<const C: usize>(
 }
 
 /// The gradient components' warps of one view and plane: `[I, R]` (6 channels) and `[A, T]` (4) of the same
-/// view pixels, with one bilinear tap per output texel for both (see [`warp_into`]).
+/// view pixels, with one bilinear tap per output texel for both (see [`warp_into`]; `plane`'s row `y` is
+/// output row `y0 + y`).
 pub(crate) fn warp_pair_into(
     src: (&[f32], &[f32]),
     size: (u32, u32),
     hom: &Hom,
-    plane: Plane,
+    plane: (Plane, usize),
     dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
     valid: &mut [f32],
 ) {
@@ -169,7 +172,7 @@ unsafe fn warp_pair_avx2(
     src: (&[f32], &[f32]),
     size: (u32, u32),
     hom: &Hom,
-    plane: Plane,
+    plane: (Plane, usize),
     dst: (&mut [&mut [f32]], &mut [&mut [f32]]),
     valid: &mut [f32],
 ) {
@@ -246,7 +249,7 @@ fn warp_pair_rows(
     (a, b): (&[f32], &[f32]),
     (src_w, src_h): (u32, u32),
     hom: &Hom,
-    plane: Plane,
+    (plane, y0): (Plane, usize),
     (da, db): (&mut [&mut [f32]], &mut [&mut [f32]]),
     valid: &mut [f32],
     sums: impl Fn(&[f32], &[f32], [u32; 4], [f32; 4]) -> ([f32; 8], [f32; 4]),
@@ -263,7 +266,7 @@ fn warp_pair_rows(
     let sampler = Sampler::new(*hom, src_w, src_h);
     let mut taps = RowTaps::default();
     for y in 0..plane.h {
-        sampler.row(y as u32).taps_into(plane.w, &mut taps);
+        sampler.row((y0 + y) as u32).taps_into(plane.w, &mut taps);
         let base = plane.index(y, 0);
         for x in 0..plane.w {
             let i = base + x;

@@ -73,7 +73,7 @@ impl Plan {
         match &self.execution {
             Execution::Engine(StatePrecision::F32) => "whole image on the CPU engine".into(),
             Execution::Engine(StatePrecision::F16) => {
-                "whole image on the CPU engine (renders stored as f16)".into()
+                "whole image on the CPU engine (state stored as f16)".into()
             }
             Execution::Tiled(p) => format!(
                 "tiled ({}-pixel tiles of net 0, {} state) on {:?}",
@@ -120,7 +120,7 @@ pub fn plan(
     let device = model_device(model);
     let (w, h) = (reference.width as usize, reference.height as usize);
     if crate::cpu::ops::fast_device(&device) {
-        // The engine's buffers and, as the tiled estimates count it, the process itself; its renders in
+        // The engine's buffers and, as the tiled estimates count it, the process itself; its state in
         // f32, else in f16 (still many times faster than tiles).
         for precision in [StatePrecision::F32, StatePrecision::F16] {
             let bytes =
