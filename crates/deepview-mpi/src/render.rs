@@ -105,18 +105,73 @@ fn render_rows_simd<O: Copy + Send>(
     out.par_chunks_mut(row_len * rows_per_band)
         .enumerate()
         .for_each_init(
-            || vec![0.0f32; 4 * wp],
-            |acc, (band, chunk)| {
+            || (vec![0.0f32; 4 * wp], Vec::new()),
+            |(acc, spans), (band, chunk)| {
+                let y0 = band * rows_per_band;
+                let y1 = y0 + chunk.len() / row_len - 1;
+                // Per plane, the band's spans that can see its occupied tiles (the whole rows for
+                // a plane without an empty tile), and whether to test tiles group by group.
+                spans.resize_with(samplers.len(), || (Vec::new(), false));
+                for (d, (sampler, (s, test))) in samplers.iter().zip(spans.iter_mut()).enumerate() {
+                    match occupancy.filter(|o| o.sparse_plane(d).is_some()) {
+                        Some(o) => {
+                            let rows = [y0, y1].map(|y| sampler.row(y as u32).coefficients());
+                            *test = o.band_spans(d, rows, w, plane_h, s);
+                        }
+                        None => {
+                            s.clear();
+                            s.push((0, wp));
+                            *test = false;
+                        }
+                    }
+                }
                 for (r, row) in chunk.chunks_exact_mut(row_len).enumerate() {
-                    let y = (band * rows_per_band + r) as u32;
+                    let y = (y0 + r) as u32;
                     acc.fill(0.0);
+                    // The columns not yet opaque (a superset, in whole groups of 8): they only shrink.
+                    let (mut open_lo, mut open_hi) = (0, wp);
                     // Front to back: opaque pixels stop costing anything.
                     for (d, sampler) in samplers.iter().enumerate().rev() {
+                        if open_lo >= open_hi {
+                            break;
+                        }
+                        let (plane_spans, test) = &spans[d];
+                        if plane_spans.is_empty() {
+                            continue;
+                        }
                         let layer = &bytes[d * plane_len..(d + 1) * plane_len];
                         let coeff = sampler.row(y).coefficients();
-                        let tiles = occupancy.and_then(|o| o.sparse_plane(d));
-                        // SAFETY: `kernel()` checked the CPU features; the layer has plane_w * plane_h texels.
-                        unsafe { kernel(layer, plane_w, plane_h, coeff, acc, w, tiles) };
+                        let tiles = if *test {
+                            occupancy.and_then(|o| o.sparse_plane(d))
+                        } else {
+                            None
+                        };
+                        // The new open columns: the hull of the open ones not visited and of the visited
+                        // groups found open.
+                        let (mut lo, mut hi) = (usize::MAX, 0);
+                        let mut cursor = open_lo;
+                        for &(a, b) in plane_spans.iter() {
+                            let (x0, x1) = (a.max(open_lo), b.min(open_hi));
+                            if x0 >= x1 {
+                                continue;
+                            }
+                            if x0 > cursor {
+                                (lo, hi) = (lo.min(cursor), hi.max(x0));
+                            }
+                            // SAFETY: `kernel()` checked the CPU features; the layer has plane_w *
+                            // plane_h texels; the span is within the accumulators.
+                            let (l, h) = unsafe {
+                                kernel(layer, plane_w, plane_h, coeff, acc, (x0, x1), tiles)
+                            };
+                            if l < h {
+                                (lo, hi) = (lo.min(l), hi.max(h));
+                            }
+                            cursor = cursor.max(x1);
+                        }
+                        if cursor < open_hi {
+                            (lo, hi) = (lo.min(cursor), open_hi);
+                        }
+                        (open_lo, open_hi) = (lo, hi);
                     }
                     let (r_, rest) = acc.split_at(wp);
                     let (g_, rest) = rest.split_at(wp);
@@ -390,5 +445,103 @@ mod tests {
             full.data.iter().any(|&v| v > 0.5),
             "the squares are visible"
         );
+    }
+
+    /// Sparse content on many planes (blobs of every opacity, opaque ones included, so that rows
+    /// saturate part way): the spans and the saturation tracking skip only what adds nothing, so the
+    /// image equals the one rendered without the occupancy map, bit for bit, from views that shift,
+    /// zoom, roll (rows crossing many tile rows), tilt (perspective) and see past the planes' edges.
+    #[test]
+    fn occupancy_spans_change_nothing() {
+        let (w, h, d) = (150u32, 97u32, 24usize);
+        let cam = Camera::new(w, h, Intrinsics::centred(120.0, w, h), Pose::IDENTITY);
+        let depths = deepview_geometry::plane_depths(
+            1.0,
+            20.0,
+            d,
+            deepview_geometry::PlaneSpacing::InverseDepth,
+        )
+        .unwrap();
+        let mut state = 99u64;
+        let mut next = |n: u32| {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((state >> 33) as u32) % n
+        };
+        let mut layers = vec![0u8; d * (w * h * 4) as usize];
+        for p in 0..d {
+            for _ in 0..3 {
+                let (cx, cy, r) = (next(w), next(h), 3 + next(14));
+                let alpha = [255, 255, 40, 130, 7][next(5) as usize];
+                for y in cy.saturating_sub(r)..(cy + r).min(h) {
+                    for x in cx.saturating_sub(r)..(cx + r).min(w) {
+                        let i = ((p as u32 * h + y) * w + x) as usize * 4;
+                        let (r, g, b) = (next(256), next(256), next(256));
+                        let c = |v: u32| (v * alpha / 255) as u8;
+                        layers[i..i + 4].copy_from_slice(&[c(r), c(g), c(b), alpha as u8]);
+                    }
+                }
+            }
+        }
+        let mpi = MpiU8 {
+            camera: cam,
+            depths,
+            layers,
+        };
+        let occ = Occupancy::new(&mpi.layers, w, h, d);
+        assert!(occ.fill() < 0.5, "sparse: {}", occ.fill());
+        let view = |rot: DMat3, c: DVec3, f: f64, size: (u32, u32)| {
+            Camera::new(
+                size.0,
+                size.1,
+                Intrinsics::centred(f, size.0, size.1),
+                Pose::from_center(rot, c),
+            )
+        };
+        let targets = [
+            cam,
+            view(
+                DMat3::IDENTITY,
+                DVec3::new(0.3, -0.2, 0.0),
+                120.0,
+                (150, 97),
+            ),
+            view(
+                DMat3::IDENTITY,
+                DVec3::new(-0.4, 0.1, 0.5),
+                180.0,
+                (161, 90),
+            ),
+            view(
+                DMat3::from_rotation_z(0.35),
+                DVec3::new(0.1, 0.0, 0.0),
+                120.0,
+                (150, 97),
+            ),
+            view(
+                DMat3::from_rotation_x(0.2) * DMat3::from_rotation_y(-0.25),
+                DVec3::new(0.2, 0.1, -0.3),
+                90.0,
+                (133, 101),
+            ),
+            view(
+                DMat3::from_rotation_y(0.6),
+                DVec3::new(1.5, 0.0, 0.0),
+                60.0,
+                (77, 45),
+            ),
+        ];
+        for t in targets {
+            let (mut scratch, mut with, mut without) = (Vec::new(), Vec::new(), Vec::new());
+            assert!(occ.fill() < 0.5);
+            render_rgba8_with(&mpi, Some(&occ), &t, &mut scratch, &mut with);
+            render_rgba8_with(&mpi, None, &t, &mut scratch, &mut without);
+            assert!(with == without, "{t:?}");
+            assert!(
+                with.iter().any(|&v| v > 100),
+                "something is visible from {t:?}"
+            );
+        }
     }
 }

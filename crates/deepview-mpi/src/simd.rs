@@ -34,6 +34,8 @@ pub struct Occupancy {
     pub tiles: Vec<u8>,
     /// `[D]`: whether the plane has an empty tile (decided once here, not per rendered row).
     sparse: Vec<bool>,
+    /// `[D][tiles_y][tiles_x / 64 words]`: the occupied tile columns of each tile row, one bit each.
+    bits: Vec<u64>,
 }
 
 impl Occupancy {
@@ -61,12 +63,152 @@ impl Occupancy {
             .chunks(tiles_x * tiles_y)
             .map(|t| t.contains(&0))
             .collect();
+        let words = tiles_x.div_ceil(64);
+        let mut bits = vec![0u64; planes * tiles_y * words];
+        for (row, out) in tiles
+            .chunks(tiles_x.max(1))
+            .zip(bits.chunks_mut(words.max(1)))
+        {
+            for (t, &o) in row.iter().enumerate() {
+                if o != 0 {
+                    out[t / 64] |= 1 << (t % 64);
+                }
+            }
+        }
         Self {
             tiles_x,
             tiles_y,
             tiles,
             sparse,
+            bits,
         }
+    }
+
+    /// The groups of 8 output columns of a band of rows whose samples of plane `d` (`plane_h` rows, seen
+    /// through the coefficients of the band's first and last rows, `rows`) can touch an occupied tile,
+    /// as sorted disjoint spans `x0..x1` (multiples of 8, within `0..padded_width(width)`) into `spans`:
+    /// the runs of tile columns occupied on the source rows the band crosses, mapped back into the band
+    /// (conservatively: where the band's corners map in front of the camera, the band maps onto a convex
+    /// quadrilateral, and a source column onto a straight line in the band, so the extremes lie on its
+    /// first and last rows). True when the band crosses more than two tile rows (a run then holds empty
+    /// tiles worth testing group by group).
+    pub fn band_spans(
+        &self,
+        d: usize,
+        rows: [RowCoefficients; 2],
+        width: usize,
+        plane_h: u32,
+        spans: &mut Vec<(usize, usize)>,
+    ) -> bool {
+        spans.clear();
+        let wp = padded_width(width);
+        let (u0, u1) = (0.5f64, width as f64 - 0.5);
+        let at = |r: &RowCoefficients, k: usize, u: f64| r.a[k] as f64 * u + r.b[k] as f64;
+        let (mut ylo, mut yhi, mut front) = (f64::INFINITY, f64::NEG_INFINITY, true);
+        for r in &rows {
+            for u in [u0, u1] {
+                let w = at(r, 2, u);
+                front &= w > 1e-12;
+                let y = at(r, 1, u) / w;
+                (ylo, yhi) = (ylo.min(y), yhi.max(y));
+            }
+        }
+        // Otherwise (a corner behind the camera) the whole band.
+        if !(front && ylo.is_finite() && yhi.is_finite()) {
+            spans.push((0, wp));
+            return true;
+        }
+        if yhi < 0.0 || ylo > plane_h as f64 {
+            return false;
+        }
+        // The source rows the bilinear taps read, and the union of their tile rows' occupied columns.
+        // (Truncation is the floor of these non-negative values; `+ 1` bounds the ceiling.)
+        let r0 = (ylo - 1.5).max(0.0) as usize;
+        let r1 = ((yhi + 1.5).max(0.0) as usize).min(plane_h as usize - 1);
+        let (t0, t1) = (r0 / TILE, (r1 / TILE).min(self.tiles_y - 1));
+        let words = self.tiles_x.div_ceil(64);
+        let mut union = [0u64; 64];
+        if words > union.len() {
+            spans.push((0, wp));
+            return true;
+        }
+        for ty in t0..=t1 {
+            let row = &self.bits[(d * self.tiles_y + ty) * words..][..words];
+            for (u, &r) in union.iter_mut().zip(row) {
+                *u |= r;
+            }
+        }
+        // Output `u` where the source x equals `s` on row `r` (solving (a0 u + b0) / (a2 u + b2) = s).
+        let solve = |r: &RowCoefficients, s: f64| {
+            (r.b[0] as f64 - s * r.b[2] as f64) / (s * r.a[2] as f64 - r.a[0] as f64)
+        };
+        // Runs of set bits, word by word.
+        let mut t = 0usize;
+        while t < self.tiles_x {
+            let (wi, bi) = (t / 64, t % 64);
+            let rest = union[wi] >> bi;
+            if rest == 0 {
+                t = (wi + 1) * 64;
+                continue;
+            }
+            let lo = t + rest.trailing_zeros() as usize;
+            // The run's end: the first clear bit from `lo` on.
+            let mut end = lo;
+            loop {
+                let (wi, bi) = (end / 64, end % 64);
+                if wi >= words {
+                    break;
+                }
+                let ones = (!(union[wi] >> bi)).trailing_zeros() as usize;
+                end += ones.min(64 - bi);
+                if ones < 64 - bi {
+                    break;
+                }
+            }
+            let end = end.min(self.tiles_x);
+            t = end + 1;
+            // Samples within a texel and a half of the run's texels can touch them.
+            let (slo, shi) = ((lo * TILE) as f64 - 1.5, (end * TILE) as f64 + 1.5);
+            let (mut umin, mut umax) = (f64::INFINITY, f64::NEG_INFINITY);
+            for r in &rows {
+                for s in [slo, shi] {
+                    let u = solve(r, s);
+                    (umin, umax) = (umin.min(u), umax.max(u));
+                }
+            }
+            if !(umin.is_finite() && umax.is_finite()) {
+                spans.clear();
+                spans.push((0, wp));
+                return true;
+            }
+            if umax < -1.0 || umin > width as f64 + 1.0 {
+                continue;
+            }
+            let x0 = ((umin - 1.0).max(0.0) as usize / 8) * 8;
+            let x1 = (((umax + 2.0).max(0.0) as usize).min(width)).div_ceil(8) * 8;
+            if x0 < x1 {
+                spans.push((x0, x1));
+            }
+        }
+        // Sorted (runs map in order, or in reverse order for a mirrored row) and merged: a group is
+        // composited once.
+        if spans.len() > 1 && spans[0].0 > spans[spans.len() - 1].0 {
+            spans.reverse();
+        }
+        if !spans.is_sorted() {
+            spans.sort_unstable();
+        }
+        let mut merged = 0;
+        for i in 0..spans.len() {
+            if merged > 0 && spans[i].0 <= spans[merged - 1].1 {
+                spans[merged - 1].1 = spans[merged - 1].1.max(spans[i].1);
+            } else {
+                spans[merged] = spans[i];
+                merged += 1;
+            }
+        }
+        spans.truncate(merged);
+        t1 > t0 + 1
     }
 
     /// Plane `d`'s tiles.
@@ -100,7 +242,15 @@ pub struct RowCoefficients {
 
 /// The signature of the row kernels ([`kernel`] picks one).
 #[cfg(target_arch = "x86_64")]
-pub type RowKernel = unsafe fn(&[u8], u32, u32, RowCoefficients, &mut [f32], usize, Option<&[u8]>);
+pub type RowKernel = unsafe fn(
+    &[u8],
+    u32,
+    u32,
+    RowCoefficients,
+    &mut [f32],
+    (usize, usize),
+    Option<&[u8]>,
+) -> (usize, usize);
 
 /// The fastest row kernel this CPU runs: the AVX2 code compiled with AVX-512VL enabled when present
 /// (same 256-bit maths, 32 vector registers instead of 16: no spills), else plain AVX2; `None` without
@@ -124,9 +274,12 @@ macro_rules! row_kernel {
         /// Composite one plane *under* the row accumulators `acc` (`[4][padded_width(width)]`, planar r, g, b,
         /// a; the padding lanes receive unused values): planes are visited front to back, `acc += (1 - acc_a) c`.
         ///
-        /// Work is skipped for groups of 8 pixels that are already opaque (`acc_a >= SATURATED`, so what lies
-        /// behind changes them by less than 1/1024) and, given `tiles` (the plane's [`Occupancy`] row), for groups
-        /// whose taps all fall in fully transparent tiles.
+        /// Only the groups of 8 pixels that overlap the columns `span` (`x0..x1`, within the row's `width
+        /// = acc.len() / 4` rounded up to 8) are visited. Work is skipped for groups that are already opaque
+        /// (`acc_a >= SATURATED`, so what lies behind changes them by less than 1/1024) and, given `tiles`
+        /// (the plane's [`Occupancy`] row), for groups whose taps all fall in fully transparent tiles.
+        /// Returns the columns `lo..hi` of the visited groups that were not opaque (`(usize::MAX, 0)`:
+        /// none).
         ///
         /// # Safety
         /// The CPU must support the enabled features ([`kernel`] checks). `layer` holds `plane_w * plane_h`
@@ -139,12 +292,13 @@ macro_rules! row_kernel {
             plane_h: u32,
             coeff: RowCoefficients,
             acc: &mut [f32],
-            width: usize,
+            (x0, x1): (usize, usize),
             tiles: Option<&[u8]>,
-        ) {
+        ) -> (usize, usize) {
             debug_assert_eq!(layer.len(), plane_w as usize * plane_h as usize * 4);
-            let wp = padded_width(width);
-            assert!(acc.len() >= 4 * wp);
+            let wp = acc.len() / 4;
+            assert!(wp % 8 == 0 && x1 <= wp);
+            let (mut open_lo, mut open_hi) = (usize::MAX, 0usize);
             let base = layer.as_ptr() as *const i32;
             let (ar, ag, ab, aa) = {
                 let (r, rest) = acc.split_at_mut(wp);
@@ -180,14 +334,16 @@ macro_rules! row_kernel {
             let lane = _mm256_setr_ps(0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5);
             let saturated = _mm256_set1_ps(SATURATED);
             let tiles_x = (plane_w as usize).div_ceil(TILE);
-            let mut x = 0usize;
-            while x < width {
+            let mut x = x0 / 8 * 8;
+            while x < x1 {
                 // SAFETY: x + 8 <= wp, the padded length of each accumulator.
                 let cur_a = unsafe { _mm256_loadu_ps(aa.add(x)) };
                 if _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(cur_a, saturated)) == 0 {
                     x += 8;
                     continue;
                 }
+                open_lo = open_lo.min(x);
+                open_hi = x + 8;
                 let u = _mm256_add_ps(_mm256_set1_ps(x as f32), lane);
                 let wn = _mm256_fmadd_ps(aw, u, bw);
                 let inv = _mm256_div_ps(one, wn);
@@ -367,6 +523,7 @@ macro_rules! row_kernel {
                 }
                 x += 8;
             }
+            (open_lo, open_hi)
         }
     };
 }
@@ -424,15 +581,106 @@ mod tests {
                 let mut x = start.clone();
                 let mut y = start.clone();
                 // SAFETY: AVX2 + FMA checked above (and AVX-512 before using it).
-                unsafe { composite_row_u8_avx2(&layer, pw, ph, coeff, &mut x, width, tiles) };
+                let span = (0, width);
+                unsafe { composite_row_u8_avx2(&layer, pw, ph, coeff, &mut x, span, tiles) };
                 if avx512 {
                     unsafe {
-                        composite_row_u8_avx512vl(&layer, pw, ph, coeff, &mut y, width, tiles)
+                        composite_row_u8_avx512vl(&layer, pw, ph, coeff, &mut y, span, tiles)
                     };
                     assert_eq!(x, y, "row {a:?} {b:?}");
                 }
                 assert_ne!(x, start, "the row composited nothing");
             }
         }
+    }
+
+    /// Every output pixel of a band whose bilinear taps (as the kernel computes them) touch an occupied
+    /// tile lies in one of the band's spans: random sparse tiles, bands of 1 to 16 rows, homographies
+    /// that shift, zoom, roll, mirror and tilt.
+    #[test]
+    fn band_spans_cover_every_sample_of_an_occupied_tile() {
+        let (pw, ph) = (203u32, 131u32);
+        let mut state = 7u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut spans = Vec::new();
+        let mut checked = 0;
+        for case in 0..500 {
+            // A few occupied texels, each making its tile occupied.
+            let mut layer = vec![0u8; (pw * ph * 4) as usize];
+            for _ in 0..3 + case % 6 {
+                let (x, y) = ((next() * pw as f64) as usize, (next() * ph as f64) as usize);
+                layer[(y * pw as usize + x) * 4 + 3] = 255;
+            }
+            let occ = Occupancy::new(&layer, pw, ph, 1);
+            // Output pixel (u, v) -> source: a similarity (scale, roll, mirror), a shift and a tilt.
+            let (scale, roll) = (0.3 + 2.5 * next(), (next() - 0.5) * 2.0);
+            let mirror = if case % 5 == 0 { -1.0 } else { 1.0 };
+            let (c, s) = (roll.cos() * scale, roll.sin() * scale);
+            let tilt = (next() - 0.5) * 0.004;
+            let h = [
+                mirror * c,
+                -s,
+                next() * 150.0 - 40.0,
+                mirror * s,
+                c,
+                next() * 120.0 - 50.0,
+                tilt,
+                (next() - 0.5) * 0.002,
+                1.0,
+            ];
+            let row = |v: f64| RowCoefficients {
+                a: [h[0] as f32, h[3] as f32, h[6] as f32],
+                b: [
+                    (h[1] * v + h[2]) as f32,
+                    (h[4] * v + h[5]) as f32,
+                    (h[7] * v + h[8]) as f32,
+                ],
+            };
+            let width = 150;
+            let band = 1 + case % 16;
+            let y0 = (next() * 100.0) as usize;
+            let rows = [row(y0 as f64 + 0.5), row((y0 + band - 1) as f64 + 0.5)];
+            occ.band_spans(0, rows, width, ph, &mut spans);
+            for y in y0..y0 + band {
+                let r = row(y as f64 + 0.5);
+                for x in 0..width {
+                    let u = x as f32 + 0.5;
+                    let wn = r.a[2].mul_add(u, r.b[2]);
+                    let (sx, sy) = (
+                        r.a[0].mul_add(u, r.b[0]) / wn,
+                        r.a[1].mul_add(u, r.b[1]) / wn,
+                    );
+                    if !(wn > 0.0
+                        && (0.0..=pw as f32).contains(&sx)
+                        && (0.0..=ph as f32).contains(&sy))
+                    {
+                        continue;
+                    }
+                    let (x0, y0) = ((sx - 0.5).floor() as i64, (sy - 0.5).floor() as i64);
+                    let touches = [(x0, y0), (x0 + 1, y0), (x0, y0 + 1), (x0 + 1, y0 + 1)]
+                        .iter()
+                        .any(|&(tx, ty)| {
+                            let (tx, ty) = (tx.clamp(0, pw as i64 - 1), ty.clamp(0, ph as i64 - 1));
+                            occ.plane(0)[ty as usize / TILE * occ.tiles_x + tx as usize / TILE] != 0
+                        });
+                    if touches {
+                        checked += 1;
+                        assert!(
+                            spans.iter().any(|&(a, b)| (a..b).contains(&x)),
+                            "case {case}: pixel ({x}, {y}) touches an occupied tile outside {spans:?}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(
+            checked > 1000,
+            "only {checked} samples touched an occupied tile"
+        );
     }
 }
