@@ -192,6 +192,17 @@ pub fn simd() -> bool {
     isa() >= Isa::Avx2
 }
 
+/// Give the heap's free memory back to the kernel (glibc's `malloc_trim`; nothing elsewhere): after a
+/// phase whose large buffers are freed, so that the next phase's buffers do not come on top of them (the
+/// application raises glibc's trim threshold, so freed blocks otherwise stay resident).
+pub fn release_free_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: malloc_trim only returns free pages of the heap to the kernel.
+    unsafe {
+        libc::malloc_trim(0);
+    }
+}
+
 /// A zeroed buffer of `n` floats; a large one (64 MiB and more) is backed by transparent huge pages
 /// where the kernel offers them on request (`madvise`; Linux's default `enabled = madvise`): the
 /// engine's state, renders and prior (hundreds of MB) then fault in 2 MiB at a time instead of 4 KiB

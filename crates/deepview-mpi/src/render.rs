@@ -100,7 +100,11 @@ fn render_rows_simd<O: Copy + Send>(
     let plane_len = plane_w as usize * plane_h as usize * 4;
     let w = out_w as usize;
     let row_len = w * 4;
-    let rows_per_band = (out_h as usize / 64).clamp(1, 16);
+    // Bands of a few rows: enough tasks to balance, and each band shares its planes' spans (their
+    // hulls loosen with the band's height: `bench render` on a 230-plane 718x561 learned MPI 29.5-30.6
+    // fps with 4-row bands, 29.5-29.8 with 8, 28.5-28.9 with 16; a 65-plane 1119x865 one 25.7-25.9,
+    // 25.3-25.8, 22.3-22.8).
+    let rows_per_band = (out_h as usize / 128).clamp(1, 6);
     let wp = crate::simd::padded_width(w);
     out.par_chunks_mut(row_len * rows_per_band)
         .enumerate()
@@ -146,31 +150,20 @@ fn render_rows_simd<O: Copy + Send>(
                         } else {
                             None
                         };
-                        // The new open columns: the hull of the open ones not visited and of the visited
-                        // groups found open.
-                        let (mut lo, mut hi) = (usize::MAX, 0);
-                        let mut cursor = open_lo;
-                        for &(a, b) in plane_spans.iter() {
-                            let (x0, x1) = (a.max(open_lo), b.min(open_hi));
-                            if x0 >= x1 {
-                                continue;
-                            }
-                            if x0 > cursor {
-                                (lo, hi) = (lo.min(cursor), hi.max(x0));
-                            }
-                            // SAFETY: `kernel()` checked the CPU features; the layer has plane_w *
-                            // plane_h texels; the span is within the accumulators.
-                            let (l, h) = unsafe {
-                                kernel(layer, plane_w, plane_h, coeff, acc, (x0, x1), tiles)
-                            };
-                            if l < h {
-                                (lo, hi) = (lo.min(l), hi.max(h));
-                            }
-                            cursor = cursor.max(x1);
-                        }
-                        if cursor < open_hi {
-                            (lo, hi) = (lo.min(cursor), open_hi);
-                        }
+                        // SAFETY: `kernel()` checked the CPU features; the layer has plane_w * plane_h
+                        // texels; the spans are within the accumulators.
+                        let (lo, hi) = unsafe {
+                            kernel(
+                                layer,
+                                plane_w,
+                                plane_h,
+                                coeff,
+                                acc,
+                                plane_spans,
+                                (open_lo, open_hi),
+                                tiles,
+                            )
+                        };
                         (open_lo, open_hi) = (lo, hi);
                     }
                     let (r_, rest) = acc.split_at(wp);

@@ -248,6 +248,7 @@ pub type RowKernel = unsafe fn(
     u32,
     RowCoefficients,
     &mut [f32],
+    &[(usize, usize)],
     (usize, usize),
     Option<&[u8]>,
 ) -> (usize, usize);
@@ -274,12 +275,12 @@ macro_rules! row_kernel {
         /// Composite one plane *under* the row accumulators `acc` (`[4][padded_width(width)]`, planar r, g, b,
         /// a; the padding lanes receive unused values): planes are visited front to back, `acc += (1 - acc_a) c`.
         ///
-        /// Only the groups of 8 pixels that overlap the columns `span` (`x0..x1`, within the row's `width
-        /// = acc.len() / 4` rounded up to 8) are visited. Work is skipped for groups that are already opaque
-        /// (`acc_a >= SATURATED`, so what lies behind changes them by less than 1/1024) and, given `tiles`
-        /// (the plane's [`Occupancy`] row), for groups whose taps all fall in fully transparent tiles.
-        /// Returns the columns `lo..hi` of the visited groups that were not opaque (`(usize::MAX, 0)`:
-        /// none).
+        /// Only the groups of 8 pixels in both the sorted disjoint `spans` and the `open` columns (each
+        /// `x0..x1`, multiples of 8 within `acc.len() / 4`) are visited. Work is skipped for groups that
+        /// are already opaque (`acc_a >= SATURATED`, so what lies behind changes them by less than 1/1024)
+        /// and, given `tiles` (the plane's [`Occupancy`] row), for groups whose taps all fall in fully
+        /// transparent tiles. Returns the open columns after this plane (a superset, `lo >= hi`: none):
+        /// the hull of the open ones not visited and of the visited ones found open.
         ///
         /// # Safety
         /// The CPU must support the enabled features ([`kernel`] checks). `layer` holds `plane_w * plane_h`
@@ -292,13 +293,18 @@ macro_rules! row_kernel {
             plane_h: u32,
             coeff: RowCoefficients,
             acc: &mut [f32],
-            (x0, x1): (usize, usize),
+            spans: &[(usize, usize)],
+            (open_lo, open_hi): (usize, usize),
             tiles: Option<&[u8]>,
         ) -> (usize, usize) {
             debug_assert_eq!(layer.len(), plane_w as usize * plane_h as usize * 4);
             let wp = acc.len() / 4;
-            assert!(wp % 8 == 0 && x1 <= wp);
-            let (mut open_lo, mut open_hi) = (usize::MAX, 0usize);
+            assert!(wp % 8 == 0 && open_lo % 8 == 0 && open_hi <= wp);
+            assert!(spans.iter().all(|&(a, b)| a % 8 == 0 && b <= wp));
+            // The new open columns: the hull of the open ones not visited and of the visited groups
+            // found open.
+            let (mut lo, mut hi) = (usize::MAX, 0usize);
+            let mut cursor = open_lo;
             let base = layer.as_ptr() as *const i32;
             let (ar, ag, ab, aa) = {
                 let (r, rest) = acc.split_at_mut(wp);
@@ -334,7 +340,15 @@ macro_rules! row_kernel {
             let lane = _mm256_setr_ps(0.5, 1.5, 2.5, 3.5, 4.5, 5.5, 6.5, 7.5);
             let saturated = _mm256_set1_ps(SATURATED);
             let tiles_x = (plane_w as usize).div_ceil(TILE);
-            let mut x = x0 / 8 * 8;
+            for &(a, b) in spans {
+            let (x0, x1) = (a.max(open_lo), b.min(open_hi));
+            if x0 >= x1 {
+                continue;
+            }
+            if x0 > cursor {
+                (lo, hi) = (lo.min(cursor), hi.max(x0));
+            }
+            let mut x = x0;
             while x < x1 {
                 // SAFETY: x + 8 <= wp, the padded length of each accumulator.
                 let cur_a = unsafe { _mm256_loadu_ps(aa.add(x)) };
@@ -342,8 +356,7 @@ macro_rules! row_kernel {
                     x += 8;
                     continue;
                 }
-                open_lo = open_lo.min(x);
-                open_hi = x + 8;
+                (lo, hi) = (lo.min(x), x + 8);
                 let u = _mm256_add_ps(_mm256_set1_ps(x as f32), lane);
                 let wn = _mm256_fmadd_ps(aw, u, bw);
                 let inv = _mm256_div_ps(one, wn);
@@ -523,7 +536,12 @@ macro_rules! row_kernel {
                 }
                 x += 8;
             }
-            (open_lo, open_hi)
+            cursor = cursor.max(x1);
+            }
+            if cursor < open_hi {
+                (lo, hi) = (lo.min(cursor), open_hi);
+            }
+            (lo, hi)
         }
     };
 }
@@ -581,11 +599,15 @@ mod tests {
                 let mut x = start.clone();
                 let mut y = start.clone();
                 // SAFETY: AVX2 + FMA checked above (and AVX-512 before using it).
-                let span = (0, width);
-                unsafe { composite_row_u8_avx2(&layer, pw, ph, coeff, &mut x, span, tiles) };
+                let (spans, open) = ([(0, wp)], (0, wp));
+                unsafe {
+                    composite_row_u8_avx2(&layer, pw, ph, coeff, &mut x, &spans, open, tiles)
+                };
                 if avx512 {
                     unsafe {
-                        composite_row_u8_avx512vl(&layer, pw, ph, coeff, &mut y, span, tiles)
+                        composite_row_u8_avx512vl(
+                            &layer, pw, ph, coeff, &mut y, &spans, open, tiles,
+                        )
                     };
                     assert_eq!(x, y, "row {a:?} {b:?}");
                 }

@@ -33,7 +33,8 @@ pub struct MpiArgs {
     deepview infer --data ../shared/data/llff/fern --images images_8 --out fern_mpi/\n  \
     deepview infer --data ../shared/data/llff/fern --images images_4 --inputs 1,2,3,4 --planes 64 --out fern_mpi/\n  \
     deepview infer --data ../shared/data/llff/fern --images images_8 --method psv-mean --inputs nearest:4@12 --out psv/\n  \
-    deepview infer --data my_scene --downscale 2 --weights runs/mine/checkpoints/step-0005000 --planes weights --out mpi/")]
+    deepview infer --data my_scene --downscale 2 --weights runs/mine/checkpoints/step-0005000 --planes weights --out mpi/\n  \
+    deepview infer --data my_wide_scene --downscale 2 --compact --out mpi/   # fewer planes, faster to render")]
 pub struct Args {
     /// How to make the MPI: deepview (the learned network), psv-mean, nearest or optimize (see `deepview
     /// eval --help`).
@@ -41,14 +42,26 @@ pub struct Args {
     pub method: MethodKind,
     #[command(flatten)]
     pub mpi: MpiArgs,
+    /// Write the MPI compacted (as `deepview compact` does: planes that hold nothing visible dropped,
+    /// runs of near-empty neighbours merged): about half the planes of a wide capture's MPI, faster to
+    /// render, at ~0.002 SSIM on held-out views (BENCHMARKS.md; `eval --compact` scores it).
+    #[arg(long)]
+    pub compact: bool,
+    #[command(flatten)]
+    pub compaction: super::compact::CompactArgs,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    make(args.method, args.mpi)
+    let compaction = args.compact.then(|| args.compaction.options());
+    make(args.method, args.mpi, compaction)
 }
 
-/// Make the MPI of `kind` from the inputs `args` name and write it.
-fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
+/// Make the MPI of `kind` from the inputs `args` name and write it (compacted with `compaction`).
+fn make(
+    kind: MethodKind,
+    args: MpiArgs,
+    compaction: Option<deepview_mpi::CompactOptions>,
+) -> anyhow::Result<()> {
     if args.options.weights.is_some() && kind != MethodKind::Deepview {
         anyhow::bail!("--weights applies to --method deepview (the learned model), not to {kind}");
     }
@@ -86,10 +99,24 @@ fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
     )?;
     reporter.finish();
     let out = OutputDir::new(&args.out, Kind::Mpi)?;
-    deepview_mpi::write_mpi_with(out.path(), &made.mpi, made.planes.as_ref().map(|c| &c.rule))
+    // A compacted MPI's planes no longer follow the plane rule: it is not recorded.
+    let (compacted, rule) = match compaction {
+        Some(o) => {
+            let c = deepview_mpi::compact(&made.mpi, &o);
+            let note = format!(
+                ", compacted from {} planes ({} empty dropped, {} merged)",
+                made.mpi.planes(),
+                c.dropped,
+                c.merged
+            );
+            (Some((c.mpi, note)), None)
+        }
+        None => (None, made.planes.as_ref().map(|c| &c.rule)),
+    };
+    let mpi = compacted.as_ref().map_or(&made.mpi, |(m, _)| m);
+    deepview_mpi::write_mpi_with(out.path(), mpi, rule)
         .with_context(|| format!("cannot write the MPI to {}", args.out.display()))?;
     out.commit()?;
-    let mpi = &made.mpi;
     let (far, near) = (mpi.depths[0], mpi.depths[mpi.planes() - 1]);
     let planes = if mpi.planes() == 1 {
         format!(
@@ -114,8 +141,9 @@ fn make(kind: MethodKind, args: MpiArgs) -> anyhow::Result<()> {
     let peak = super::bench::peak_rss_mb()
         .map(|mb| format!(", peak memory {:.2} GiB", mb / 1024.0))
         .unwrap_or_default();
+    let compacted = compacted.as_ref().map_or("", |(_, n)| n.as_str());
     println!(
-        "wrote {}: {kind} MPI of views {ids:?}{note}, {planes} ({:.1} s{peak})",
+        "wrote {}: {kind} MPI of views {ids:?}{note}, {planes}{compacted} ({:.1} s{peak})",
         args.out.display(),
         start.elapsed().as_secs_f64()
     );

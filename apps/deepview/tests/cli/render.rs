@@ -227,4 +227,25 @@ fn compact_keeps_the_reference_view_with_fewer_planes() {
         "--compact",
     ]));
     assert!(e.contains("mean"), "{e}");
+    // `infer --compact` writes the compacted MPI at once.
+    let direct = tmp.path().join("direct");
+    let out = succeeds(&deepview(&[
+        "infer",
+        "--data",
+        s(&scene),
+        "--method",
+        "psv-mean",
+        "--inputs",
+        "0,2,6,8",
+        "--planes",
+        "16",
+        "--compact",
+        "--merge-coverage",
+        "1",
+        "--out",
+        s(&direct),
+    ]));
+    assert!(out.contains("compacted from 16 planes"), "{out}");
+    let c = deepview_mpi::read_mpi::<f32>(&direct).unwrap();
+    assert!(c.planes() >= 4 && c.planes() < 16, "{} planes", c.planes());
 }

@@ -521,6 +521,9 @@ pub(crate) fn infer_engine_blocks(
                 );
             }
         }
+        // This net's scratch and renders are freed: return them before the next net's (or the
+        // result's) buffers.
+        deepview_kernels::release_free_memory();
         progress(n);
     }
     // Premultiplied RGBA `[D][H][W][4]`.
