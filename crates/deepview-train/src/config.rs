@@ -75,6 +75,7 @@ impl TrainConfig {
                 colour_jitter: false,
                 wide_inputs: 0.0,
                 surround_inputs: 0.0,
+                spread_inputs: 0.0,
                 window_context: false,
             },
             loss: LossKind::Vgg,

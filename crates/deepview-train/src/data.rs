@@ -99,6 +99,13 @@ pub struct SampleConfig {
     /// sector (outside the views around it: an edge or corner view of a grid) is redrawn, up to 64 times
     /// (then the empty sectors are filled from the rest of the pool). Drawn before `wide_inputs`; 0: never.
     pub surround_inputs: f64,
+    /// Probability that a tuple's K inputs are spread over the whole capture, as in the few-shot
+    /// literature's 3-view protocol (`train[round(i)] for i in linspace(0, n - 1, K)` of the training views
+    /// in name order, each position jittered by up to a quarter of the spacing), and its target any other
+    /// training view: sparse, wide inputs and targets both between and beyond them. Drawn before
+    /// `surround_inputs`; 0: never (and in configs written before it existed).
+    #[serde(default)]
+    pub spread_inputs: f64,
     /// Render the views for the update nets' gradient components from the agreement prior outside the
     /// training window (with the window's state inside) instead of a transparent MPI there: the rays of
     /// wide inputs leave the window, which inference never sees (`deepview_net::network` module docs).
@@ -347,7 +354,11 @@ impl TrainData {
         let s = &self.scenes[si];
         let mut target = s.train_views[rng.below(s.train_views.len())];
         let u = if cfg.jitter { rng.uniform() - 0.5 } else { 0.0 };
-        let inputs = if cfg.surround_inputs > 0.0 && rng.uniform() < cfg.surround_inputs {
+        let inputs = if cfg.spread_inputs > 0.0 && rng.uniform() < cfg.spread_inputs {
+            let (inputs, t) = self.spread_inputs(si, views.max(1), rng);
+            target = t;
+            inputs
+        } else if cfg.surround_inputs > 0.0 && rng.uniform() < cfg.surround_inputs {
             // A target with an empty sector lies outside its inputs (an edge or corner view of a grid):
             // that is extrapolation, not rendering between the inputs, so another target is drawn.
             let mut drawn = self.surrounding_inputs(si, target, views.max(1), rng);
@@ -421,6 +432,45 @@ impl TrainData {
             }
         }
         Ok(ex)
+    }
+
+    /// K training views spread over the capture and a target among the others
+    /// ([`SampleConfig::spread_inputs`]).
+    fn spread_inputs(&self, si: usize, k: usize, rng: &mut Rng) -> (Vec<usize>, usize) {
+        let s = &self.scenes[si];
+        let n = s.train_views.len();
+        if n <= k {
+            // Too few views to leave a target out: the nearest rule's tuple.
+            let target = s.train_views[rng.below(n)];
+            return (self.nearest_inputs(si, target, k), target);
+        }
+        let spacing = (n - 1) as f64 / (k.max(2) - 1) as f64;
+        let mut picks: Vec<usize> = (0..k)
+            .map(|i| {
+                let at = if k == 1 {
+                    (n - 1) as f64 / 2.0
+                } else {
+                    i as f64 * spacing
+                };
+                let jitter = (rng.uniform() - 0.5) * 0.5 * spacing;
+                (at + jitter).round().clamp(0.0, (n - 1) as f64) as usize
+            })
+            .collect();
+        picks.sort_unstable();
+        picks.dedup();
+        // Positions that collided: random free ones instead.
+        let mut free: Vec<usize> = (0..n).filter(|p| !picks.contains(p)).collect();
+        while picks.len() < k {
+            let j = rng.below(free.len());
+            picks.push(free.swap_remove(j));
+        }
+        picks.sort_unstable();
+        let others: Vec<usize> = (0..n).filter(|p| !picks.contains(p)).collect();
+        let target = s.train_views[others[rng.below(others.len())]];
+        (
+            picks.into_iter().map(|p| s.train_views[p]).collect(),
+            target,
+        )
     }
 
     /// K views around `target` ([`SampleConfig::surround_inputs`]), in pool order of distance, and whether
@@ -787,6 +837,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.3,
             surround_inputs: 0.3,
+            spread_inputs: 0.0,
             window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
@@ -842,6 +893,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 0.0,
+            spread_inputs: 0.0,
             window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
@@ -900,6 +952,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 1.0,
             surround_inputs: 0.0,
+            spread_inputs: 0.0,
             window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
@@ -932,6 +985,62 @@ mod tests {
         );
     }
 
+    /// `spread_inputs = 1`: K distinct training views spread over the capture (one in each K-th of the
+    /// views in name order, near the protocol's `linspace` positions), a target that is none of them,
+    /// and over many tuples targets both between the inputs and beyond them, with varied inputs.
+    #[test]
+    fn spread_inputs_cover_the_capture() {
+        // 12 x 2 views, none held out: 24 training views.
+        let data = TrainData::new(vec![two_plane_scene(12, 2, 48, 0.1)]).unwrap();
+        let cfg = SampleConfig {
+            crop: 16,
+            views_min: 3,
+            views_max: 3,
+            planes: 6,
+            jitter: true,
+            auto_planes: false,
+            colour_jitter: false,
+            wide_inputs: 0.0,
+            surround_inputs: 1.0,
+            spread_inputs: 1.0,
+            window_context: false,
+        };
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let s = &data.scenes[0];
+        let n = s.train_views.len();
+        assert_eq!(n, 24);
+        let mut rng = Rng::new(11);
+        let (mut beyond, mut between) = (0, 0);
+        let mut sets = std::collections::HashSet::new();
+        for _ in 0..60 {
+            let ex = data.sample(&cfg, &model, 3, &mut rng).unwrap();
+            let pos: Vec<usize> = ex
+                .inputs
+                .iter()
+                .map(|v| s.train_views.iter().position(|t| t == v).unwrap())
+                .collect();
+            assert_eq!(pos.len(), 3);
+            assert!(pos.windows(2).all(|w| w[0] < w[1]), "{pos:?}");
+            // linspace(0, 23, 3) = 0, 11.5, 23, each moved by at most a quarter of the spacing (2.9).
+            for (p, at) in pos.iter().zip([0.0, 11.5, 23.0]) {
+                assert!((*p as f64 - at).abs() <= 3.4, "{pos:?}");
+            }
+            let t = s.train_views.iter().position(|&v| v == ex.target).unwrap();
+            assert!(!pos.contains(&t), "target {t} among the inputs {pos:?}");
+            if t < pos[0] || t > pos[2] {
+                beyond += 1;
+            } else {
+                between += 1;
+            }
+            sets.insert(pos);
+        }
+        assert!(
+            beyond > 0 && between > 20,
+            "beyond {beyond}, between {between}"
+        );
+        assert!(sets.len() > 10, "only {} input sets", sets.len());
+    }
+
     /// `surround_inputs = 1`, K = 4 on a 5x5 grid: distinct views from the 3K nearest, not always the K
     /// nearest, and around every interior target: seen from the target, no angular gap between the
     /// inputs exceeds 180 degrees (the target is inside their convex hull).
@@ -951,6 +1060,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.5,
             surround_inputs: 0.0,
+            spread_inputs: 0.0,
             window_context: true,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
@@ -1044,6 +1154,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 1.0,
+            spread_inputs: 0.0,
             window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
@@ -1115,6 +1226,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 0.0,
+            spread_inputs: 0.0,
             window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
@@ -1183,6 +1295,7 @@ mod tests {
             colour_jitter: false,
             wide_inputs: 0.0,
             surround_inputs: 0.0,
+            spread_inputs: 0.0,
             window_context: false,
         };
         let model = DeepViewConfig::preset("cpu").unwrap();

@@ -87,6 +87,12 @@ pub struct TrainOptions {
     /// default 0.
     #[arg(long, value_name = "P", value_parser = parse_probability)]
     pub surround_inputs: Option<f64>,
+    /// Probability (0..1) that a tuple's K inputs are spread over the whole capture (the 3-view
+    /// protocol's `linspace` over the training views in name order, jittered) and its target any other
+    /// training view: sparse inputs, targets between and beyond them. Drawn before --surround-inputs;
+    /// default 0.
+    #[arg(long, value_name = "P", value_parser = parse_probability)]
+    pub spread_inputs: Option<f64>,
     /// Render the views for the update nets' gradient components from the agreement prior outside the
     /// training window (with the window's state inside) instead of a transparent MPI there: closer to
     /// inference's full MPI where wide inputs' rays leave the window. Off by default: it did not change
@@ -173,6 +179,7 @@ impl TrainOptions {
         train.sample.colour_jitter = !self.no_colour_jitter;
         train.sample.wide_inputs = self.wide_inputs.unwrap_or(0.0);
         train.sample.surround_inputs = self.surround_inputs.unwrap_or(0.0);
+        train.sample.spread_inputs = self.spread_inputs.unwrap_or(0.0);
         train.sample.window_context = self.window_context;
         if let Some(l) = self.loss {
             train.loss = l;
@@ -264,6 +271,11 @@ impl TrainOptions {
                 self.surround_inputs
                     .is_some_and(|p| p != t.sample.surround_inputs),
                 "--surround-inputs",
+            ),
+            (
+                self.spread_inputs
+                    .is_some_and(|p| p != t.sample.spread_inputs),
+                "--spread-inputs",
             ),
             (
                 self.window_context && !t.sample.window_context,

@@ -50,6 +50,7 @@ fn small_config(steps: u64, devices: &[&str], batch: usize) -> RunConfig {
         colour_jitter: false,
         wide_inputs: 0.0,
         surround_inputs: 0.0,
+        spread_inputs: 0.0,
         window_context: false,
     };
     train.loss = LossKind::L1;
