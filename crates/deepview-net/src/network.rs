@@ -187,14 +187,67 @@ impl CoreNet {
     fn upsample(&self, o: Tensor<4>, h: usize, w: usize) -> Tensor<4> {
         if self.unet {
             let [_, _, hh, ww] = o.dims();
-            let opts = InterpolateOptions::new(InterpolateMode::Bilinear)
-                .with_align_corners(false)
-                .with_output_size([2 * hh, 2 * ww]);
-            interpolate(o, opts).narrow(2, 0, h).narrow(3, 0, w)
+            let up = if fast_device(&o.device()) {
+                let opts = InterpolateOptions::new(InterpolateMode::Bilinear)
+                    .with_align_corners(false)
+                    .with_output_size([2 * hh, 2 * ww]);
+                interpolate(o, opts)
+            } else {
+                // burn's GPU backends have no backward for bilinear interpolation.
+                upsample2x_bilinear(o)
+            };
+            up.narrow(2, 0, h).narrow(3, 0, w)
         } else {
             o
         }
     }
+}
+
+/// Bilinear upsampling by 2 of the last two axes (`align_corners = false`, edges clamped: burn's
+/// `interpolate` to twice the size) from slices, sums and reshapes only, so that its backward exists on every
+/// backend (burn's GPU backends have none for `interpolate`). Along an axis of length n, output 2i is
+/// `0.75 x[i] + 0.25 x[i - 1]` and output 2i + 1 is `0.75 x[i] + 0.25 x[i + 1]`, indices clamped to 0..n.
+pub fn upsample2x_bilinear(x: Tensor<4>) -> Tensor<4> {
+    upsample2x_axis(upsample2x_axis(x, 2), 3)
+}
+
+/// [`upsample2x_bilinear`] along one axis (2 or 3).
+fn upsample2x_axis(x: Tensor<4>, axis: usize) -> Tensor<4> {
+    let dims = x.dims();
+    let n = dims[axis];
+    let (prev, next) = if n == 1 {
+        (x.clone(), x.clone())
+    } else {
+        let prev = Tensor::cat(
+            vec![
+                x.clone().narrow(axis, 0, 1),
+                x.clone().narrow(axis, 0, n - 1),
+            ],
+            axis,
+        );
+        let next = Tensor::cat(
+            vec![
+                x.clone().narrow(axis, 1, n - 1),
+                x.clone().narrow(axis, n - 1, 1),
+            ],
+            axis,
+        );
+        (prev, next)
+    };
+    let centre = x.mul_scalar(0.75);
+    let even = centre.clone() + prev.mul_scalar(0.25);
+    let odd = centre + next.mul_scalar(0.25);
+    // Interleave: [.., n, 1, ..] pairs side by side on a new axis after `axis`, then merged.
+    let pair = Tensor::cat(
+        vec![
+            even.unsqueeze_dim::<5>(axis + 1),
+            odd.unsqueeze_dim::<5>(axis + 1),
+        ],
+        axis + 1,
+    );
+    let mut out = dims;
+    out[axis] = 2 * n;
+    pair.reshape(out)
 }
 
 /// `[K*D, C, h, w]` -> `[D, C, h, w]`, element-wise maximum over the K views.
@@ -648,6 +701,61 @@ mod tests {
 
     fn max_diff(a: Tensor<4>, b: Tensor<4>) -> f32 {
         (a - b).abs().max().into_scalar()
+    }
+
+    /// The U-Net's upsampling from slices and sums (used where burn's `interpolate` has no backward)
+    /// equals burn's bilinear `interpolate` to twice the size, outputs and input gradients, on sizes of 1,
+    /// odd and even; and on a ramp it gives the analytic sample positions `(j + 0.5) / 2 - 0.5`.
+    #[test]
+    fn upsample2x_bilinear_is_burns_interpolate() {
+        let ad = Device::flex().autodiff();
+        for [n, c, h, w] in [
+            [1, 1, 1, 1],
+            [2, 3, 1, 4],
+            [1, 2, 5, 7],
+            [3, 1, 6, 2],
+            [1, 4, 9, 8],
+        ] {
+            let x = Tensor::<4>::random(
+                [n, c, h, w],
+                burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                &ad,
+            );
+            let seed = Tensor::<4>::random(
+                [n, c, 2 * h, 2 * w],
+                burn::tensor::Distribution::Uniform(-1.0, 1.0),
+                &ad,
+            );
+            let xa = x.clone().require_grad();
+            let ya = upsample2x_bilinear(xa.clone());
+            let xb = x.clone().require_grad();
+            let opts = InterpolateOptions::new(InterpolateMode::Bilinear)
+                .with_align_corners(false)
+                .with_output_size([2 * h, 2 * w]);
+            let yb = interpolate(xb.clone(), opts);
+            assert_eq!(ya.dims(), [n, c, 2 * h, 2 * w]);
+            let e = max_diff(ya.clone().inner(), yb.clone().inner());
+            assert!(e < 1e-6, "{n}x{c}x{h}x{w} output: {e}");
+            let ga = (ya * seed.clone()).sum().backward();
+            let gb = (yb * seed).sum().backward();
+            let e = max_diff(xa.grad(&ga).unwrap(), xb.grad(&gb).unwrap());
+            assert!(e < 1e-5, "{n}x{c}x{h}x{w} gradient: {e}");
+        }
+        // A ramp along the columns: interior outputs sample at (j + 0.5) / 2 - 0.5, clamped to 0..w-1.
+        let w = 6;
+        let ramp: Vec<f32> = (0..w).map(|i| i as f32).collect();
+        let x = Tensor::<1>::from_floats(ramp.as_slice(), &Device::flex()).reshape([1, 1, 1, w]);
+        let y = upsample2x_bilinear(x)
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        for (j, v) in y.iter().take(2 * w).enumerate() {
+            let expect = ((j as f32 + 0.5) / 2.0 - 0.5).clamp(0.0, (w - 1) as f32);
+            assert!(
+                (v - expect).abs() < 1e-6,
+                "column {j}: {v} against {expect}"
+            );
+        }
     }
 
     /// The kernels (fused inference on `flex`, per-layer op with its backward under autodiff) against

@@ -616,6 +616,59 @@ fn two_wgpu_replicas_match_one_device() {
     );
 }
 
+/// A model with a U-Net net (half resolution in, bilinear upsampling out) trains on `wgpu:cpu` (lavapipe)
+/// as on the CPU: burn's GPU backends have no backward for bilinear `interpolate` (the `paper-*` presets
+/// panicked there, `../shared/GPU.md`), so off the CPU the upsampling is built from slices and sums
+/// (`network::upsample2x_bilinear`). Two steps on the same batches from the same weights: losses and
+/// gradient norms to 1e-5 relative, weights to 1e-5 absolute (the tolerance of
+/// `cpu_and_wgpu_replicas_match_one_device`, whose reasoning holds here: Adam moves each weight by up to
+/// the learning rate, 1.5e-4, so a wrong gradient shows far beyond it).
+#[cfg(feature = "wgpu")]
+#[test]
+fn unet_model_trains_on_wgpu_as_on_the_cpu() {
+    parse_device("wgpu:cpu").unwrap_or_else(|e| {
+        panic!("no wgpu device `wgpu:cpu` on this machine (needs lavapipe): {e}")
+    });
+    let dir = tempfile::tempdir().unwrap();
+    let create = |name: &str, device: &str| {
+        let mut c = small_config(2, &[device], 1);
+        c.model.unet_nets = 1;
+        c.model.updates = 1;
+        Trainer::create(&dir.path().join(name), c, small_data()).unwrap()
+    };
+    let mut one = create("cpu", "cpu");
+    let mut two = create("wgpu", "wgpu:cpu");
+    let w0 = parameter_values(&one.model);
+    two.model = one.model.clone().fork(two.master_device());
+    for _ in 0..2 {
+        let batch = one.draw_batch().unwrap();
+        let a = one.step_on(batch.clone());
+        let b = two.step_on(batch);
+        eprintln!(
+            "loss {} vs {}, grad norm {} vs {}",
+            a.loss, b.loss, a.grad_norm, b.grad_norm
+        );
+        assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
+        assert!(
+            (a.loss - b.loss).abs() <= 1e-5 * a.loss.abs(),
+            "{a:?} vs {b:?}"
+        );
+        assert!(
+            (a.grad_norm - b.grad_norm).abs() <= 1e-5 * a.grad_norm.abs(),
+            "{a:?} vs {b:?}"
+        );
+    }
+    let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
+    let max = max_abs_diff(&wa, &wb);
+    let moved = max_abs_diff(&wa, &w0);
+    eprintln!("max |w_cpu - w_wgpu| = {max:e}; max move = {moved:e}");
+    assert!(moved > 1e-4, "the weights hardly moved ({moved})");
+    assert!(
+        max < 1e-5,
+        "the U-Net model on wgpu diverges from the CPU by {max}"
+    );
+}
+
 /// burn 0.22.1's collective ops on two wgpu devices (lavapipe's `wgpu` and `wgpu:cpu`), through the
 /// code the trainer's collective path runs ([`reduce::collective_sum`]): cubecl 0.11.3 refuses
 /// `all_reduce` on its wgpu runtime with a panic on the caller ("Can't use `all_reduce` on wgpu, which

@@ -357,6 +357,11 @@ impl Trainer {
         &self.local_reduction
     }
 
+    /// The autodiff device of the master weights (the first of `--devices`).
+    pub fn master_device(&self) -> &Device {
+        &self.devices[0]
+    }
+
     /// How many burn `all_reduce` calls this trainer has made to sum its replicas (0 unless
     /// [`LocalReduction::Collective`]).
     pub fn all_reduce_calls(&self) -> u64 {
