@@ -794,6 +794,21 @@ fn failed_commands_leave_no_output_folder() {
         &["mpi.json"],
     );
     assert!(!tmp.path().join("a").exists());
+    // A device this build lacks, or no device at all: `demo --device` as `infer --device`.
+    for (device, says) in [("tpu", "unknown device"), ("cuda:0", "--features cuda")] {
+        refused(
+            &deepview(&[
+                "demo",
+                "--no-optimize",
+                "--device",
+                device,
+                "--out",
+                s(&out),
+            ]),
+            &[device, says],
+        );
+        assert!(!tmp.path().join("a").exists());
+    }
     assert!(leftovers(tmp.path()).is_empty());
 }
 

@@ -10,7 +10,8 @@ use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
 #[command(
-    after_help = "Examples:\n  deepview demo\n  deepview demo --out demo/ --planes 32 --no-optimize"
+    after_help = "Examples:\n  deepview demo\n  deepview demo --out demo/ --planes 32 --no-optimize\n  \
+    deepview demo --device wgpu    # the learned model on a GPU (a build with --features wgpu)"
 )]
 pub struct Args {
     /// Output folder.
@@ -30,6 +31,10 @@ pub struct Args {
     pub planes: Planes,
     #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
     pub max_memory: Option<String>,
+    /// Device of the learned model (as `infer --device` and `train --devices`): cpu, wgpu, wgpu:N,
+    /// wgpu:cpu, cuda, cuda:N (GPU devices in builds with `--features wgpu` or `--features cuda`).
+    #[arg(long, default_value = "cpu")]
+    pub device: String,
 }
 
 const INPUTS: &str = "0,3,12,15";
@@ -48,12 +53,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let options = |steps: usize| MethodOptions {
         planes: args.planes,
         weights: args.weights.clone(),
+        device: args.device.clone(),
         steps,
         ..MethodOptions::default()
     };
     let default_steps = MethodOptions::default().steps;
     let learned_method = make_method(MethodKind::Deepview, &options(default_steps), budget)
-        .context("the demo needs the learned model's weights")?;
+        .context("cannot load the learned model for the demo")?;
     let weights_name = learned_method.weights().unwrap_or_default();
     let mut reporter = Reporter::new(MethodKind::Deepview, &[], None, false);
     let mut learned = MpiPredictor::new(learned_method, move |e| reporter.event(e));
