@@ -35,6 +35,10 @@ pub enum InferError {
         w: u32,
         h: u32,
     },
+    #[error(
+        "the device failed to compute a tile: {0} (on a GPU, a smaller --max-memory gives smaller tiles)"
+    )]
+    Device(String),
 }
 
 /// Check the inputs of an inference: views, planes, the view count of the weights, image sizes.

@@ -17,6 +17,25 @@ pub(super) fn model_device(model: &DeepViewModel) -> Device {
     model.nets[0].out.weight.val().device()
 }
 
+/// A tile's result back on the host; a device that failed computing it (a GPU out of memory or over a
+/// buffer limit) is an error, not a panic.
+fn read_back(t: Tensor<4>) -> Result<Vec<f32>, InferError> {
+    // The first causes of cubecl's report, without its list of the kernels skipped after the failure.
+    let device = |e: String| {
+        let lines: Vec<&str> = e
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty() && !l.starts_with("skipped") && *l != "Caused by:")
+            .take(4)
+            .collect();
+        InferError::Device(lines.join("; "))
+    };
+    t.try_into_data()
+        .map_err(|e| device(e.to_string()))?
+        .try_to_vec()
+        .map_err(|e| device(format!("{e:?}")))
+}
+
 /// [`super::infer_mpi`] with an explicit plan (`plan.nets` has one entry per net).
 pub fn infer_mpi_planned(
     model: &DeepViewModel,
@@ -120,14 +139,11 @@ pub fn infer_mpi_planned(
                 let out = out.narrow(2, ty - ry0, th).narrow(3, tx - rx0, tw);
                 match next.as_mut() {
                     Some(next) => {
-                        let vals: Vec<f32> = out.into_data().try_to_vec().expect("f32 tensor");
+                        let vals = read_back(out)?;
                         next.write(&vals, p0, np, (tx, ty, tw, th));
                     }
                     None => {
-                        let vals: Vec<f32> = state_to_rgba(out)
-                            .into_data()
-                            .try_to_vec()
-                            .expect("f32 tensor");
+                        let vals = read_back(state_to_rgba(out))?;
                         // [np][4][th][tw] -> [D][H][W][4]
                         for p in 0..np {
                             for c in 0..4 {
