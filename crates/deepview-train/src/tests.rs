@@ -473,6 +473,25 @@ fn ranks_match_one_process() {
     }
 }
 
+/// Two runs' reports of the same step (printed): neither skipped, loss and gradient norm within `rel`
+/// of each other (relative).
+#[cfg(feature = "wgpu")]
+fn assert_same_step(a: &metrics::StepReport, b: &metrics::StepReport, rel: f64) {
+    eprintln!(
+        "loss {} vs {}, grad norm {} vs {}",
+        a.loss, b.loss, a.grad_norm, b.grad_norm
+    );
+    assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
+    assert!(
+        (a.loss - b.loss).abs() <= rel * a.loss.abs(),
+        "{a:?} vs {b:?}"
+    );
+    assert!(
+        (a.grad_norm - b.grad_norm).abs() <= rel * a.grad_norm.abs(),
+        "{a:?} vs {b:?}"
+    );
+}
+
 /// Data parallelism over "CPU + one wgpu device" (`--features wgpu`; on a machine without a GPU, Mesa's
 /// lavapipe Vulkan driver serves): the same steps as on the CPU alone, up to the other backend's float
 /// arithmetic. The device comes from `parse_device("wgpu")` first (burn's fallible options API), so a
@@ -505,19 +524,7 @@ fn cpu_and_wgpu_replicas_match_one_device() {
     let ra = one.run(&never(), &mut |_| {}).unwrap();
     let rb = two.run(&never(), &mut |_| {}).unwrap();
     for (a, b) in ra.iter().zip(&rb) {
-        eprintln!(
-            "loss {} vs {}, grad norm {} vs {}",
-            a.loss, b.loss, a.grad_norm, b.grad_norm
-        );
-        assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
-        assert!(
-            (a.loss - b.loss).abs() <= 1e-5 * a.loss.abs(),
-            "{a:?} vs {b:?}"
-        );
-        assert!(
-            (a.grad_norm - b.grad_norm).abs() <= 1e-5 * a.grad_norm.abs(),
-            "{a:?} vs {b:?}"
-        );
+        assert_same_step(a, b, 1e-5);
     }
     let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
     assert_eq!(wa.len(), wb.len());
@@ -583,19 +590,7 @@ fn two_wgpu_replicas_match_one_device() {
         let batch = one.draw_batch().unwrap();
         let a = one.step_on(batch.clone());
         let b = two.step_on(batch);
-        eprintln!(
-            "loss {} vs {}, grad norm {} vs {}",
-            a.loss, b.loss, a.grad_norm, b.grad_norm
-        );
-        assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
-        assert!(
-            (a.loss - b.loss).abs() <= 1e-6 * a.loss.abs(),
-            "{a:?} vs {b:?}"
-        );
-        assert!(
-            (a.grad_norm - b.grad_norm).abs() <= 1e-6 * a.grad_norm.abs(),
-            "{a:?} vs {b:?}"
-        );
+        assert_same_step(&a, &b, 1e-6);
     }
     let params = dist::flat_len(&two.model) as u64; // values + one per parameter
     let calls = two.all_reduce_calls();
@@ -644,19 +639,7 @@ fn unet_model_trains_on_wgpu_as_on_the_cpu() {
         let batch = one.draw_batch().unwrap();
         let a = one.step_on(batch.clone());
         let b = two.step_on(batch);
-        eprintln!(
-            "loss {} vs {}, grad norm {} vs {}",
-            a.loss, b.loss, a.grad_norm, b.grad_norm
-        );
-        assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
-        assert!(
-            (a.loss - b.loss).abs() <= 1e-5 * a.loss.abs(),
-            "{a:?} vs {b:?}"
-        );
-        assert!(
-            (a.grad_norm - b.grad_norm).abs() <= 1e-5 * a.grad_norm.abs(),
-            "{a:?} vs {b:?}"
-        );
+        assert_same_step(&a, &b, 1e-5);
     }
     let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
     let max = max_abs_diff(&wa, &wb);
