@@ -803,6 +803,24 @@ mod tests {
     use super::*;
     use crate::synthetic::two_plane_scene;
 
+    /// The tests' tuple settings: `views` inputs, `planes` planes, 16 px crops with jitter, no colour
+    /// jitter, the nearest inputs; each test overrides what it is about.
+    fn test_sample(views: std::ops::RangeInclusive<usize>, planes: usize) -> SampleConfig {
+        SampleConfig {
+            crop: 16,
+            views_min: *views.start(),
+            views_max: *views.end(),
+            planes,
+            jitter: true,
+            auto_planes: false,
+            colour_jitter: false,
+            wide_inputs: 0.0,
+            surround_inputs: 0.0,
+            spread_inputs: 0.0,
+            window_context: false,
+        }
+    }
+
     #[test]
     fn jitter_keeps_spacing_and_bounds() {
         let d = jittered_depths(1.0, 10.0, 5, 0.0);
@@ -828,17 +846,10 @@ mod tests {
         scene.train_views.retain(|&v| v != 4);
         let data = TrainData::with_procedural(vec![scene], Procedural::default());
         let cfg = SampleConfig {
-            crop: 16,
-            views_min: 3,
-            views_max: 4,
-            planes: 32,
-            jitter: true,
             auto_planes: true,
-            colour_jitter: false,
             wide_inputs: 0.3,
             surround_inputs: 0.3,
-            spread_inputs: 0.0,
-            window_context: false,
+            ..test_sample(3..=4, 32)
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let draw = |seed| {
@@ -884,17 +895,8 @@ mod tests {
     fn auto_planes_follow_the_inference_rule() {
         let data = TrainData::new(vec![two_plane_scene(4, 4, 96, 0.6)]).unwrap();
         let mut cfg = SampleConfig {
-            crop: 16,
-            views_min: 2,
-            views_max: 5,
-            planes: 40,
-            jitter: true,
             auto_planes: true,
-            colour_jitter: false,
-            wide_inputs: 0.0,
-            surround_inputs: 0.0,
-            spread_inputs: 0.0,
-            window_context: false,
+            ..test_sample(2..=5, 40)
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let mut rng = Rng::new(11);
@@ -943,17 +945,8 @@ mod tests {
     fn wide_inputs_come_from_the_3k_nearest() {
         let data = TrainData::new(vec![two_plane_scene(4, 4, 48, 0.15)]).unwrap();
         let cfg = SampleConfig {
-            crop: 16,
-            views_min: 2,
-            views_max: 4,
-            planes: 6,
-            jitter: true,
-            auto_planes: false,
-            colour_jitter: false,
             wide_inputs: 1.0,
-            surround_inputs: 0.0,
-            spread_inputs: 0.0,
-            window_context: false,
+            ..test_sample(2..=4, 6)
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let s = &data.scenes[0];
@@ -993,17 +986,9 @@ mod tests {
         // 12 x 2 views, none held out: 24 training views.
         let data = TrainData::new(vec![two_plane_scene(12, 2, 48, 0.1)]).unwrap();
         let cfg = SampleConfig {
-            crop: 16,
-            views_min: 3,
-            views_max: 3,
-            planes: 6,
-            jitter: true,
-            auto_planes: false,
-            colour_jitter: false,
-            wide_inputs: 0.0,
             surround_inputs: 1.0,
             spread_inputs: 1.0,
-            window_context: false,
+            ..test_sample(3..=3, 6)
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let s = &data.scenes[0];
@@ -1051,17 +1036,9 @@ mod tests {
     fn window_context_holds_what_the_input_crops_rays_cross() {
         let data = TrainData::new(vec![two_plane_scene(4, 4, 64, 0.3)]).unwrap();
         let mut cfg = SampleConfig {
-            crop: 16,
-            views_min: 3,
-            views_max: 3,
-            planes: 8,
-            jitter: true,
-            auto_planes: false,
-            colour_jitter: false,
             wide_inputs: 0.5,
-            surround_inputs: 0.0,
-            spread_inputs: 0.0,
             window_context: true,
+            ..test_sample(3..=3, 8)
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let s = &data.scenes[0];
@@ -1145,17 +1122,9 @@ mod tests {
         let baseline = 0.1;
         let data = TrainData::new(vec![two_plane_scene(5, 5, 48, baseline)]).unwrap();
         let cfg = SampleConfig {
-            crop: 16,
-            views_min: 4,
-            views_max: 4,
-            planes: 6,
             jitter: false,
-            auto_planes: false,
-            colour_jitter: false,
-            wide_inputs: 0.0,
             surround_inputs: 1.0,
-            spread_inputs: 0.0,
-            window_context: false,
+            ..test_sample(4..=4, 6)
         };
         let model = DeepViewConfig::preset("cpu").unwrap();
         let s = &data.scenes[0];
@@ -1216,19 +1185,7 @@ mod tests {
     #[test]
     fn colour_jitter_is_a_gain_per_channel_and_view() {
         let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.15)]).unwrap();
-        let mut cfg = SampleConfig {
-            crop: 16,
-            views_min: 3,
-            views_max: 3,
-            planes: 6,
-            jitter: true,
-            auto_planes: false,
-            colour_jitter: false,
-            wide_inputs: 0.0,
-            surround_inputs: 0.0,
-            spread_inputs: 0.0,
-            window_context: false,
-        };
+        let mut cfg = test_sample(3..=3, 6);
         let model = DeepViewConfig::preset("cpu").unwrap();
         for seed in 0..6 {
             let plain = data.sample(&cfg, &model, 3, &mut Rng::new(seed)).unwrap();
@@ -1285,19 +1242,7 @@ mod tests {
     #[test]
     fn window_and_crops_cover_what_is_needed() {
         let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.15)]).unwrap();
-        let cfg = SampleConfig {
-            crop: 16,
-            views_min: 2,
-            views_max: 4,
-            planes: 6,
-            jitter: true,
-            auto_planes: false,
-            colour_jitter: false,
-            wide_inputs: 0.0,
-            surround_inputs: 0.0,
-            spread_inputs: 0.0,
-            window_context: false,
-        };
+        let cfg = test_sample(2..=4, 6);
         let model = DeepViewConfig::preset("cpu").unwrap();
         let margin = model.margin_from(0);
         let mut rng = Rng::new(3);
