@@ -147,6 +147,7 @@ impl MpiMethod for LearnedMethod {
             PlaneSpacing::InverseDepth,
         )?;
         let plan = check_learned(model, &views, &reference, &depths, budget)?;
+        events(MethodEvent::Plan(&plan.describe()));
         events(MethodEvent::Start {
             planes: depths.len(),
             width: reference.width,

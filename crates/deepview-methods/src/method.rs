@@ -35,6 +35,8 @@ pub enum MethodEvent<'a> {
         width: u32,
         height: u32,
     },
+    /// How the learned model's inference will run ([`deepview_net::infer::Plan::describe`]).
+    Plan(&'a str),
     /// `done` of `total` steps are done.
     Progress { done: usize, total: usize },
 }

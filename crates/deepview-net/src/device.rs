@@ -133,3 +133,39 @@ pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
         )),
     }
 }
+
+/// What a device's memory allows, as its runtime reports it: `None` where there is no figure (the CPU,
+/// whose budget is the host's, or a runtime that states none).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DeviceMemory {
+    /// Bytes the device can hold at once (cubecl's `max_memory`: the largest device-local heap on Vulkan,
+    /// the total memory on CUDA).
+    pub capacity: Option<u64>,
+    /// Bytes of the largest single allocation (cubecl's `max_page_size`: on wgpu the smaller of the
+    /// storage-buffer binding and buffer size limits, on CUDA a quarter of the memory). A tensor over it
+    /// cannot be allocated at all.
+    pub max_allocation: Option<u64>,
+}
+
+/// The memory figures of `device` (opens the device's runtime where it is not open yet).
+pub fn device_memory(device: &Device) -> DeviceMemory {
+    dispatch_memory(device.as_dispatch())
+}
+
+fn dispatch_memory(device: &burn::backend::DispatchDevice) -> DeviceMemory {
+    use burn::backend::DispatchDevice;
+    match device {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        DispatchDevice::Cube(d) => {
+            let client = d.client();
+            let memory = &client.properties().memory;
+            DeviceMemory {
+                capacity: memory.max_memory(),
+                max_allocation: Some(memory.max_page_size).filter(|&b| b > 0),
+            }
+        }
+        DispatchDevice::Autodiff(inner) => dispatch_memory(inner),
+        #[allow(unreachable_patterns)]
+        _ => DeviceMemory::default(),
+    }
+}

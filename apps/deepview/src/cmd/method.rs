@@ -64,6 +64,11 @@ impl Reporter {
                 self.bar = Some(bar);
             }
             MethodEvent::Start { .. } => {}
+            // Off the CPU, where the device's limits shape the tiles.
+            MethodEvent::Plan(plan) if self.verbose && plan.starts_with("tiled") => {
+                eprintln!("plan: {plan}")
+            }
+            MethodEvent::Plan(_) => {}
             MethodEvent::Progress { done, total } => {
                 if let Some(bar) = &self.bar {
                     bar.set_length(total as u64);

@@ -1,7 +1,7 @@
 //! Over-compositing with net transmittance `T` and accumulated over `A`, renders into views, plane sweep
 //! volumes, the gradient components, and images as tensors.
 
-use super::taps::{Hom, WarpTable};
+use super::taps::{Frames, Hom, WarpTable};
 use super::warp::{crop_output, invert};
 use burn::tensor::{Device, Tensor, TensorData};
 
@@ -68,15 +68,41 @@ pub fn composite_burn(rgba: Tensor<4>) -> Composite {
 /// plane `d`; the output is `out_w x out_h` view pixels. Returns the composite with its `T` and `A`.
 pub fn render_view(rgba: Tensor<4>, view_to_mpi: &[Hom], out_h: usize, out_w: usize) -> Composite {
     let [_, _, h, w] = rgba.dims();
-    composite(WarpTable::new(view_to_mpi, w, h, out_w, out_h).apply(rgba))
+    render_view_framed(rgba, view_to_mpi, Frames::whole(w, h), out_h, out_w)
+}
+
+/// [`render_view`] where `rgba` is a window of the MPI and the output a crop of the view ([`Frames`]);
+/// `view_to_mpi` maps whole-view pixels to whole-MPI pixels.
+pub fn render_view_framed(
+    rgba: Tensor<4>,
+    view_to_mpi: &[Hom],
+    frames: Frames,
+    out_h: usize,
+    out_w: usize,
+) -> Composite {
+    let [_, _, h, w] = rgba.dims();
+    composite(WarpTable::new_framed(view_to_mpi, frames, w, h, out_w, out_h).apply(rgba))
 }
 
 /// The plane sweep volume of `image` `[3, hv, wv]` on a `w x h` MPI window: `mpi_to_view[d]` maps MPI
 /// window pixels to view pixels. Returns `[D, 4, h, w]`: RGB and a validity channel (1 where the sample
 /// falls inside the image).
 pub fn plane_sweep_volume(image: Tensor<3>, mpi_to_view: &[Hom], h: usize, w: usize) -> Tensor<4> {
+    let [_, hv, wv] = image.dims();
+    plane_sweep_volume_framed(image, mpi_to_view, Frames::whole(wv, hv), h, w)
+}
+
+/// [`plane_sweep_volume`] where `image` is a crop of the view and the `w x h` output a window of the
+/// MPI ([`Frames`]); `mpi_to_view` maps whole-MPI pixels to whole-view pixels.
+pub fn plane_sweep_volume_framed(
+    image: Tensor<3>,
+    mpi_to_view: &[Hom],
+    frames: Frames,
+    h: usize,
+    w: usize,
+) -> Tensor<4> {
     let [c, hv, wv] = image.dims();
-    let table = WarpTable::new(mpi_to_view, wv, hv, w, h);
+    let table = WarpTable::new_framed(mpi_to_view, frames, wv, hv, w, h);
     let device = image.device();
     let psv = table.apply(image.reshape([1, c, hv, wv]));
     Tensor::cat(vec![psv, table.valid(&device)], 1)
@@ -110,6 +136,52 @@ pub fn gradient_components(
         .map(|m| crop_output(m, x0 as f64, y0 as f64))
         .collect();
     let table = WarpTable::new(&region_homs, wv, hv, w, h);
+    components_from(image, comp, &table)
+}
+
+/// A window of an MPI and a crop of a view, placed in the whole MPI (`mpi_size`) and view (`view_size`).
+#[derive(Clone, Copy, Debug)]
+pub struct Crops {
+    /// Origin of the MPI window in the MPI.
+    pub window: (usize, usize),
+    pub mpi_size: (usize, usize),
+    /// Origin of the view crop in the view.
+    pub crop: (usize, usize),
+    pub view_size: (usize, usize),
+}
+
+/// [`gradient_components`] from a window `rgba` of the MPI and a crop `image` of the view ([`Crops`]),
+/// with `mpi_to_view` mapping whole-MPI pixels to whole-view pixels and `region` in whole-MPI pixels:
+/// bit for bit the region of the whole computation when the window holds every texel that a render of
+/// the crop samples and the crop every texel the region's samples read ([`Frames`]).
+pub fn gradient_components_framed(
+    rgba: Tensor<4>,
+    image: Tensor<3>,
+    mpi_to_view: &[Hom],
+    crops: Crops,
+    region: (usize, usize, usize, usize),
+) -> Tensor<4> {
+    let [_, hv, wv] = image.dims();
+    let view_to_mpi: Vec<Hom> = mpi_to_view.iter().map(invert).collect();
+    let render = Frames {
+        src_origin: crops.window,
+        src_full: crops.mpi_size,
+        out_origin: crops.crop,
+    };
+    let comp = render_view_framed(rgba, &view_to_mpi, render, hv, wv);
+    let (x0, y0, w, h) = region;
+    let sample = Frames {
+        src_origin: crops.crop,
+        src_full: crops.view_size,
+        out_origin: (x0, y0),
+    };
+    let table = WarpTable::new_framed(mpi_to_view, sample, wv, hv, w, h);
+    components_from(image, comp, &table)
+}
+
+/// The gradient components of a view image and its render, sampled by `table`.
+fn components_from(image: Tensor<3>, comp: Composite, table: &WarpTable) -> Tensor<4> {
+    let [_, hv, wv] = image.dims();
     let images = Tensor::cat(
         vec![
             image.reshape([1, 3, hv, wv]),

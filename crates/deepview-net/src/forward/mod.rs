@@ -22,10 +22,11 @@ mod tests;
 mod warp;
 
 pub use composite::{
-    Composite, GRADIENT_CHANNELS, composite, composite_burn, gradient_components, image_tensor,
-    plane_sweep_volume, render_view,
+    Composite, Crops, GRADIENT_CHANNELS, composite, composite_burn, gradient_components,
+    gradient_components_framed, image_tensor, plane_sweep_volume, plane_sweep_volume_framed,
+    render_view, render_view_framed,
 };
-pub use taps::{Hom, WarpTable};
+pub use taps::{Frames, Hom, WarpTable};
 pub use warp::{
     crop_output, crop_source, invert, mpi_to_view_homographies, mul, warp_planes,
     warp_planes_grid_sample,

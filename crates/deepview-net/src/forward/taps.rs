@@ -26,42 +26,102 @@ pub struct WarpTable {
     pub(super) valid: Arc<[f32]>,
 }
 
+/// Where a warp's source and output arrays lie in the frames its homographies map between: a crop of
+/// a larger image (or MPI) as source, a window of a larger output. Sample positions, validity (inside
+/// the *whole* source) and edge clamping are computed in the whole frames exactly as for the uncropped
+/// warp, and only the texel indices move by the source crop's integer origin, so a cropped warp is bit
+/// for bit the matching part of the whole one (shifting the homographies instead would round
+/// differently, and a sample within f32 rounding of the source's edge could flip between valid and not).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Frames {
+    /// Origin of the source array in the source frame.
+    pub src_origin: (usize, usize),
+    /// Size of the whole source (validity and edge clamping).
+    pub src_full: (usize, usize),
+    /// Origin of the output array in the output frame.
+    pub out_origin: (usize, usize),
+}
+
+impl Frames {
+    /// Uncropped: the source array is the whole `src_w x src_h` source, the output starts at 0.
+    pub fn whole(src_w: usize, src_h: usize) -> Self {
+        Self {
+            src_origin: (0, 0),
+            src_full: (src_w, src_h),
+            out_origin: (0, 0),
+        }
+    }
+}
+
 impl WarpTable {
     /// Taps of `homs.len()` warps (one per plane). Empty sources or outputs are allowed (all invalid).
     pub fn new(homs: &[Hom], src_w: usize, src_h: usize, out_w: usize, out_h: usize) -> Self {
+        Self::new_framed(
+            homs,
+            Frames::whole(src_w, src_h),
+            src_w,
+            src_h,
+            out_w,
+            out_h,
+        )
+    }
+
+    /// Taps of warps whose `src_w x src_h` source and `out_w x out_h` output are crops ([`Frames`]) of
+    /// the frames `homs` map between. The source crop must hold every texel a valid sample reads
+    /// (texel indices are clamped to it).
+    pub fn new_framed(
+        homs: &[Hom],
+        frames: Frames,
+        src_w: usize,
+        src_h: usize,
+        out_w: usize,
+        out_h: usize,
+    ) -> Self {
         #[cfg(target_arch = "x86_64")]
         if deepview_kernels::simd() {
             // SAFETY: the CPU has AVX2 and FMA (checked): the same code with hardware `fma`/`floor`
             // instead of libm calls (identical results: `mul_add` is exact either way).
-            return unsafe { Self::new_fma(homs, src_w, src_h, out_w, out_h) };
+            return unsafe { Self::new_fma(homs, frames, src_w, src_h, out_w, out_h) };
         }
-        Self::new_portable(homs, src_w, src_h, out_w, out_h)
+        Self::new_portable(homs, frames, src_w, src_h, out_w, out_h)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn new_fma(
         homs: &[Hom],
+        frames: Frames,
         src_w: usize,
         src_h: usize,
         out_w: usize,
         out_h: usize,
     ) -> Self {
-        Self::new_portable(homs, src_w, src_h, out_w, out_h)
+        Self::new_portable(homs, frames, src_w, src_h, out_w, out_h)
     }
 
     #[inline(always)]
-    fn new_portable(homs: &[Hom], src_w: usize, src_h: usize, out_w: usize, out_h: usize) -> Self {
+    fn new_portable(
+        homs: &[Hom],
+        frames: Frames,
+        src_w: usize,
+        src_h: usize,
+        out_w: usize,
+        out_h: usize,
+    ) -> Self {
         let n = homs.len() * out_w * out_h;
         let mut idx = vec![0i64; 4 * n];
         let mut w = vec![0f32; 4 * n];
         let mut valid = vec![0f32; n];
-        let (wf, hf) = (src_w as f32, src_h as f32);
-        let (wmax, hmax) = (src_w as i32 - 1, src_h as i32 - 1);
+        let (full_w, full_h) = frames.src_full;
+        let (wf, hf) = (full_w as f32, full_h as f32);
+        let (wmax, hmax) = (full_w as i32 - 1, full_h as i32 - 1);
+        let (ox, oy) = (frames.src_origin.0 as i32, frames.src_origin.1 as i32);
+        let (cwmax, chmax) = (src_w as i32 - 1, src_h as i32 - 1);
+        let (ux, uy) = frames.out_origin;
         for (d, h) in homs.iter().enumerate() {
             let a = [h[0] as f32, h[3] as f32, h[6] as f32];
             for y in 0..out_h {
-                let v = y as f64 + 0.5;
+                let v = (uy + y) as f64 + 0.5;
                 let b = [
                     (h[1] * v + h[2]) as f32,
                     (h[4] * v + h[5]) as f32,
@@ -69,9 +129,9 @@ impl WarpTable {
                 ];
                 for x in 0..out_w {
                     let o = (d * out_h + y) * out_w + x;
-                    let u = x as f32 + 0.5;
+                    let u = (ux + x) as f32 + 0.5;
                     let wn = a[2].mul_add(u, b[2]);
-                    if wn <= 0.0 || src_w == 0 || src_h == 0 {
+                    if wn <= 0.0 || src_w == 0 || src_h == 0 || full_w == 0 || full_h == 0 {
                         continue;
                     }
                     let inv = 1.0 / wn;
@@ -84,10 +144,10 @@ impl WarpTable {
                     let (x0, y0) = (fx.floor(), fy.floor());
                     let (tx, ty) = (fx - x0, fy - y0);
                     let (x0, y0) = (x0 as i32, y0 as i32);
-                    let xa = x0.clamp(0, wmax) as i64;
-                    let xb = (x0 + 1).clamp(0, wmax) as i64;
-                    let ya = y0.clamp(0, hmax) as i64 * src_w as i64;
-                    let yb = (y0 + 1).clamp(0, hmax) as i64 * src_w as i64;
+                    // Clamped to the whole source, then moved into the crop.
+                    let cx = |x: i32| (x.clamp(0, wmax) - ox).clamp(0, cwmax) as i64;
+                    let cy = |y: i32| (y.clamp(0, hmax) - oy).clamp(0, chmax) as i64 * src_w as i64;
+                    let (xa, xb, ya, yb) = (cx(x0), cx(x0 + 1), cy(y0), cy(y0 + 1));
                     let taps = [ya + xa, ya + xb, yb + xa, yb + xb];
                     let ws = [
                         (1.0 - tx) * (1.0 - ty),

@@ -558,3 +558,87 @@ fn cpu_composite_matches_burn_ops() {
         assert!(e < 1e-4, "RGBA gradient {case}: {e}");
     }
 }
+
+/// A warp of a crop of the source into a window of the output ([`Frames`]) is bit for bit the matching
+/// part of the whole warp: the same validity and weights, and texel indices moved by the crop's origin.
+/// Among the homographies, one puts samples exactly on the source's right edge (valid there) and a
+/// perspective one rounds differently once shifted: shifting the homographies instead of framing them
+/// flips such samples (found on fern, where tiled and whole-image inference differed by up to 17/255).
+#[test]
+fn framed_taps_are_the_whole_tables_crop() {
+    let (sw, sh, ow, oh) = (50usize, 36usize, 40usize, 30usize);
+    let homs: Vec<Hom> = vec![
+        [1.0, 0.0, 10.5, 0.0, 1.0, 6.0, 0.0, 0.0, 1.0],
+        [1.13, 0.021, 3.7, -0.013, 1.07, 2.9, 1.3e-4, -2.1e-4, 1.0],
+        [
+            0.97,
+            -0.05,
+            12.123456789,
+            0.04,
+            1.01,
+            -1.987654321,
+            -3.3e-4,
+            1.7e-4,
+            0.99,
+        ],
+    ];
+    let whole = WarpTable::new(&homs, sw, sh, ow, oh);
+    let mut edge = 0;
+    for (ox, oy, ww, wh) in [
+        (0, 0, ow, oh),
+        (7, 3, 20, 11),
+        (25, 19, 15, 11),
+        (39, 0, 1, 30),
+    ] {
+        // The source crop: every texel that a valid sample of the window reads in the whole table.
+        let (mut x0, mut y0, mut x1, mut y1) = (sw, sh, 0, 0);
+        for d in 0..homs.len() {
+            for y in oy..oy + wh {
+                for x in ox..ox + ww {
+                    let o = (d * oh + y) * ow + x;
+                    if whole.valid[o] == 0.0 {
+                        continue;
+                    }
+                    for t in 0..4 {
+                        let i = whole.idx[t * whole.valid.len() + o] as usize;
+                        let (tx, ty) = (i % sw, i / sw);
+                        (x0, y0, x1, y1) = (x0.min(tx), y0.min(ty), x1.max(tx + 1), y1.max(ty + 1));
+                    }
+                }
+            }
+        }
+        let (cw, ch) = (x1 - x0, y1 - y0);
+        let frames = Frames {
+            src_origin: (x0, y0),
+            src_full: (sw, sh),
+            out_origin: (ox, oy),
+        };
+        let framed = WarpTable::new_framed(&homs, frames, cw, ch, ww, wh);
+        let (n, nw) = (framed.valid.len(), whole.valid.len());
+        for d in 0..homs.len() {
+            for y in 0..wh {
+                for x in 0..ww {
+                    let o = (d * wh + y) * ww + x;
+                    let ow_ = (d * oh + oy + y) * ow + ox + x;
+                    assert_eq!(framed.valid[o], whole.valid[ow_], "plane {d} ({x}, {y})");
+                    for t in 0..4 {
+                        assert_eq!(
+                            framed.w[t * n + o].to_bits(),
+                            whole.w[t * nw + ow_].to_bits()
+                        );
+                        if framed.valid[o] != 0.0 {
+                            let i = framed.idx[t * n + o] as usize;
+                            let moved = (i / cw + y0) * sw + i % cw + x0;
+                            assert_eq!(moved as i64, whole.idx[t * nw + ow_]);
+                        }
+                    }
+                    // Samples at exactly x = sw: plane 0, output column sw - 11 - 0.5 + 0.5.
+                    if d == 0 && ox + x == sw - 11 && framed.valid[o] != 0.0 {
+                        edge += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(edge > 0, "no sample on the source's edge was checked");
+}

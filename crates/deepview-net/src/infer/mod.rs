@@ -33,7 +33,7 @@ mod synthetic;
 mod tiling;
 
 pub use error::InferError;
-pub use plan::{InferPlan, MIN_TILE, NetPlan, plan_inference};
+pub use plan::{DeviceLimits, InferPlan, MIN_TILE, NetPlan, plan_inference, plan_inference_within};
 pub use progress::InferProgress;
 pub use run::infer_mpi_planned;
 pub use state::StatePrecision;
@@ -75,12 +75,22 @@ impl Plan {
             Execution::Engine(StatePrecision::F16) => {
                 "whole image on the CPU engine (state stored as f16)".into()
             }
-            Execution::Tiled(p) => format!(
-                "tiled ({}-pixel tiles of net 0, {} state) on {:?}",
-                p.nets.first().map_or(0, |n| n.tile),
-                p.precision.name(),
-                self.device
-            ),
+            Execution::Tiled(p) => {
+                let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+                let mut s = format!(
+                    "tiled ({}-pixel tiles of net 0, {} state) on {:?}",
+                    p.nets.first().map_or(0, |n| n.tile),
+                    p.precision.name(),
+                    self.device
+                );
+                if let Some(m) = p.limits.memory {
+                    s += &format!(", tile steps within {:.1} GiB of its memory", gib(m));
+                }
+                if let Some(a) = p.limits.max_allocation {
+                    s += &format!(", tensors of at most {} MiB", a >> 20);
+                }
+                s
+            }
         }
     }
 }

@@ -27,6 +27,34 @@ pub struct NetPlan {
 pub struct InferPlan {
     pub precision: StatePrecision,
     pub nets: Vec<NetPlan>,
+    /// The device limits the tiles were sized for (none on the CPU).
+    pub limits: DeviceLimits,
+}
+
+/// What bounds a tile step on a device with memory of its own (a GPU), besides the host budget that
+/// holds the whole-MPI state: `None` where the host budget bounds everything (the CPU).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct DeviceLimits {
+    /// Bytes a tile step may take on the device.
+    pub memory: Option<u64>,
+    /// Bytes of the largest single tensor the device can allocate.
+    pub max_allocation: Option<u64>,
+}
+
+impl DeviceLimits {
+    /// The limits of a model's device within the host budget: none for the CPU; on a GPU 3/4 of the
+    /// capacity its runtime reports (capped by `budget`, so that `--max-memory` bounds the device too)
+    /// and its largest allocation.
+    pub fn of(device: &burn::tensor::Device, budget: u64) -> Self {
+        if crate::cpu::ops::fast_device(device) {
+            return Self::default();
+        }
+        let m = crate::device::device_memory(device);
+        Self {
+            memory: Some(m.capacity.map_or(budget, |c| (c / 4 * 3).min(budget))),
+            max_allocation: m.max_allocation,
+        }
+    }
 }
 
 impl InferPlan {
@@ -46,6 +74,7 @@ impl InferPlan {
         Self {
             precision,
             nets: vec![net; nets],
+            limits: DeviceLimits::default(),
         }
     }
 
@@ -149,14 +178,63 @@ fn tile_estimate(
     input_phase.max(net_phase) * 5 / 4
 }
 
-/// The largest estimate of net `n` over its tiles of side `tile`.
-pub(super) fn max_tile_bytes(
+/// Bytes of the largest single tensor of one tile step of net `n` (see [`tile_estimate`]): the warps'
+/// gathered taps (`[4, planes x pixels, channels]` f32: 3 channels for net 0's plane sweeps; for update
+/// nets 4 for the render of the view crop and 6 for the image and render warped onto the region), the
+/// MPI sub-window's RGBA, and a net run's widest map over every (view, plane) slice of the chunk. A device whose largest
+/// allocation is smaller cannot run the step at all, whatever its memory.
+fn buffer_estimate(
+    model: &DeepViewModel,
+    n: usize,
+    planes: usize,
+    chunk: usize,
+    region: Rect,
+    windows: &[ViewWindow],
+) -> u64 {
+    let net = &model.nets[n];
+    // The widest feature map: any conv's input (a stage's is the features and their maximum over views,
+    // concatenated) or output.
+    let widest = net
+        .input
+        .iter()
+        .chain(&net.stages)
+        .chain([&net.head, &net.out])
+        .map(|c| {
+            let [o, i, _, _] = c.weight.val().dims();
+            o.max(i) as u64
+        })
+        .max()
+        .unwrap_or(0);
+    let (k, d, chunk) = (
+        windows.len() as u64,
+        planes as u64,
+        chunk.min(planes) as u64,
+    );
+    let r = (region.2 * region.3) as u64;
+    let warps = windows
+        .iter()
+        .map(|w| {
+            let c = (w.crop.2 * w.crop.3) as u64;
+            let sub = (w.sub.2 * w.sub.3) as u64;
+            if n > 0 {
+                (64 * d * c).max(96 * d * r).max(16 * d * sub)
+            } else {
+                48 * d * r
+            }
+        })
+        .max()
+        .unwrap_or(0);
+    warps.max(k * chunk * r * 4 * widest)
+}
+
+/// The largest estimates of net `n` over its tiles of side `tile`: (peak bytes, largest tensor).
+pub(super) fn max_tile_estimates(
     model: &DeepViewModel,
     geom: &Geometry,
     n: usize,
     tile: usize,
     chunk: usize,
-) -> u64 {
+) -> (u64, u64) {
     let m = model.margin(n);
     geom.tiles(tile)
         .into_iter()
@@ -165,21 +243,44 @@ pub(super) fn max_tile_bytes(
             let windows: Vec<ViewWindow> = (0..geom.homs.len())
                 .map(|k| geom.view_window(k, region, n > 0))
                 .collect();
-            tile_estimate(model, n, geom.d, chunk, region, &windows)
+            (
+                tile_estimate(model, n, geom.d, chunk, region, &windows),
+                buffer_estimate(model, n, geom.d, chunk, region, &windows),
+            )
         })
-        .max()
-        .unwrap_or(0)
+        .fold((0, 0), |(a, b), (x, y)| (a.max(x), b.max(y)))
 }
 
-/// The largest tile (then the largest plane chunk) of net `n` whose estimate fits `budget`.
+/// The largest peak estimate of net `n` over its tiles of side `tile`.
+pub(super) fn max_tile_bytes(
+    model: &DeepViewModel,
+    geom: &Geometry,
+    n: usize,
+    tile: usize,
+    chunk: usize,
+) -> u64 {
+    max_tile_estimates(model, geom, n, tile, chunk).0
+}
+
+/// The largest tile (then the largest plane chunk) of net `n` whose estimate fits `budget` (with the
+/// whole-MPI data) or, on a device with memory of its own, the device's memory (the state stays in the
+/// host's `budget`), and whose largest tensor the device can allocate.
 fn plan_net(
     model: &DeepViewModel,
     geom: &Geometry,
     n: usize,
     precision: StatePrecision,
     budget: u64,
+    limits: DeviceLimits,
 ) -> Result<NetPlan, InferError> {
     let fixed = fixed_bytes(model, geom, n, precision);
+    let fits = |tile_bytes: u64, largest: u64| {
+        let memory = match limits.memory {
+            Some(device) => fixed <= budget && tile_bytes <= device,
+            None => fixed + tile_bytes <= budget,
+        };
+        memory && limits.max_allocation.is_none_or(|a| largest <= a)
+    };
     let chunks: Vec<usize> = if plane_separable(model, n) {
         let mut c = vec![geom.d];
         while *c.last().expect("non-empty") > 1 {
@@ -192,8 +293,8 @@ fn plan_net(
     let mut tile = geom.w.max(geom.h).next_multiple_of(2);
     loop {
         for &chunk in &chunks {
-            let tile_bytes = max_tile_bytes(model, geom, n, tile, chunk);
-            if fixed + tile_bytes <= budget {
+            let (tile_bytes, largest) = max_tile_estimates(model, geom, n, tile, chunk);
+            if fits(tile_bytes, largest) {
                 return Ok(NetPlan {
                     tile,
                     plane_chunk: chunk,
@@ -218,13 +319,27 @@ fn plan_net(
 
 /// The plan [`super::infer_mpi`] uses for `max_memory_bytes`: an f32 state when it takes at most half the
 /// budget, f16 otherwise; then per net the largest tile (from one tile for the whole MPI down to
-/// [`MIN_TILE`]) and the largest plane chunk whose estimated peak, with the whole-MPI data, fits.
+/// [`MIN_TILE`]) and the largest plane chunk whose estimated peak, with the whole-MPI data, fits, and on
+/// a GPU the device's limits ([`DeviceLimits::of`] the model's device).
 pub fn plan_inference(
     model: &DeepViewModel,
     views: &[(ImageF32, Camera)],
     reference: &Camera,
     depths: &[f64],
     max_memory_bytes: u64,
+) -> Result<InferPlan, InferError> {
+    let limits = DeviceLimits::of(&super::run::model_device(model), max_memory_bytes);
+    plan_inference_within(model, views, reference, depths, max_memory_bytes, limits)
+}
+
+/// [`plan_inference`] for given device limits.
+pub fn plan_inference_within(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
+    max_memory_bytes: u64,
+    limits: DeviceLimits,
 ) -> Result<InferPlan, InferError> {
     validate(model, views, depths)?;
     let geom = Geometry::new(views, reference, depths);
@@ -238,7 +353,11 @@ pub fn plan_inference(
         StatePrecision::F16
     };
     let nets = (0..model.nets.len())
-        .map(|n| plan_net(model, &geom, n, precision, max_memory_bytes))
+        .map(|n| plan_net(model, &geom, n, precision, max_memory_bytes, limits))
         .collect::<Result<_, _>>()?;
-    Ok(InferPlan { precision, nets })
+    Ok(InferPlan {
+        precision,
+        nets,
+        limits,
+    })
 }

@@ -6,7 +6,9 @@ use super::plan::{InferPlan, plane_separable};
 use super::progress::InferProgress;
 use super::state::StateStore;
 use super::tiling::{Geometry, Rect};
-use crate::forward::{Hom, crop_output, gradient_components, image_tensor};
+use crate::forward::{
+    Crops, Frames, gradient_components_framed, image_tensor, plane_sweep_volume_framed,
+};
 use crate::network::{DeepViewModel, state_to_rgba};
 use burn::tensor::{Device, Tensor};
 use deepview_geometry::Camera;
@@ -20,15 +22,24 @@ pub(super) fn model_device(model: &DeepViewModel) -> Device {
 /// A tile's result back on the host; a device that failed computing it (a GPU out of memory or over a
 /// buffer limit) is an error, not a panic.
 fn read_back(t: Tensor<4>) -> Result<Vec<f32>, InferError> {
-    // The first causes of cubecl's report, without its list of the kernels skipped after the failure.
+    // cubecl's report without its list of the kernels skipped after the failure: the first causes and
+    // the root one (e.g. "can't allocate buffer of size: N").
     let device = |e: String| {
         let lines: Vec<&str> = e
             .lines()
             .map(str::trim)
-            .filter(|l| !l.is_empty() && !l.starts_with("skipped") && *l != "Caused by:")
-            .take(4)
+            .filter(|l| {
+                !l.is_empty()
+                    && !l.starts_with("skipped")
+                    && !l.starts_with('(')
+                    && !matches!(*l, "Caused by:" | "No backtrace available" | "Asked at:")
+            })
             .collect();
-        InferError::Device(lines.join("; "))
+        let mut shown: Vec<&str> = lines.iter().take(3).copied().collect();
+        if let Some(root) = lines.last().filter(|_| lines.len() > 3) {
+            shown.push(root);
+        }
+        InferError::Device(shown.join("; "))
     };
     t.try_into_data()
         .map_err(|e| device(e.to_string()))?
@@ -99,17 +110,28 @@ pub fn infer_mpi_planned(
                     let win = geom.view_window(k, region, state.is_some());
                     let (cx, cy, cw, ch) = win.crop;
                     let crop = images[k].clone().narrow(1, cy, ch).narrow(2, cx, cw);
+                    // The whole frames' homographies with the crops' integer origins: the samples
+                    // are bit for bit those of the untiled inference.
+                    let homs = &geom.homs[k];
                     match &state {
-                        None => DeepViewModel::init_input(crop, &win.mpi_to_crop, region),
+                        None => {
+                            let frames = Frames {
+                                src_origin: (cx, cy),
+                                src_full: geom.view_sizes[k],
+                                out_origin: (rx0, ry0),
+                            };
+                            plane_sweep_volume_framed(crop, homs, frames, rh, rw)
+                        }
                         Some(st) => {
                             let (sx, sy, _, _) = win.sub;
                             let rgba = state_to_rgba(st.tensor(0, 4, win.sub, &device));
-                            let homs: Vec<Hom> = win
-                                .mpi_to_crop
-                                .iter()
-                                .map(|hm| crop_output(hm, sx as f64, sy as f64))
-                                .collect();
-                            gradient_components(rgba, crop, &homs, (rx0 - sx, ry0 - sy, rw, rh))
+                            let crops = Crops {
+                                window: (sx, sy),
+                                mpi_size: (w, h),
+                                crop: (cx, cy),
+                                view_size: geom.view_sizes[k],
+                            };
+                            gradient_components_framed(rgba, crop, homs, crops, region)
                         }
                     }
                 })

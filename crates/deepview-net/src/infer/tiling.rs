@@ -19,11 +19,10 @@ pub(super) struct Geometry {
     pub(super) view_sizes: Vec<(usize, usize)>,
 }
 
-/// What one view contributes to a tile: the view-image crop, the homographies MPI -> crop pixels and
-/// the MPI sub-window rendered into the crop (update nets only; the region itself for the init net).
+/// What one view contributes to a tile: the view-image crop and the MPI sub-window rendered into the
+/// crop (update nets only; the region itself for the init net).
 pub(super) struct ViewWindow {
     pub(super) crop: Rect,
-    pub(super) mpi_to_crop: Vec<Hom>,
     pub(super) sub: Rect,
 }
 
@@ -67,21 +66,17 @@ impl Geometry {
     pub(super) fn view_window(&self, k: usize, region: Rect, with_sub: bool) -> ViewWindow {
         let (vw, vh) = self.view_sizes[k];
         let (crop, sees) = view_crop(&self.homs[k], region, vw, vh);
-        let mpi_to_crop: Vec<Hom> = self.homs[k]
-            .iter()
-            .map(|hm| crop_source(hm, crop.0 as f64, crop.1 as f64))
-            .collect();
         // A view that no sample of the region sees needs no render: any window will do.
         let sub = if with_sub && sees {
+            let mpi_to_crop: Vec<Hom> = self.homs[k]
+                .iter()
+                .map(|hm| crop_source(hm, crop.0 as f64, crop.1 as f64))
+                .collect();
             mpi_window(&mpi_to_crop, crop.2, crop.3, self.w, self.h, region)
         } else {
             region
         };
-        ViewWindow {
-            crop,
-            mpi_to_crop,
-            sub,
-        }
+        ViewWindow { crop, sub }
     }
 }
 
@@ -126,7 +121,7 @@ fn bounding_box(homs: &[Hom], corners: &[(f64, f64); 4]) -> Option<(f64, f64, f6
 /// The texels `[floor(x0) - 2, ceil(x1) + 2)` (and the same in y) clamped to a `w x h` image, or `None`
 /// when that is empty. A bilinear sample at continuous `s` reads texels `floor(s - 0.5)` and the next one,
 /// so for `s` in `[x0, x1]` both lie within one texel of the box; the second texel of slack covers the
-/// f32 rounding of shifted homographies.
+/// f32 rounding of the samples' positions.
 fn grown_box(b: (f64, f64, f64, f64), w: usize, h: usize) -> Option<Rect> {
     let (x0, y0, x1, y1) = b;
     let clamp = |v: f64, n: usize| v.clamp(0.0, n as f64) as usize;
