@@ -72,6 +72,8 @@ enum Command {
     ExportWeights(cmd::export_weights::Args),
     /// Fewer planes for faster rendering: empty planes dropped, near-empty neighbours merged.
     Compact(cmd::compact::Args),
+    /// How far apart two MPIs are (premultiplied RGBA, 8-bit steps): e.g. a GPU's and the CPU's inference.
+    Diff(cmd::diff::Args),
     /// Poses for your own photos (or a video): run COLMAP and write a scene folder every command reads.
     Process(cmd::process::Args),
 }
@@ -100,6 +102,7 @@ fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Infer(a) => cmd::infer::run(a),
         Command::ExportWeights(a) => cmd::export_weights::run(a),
         Command::Compact(a) => cmd::compact::run(a),
+        Command::Diff(a) => cmd::diff::run(a),
         Command::Process(a) => cmd::process::run(a),
     }
 }

@@ -5,6 +5,7 @@ pub mod bench;
 pub mod compact;
 pub mod demo;
 pub mod depth;
+pub mod diff;
 pub mod eval;
 pub mod export;
 pub mod export_web;
