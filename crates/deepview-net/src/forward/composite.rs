@@ -31,10 +31,60 @@ pub fn composite(rgba: Tensor<4>) -> Composite {
             accumulated: planes.narrow(1, 0, 3),
         };
     }
-    composite_burn(rgba)
+    composite_scan(rgba)
 }
 
-/// [`composite`] with burn's tensor ops (any device; the reference of the CPU operation).
+/// [`composite`] as parallel scans over the planes (Hillis-Steele: `ceil(log2 D)` steps, each a few ops on
+/// the whole `[D, ...]` tensor), for devices where each op is a dispatch (GPUs): about 60 ops forward for
+/// 32 planes where [`composite_burn`]'s loop takes ~200, and the same again in the backward. Products
+/// only (no division, alpha = 1 is safe); the sums associate differently from the loop (f32 rounding).
+///
+/// Accumulated over: `A_{p+1} = A_p (1 - a_p) + c_p` is the composition of the affine maps
+/// `x -> m_p x + c_p` (`m = 1 - a`), scanned as pairs `(M, B)` with `(M2, B2) o (M1, B1) = (M2 M1,
+/// M2 B1 + B2)`; then `A_p = B_{p-1}` and the render is `B_{D-1}`. Transmittance `T_p = prod_{i>p} m_i`:
+/// a reverse product scan, shifted by one plane.
+pub fn composite_scan(rgba: Tensor<4>) -> Composite {
+    let [d, _, h, w] = rgba.dims();
+    let device = rgba.device();
+    let mut b = rgba.clone().narrow(1, 0, 3);
+    let m0 = rgba.narrow(1, 3, 1).neg().add_scalar(1.0);
+    let mut m = m0.clone();
+    // Inclusive reverse products, P_p = prod_{i >= p} m_i.
+    let mut p = m0;
+    let mut k = 1;
+    while k < d {
+        let ones = Tensor::<4>::ones([k, 1, h, w], &device);
+        let zeros = Tensor::<4>::zeros([k, 3, h, w], &device);
+        let m_prev = Tensor::cat(vec![ones.clone(), m.clone().narrow(0, 0, d - k)], 0);
+        let b_prev = Tensor::cat(vec![zeros, b.clone().narrow(0, 0, d - k)], 0);
+        b = m.clone() * b_prev + b;
+        m = m * m_prev;
+        let p_next = Tensor::cat(vec![p.clone().narrow(0, k, d - k), ones], 0);
+        p = p * p_next;
+        k *= 2;
+    }
+    let render = b.clone().narrow(0, d - 1, 1).reshape([3, h, w]);
+    let (zero, one) = (
+        Tensor::zeros([1, 3, h, w], &device),
+        Tensor::ones([1, 1, h, w], &device),
+    );
+    let (accumulated, transmittance) = if d == 1 {
+        (zero, one)
+    } else {
+        (
+            Tensor::cat(vec![zero, b.narrow(0, 0, d - 1)], 0),
+            Tensor::cat(vec![p.narrow(0, 1, d - 1), one], 0),
+        )
+    };
+    Composite {
+        render,
+        transmittance,
+        accumulated,
+    }
+}
+
+/// [`composite`] with burn's tensor ops as a loop over the planes (any device; the reference of the CPU
+/// operation and of [`composite_scan`]).
 pub fn composite_burn(rgba: Tensor<4>) -> Composite {
     let [d, _, h, w] = rgba.dims();
     let device = rgba.device();

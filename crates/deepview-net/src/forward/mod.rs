@@ -22,9 +22,9 @@ mod tests;
 mod warp;
 
 pub use composite::{
-    Composite, Crops, GRADIENT_CHANNELS, composite, composite_burn, gradient_components,
-    gradient_components_framed, image_tensor, plane_sweep_volume, plane_sweep_volume_framed,
-    render_view, render_view_framed,
+    Composite, Crops, GRADIENT_CHANNELS, composite, composite_burn, composite_scan,
+    gradient_components, gradient_components_framed, image_tensor, plane_sweep_volume,
+    plane_sweep_volume_framed, render_view, render_view_framed,
 };
 pub use taps::{Frames, Hom, WarpTable};
 pub use warp::{

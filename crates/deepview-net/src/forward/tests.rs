@@ -642,3 +642,73 @@ fn framed_taps_are_the_whole_tables_crop() {
     }
     assert!(edge > 0, "no sample on the source's edge was checked");
 }
+
+/// The scan composite (GPU devices) equals the loop (burn's ops) in outputs and gradients, with opaque
+/// and empty texels, for plane counts around the powers of two.
+#[test]
+fn scan_composite_matches_the_loop() {
+    let ad = dev().autodiff();
+    for (d, h, w) in [
+        (1, 3, 4),
+        (2, 2, 3),
+        (3, 5, 7),
+        (5, 4, 4),
+        (8, 3, 3),
+        (13, 6, 5),
+        (33, 4, 6),
+    ] {
+        let mut rgba = to_vec(Tensor::<4>::random(
+            [d, 4, h, w],
+            Distribution::Uniform(0.0, 1.0),
+            &dev(),
+        ));
+        let px = h * w;
+        // Premultiplied: colour at most alpha; opaque and empty texels.
+        for p in 0..d {
+            for i in 0..px {
+                let a = rgba[(p * 4 + 3) * px + i];
+                for c in 0..3 {
+                    rgba[(p * 4 + c) * px + i] *= a;
+                }
+            }
+        }
+        rgba[3 * px] = 1.0;
+        rgba[3 * px + 1] = 0.0;
+        if d > 2 {
+            rgba[(2 * 4 + 3) * px + 2] = 1.0;
+        }
+        let x = Tensor::<4>::from_data(TensorData::new(rgba, [d, 4, h, w]), &ad);
+        let (xa, xb) = (x.clone().require_grad(), x.require_grad());
+        let (ca, cb) = (composite_scan(xa.clone()), composite_burn(xb.clone()));
+        let case = format!("{d} planes {h}x{w}");
+        assert_eq!(ca.transmittance.dims(), [d, 1, h, w]);
+        assert_eq!(ca.accumulated.dims(), [d, 3, h, w]);
+        for (a, b, what) in [
+            (ca.transmittance.clone(), cb.transmittance.clone(), "T"),
+            (ca.accumulated.clone(), cb.accumulated.clone(), "A"),
+        ] {
+            let e: f32 = (a.inner() - b.inner()).abs().max().into_scalar();
+            assert!(e < 1e-6, "{what} {case}: {e}");
+        }
+        let e: f32 = (ca.render.clone().inner() - cb.render.clone().inner())
+            .abs()
+            .max()
+            .into_scalar();
+        assert!(e < 1e-6, "render {case}: {e}");
+        let wr = Tensor::<3>::random([3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wt = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wa = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let loss = |c: Composite| {
+            (c.render * wr.clone()).sum()
+                + (c.transmittance * wt.clone()).sum()
+                + (c.accumulated * wa.clone()).sum()
+        };
+        let ga = loss(ca).backward();
+        let gb = loss(cb).backward();
+        let e: f32 = (xa.grad(&ga).unwrap() - xb.grad(&gb).unwrap())
+            .abs()
+            .max()
+            .into_scalar();
+        assert!(e < 1e-5, "RGBA gradient {case}: {e}");
+    }
+}
