@@ -48,6 +48,9 @@ pub struct TrainConfig {
     /// on resume).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub vgg_weights: Option<PathBuf>,
+    /// Score the validation set every N steps (`--validate-every`; kept for `--resume`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub validate_every: Option<u64>,
 }
 
 /// The largest batch (tuples per step) a run may ask for.
@@ -90,6 +93,7 @@ impl TrainConfig {
             init: None,
             base: None,
             vgg_weights: None,
+            validate_every: None,
         }
     }
 

@@ -67,6 +67,12 @@ pub struct TrainOptions {
     /// run's own setting with --resume.
     #[arg(long, value_name = "N", value_parser = parse_positive)]
     pub keep_checkpoints: Option<usize>,
+    /// Score the held-out views of the run's posed real datasets (4 nearest and 3 spread inputs, at most
+    /// 256 px wide) at the session's first checkpoint and at the first one past every multiple of N steps,
+    /// into runs/NAME/validation.jsonl (choose the checkpoint to ship by it). Kept in the run's
+    /// config.json: --resume goes on validating (give it again to change N).
+    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
+    pub validate_every: Option<u64>,
     /// Random seed (weights initialisation and tuple sampling; default 0).
     #[arg(long)]
     pub seed: Option<u64>,
@@ -199,11 +205,12 @@ impl TrainOptions {
             train.devices = d.0.clone();
         }
         train.vgg_weights = self.vgg_weights.as_deref().map(absolute);
+        train.validate_every = self.validate_every;
         train
     }
 
-    /// What may change when a run resumes: the total steps, the devices, how many checkpoints are kept
-    /// and where the VGG weights are.
+    /// What may change when a run resumes: the total steps, the devices, how many checkpoints are kept,
+    /// where the VGG weights are and how often the validation set is scored.
     pub fn adjust_on_resume(&self, train: &mut TrainConfig) {
         if let Some(s) = self.steps {
             train.steps = s;
@@ -216,6 +223,9 @@ impl TrainOptions {
         }
         if let Some(v) = &self.vgg_weights {
             train.vgg_weights = Some(absolute(v));
+        }
+        if let Some(n) = self.validate_every {
+            train.validate_every = Some(n);
         }
     }
 

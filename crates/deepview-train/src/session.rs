@@ -233,7 +233,7 @@ fn check_fixed_on_resume(opts: &TrainOptions, cfg: &RunConfig) -> Result<(), Tra
     }
     Err(config_err(format!(
         "--resume keeps the run's own {}: {} differ from the run's config.json and cannot change on \
-         resume (only --steps, --devices, --data, --keep-checkpoints and --vgg-weights can); start a new \
+         resume (only --steps, --devices, --data, --keep-checkpoints, --vgg-weights and --validate-every can); start a new \
          --name instead",
         if fixed.len() == 1 {
             "setting"

@@ -35,7 +35,7 @@ use validate::Validation;
     deepview train --data ../shared/data/llff/fern --data runs/synth/grid-20 --images images_4 --max-width 512 \
     --views 4 --surround-inputs 1 --name mixed --vgg-weights $VGG\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
-    --steps, --devices, --data, --keep-checkpoints and --vgg-weights may be given: the others are the run's own, \
+    --steps, --devices, --data, --keep-checkpoints, --vgg-weights and --validate-every may be given: the others are the run's own, \
     and its datasets load with the scene options they were first loaded with (kept in its config.json).\n\n\
     The VGG loss (the default) reads the VGG-16 weights from --vgg-weights FILE (kept in the run's config.json)."
 )]
@@ -60,11 +60,6 @@ pub struct Args {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-    /// Score the held-out views of the run's posed real datasets (4 nearest and 3 spread inputs, at most
-    /// 256 px wide) at the session's first checkpoint and at the first one past every multiple of N steps,
-    /// into runs/NAME/validation.jsonl (choose the checkpoint to ship by it).
-    #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
-    pub validate_every: Option<u64>,
     #[command(flatten)]
     pub options: TrainOptions,
     #[command(flatten)]
@@ -139,7 +134,7 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     let mut trainer = session.trainer;
     let start_step = trainer.step;
     let mut progress = Progress::new(writer && !args.quiet, writer);
-    let mut validation = match args.validate_every.filter(|_| writer) {
+    let mut validation = match trainer.config.train.validate_every.filter(|_| writer) {
         Some(n) => Some(Validation::new(&trainer.config.train.data, &run_dir, n)?),
         None => None,
     };

@@ -359,6 +359,19 @@ fn validation_scores_checkpoints_into_validation_jsonl() {
         table.contains(&format!("{want:.4}")),
         "validation {want:.4} not in eval's table:\n{table}"
     );
+    // --validate-every is kept in the run's config: a resume goes on validating (its first checkpoint).
+    let err = train(&runs, "v", 6, &["--resume"]);
+    assert!(err.contains("validation at step 6"), "{err}");
+    let steps: Vec<u64> = std::fs::read_to_string(runs.join("v/validation.jsonl"))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            serde_json::from_str::<serde_json::Value>(l).unwrap()["step"]
+                .as_u64()
+                .unwrap()
+        })
+        .collect();
+    assert_eq!(steps, [2, 2, 4, 4, 6, 6]);
 }
 
 /// A run started with a relative `--data` resumes on the same dataset from any folder (it was read against
