@@ -9,6 +9,8 @@ pub mod config;
 pub mod cpu;
 pub mod device;
 pub mod forward;
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+pub mod gpu;
 pub mod grow;
 pub mod infer;
 pub mod network;

@@ -125,6 +125,11 @@ pub fn use_burn_ops(on: bool) {
     BURN_OPS.store(on, std::sync::atomic::Ordering::Relaxed);
 }
 
+/// Whether [`use_burn_ops`] turned the custom kernels off.
+pub fn burn_ops() -> bool {
+    BURN_OPS.load(std::sync::atomic::Ordering::Relaxed)
+}
+
 /// Whether tensors on `device` take the custom kernels (the `flex` CPU backend, with or without
 /// autodiff), unless [`use_burn_ops`] turned them off.
 pub fn fast_device(device: &Device) -> bool {

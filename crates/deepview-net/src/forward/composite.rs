@@ -31,6 +31,17 @@ pub fn composite(rgba: Tensor<4>) -> Composite {
             accumulated: planes.narrow(1, 0, 3),
         };
     }
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if crate::gpu::gpu_kernels(&rgba.device()) {
+        let [d, _, h, w] = rgba.dims();
+        let out = crate::gpu::composite(rgba);
+        let planes = out.clone().narrow(0, 0, d);
+        return Composite {
+            render: out.narrow(0, d, 1).narrow(1, 0, 3).reshape([3, h, w]),
+            transmittance: planes.clone().narrow(1, 3, 1),
+            accumulated: planes.narrow(1, 0, 3),
+        };
+    }
     composite_scan(rgba)
 }
 

@@ -1,0 +1,145 @@
+//! Our own GPU kernels (cubecl, any of its runtimes: wgpu, CUDA), hooked into burn with its backend
+//! extension mechanism as the CPU kernels are ([`crate::cpu::ops`]): one dispatch where burn's ops take
+//! many. First of them, the over-composite and its backward (one thread per pixel, a loop over the
+//! planes; the same arithmetic as the CPU kernel [`crate::cpu::renderops::composite_forward`]). burn's
+//! ops stay the reference: the tests compare outputs and gradients with [`crate::forward::composite_burn`].
+
+use burn::backend::autodiff::checkpoint::base::Checkpointer;
+use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
+use burn::backend::autodiff::grads::Gradients;
+use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::tensor::FloatTensor;
+use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, backend_extension};
+use burn::tensor::{Device, Shape, Tensor};
+use burn_cubecl::CubeBackend;
+use burn_cubecl::ops::numeric::empty_device_dtype;
+use burn_cubecl::tensor::CubeTensor;
+use cubecl::calculate_cube_count_elemwise;
+use cubecl::prelude::*;
+
+/// Custom GPU operations.
+#[backend_extension(Cube, Autodiff)]
+pub trait GpuOps: Backend {
+    /// Over-compositing: `rgba` `[D, 4, h, w]` -> `[D + 1, 4, h, w]` (`A`, `T`; the render), as
+    /// [`crate::cpu::ops::KernelOps::composite`].
+    fn gpu_composite(rgba: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_composite`] at `rgba`, given its output and the output's gradient.
+    fn gpu_composite_backward(
+        rgba: FloatTensor<Self>,
+        out: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
+}
+
+/// Whether tensors on `device` take our GPU kernels: a cubecl device (with or without autodiff),
+/// unless `deepview --engine burn` turned the custom kernels off.
+pub fn gpu_kernels(device: &Device) -> bool {
+    !crate::cpu::ops::burn_ops()
+        && matches!(
+            device.clone().inner().as_dispatch(),
+            DispatchDevice::Cube(_)
+        )
+}
+
+/// [`GpuOps::gpu_composite`] on a tensor of a cubecl device.
+pub(crate) fn composite(rgba: Tensor<4>) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_composite(rgba.into_dispatch()))
+}
+
+/// Threads over the `h x w` pixels.
+fn pixel_grid(t: &CubeTensor) -> (CubeCount, CubeDim) {
+    let [_, _, h, w] = t.meta.shape().dims::<4>();
+    let dim = CubeDim::new(&t.client, h * w);
+    (calculate_cube_count_elemwise(&t.client, h * w, dim), dim)
+}
+
+impl GpuOps for CubeBackend {
+    fn gpu_composite(rgba: CubeTensor) -> CubeTensor {
+        let [d, c, h, w] = rgba.meta.shape().dims::<4>();
+        assert_eq!(c, 4, "composite takes RGBA planes");
+        let out = empty_device_dtype(
+            rgba.client.clone(),
+            rgba.device.clone(),
+            Shape::new([d + 1, 4, h, w]),
+            rgba.dtype,
+        );
+        let (count, dim) = pixel_grid(&rgba);
+        kernels::composite_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            rgba.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+        );
+        out
+    }
+
+    fn gpu_composite_backward(rgba: CubeTensor, out: CubeTensor, grad: CubeTensor) -> CubeTensor {
+        let [d, _, h, w] = rgba.meta.shape().dims::<4>();
+        let gin = empty_device_dtype(
+            rgba.client.clone(),
+            rgba.device.clone(),
+            Shape::new([d, 4, h, w]),
+            rgba.dtype,
+        );
+        let (count, dim) = pixel_grid(&rgba);
+        kernels::composite_backward_kernel::launch(
+            &gin.client,
+            count,
+            dim,
+            rgba.into_tensor_arg(),
+            out.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            gin.clone().into_tensor_arg(),
+        );
+        gin
+    }
+}
+
+impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
+    fn gpu_composite(rgba: FloatTensor<Self>) -> FloatTensor<Self> {
+        let guards = [rgba.node()];
+        let rgba = rgba.into_primitive();
+        match CompositeBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_composite(rgba.clone());
+                prep.finish((rgba, out.clone()), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_composite(rgba)),
+        }
+    }
+
+    fn gpu_composite_backward(
+        _rgba: FloatTensor<Self>,
+        _out: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of composite")
+    }
+}
+
+#[derive(Debug)]
+struct CompositeBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 1> for CompositeBackward {
+    /// The RGBA planes and the output.
+    type State = (FloatTensor<B>, FloatTensor<B>);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (rgba, out) = ops.state;
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::gpu_composite_backward(rgba, out, grad));
+        }
+    }
+}
+
+mod kernels;
+#[cfg(test)]
+mod tests;

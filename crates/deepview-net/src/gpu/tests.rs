@@ -1,0 +1,79 @@
+//! Our GPU kernels against burn's ops on the CPU, on `wgpu:cpu` (Mesa's lavapipe without a GPU):
+//! `cargo test --release -p deepview-net --features wgpu gpu::`.
+
+use crate::forward::{Composite, composite, composite_burn};
+use burn::tensor::{Device, Distribution, Tensor, TensorData};
+
+fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().unwrap()
+}
+
+fn max_diff(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
+}
+
+/// The over-composite kernel and its backward on wgpu equal burn's loop on the CPU (outputs and
+/// gradients), with opaque and empty texels, for several plane counts and sizes.
+#[test]
+fn wgpu_composite_kernel_equals_burns_ops() {
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    for (d, h, w) in [(1, 3, 4), (5, 7, 9), (32, 13, 11)] {
+        let px = h * w;
+        let mut rgba = to_vec(Tensor::<4>::random(
+            [d, 4, h, w],
+            Distribution::Uniform(0.0, 1.0),
+            &cpu,
+        ));
+        for p in 0..d {
+            for i in 0..px {
+                let a = rgba[(p * 4 + 3) * px + i];
+                for c in 0..3 {
+                    rgba[(p * 4 + c) * px + i] *= a;
+                }
+            }
+        }
+        rgba[3 * px] = 1.0;
+        rgba[3 * px + 1] = 0.0;
+        let weights: Vec<Vec<f32>> = [3 * px, d * px, d * 3 * px]
+            .iter()
+            .map(|&n| {
+                to_vec(Tensor::<1>::random(
+                    [n],
+                    Distribution::Uniform(-1.0, 1.0),
+                    &cpu,
+                ))
+            })
+            .collect();
+        let run = |dev: &Device, f: fn(Tensor<4>) -> Composite| {
+            let ad = dev.clone().autodiff();
+            let x = Tensor::<4>::from_data(TensorData::new(rgba.clone(), [d, 4, h, w]), &ad)
+                .require_grad();
+            let c = f(x.clone());
+            let values = [
+                to_vec(c.render.clone().inner()),
+                to_vec(c.transmittance.clone().inner()),
+                to_vec(c.accumulated.clone().inner()),
+            ];
+            let wt = |i: usize, dims: [usize; 4]| {
+                Tensor::<4>::from_data(TensorData::new(weights[i].clone(), dims), &ad)
+            };
+            let loss = (c.render.reshape([1, 3, h, w]) * wt(0, [1, 3, h, w])).sum()
+                + (c.transmittance * wt(1, [d, 1, h, w])).sum()
+                + (c.accumulated * wt(2, [d, 3, h, w])).sum();
+            let grads = loss.backward();
+            (values, to_vec(x.grad(&grads).unwrap()))
+        };
+        let (want, want_grad) = run(&cpu, composite_burn);
+        // On wgpu `composite` is the kernel (the test would pass through burn's ops otherwise: check).
+        assert!(crate::gpu::gpu_kernels(&gpu));
+        let (got, got_grad) = run(&gpu, composite);
+        for (what, (a, b)) in ["render", "T", "A"].iter().zip(want.iter().zip(&got)) {
+            let e = max_diff(a, b);
+            assert!(e < 1e-6, "{what}, {d} planes {h}x{w}: {e}");
+        }
+        let e = max_diff(&want_grad, &got_grad);
+        assert!(e < 1e-5, "gradient, {d} planes {h}x{w}: {e}");
+    }
+}
