@@ -276,6 +276,15 @@ use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
 /// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits.
 /// `per_view`: K tensors `[D, 4, h, w]` (PSV RGB, validity) as built by [`DeepViewModel::init_input`].
 pub fn agreement_prior_logits(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if crate::gpu::gpu_kernels(&per_view[0].device()) {
+        return crate::gpu::prior(per_view, temperature);
+    }
+    agreement_prior_logits_burn(per_view, temperature)
+}
+
+/// [`agreement_prior_logits`] with burn's ops (a loop over the planes; the reference of the GPU kernel).
+pub fn agreement_prior_logits_burn(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
     let valid: Vec<Tensor<4>> = per_view.iter().map(|v| v.clone().narrow(1, 3, 1)).collect();
     let rgb: Vec<Tensor<4>> = per_view
         .iter()

@@ -90,3 +90,94 @@ pub(super) fn composite_backward_kernel(
         gt = gt * (1.0f32 - a) + grad[qb + p * q0 + 3 * q1];
     }
 }
+
+/// The agreement prior's logits (see [`crate::network::agreement_prior_logits`], the same arithmetic):
+/// `psv` `[K*D, 4, h, w]` (view-major: view `v`'s plane `p` at `v*D + p`; RGB and validity) -> `out`
+/// `[D, 4, h, w]` (the mean colour's and the depth weight's clamped logits).
+#[cube(launch)]
+pub(super) fn prior_kernel(
+    psv: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    temperature: f32,
+    single_view_variance: f32,
+    eps: f32,
+) {
+    let (d, h, w) = (out.shape(0), out.shape(2), out.shape(3));
+    let k = psv.shape(0) / d;
+    let pix = ABSOLUTE_POS;
+    if pix >= h * w {
+        terminate!();
+    }
+    let (y, x) = (pix / w, pix % w);
+    let (s0, s1) = (psv.stride(0), psv.stride(1));
+    let (o0, o1) = (out.stride(0), out.stride(1));
+    let ib = y * psv.stride(2) + x * psv.stride(3);
+    let ob = y * out.stride(2) + x * out.stride(3);
+    let mut run_m = 0.0f32;
+    let mut run_s = 1.0f32;
+    for p in 0..d {
+        let mut count = 0.0f32;
+        let mut sr = 0.0f32;
+        let mut sg = 0.0f32;
+        let mut sb = 0.0f32;
+        for v in 0..k {
+            let i = ib + (v * d + p) * s0;
+            let m = psv[i + 3 * s1];
+            count += m;
+            sr += psv[i] * m;
+            sg += psv[i + s1] * m;
+            sb += psv[i + 2 * s1] * m;
+        }
+        let denom = if count > 1.0f32 { count } else { 1.0f32 };
+        let (mr, mg, mb) = (sr / denom, sg / denom, sb / denom);
+        let mut vr = 0.0f32;
+        let mut vg = 0.0f32;
+        let mut vb = 0.0f32;
+        for v in 0..k {
+            let i = ib + (v * d + p) * s0;
+            let m = psv[i + 3 * s1];
+            let er = psv[i] * m - mr * m;
+            let eg = psv[i + s1] * m - mg * m;
+            let eb = psv[i + 2 * s1] * m - mb * m;
+            vr += er * er;
+            vg += eg * eg;
+            vb += eb * eb;
+        }
+        let mut q = (vr / denom + vg / denom + vb / denom) / 3.0f32;
+        if count == 1.0f32 {
+            q = single_view_variance;
+        }
+        let seen = if count > 0.5f32 { 1.0f32 } else { 0.0f32 };
+        let l = (-q / temperature) * seen + (1.0f32 - seen) * -1e30f32;
+        if p == 0 {
+            run_m = l;
+            run_s = 1.0f32;
+        } else {
+            let m1 = if l > run_m { l } else { run_m };
+            run_s = run_s * (run_m - m1).exp() + (l - m1).exp();
+            run_m = m1;
+        }
+        let mut alpha = (l - (run_m + run_s.ln())).exp();
+        if alpha > 1.0f32 {
+            alpha = 1.0f32;
+        }
+        alpha *= seen;
+        let o = ob + p * o0;
+        out[o] = clamped_logit(mr, eps);
+        out[o + o1] = clamped_logit(mg, eps);
+        out[o + 2 * o1] = clamped_logit(mb, eps);
+        out[o + 3 * o1] = clamped_logit(alpha, eps);
+    }
+}
+
+#[cube]
+fn clamped_logit(p: f32, eps: f32) -> f32 {
+    let mut q = p;
+    if q < eps {
+        q = eps;
+    }
+    if q > 1.0f32 - eps {
+        q = 1.0f32 - eps;
+    }
+    (q / (1.0f32 - q)).ln()
+}

@@ -30,6 +30,10 @@ pub trait GpuOps: Backend {
         out: FloatTensor<Self>,
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
+
+    /// The agreement prior's logits ([`crate::network::agreement_prior_logits`]): `psv` `[K*D, 4, h, w]`
+    /// (the views' plane sweeps, view-major) -> `[D, 4, h, w]`. No gradient (the sweeps are data).
+    fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self>;
 }
 
 /// Whether tensors on `device` take our GPU kernels: a cubecl device (with or without autodiff),
@@ -45,6 +49,17 @@ pub fn gpu_kernels(device: &Device) -> bool {
 /// [`GpuOps::gpu_composite`] on a tensor of a cubecl device.
 pub(crate) fn composite(rgba: Tensor<4>) -> Tensor<4> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_composite(rgba.into_dispatch()))
+}
+
+/// [`GpuOps::gpu_prior`] of the views' plane sweeps (each `[D, 4, h, w]`) on a cubecl device.
+pub(crate) fn prior(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
+    let d = per_view[0].dims()[0];
+    let psv = Tensor::cat(per_view.to_vec(), 0);
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_prior(
+        psv.into_dispatch(),
+        d,
+        temperature,
+    ))
 }
 
 /// Threads over the `h x w` pixels.
@@ -95,6 +110,29 @@ impl GpuOps for CubeBackend {
         );
         gin
     }
+
+    fn gpu_prior(psv: CubeTensor, planes: usize, temperature: f64) -> CubeTensor {
+        let [_, c, h, w] = psv.meta.shape().dims::<4>();
+        assert_eq!(c, 4, "the prior takes RGB and validity");
+        let out = empty_device_dtype(
+            psv.client.clone(),
+            psv.device.clone(),
+            Shape::new([planes, 4, h, w]),
+            psv.dtype,
+        );
+        let (count, dim) = pixel_grid(&psv);
+        kernels::prior_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            psv.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            temperature as f32,
+            deepview_mpi::agreement::SINGLE_VIEW_VARIANCE as f32,
+            deepview_mpi::agreement::LOGIT_EPS as f32,
+        );
+        out
+    }
 }
 
 impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
@@ -120,6 +158,15 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         _grad: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
         unimplemented!("second-order gradients of composite")
+    }
+
+    fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self> {
+        // The plane sweeps are data (images warped by fixed homographies): nothing to differentiate.
+        assert!(
+            !psv.is_tracked(),
+            "the agreement prior has no gradient (its plane sweeps must not require one)"
+        );
+        FloatTensor::<Self>::new(B::gpu_prior(psv.into_primitive(), planes, temperature))
     }
 }
 

@@ -77,3 +77,57 @@ fn wgpu_composite_kernel_equals_burns_ops() {
         assert!(e < 1e-5, "gradient, {d} planes {h}x{w}: {e}");
     }
 }
+
+/// The agreement prior kernel on wgpu equals burn's ops on the CPU: views that see a point, one that does
+/// (the single-view variance), none that does (transparent), and planes whose depth weights underflow.
+#[test]
+fn wgpu_prior_kernel_equals_burns_ops() {
+    use crate::network::{agreement_prior_logits, agreement_prior_logits_burn};
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let (k, d, h, w) = (4, 9, 6, 7);
+    let px = h * w;
+    let views: Vec<Vec<f32>> = (0..k)
+        .map(|v| {
+            // Fixed values (an LCG), so that a failure repeats.
+            let mut state = 0x9e37_79b9u32.wrapping_mul(v as u32 + 1);
+            let mut x: Vec<f32> = (0..d * 4 * px)
+                .map(|_| {
+                    state = state.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                    (state >> 8) as f32 / (1u32 << 24) as f32
+                })
+                .collect();
+            for p in 0..d {
+                for i in 0..px {
+                    // Validity: pixel 0 seen by no view, pixel 1 by view 0 only, the rest mostly seen.
+                    let m = &mut x[(p * 4 + 3) * px + i];
+                    *m = match i {
+                        0 => 0.0,
+                        1 => f32::from(v == 0),
+                        _ => f32::from(*m > 0.2),
+                    };
+                }
+            }
+            x
+        })
+        .collect();
+    for temperature in [0.05, 1e-4] {
+        let run = |dev: &Device, gpu: bool| {
+            let t: Vec<Tensor<4>> = views
+                .iter()
+                .map(|x| Tensor::<4>::from_data(TensorData::new(x.clone(), [d, 4, h, w]), dev))
+                .collect();
+            to_vec(if gpu {
+                agreement_prior_logits(&t, temperature)
+            } else {
+                agreement_prior_logits_burn(&t, temperature)
+            })
+        };
+        assert!(crate::gpu::gpu_kernels(&gpu));
+        let (want, got) = (run(&cpu, false), run(&gpu, true));
+        // Logits within [-11.5, 11.5]; at temperature 1e-4 the depth weights' exponents reach ~1e3, where
+        // f32 `exp`/`ln` of the GPU and the CPU differ by ~1e-4 (both are f32 computations of the same sums).
+        let e = max_diff(&want, &got);
+        assert!(e < 1e-3, "temperature {temperature}: logits differ by {e}");
+    }
+}
