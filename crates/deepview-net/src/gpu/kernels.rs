@@ -181,3 +181,43 @@ fn clamped_logit(p: f32, eps: f32) -> f32 {
     }
     (q / (1.0f32 - q)).ln()
 }
+
+/// A warp by precomputed bilinear taps ([`crate::forward::WarpTable`]): `src` `[S, C, sh, sw]` (`S` is
+/// `D`, or 1 for a source broadcast to every plane), `idx` and `w` `[4 * D*oh*ow]` (texel index within a
+/// source plane and weight of each tap; 0 weight for invalid samples) -> `out` `[D, C, oh, ow]`. One
+/// thread per output sample, the taps summed in order as burn's ops do.
+#[cube(launch)]
+pub(super) fn warp_kernel(
+    src: &Tensor<f32>,
+    idx: &Tensor<i32>,
+    w: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+) {
+    let (d, c, oh, ow) = (out.shape(0), out.shape(1), out.shape(2), out.shape(3));
+    let n = d * oh * ow;
+    let pos = ABSOLUTE_POS;
+    if pos >= n {
+        terminate!();
+    }
+    let per = oh * ow;
+    let p = pos / per;
+    let pix = pos % per;
+    let (y, x) = (pix / ow, pix % ow);
+    let sw = src.shape(3);
+    let mut plane = p;
+    if src.shape(0) == 1 {
+        plane = 0;
+    }
+    let sb = plane * src.stride(0);
+    let ob = p * out.stride(0) + y * out.stride(2) + x * out.stride(3);
+    let oc = out.stride(1);
+    for ch in 0..c {
+        let cb = sb + ch * src.stride(1);
+        let mut acc = 0.0f32;
+        for t in 0..4usize {
+            let i = usize::cast_from(idx[t * n + pos]);
+            acc += w[t * n + pos] * src[cb + (i / sw) * src.stride(2) + (i % sw) * src.stride(3)];
+        }
+        out[ob + ch * oc] = acc;
+    }
+}

@@ -8,9 +8,9 @@ use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::tensor::FloatTensor;
+use burn::backend::tensor::{FloatTensor, IntTensor};
 use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, backend_extension};
-use burn::tensor::{Device, Shape, Tensor};
+use burn::tensor::{DType, Device, Int, Shape, Tensor, TensorData};
 use burn_cubecl::CubeBackend;
 use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
@@ -34,6 +34,18 @@ pub trait GpuOps: Backend {
     /// The agreement prior's logits ([`crate::network::agreement_prior_logits`]): `psv` `[K*D, 4, h, w]`
     /// (the views' plane sweeps, view-major) -> `[D, 4, h, w]`. No gradient (the sweeps are data).
     fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self>;
+
+    /// A warp by precomputed taps ([`crate::forward::WarpTable`]): `src` `[S, C, sh, sw]`, `idx` (i32) and
+    /// `w` `[4 * planes*out_h*out_w]` -> `[planes, C, out_h, out_w]`. No gradient: for sources that need
+    /// none (inference, images).
+    fn gpu_warp(
+        src: FloatTensor<Self>,
+        idx: IntTensor<Self>,
+        w: FloatTensor<Self>,
+        planes: usize,
+        out_h: usize,
+        out_w: usize,
+    ) -> FloatTensor<Self>;
 }
 
 /// Whether tensors on `device` take our GPU kernels: a cubecl device (with or without autodiff),
@@ -60,6 +72,28 @@ pub(crate) fn prior(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
         d,
         temperature,
     ))
+}
+
+/// [`GpuOps::gpu_warp`] of `src` by `table` on a cubecl device (no gradient).
+pub(crate) fn warp(table: &crate::forward::WarpTable, src: Tensor<4>) -> Tensor<4> {
+    let device = src.device();
+    let c = src.dims()[1];
+    let (idx, w) = table.taps();
+    let n = idx.len();
+    let idx: Vec<i32> = idx.iter().map(|&i| i as i32).collect();
+    let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [n]), &device);
+    let w = Tensor::<1>::from_data(TensorData::new(w.to_vec(), [n]), &device);
+    let out = <Dispatch as GpuOps>::gpu_warp(
+        src.into_dispatch(),
+        idx.into_dispatch(),
+        w.into_dispatch(),
+        table.planes,
+        table.out_h,
+        table.out_w,
+    );
+    let out = Tensor::<4>::from_dispatch(out);
+    debug_assert_eq!(out.dims()[1], c);
+    out
 }
 
 /// Threads over the `h x w` pixels.
@@ -133,6 +167,37 @@ impl GpuOps for CubeBackend {
         );
         out
     }
+
+    fn gpu_warp(
+        src: CubeTensor,
+        idx: CubeTensor,
+        w: CubeTensor,
+        planes: usize,
+        out_h: usize,
+        out_w: usize,
+    ) -> CubeTensor {
+        let [_, c, _, _] = src.meta.shape().dims::<4>();
+        assert_eq!(idx.dtype, DType::I32, "warp taps are i32");
+        let out = empty_device_dtype(
+            src.client.clone(),
+            src.device.clone(),
+            Shape::new([planes, c, out_h, out_w]),
+            src.dtype,
+        );
+        let n = planes * out_h * out_w;
+        let dim = CubeDim::new(&src.client, n);
+        let count = calculate_cube_count_elemwise(&src.client, n, dim);
+        kernels::warp_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            src.into_tensor_arg(),
+            idx.into_tensor_arg(),
+            w.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+        );
+        out
+    }
 }
 
 impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
@@ -167,6 +232,28 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
             "the agreement prior has no gradient (its plane sweeps must not require one)"
         );
         FloatTensor::<Self>::new(B::gpu_prior(psv.into_primitive(), planes, temperature))
+    }
+
+    fn gpu_warp(
+        src: FloatTensor<Self>,
+        idx: IntTensor<Self>,
+        w: FloatTensor<Self>,
+        planes: usize,
+        out_h: usize,
+        out_w: usize,
+    ) -> FloatTensor<Self> {
+        assert!(
+            !src.is_tracked(),
+            "this warp has no gradient: a source that needs one takes burn's ops"
+        );
+        FloatTensor::<Self>::new(B::gpu_warp(
+            src.into_primitive(),
+            idx,
+            w.into_primitive(),
+            planes,
+            out_h,
+            out_w,
+        ))
     }
 }
 

@@ -131,3 +131,39 @@ fn wgpu_prior_kernel_equals_burns_ops() {
         assert!(e < 1e-3, "temperature {temperature}: logits differ by {e}");
     }
 }
+
+/// The warp kernel on wgpu equals burn's warp on the CPU, for a source per plane and a broadcast one
+/// (a plane sweep), with samples outside the source; on an autodiff device `apply_data` takes it too.
+#[test]
+fn wgpu_warp_kernel_equals_burns_ops() {
+    use crate::forward::{Hom, WarpTable};
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let (sw, sh, ow, oh, c) = (23, 17, 19, 13, 3);
+    let homs: Vec<Hom> = vec![
+        [1.0, 0.0, 2.5, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0],
+        [1.13, 0.021, -3.7, -0.013, 1.07, 2.9, 1.3e-3, -2.1e-3, 1.0],
+        [0.9, -0.05, 6.1, 0.04, 1.01, -1.9, -3.3e-3, 1.7e-3, 0.99],
+    ];
+    let d = homs.len();
+    let table = WarpTable::new(&homs, sw, sh, ow, oh);
+    for s in [d, 1] {
+        let src = to_vec(Tensor::<4>::random(
+            [s, c, sh, sw],
+            Distribution::Uniform(-1.0, 1.0),
+            &cpu,
+        ));
+        let on = |dev: &Device| {
+            Tensor::<4>::from_data(TensorData::new(src.clone(), [s, c, sh, sw]), dev)
+        };
+        let want = to_vec(table.apply_burn(on(&cpu)));
+        assert!(crate::gpu::gpu_kernels(&gpu) && !gpu.is_autodiff());
+        let got = to_vec(table.apply(on(&gpu)));
+        let e = max_diff(&want, &got);
+        assert!(e < 1e-6, "{s} source planes: {e}");
+        let ad = gpu.clone().autodiff();
+        let got = to_vec(table.apply_data(on(&ad)).inner());
+        let e = max_diff(&want, &got);
+        assert!(e < 1e-6, "{s} source planes, autodiff device: {e}");
+    }
+}
