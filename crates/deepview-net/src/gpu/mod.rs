@@ -1,8 +1,13 @@
 //! Our own GPU kernels (cubecl, any of its runtimes: wgpu, CUDA), hooked into burn with its backend
 //! extension mechanism as the CPU kernels are ([`crate::cpu::ops`]): one dispatch where burn's ops take
-//! many. First of them, the over-composite and its backward (one thread per pixel, a loop over the
-//! planes; the same arithmetic as the CPU kernel [`crate::cpu::renderops::composite_forward`]). burn's
-//! ops stay the reference: the tests compare outputs and gradients with [`crate::forward::composite_burn`].
+//! many. So far (`kernels.rs`, one thread per pixel or sample):
+//! - the over-composite and its backward (a loop over the planes; the arithmetic of the CPU kernel
+//!   [`crate::cpu::renderops::composite_forward`]);
+//! - the agreement prior of net 0's input ([`crate::network::agreement_prior_logits`]; no gradient);
+//! - warps by precomputed taps for sources that need no gradient ([`crate::forward::WarpTable::apply`]
+//!   in inference, `apply_data` for images).
+//!
+//! burn's ops stay the reference: the tests compare each kernel's outputs (and gradients) with them.
 
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
