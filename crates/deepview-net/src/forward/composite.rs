@@ -17,30 +17,30 @@ pub struct Composite {
     pub accumulated: Tensor<4>,
 }
 
+impl Composite {
+    /// From one kernel's output `[D + 1, 4, h, w]`: planes `..D` hold `A` (3) and `T` (1), plane `D` the
+    /// render (3).
+    fn from_packed(out: Tensor<4>) -> Self {
+        let [d1, _, h, w] = out.dims();
+        let d = d1 - 1;
+        let planes = out.clone().narrow(0, 0, d);
+        Self {
+            render: out.narrow(0, d, 1).narrow(1, 0, 3).reshape([3, h, w]),
+            transmittance: planes.clone().narrow(1, 3, 1),
+            accumulated: planes.narrow(1, 0, 3),
+        }
+    }
+}
+
 /// Over-composite `rgba` `[D, 4, h, w]` (premultiplied colour, plane 0 the farthest). A loop over planes
 /// (no division, so alpha = 1 is safe); `d render / d c_d = T_d` and `d render / d a_d = -A_d T_d`.
 pub fn composite(rgba: Tensor<4>) -> Composite {
     if crate::cpu::ops::fast_device(&rgba.device()) {
-        let [d, _, h, w] = rgba.dims();
-        // One operation: `[D + 1, 4, h, w]`, planes `..D` (A, T), plane D the render.
-        let out = crate::cpu::ops::composite(rgba);
-        let planes = out.clone().narrow(0, 0, d);
-        return Composite {
-            render: out.narrow(0, d, 1).narrow(1, 0, 3).reshape([3, h, w]),
-            transmittance: planes.clone().narrow(1, 3, 1),
-            accumulated: planes.narrow(1, 0, 3),
-        };
+        return Composite::from_packed(crate::cpu::ops::composite(rgba));
     }
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     if crate::gpu::gpu_kernels(&rgba.device()) {
-        let [d, _, h, w] = rgba.dims();
-        let out = crate::gpu::composite(rgba);
-        let planes = out.clone().narrow(0, 0, d);
-        return Composite {
-            render: out.narrow(0, d, 1).narrow(1, 0, 3).reshape([3, h, w]),
-            transmittance: planes.clone().narrow(1, 3, 1),
-            accumulated: planes.narrow(1, 0, 3),
-        };
+        return Composite::from_packed(crate::gpu::composite(rgba));
     }
     composite_scan(rgba)
 }

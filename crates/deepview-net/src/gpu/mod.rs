@@ -82,7 +82,6 @@ pub(crate) fn prior(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
 /// [`GpuOps::gpu_warp`] of `src` by `table` on a cubecl device (no gradient).
 pub(crate) fn warp(table: &crate::forward::WarpTable, src: Tensor<4>) -> Tensor<4> {
     let device = src.device();
-    let c = src.dims()[1];
     let (idx, w) = table.taps();
     let n = idx.len();
     let idx: Vec<i32> = idx.iter().map(|&i| i as i32).collect();
@@ -96,28 +95,36 @@ pub(crate) fn warp(table: &crate::forward::WarpTable, src: Tensor<4>) -> Tensor<
         table.out_h,
         table.out_w,
     );
-    let out = Tensor::<4>::from_dispatch(out);
-    debug_assert_eq!(out.dims()[1], c);
-    out
+    Tensor::from_dispatch(out)
+}
+
+/// One thread for each of `n` items on `t`'s device.
+fn grid(t: &CubeTensor, n: usize) -> (CubeCount, CubeDim) {
+    let dim = CubeDim::new(&t.client, n);
+    (calculate_cube_count_elemwise(&t.client, n, dim), dim)
 }
 
 /// Threads over the `h x w` pixels.
 fn pixel_grid(t: &CubeTensor) -> (CubeCount, CubeDim) {
     let [_, _, h, w] = t.meta.shape().dims::<4>();
-    let dim = CubeDim::new(&t.client, h * w);
-    (calculate_cube_count_elemwise(&t.client, h * w, dim), dim)
+    grid(t, h * w)
+}
+
+/// An uninitialised tensor of `dims` on `t`'s device, of its dtype.
+fn empty_like(t: &CubeTensor, dims: [usize; 4]) -> CubeTensor {
+    empty_device_dtype(
+        t.client.clone(),
+        t.device.clone(),
+        Shape::new(dims),
+        t.dtype,
+    )
 }
 
 impl GpuOps for CubeBackend {
     fn gpu_composite(rgba: CubeTensor) -> CubeTensor {
         let [d, c, h, w] = rgba.meta.shape().dims::<4>();
         assert_eq!(c, 4, "composite takes RGBA planes");
-        let out = empty_device_dtype(
-            rgba.client.clone(),
-            rgba.device.clone(),
-            Shape::new([d + 1, 4, h, w]),
-            rgba.dtype,
-        );
+        let out = empty_like(&rgba, [d + 1, 4, h, w]);
         let (count, dim) = pixel_grid(&rgba);
         kernels::composite_kernel::launch(
             &out.client,
@@ -131,12 +138,7 @@ impl GpuOps for CubeBackend {
 
     fn gpu_composite_backward(rgba: CubeTensor, out: CubeTensor, grad: CubeTensor) -> CubeTensor {
         let [d, _, h, w] = rgba.meta.shape().dims::<4>();
-        let gin = empty_device_dtype(
-            rgba.client.clone(),
-            rgba.device.clone(),
-            Shape::new([d, 4, h, w]),
-            rgba.dtype,
-        );
+        let gin = empty_like(&rgba, [d, 4, h, w]);
         let (count, dim) = pixel_grid(&rgba);
         kernels::composite_backward_kernel::launch(
             &gin.client,
@@ -153,12 +155,7 @@ impl GpuOps for CubeBackend {
     fn gpu_prior(psv: CubeTensor, planes: usize, temperature: f64) -> CubeTensor {
         let [_, c, h, w] = psv.meta.shape().dims::<4>();
         assert_eq!(c, 4, "the prior takes RGB and validity");
-        let out = empty_device_dtype(
-            psv.client.clone(),
-            psv.device.clone(),
-            Shape::new([planes, 4, h, w]),
-            psv.dtype,
-        );
+        let out = empty_like(&psv, [planes, 4, h, w]);
         let (count, dim) = pixel_grid(&psv);
         kernels::prior_kernel::launch(
             &out.client,
@@ -183,15 +180,8 @@ impl GpuOps for CubeBackend {
     ) -> CubeTensor {
         let [_, c, _, _] = src.meta.shape().dims::<4>();
         assert_eq!(idx.dtype, DType::I32, "warp taps are i32");
-        let out = empty_device_dtype(
-            src.client.clone(),
-            src.device.clone(),
-            Shape::new([planes, c, out_h, out_w]),
-            src.dtype,
-        );
-        let n = planes * out_h * out_w;
-        let dim = CubeDim::new(&src.client, n);
-        let count = calculate_cube_count_elemwise(&src.client, n, dim);
+        let out = empty_like(&src, [planes, c, out_h, out_w]);
+        let (count, dim) = grid(&src, planes * out_h * out_w);
         kernels::warp_kernel::launch(
             &out.client,
             count,
