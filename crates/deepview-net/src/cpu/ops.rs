@@ -149,6 +149,8 @@ pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act: Act) -> Tensor<4> {
         let y = conv.forward(x);
         return match act {
             Act::Linear => y,
+            #[cfg(any(feature = "wgpu", feature = "cuda"))]
+            Act::Elu if crate::gpu::gpu_kernels(&y.device()) => crate::gpu::elu(y),
             Act::Elu => elu(y, 1.0),
             Act::Relu => relu(y),
         };

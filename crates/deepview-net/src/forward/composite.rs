@@ -165,7 +165,7 @@ pub fn plane_sweep_volume_framed(
     let [c, hv, wv] = image.dims();
     let table = WarpTable::new_framed(mpi_to_view, frames, wv, hv, w, h);
     let device = image.device();
-    let psv = table.apply_data(image.reshape([1, c, hv, wv]));
+    let psv = table.apply(image.reshape([1, c, hv, wv]));
     Tensor::cat(vec![psv, table.valid(&device)], 1)
 }
 

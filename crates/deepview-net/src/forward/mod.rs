@@ -26,7 +26,7 @@ pub use composite::{
     gradient_components, gradient_components_framed, image_tensor, plane_sweep_volume,
     plane_sweep_volume_framed, render_view, render_view_framed,
 };
-pub use taps::{Frames, Hom, WarpTable};
+pub use taps::{Frames, Hom, TransposedTaps, WarpTable};
 pub use warp::{
     crop_output, crop_source, invert, mpi_to_view_homographies, mul, warp_planes,
     warp_planes_grid_sample,

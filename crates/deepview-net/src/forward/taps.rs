@@ -26,6 +26,14 @@ pub struct WarpTable {
     pub(super) valid: Arc<[f32]>,
 }
 
+/// A [`WarpTable`]'s taps by source texel ([`WarpTable::transposed`]), in i32 as GPUs index.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TransposedTaps {
+    pub offsets: Vec<i32>,
+    pub pos: Vec<i32>,
+    pub w: Vec<f32>,
+}
+
 /// Where a warp's source and output arrays lie in the frames its homographies map between: a crop of
 /// a larger image (or MPI) as source, a window of a larger output. Sample positions, validity (inside
 /// the *whole* source) and edge clamping are computed in the whole frames exactly as for the uncropped
@@ -179,6 +187,61 @@ impl WarpTable {
     /// weights (0 for invalid samples).
     pub fn taps(&self) -> (&[i64], &[f32]) {
         (&self.idx, &self.w)
+    }
+
+    /// The taps transposed (the warp's adjoint, for a gather-only backward): for each source texel of
+    /// `s` source planes (`s` the table's planes, or 1 for a broadcast source), the output samples that
+    /// read it. Entries `offsets[e]..offsets[e + 1]` belong to source element `e` (plane-major,
+    /// `[s][src_h][src_w]`); `pos` is the sample (`[planes][out_h][out_w]`) and `w` its tap's weight.
+    /// Taps of weight 0 are left out; each element's entries are in sample order.
+    pub fn transposed(&self, s: usize) -> TransposedTaps {
+        assert!(s == self.planes || s == 1, "warp source has {s} planes");
+        let per = self.out_h * self.out_w;
+        let shw = self.src_h * self.src_w;
+        let n = self.valid.len();
+        let key = |t: usize, k: usize| {
+            let texel = self.idx[t * n + k] as usize;
+            if s == 1 {
+                texel
+            } else {
+                (k / per) * shw + texel
+            }
+        };
+        let mut offsets = vec![0usize; s * shw + 1];
+        for k in 0..n {
+            for t in 0..4 {
+                if self.w[t * n + k] != 0.0 {
+                    offsets[key(t, k) + 1] += 1;
+                }
+            }
+        }
+        for e in 0..s * shw {
+            offsets[e + 1] += offsets[e];
+        }
+        let total = offsets[s * shw];
+        assert!(
+            total <= i32::MAX as usize && n <= i32::MAX as usize,
+            "warp too large for i32 taps"
+        );
+        let mut next = offsets.clone();
+        let mut pos = vec![0i32; total];
+        let mut w = vec![0f32; total];
+        for k in 0..n {
+            for t in 0..4 {
+                let v = self.w[t * n + k];
+                if v != 0.0 {
+                    let e = key(t, k);
+                    pos[next[e]] = k as i32;
+                    w[next[e]] = v;
+                    next[e] += 1;
+                }
+            }
+        }
+        TransposedTaps {
+            offsets: offsets.into_iter().map(|o| o as i32).collect(),
+            pos,
+            w,
+        }
     }
 
     /// The validity mask as plain data, `[planes][out_h][out_w]`.

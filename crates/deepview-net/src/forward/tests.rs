@@ -515,6 +515,49 @@ fn cpu_warp_matches_burn_ops() {
     }
 }
 
+/// The transposed taps (the GPU warp's gather-only backward) applied on the host equal the CPU warp's
+/// scatter backward, for per-plane and broadcast sources, with samples outside the source (weight 0,
+/// left out) and the entries of each texel in sample order.
+#[test]
+fn transposed_taps_are_the_warps_adjoint() {
+    for (s, c, sh, sw, d, oh, ow) in [(3, 2, 9, 11, 3, 7, 10), (1, 3, 13, 8, 5, 6, 9)] {
+        let table = WarpTable::new(&some_homs(d), sw, sh, ow, oh);
+        let t = table.transposed(s);
+        let (per, shw) = (oh * ow, sh * sw);
+        assert_eq!(t.offsets.len(), s * shw + 1);
+        let (_, w) = table.taps();
+        let nonzero = w.iter().filter(|&&v| v != 0.0).count();
+        assert_eq!(t.pos.len(), nonzero, "every tap of nonzero weight, once");
+        assert!(nonzero < w.len(), "the case has samples outside the source");
+        let grad = to_vec(Tensor::<4>::random(
+            [d, c, oh, ow],
+            Distribution::Uniform(-1.0, 1.0),
+            &dev(),
+        ));
+        let mut got = vec![0f32; s * c * shw];
+        for e in 0..s * shw {
+            let (sp, texel) = (e / shw, e % shw);
+            let range = t.offsets[e] as usize..t.offsets[e + 1] as usize;
+            assert!(t.pos[range.clone()].windows(2).all(|p| p[0] <= p[1]));
+            for ch in 0..c {
+                got[(sp * c + ch) * shw + texel] = range
+                    .clone()
+                    .map(|j| {
+                        let q = t.pos[j] as usize;
+                        t.w[j] * grad[((q / per) * c + ch) * per + q % per]
+                    })
+                    .sum();
+            }
+        }
+        let want = crate::cpu::renderops::warp_backward(&table, &grad, s, c);
+        let e = got
+            .iter()
+            .zip(&want)
+            .fold(0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(e < 1e-5, "{s} source planes: {e}");
+    }
+}
+
 /// The CPU composite operation equals burn's plane loop: the render, `T` and `A`, and the gradient of
 /// a weighted sum of all three at the RGBA planes (colour and alpha), including alpha 0 and 1.
 #[test]

@@ -25,10 +25,9 @@ pub fn mpi_to_view_homographies<'a>(
 impl WarpTable {
     /// Warp `src` `[S, C, src_h, src_w]` -> `[planes, C, out_h, out_w]`. `S` is `planes` (plane `d` is
     /// warped by homography `d`) or 1 (the one source is broadcast to every plane: a plane sweep).
-    /// On the CPU one operation with its own backward ([`crate::cpu::ops::KernelOps::warp`]), elsewhere
-    /// [`Self::apply_burn`].
-    ///
-    /// On a GPU without autodiff (inference) our kernel ([`crate::gpu`]): one dispatch and i32 taps.
+    /// On the CPU one operation with its own backward ([`crate::cpu::ops::KernelOps::warp`]), on a GPU
+    /// our kernel ([`crate::gpu`]: one dispatch, i32 taps; a gather over the transposed taps as its
+    /// backward), elsewhere (`--engine burn`) [`Self::apply_burn`].
     pub fn apply(&self, src: Tensor<4>) -> Tensor<4> {
         let device = src.device();
         if crate::cpu::ops::fast_device(&device) {
@@ -36,22 +35,11 @@ impl WarpTable {
             return crate::cpu::ops::warp(src, std::sync::Arc::new(self.clone()));
         }
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if !device.is_autodiff() && crate::gpu::gpu_kernels(&device) {
+        if crate::gpu::gpu_kernels(&device) {
             self.check_source(&src);
             return crate::gpu::warp(self, src);
         }
         self.apply_burn(src)
-    }
-
-    /// [`Self::apply`] of a source that needs no gradient (an image): our GPU kernel on a GPU with or
-    /// without autodiff.
-    pub fn apply_data(&self, src: Tensor<4>) -> Tensor<4> {
-        #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if crate::gpu::gpu_kernels(&src.device()) {
-            self.check_source(&src);
-            return crate::gpu::warp(self, src);
-        }
-        self.apply(src)
     }
 
     fn check_source(&self, src: &Tensor<4>) {

@@ -221,3 +221,68 @@ pub(super) fn warp_kernel(
         out[ob + ch * oc] = acc;
     }
 }
+
+/// The gradient of [`warp_kernel`] at its source: `grad` `[D, C, oh, ow]`, the transposed taps
+/// ([`crate::forward::WarpTable::transposed`]: `offsets` `[S*sh*sw + 1]`, sample `pos` and weight `w` of
+/// each entry) -> `gsrc` `[S, C, sh, sw]`. One thread per source texel, gathering its samples in order.
+#[cube(launch)]
+pub(super) fn warp_backward_kernel(
+    grad: &Tensor<f32>,
+    offsets: &Tensor<i32>,
+    pos: &Tensor<i32>,
+    w: &Tensor<f32>,
+    gsrc: &mut Tensor<f32>,
+) {
+    let (s, c, sh, sw) = (gsrc.shape(0), gsrc.shape(1), gsrc.shape(2), gsrc.shape(3));
+    let (oh, ow) = (grad.shape(2), grad.shape(3));
+    let shw = sh * sw;
+    let e = ABSOLUTE_POS;
+    if e >= s * shw {
+        terminate!();
+    }
+    let (sp, texel) = (e / shw, e % shw);
+    let gb = sp * gsrc.stride(0) + (texel / sw) * gsrc.stride(2) + (texel % sw) * gsrc.stride(3);
+    let start = usize::cast_from(offsets[e]);
+    let end = usize::cast_from(offsets[e + 1]);
+    let per = oh * ow;
+    let gc = gsrc.stride(1);
+    for ch in 0..c {
+        let cb = ch * grad.stride(1);
+        let mut acc = 0.0f32;
+        for j in start..end {
+            let q = usize::cast_from(pos[j]);
+            let (p, pix) = (q / per, q % per);
+            acc += w[j]
+                * grad[cb
+                    + p * grad.stride(0)
+                    + (pix / ow) * grad.stride(2)
+                    + (pix % ow) * grad.stride(3)];
+        }
+        gsrc[gb + ch * gc] = acc;
+    }
+}
+
+/// ELU (alpha 1), element-wise on contiguous tensors: `x` where `x > 0`, `exp(x) - 1` elsewhere (burn's
+/// `elu`).
+#[cube(launch)]
+pub(super) fn elu_kernel(x: &Tensor<f32>, out: &mut Tensor<f32>) {
+    let i = ABSOLUTE_POS;
+    if i >= out.len() {
+        terminate!();
+    }
+    let v = x[i];
+    out[i] = if v > 0.0f32 { v } else { v.exp() - 1.0f32 };
+}
+
+/// The gradient of [`elu_kernel`] from its output `y`: `grad` where `y > 0`, `grad * (y + 1)` (that is
+/// `grad * exp(x)`) elsewhere.
+#[cube(launch)]
+pub(super) fn elu_backward_kernel(y: &Tensor<f32>, grad: &Tensor<f32>, gin: &mut Tensor<f32>) {
+    let i = ABSOLUTE_POS;
+    if i >= gin.len() {
+        terminate!();
+    }
+    let v = y[i];
+    let d = if v > 0.0f32 { 1.0f32 } else { v + 1.0f32 };
+    gin[i] = grad[i] * d;
+}

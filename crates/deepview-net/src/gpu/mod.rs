@@ -4,23 +4,29 @@
 //! - the over-composite and its backward (a loop over the planes; the arithmetic of the CPU kernel
 //!   [`crate::cpu::renderops::composite_forward`]);
 //! - the agreement prior of net 0's input ([`crate::network::agreement_prior_logits`]; no gradient);
-//! - warps by precomputed taps for sources that need no gradient ([`crate::forward::WarpTable::apply`]
-//!   in inference, `apply_data` for images).
+//! - warps by precomputed taps ([`crate::forward::WarpTable::apply`]), and their backward as a gather
+//!   over the transposed taps (no atomics);
+//! - the nets' ELU and its backward.
 //!
 //! burn's ops stay the reference: the tests compare each kernel's outputs (and gradients) with them.
 
+use crate::forward::WarpTable;
+use burn::backend::TensorMetadata;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::tensor::{FloatTensor, IntTensor};
+use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, backend_extension};
-use burn::tensor::{DType, Device, Int, Shape, Tensor, TensorData};
+use burn::tensor::{Device, Shape, Tensor, TensorData};
 use burn_cubecl::CubeBackend;
+use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::tensor::CubeTensor;
 use cubecl::calculate_cube_count_elemwise;
 use cubecl::prelude::*;
+use std::sync::Arc;
 
 /// Custom GPU operations.
 #[backend_extension(Cube, Autodiff)]
@@ -40,17 +46,26 @@ pub trait GpuOps: Backend {
     /// (the views' plane sweeps, view-major) -> `[D, 4, h, w]`. No gradient (the sweeps are data).
     fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self>;
 
-    /// A warp by precomputed taps ([`crate::forward::WarpTable`]): `src` `[S, C, sh, sw]`, `idx` (i32) and
-    /// `w` `[4 * planes*out_h*out_w]` -> `[planes, C, out_h, out_w]`. No gradient: for sources that need
-    /// none (inference, images).
-    fn gpu_warp(
-        src: FloatTensor<Self>,
-        idx: IntTensor<Self>,
-        w: FloatTensor<Self>,
-        planes: usize,
-        out_h: usize,
-        out_w: usize,
+    /// A warp by precomputed taps ([`crate::forward::WarpTable`], uploaded as i32 indices and weights):
+    /// `src` `[S, C, sh, sw]` (`S` the table's planes, or 1: broadcast) -> `[planes, C, out_h, out_w]`.
+    /// Under autodiff a tracked source gets [`GpuOps::gpu_warp_backward`].
+    fn gpu_warp(src: FloatTensor<Self>, table: Arc<WarpTable>) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_warp`] at its source of `s` planes, given the output's gradient
+    /// `[planes, C, out_h, out_w]`: a gather over the transposed taps ([`WarpTable::transposed`]), one
+    /// thread per source texel (no atomics, a fixed order of sums).
+    fn gpu_warp_backward(
+        grad: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+        s: usize,
     ) -> FloatTensor<Self>;
+
+    /// ELU (alpha 1) of a feature map (the nets' activation): one dispatch forward and one backward
+    /// where burn's `elu` takes five and more.
+    fn gpu_elu(x: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_elu`] from its output and the output's gradient.
+    fn gpu_elu_backward(out: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
 }
 
 /// Whether tensors on `device` take our GPU kernels: a cubecl device (with or without autodiff),
@@ -79,23 +94,28 @@ pub(crate) fn prior(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
     ))
 }
 
-/// [`GpuOps::gpu_warp`] of `src` by `table` on a cubecl device (no gradient).
-pub(crate) fn warp(table: &crate::forward::WarpTable, src: Tensor<4>) -> Tensor<4> {
-    let device = src.device();
-    let (idx, w) = table.taps();
-    let n = idx.len();
-    let idx: Vec<i32> = idx.iter().map(|&i| i as i32).collect();
-    let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [n]), &device);
-    let w = Tensor::<1>::from_data(TensorData::new(w.to_vec(), [n]), &device);
-    let out = <Dispatch as GpuOps>::gpu_warp(
-        src.into_dispatch(),
-        idx.into_dispatch(),
-        w.into_dispatch(),
-        table.planes,
-        table.out_h,
-        table.out_w,
-    );
+/// [`GpuOps::gpu_warp`] of `src` by `table` on a cubecl device (with its backward where `src` is
+/// tracked).
+pub(crate) fn warp(table: &WarpTable, src: Tensor<4>) -> Tensor<4> {
+    let out = <Dispatch as GpuOps>::gpu_warp(src.into_dispatch(), Arc::new(table.clone()));
     Tensor::from_dispatch(out)
+}
+
+/// [`GpuOps::gpu_elu`] on a cubecl device.
+pub(crate) fn elu(x: Tensor<4>) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_elu(x.into_dispatch()))
+}
+
+/// `values` as a 1-d i32 tensor on `t`'s device.
+fn upload_i32(t: &CubeTensor, values: Vec<i32>) -> CubeTensor {
+    let n = values.len();
+    CubeBackend::int_from_data(TensorData::new(values, [n]), &t.device)
+}
+
+/// `values` as a 1-d f32 tensor on `t`'s device.
+fn upload_f32(t: &CubeTensor, values: Vec<f32>) -> CubeTensor {
+    let n = values.len();
+    CubeBackend::float_from_data(TensorData::new(values, [n]), &t.device)
 }
 
 /// One thread for each of `n` items on `t`'s device.
@@ -170,18 +190,13 @@ impl GpuOps for CubeBackend {
         out
     }
 
-    fn gpu_warp(
-        src: CubeTensor,
-        idx: CubeTensor,
-        w: CubeTensor,
-        planes: usize,
-        out_h: usize,
-        out_w: usize,
-    ) -> CubeTensor {
+    fn gpu_warp(src: CubeTensor, table: Arc<WarpTable>) -> CubeTensor {
         let [_, c, _, _] = src.meta.shape().dims::<4>();
-        assert_eq!(idx.dtype, DType::I32, "warp taps are i32");
-        let out = empty_like(&src, [planes, c, out_h, out_w]);
-        let (count, dim) = grid(&src, planes * out_h * out_w);
+        let (idx, w) = table.taps();
+        let idx = upload_i32(&src, idx.iter().map(|&i| i as i32).collect());
+        let w = upload_f32(&src, w.to_vec());
+        let out = empty_like(&src, [table.planes, c, table.out_h, table.out_w]);
+        let (count, dim) = grid(&src, table.planes * table.out_h * table.out_w);
         kernels::warp_kernel::launch(
             &out.client,
             count,
@@ -192,6 +207,58 @@ impl GpuOps for CubeBackend {
             out.clone().into_tensor_arg(),
         );
         out
+    }
+
+    fn gpu_warp_backward(grad: CubeTensor, table: Arc<WarpTable>, s: usize) -> CubeTensor {
+        let [_, c, _, _] = grad.meta.shape().dims::<4>();
+        let t = table.transposed(s);
+        let offsets = upload_i32(&grad, t.offsets);
+        let pos = upload_i32(&grad, t.pos);
+        let w = upload_f32(&grad, t.w);
+        let gsrc = empty_like(&grad, [s, c, table.src_h, table.src_w]);
+        let (count, dim) = grid(&grad, s * table.src_h * table.src_w);
+        kernels::warp_backward_kernel::launch(
+            &gsrc.client,
+            count,
+            dim,
+            grad.into_tensor_arg(),
+            offsets.into_tensor_arg(),
+            pos.into_tensor_arg(),
+            w.into_tensor_arg(),
+            gsrc.clone().into_tensor_arg(),
+        );
+        gsrc
+    }
+
+    fn gpu_elu(x: CubeTensor) -> CubeTensor {
+        let x = into_contiguous(x);
+        let dims = x.meta.shape().dims::<4>();
+        let out = empty_like(&x, dims);
+        let (count, dim) = grid(&x, dims.iter().product());
+        kernels::elu_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            x.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+        );
+        out
+    }
+
+    fn gpu_elu_backward(out: CubeTensor, grad: CubeTensor) -> CubeTensor {
+        let grad = into_contiguous(grad);
+        let dims = out.meta.shape().dims::<4>();
+        let gin = empty_like(&out, dims);
+        let (count, dim) = grid(&out, dims.iter().product());
+        kernels::elu_backward_kernel::launch(
+            &gin.client,
+            count,
+            dim,
+            out.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            gin.clone().into_tensor_arg(),
+        );
+        gin
     }
 }
 
@@ -229,26 +296,74 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         FloatTensor::<Self>::new(B::gpu_prior(psv.into_primitive(), planes, temperature))
     }
 
-    fn gpu_warp(
-        src: FloatTensor<Self>,
-        idx: IntTensor<Self>,
-        w: FloatTensor<Self>,
-        planes: usize,
-        out_h: usize,
-        out_w: usize,
+    fn gpu_warp(src: FloatTensor<Self>, table: Arc<WarpTable>) -> FloatTensor<Self> {
+        let guards = [src.node()];
+        let src = src.into_primitive();
+        let s = src.shape().dims::<4>()[0];
+        match WarpBackward.prepare::<C>(guards).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_warp(src, table.clone());
+                prep.finish((table, s), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_warp(src, table)),
+        }
+    }
+
+    fn gpu_warp_backward(
+        _grad: FloatTensor<Self>,
+        _table: Arc<WarpTable>,
+        _s: usize,
     ) -> FloatTensor<Self> {
-        assert!(
-            !src.is_tracked(),
-            "this warp has no gradient: a source that needs one takes burn's ops"
-        );
-        FloatTensor::<Self>::new(B::gpu_warp(
-            src.into_primitive(),
-            idx,
-            w.into_primitive(),
-            planes,
-            out_h,
-            out_w,
-        ))
+        unimplemented!("second-order gradients of warp")
+    }
+
+    fn gpu_elu(x: FloatTensor<Self>) -> FloatTensor<Self> {
+        let guards = [x.node()];
+        let x = x.into_primitive();
+        match EluBackward.prepare::<C>(guards).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_elu(x);
+                prep.finish(out.clone(), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_elu(x)),
+        }
+    }
+
+    fn gpu_elu_backward(_out: FloatTensor<Self>, _grad: FloatTensor<Self>) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of elu")
+    }
+}
+
+#[derive(Debug)]
+struct EluBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 1> for EluBackward {
+    /// The output.
+    type State = FloatTensor<B>;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::gpu_elu_backward(ops.state, grad));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct WarpBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 1> for WarpBackward {
+    /// The table and the source's planes.
+    type State = (Arc<WarpTable>, usize);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (table, s) = ops.state;
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::gpu_warp_backward(grad, table, s));
+        }
     }
 }
 

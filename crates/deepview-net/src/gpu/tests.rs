@@ -133,7 +133,9 @@ fn wgpu_prior_kernel_equals_burns_ops() {
 }
 
 /// The warp kernel on wgpu equals burn's warp on the CPU, for a source per plane and a broadcast one
-/// (a plane sweep), with samples outside the source; on an autodiff device `apply_data` takes it too.
+/// (a plane sweep), with samples outside the source: outputs without and with autodiff, and under
+/// autodiff the gradient at a tracked source (the gather over transposed taps against burn's
+/// scatter-add).
 #[test]
 fn wgpu_warp_kernel_equals_burns_ops() {
     use crate::forward::{Hom, WarpTable};
@@ -147,6 +149,11 @@ fn wgpu_warp_kernel_equals_burns_ops() {
     ];
     let d = homs.len();
     let table = WarpTable::new(&homs, sw, sh, ow, oh);
+    let seed = to_vec(Tensor::<4>::random(
+        [d, c, oh, ow],
+        Distribution::Uniform(-1.0, 1.0),
+        &cpu,
+    ));
     for s in [d, 1] {
         let src = to_vec(Tensor::<4>::random(
             [s, c, sh, sw],
@@ -161,9 +168,67 @@ fn wgpu_warp_kernel_equals_burns_ops() {
         let got = to_vec(table.apply(on(&gpu)));
         let e = max_diff(&want, &got);
         assert!(e < 1e-6, "{s} source planes: {e}");
-        let ad = gpu.clone().autodiff();
-        let got = to_vec(table.apply_data(on(&ad)).inner());
+        // Under autodiff, a tracked source: the output and the gradient of a weighted sum.
+        let grad = |dev: &Device, burn: bool| {
+            let ad = dev.clone().autodiff();
+            let x = on(&ad).require_grad();
+            let y = if burn {
+                table.apply_burn(x.clone())
+            } else {
+                table.apply(x.clone())
+            };
+            let out = to_vec(y.clone().inner());
+            let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), [d, c, oh, ow]), &ad);
+            let grads = (y * wt).sum().backward();
+            (out, to_vec(x.grad(&grads).unwrap()))
+        };
+        let (_, want_grad) = grad(&cpu, true);
+        let (got, got_grad) = grad(&gpu, false);
         let e = max_diff(&want, &got);
         assert!(e < 1e-6, "{s} source planes, autodiff device: {e}");
+        let e = max_diff(&want_grad, &got_grad);
+        assert!(e < 1e-5, "{s} source planes, source gradient: {e}");
+        assert!(want_grad.iter().any(|&g| g != 0.0));
     }
+}
+
+/// The ELU kernel on wgpu equals burn's `elu` on the CPU: outputs and the gradient of a weighted sum,
+/// over negative, zero and positive inputs (the nets take it for every ELU layer on a GPU).
+#[test]
+fn wgpu_elu_kernel_equals_burns_elu() {
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let dims = [3, 5, 7, 9];
+    let n: usize = dims.iter().product();
+    let mut x = to_vec(Tensor::<1>::random(
+        [n],
+        Distribution::Uniform(-4.0, 3.0),
+        &cpu,
+    ));
+    x[0] = 0.0;
+    x[1] = -30.0;
+    let seed = to_vec(Tensor::<1>::random(
+        [n],
+        Distribution::Uniform(-1.0, 1.0),
+        &cpu,
+    ));
+    let run = |dev: &Device, kernel: bool| {
+        let ad = dev.clone().autodiff();
+        let t = Tensor::<4>::from_data(TensorData::new(x.clone(), dims), &ad).require_grad();
+        let y = if kernel {
+            crate::gpu::elu(t.clone())
+        } else {
+            burn::tensor::activation::elu(t.clone(), 1.0)
+        };
+        let out = to_vec(y.clone().inner());
+        let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), dims), &ad);
+        let grads = (y * wt).sum().backward();
+        (out, to_vec(t.grad(&grads).unwrap()))
+    };
+    let (want, want_grad) = run(&cpu, false);
+    let (got, got_grad) = run(&gpu, true);
+    let e = max_diff(&want, &got);
+    assert!(e < 1e-6, "elu: {e}");
+    let e = max_diff(&want_grad, &got_grad);
+    assert!(e < 1e-6, "elu gradient: {e}");
 }
