@@ -7,7 +7,7 @@ use crate::error::{TrainError, io_err, run_err};
 use crate::events::Notice;
 use crate::files::{record_message, sync_dir, sync_file};
 use burn::module::Module;
-use burn::optim::{AdamConfig, ModuleOptimizer};
+use burn::optim::ModuleOptimizer;
 use burn::tensor::Device;
 use deepview_net::config::DeepViewConfig;
 use deepview_net::network::DeepViewModel;
@@ -149,8 +149,7 @@ pub(crate) fn load_checkpoint(
 }
 
 pub(crate) fn adam() -> ModuleOptimizer {
-    // TensorFlow's Adam defaults (the paper's framework): beta 0.9 / 0.999, epsilon 1e-8.
-    AdamConfig::new().with_epsilon(1e-8).init()
+    crate::adam::DeepviewAdam::new().module_optimizer()
 }
 
 pub(crate) fn write_checkpoint(

@@ -12,21 +12,40 @@ pub const PAPER_CLIP_NORM: f64 = 8.0;
 struct SquaredNorm<'a> {
     grads: &'a GradientsParams,
     sum: f64,
+    /// Off the CPU: the sum so far as a one-element tensor on the gradients' device, read once at the
+    /// end (a read per parameter would wait for the device each time).
+    on_device: Option<Tensor<1>>,
 }
 
 impl ModuleVisitor for SquaredNorm<'_> {
     fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
         if let Some(g) = self.grads.get::<D>(param.id) {
-            self.sum += g.square().sum().into_scalar::<f32>() as f64;
+            if deepview_net::cpu::ops::fast_device(&g.device()) {
+                self.sum += g.square().sum().into_scalar::<f32>() as f64;
+            } else {
+                let s = g.square().sum();
+                self.on_device = Some(match self.on_device.take() {
+                    Some(acc) => acc + s,
+                    None => s,
+                });
+            }
         }
     }
 }
 
 /// `sqrt(sum over all parameters of |grad|^2)`, over the parameters of `module` that have a gradient.
-/// Non-finite if any gradient is.
+/// Non-finite if any gradient is. On the CPU each parameter's f32 sum is added in f64; elsewhere the sum
+/// stays on the device (f32) and is read once.
 pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
-    let mut v = SquaredNorm { grads, sum: 0.0 };
+    let mut v = SquaredNorm {
+        grads,
+        sum: 0.0,
+        on_device: None,
+    };
     module.visit(&mut v);
+    if let Some(acc) = v.on_device {
+        v.sum += acc.into_scalar::<f32>() as f64;
+    }
     v.sum.sqrt()
 }
 

@@ -45,6 +45,7 @@
 //! backward (bit for bit in the tests). On by default for models with more than 2 nets (every `paper-*`
 //! preset).
 
+pub mod adam;
 pub mod checkpoint;
 pub mod clip;
 pub mod config;

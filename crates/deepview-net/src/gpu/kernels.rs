@@ -286,3 +286,36 @@ pub(super) fn elu_backward_kernel(y: &Tensor<f32>, grad: &Tensor<f32>, gin: &mut
     let d = if v > 0.0f32 { 1.0f32 } else { v + 1.0f32 };
     gin[i] = grad[i] * d;
 }
+
+/// One Adam step of a parameter tensor (contiguous, element-wise), burn's `Adam` arithmetic in its
+/// order: `m' = m b1 + g (1 - b1)`, `v' = v b2 + g^2 (1 - b2)`, `p' = p - (m' c) / (sqrt(v') + e) lr`
+/// (`c` and `e` the step's bias corrections, computed on the host).
+#[cube(launch)]
+#[allow(clippy::too_many_arguments)]
+pub(super) fn adam_kernel(
+    p: &Tensor<f32>,
+    g: &Tensor<f32>,
+    m: &Tensor<f32>,
+    v: &Tensor<f32>,
+    p_out: &mut Tensor<f32>,
+    m_out: &mut Tensor<f32>,
+    v_out: &mut Tensor<f32>,
+    beta_1: f32,
+    factor_1: f32,
+    beta_2: f32,
+    factor_2: f32,
+    combined: f32,
+    epsilon: f32,
+    lr: f32,
+) {
+    let i = ABSOLUTE_POS;
+    if i >= p_out.len() {
+        terminate!();
+    }
+    let gi = g[i];
+    let m1 = m[i] * beta_1 + gi * factor_1;
+    let v1 = v[i] * beta_2 + (gi * gi) * factor_2;
+    m_out[i] = m1;
+    v_out[i] = v1;
+    p_out[i] = p[i] - ((m1 * combined) / (v1.sqrt() + epsilon)) * lr;
+}

@@ -6,7 +6,8 @@
 //! - the agreement prior of net 0's input ([`crate::network::agreement_prior_logits`]; no gradient);
 //! - warps by precomputed taps ([`crate::forward::WarpTable::apply`]), and their backward as a gather
 //!   over the transposed taps (no atomics);
-//! - the nets' ELU and its backward.
+//! - the nets' ELU and its backward;
+//! - Adam's step of a parameter (the training's optimizer on a GPU).
 //!
 //! burn's ops stay the reference: the tests compare each kernel's outputs (and gradients) with them.
 
@@ -66,6 +67,65 @@ pub trait GpuOps: Backend {
 
     /// The gradient of [`GpuOps::gpu_elu`] from its output and the output's gradient.
     fn gpu_elu_backward(out: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// One Adam step of a parameter (any rank): `(param, moment_1, moment_2)` after the step, in one
+    /// dispatch where burn's `Adam` takes a dozen. No gradient (the optimizer works on inner tensors).
+    fn gpu_adam(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        step: AdamStep,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+}
+
+/// The scalars of one Adam step ([`GpuOps::gpu_adam`]), as burn's `Adam` computes them.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdamStep {
+    pub beta_1: f32,
+    pub beta_2: f32,
+    /// `sqrt(1 - beta_2^t) / (1 - beta_1^t)`.
+    pub combined: f32,
+    /// `epsilon * sqrt(1 - beta_2^t)`.
+    pub epsilon: f32,
+    pub lr: f32,
+}
+
+impl AdamStep {
+    /// Step `time` (1 for the first) of Adam with these betas, epsilon and learning rate.
+    pub fn new(beta_1: f32, beta_2: f32, epsilon: f32, lr: f64, time: usize) -> Self {
+        let time = time as i32;
+        let bias_correction2_sqrt = (1.0 - beta_2.powi(time)).sqrt();
+        Self {
+            beta_1,
+            beta_2,
+            combined: bias_correction2_sqrt / (1.0 - beta_1.powi(time)),
+            epsilon: epsilon * bias_correction2_sqrt,
+            lr: lr as f32,
+        }
+    }
+}
+
+/// [`GpuOps::gpu_adam`] on tensors of a cubecl device: `(param, moment_1, moment_2)` after the step.
+pub fn adam<const D: usize>(
+    param: Tensor<D>,
+    grad: Tensor<D>,
+    moment_1: Tensor<D>,
+    moment_2: Tensor<D>,
+    step: AdamStep,
+) -> (Tensor<D>, Tensor<D>, Tensor<D>) {
+    let (p, m, v) = <Dispatch as GpuOps>::gpu_adam(
+        param.into_dispatch(),
+        grad.into_dispatch(),
+        moment_1.into_dispatch(),
+        moment_2.into_dispatch(),
+        step,
+    );
+    (
+        Tensor::from_dispatch(p),
+        Tensor::from_dispatch(m),
+        Tensor::from_dispatch(v),
+    )
 }
 
 /// Whether tensors on `device` take our GPU kernels: a cubecl device (with or without autodiff),
@@ -245,6 +305,49 @@ impl GpuOps for CubeBackend {
         out
     }
 
+    fn gpu_adam(
+        param: CubeTensor,
+        grad: CubeTensor,
+        moment_1: CubeTensor,
+        moment_2: CubeTensor,
+        step: AdamStep,
+    ) -> (CubeTensor, CubeTensor, CubeTensor) {
+        let [param, grad, moment_1, moment_2] =
+            [param, grad, moment_1, moment_2].map(into_contiguous);
+        let shape = param.meta.shape().clone();
+        let n = shape.num_elements();
+        let new = || {
+            empty_device_dtype(
+                param.client.clone(),
+                param.device.clone(),
+                shape.clone(),
+                param.dtype,
+            )
+        };
+        let (p, m, v) = (new(), new(), new());
+        let (count, dim) = grid(&param, n);
+        kernels::adam_kernel::launch(
+            &p.client,
+            count,
+            dim,
+            param.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            moment_1.into_tensor_arg(),
+            moment_2.into_tensor_arg(),
+            p.clone().into_tensor_arg(),
+            m.clone().into_tensor_arg(),
+            v.clone().into_tensor_arg(),
+            step.beta_1,
+            1.0 - step.beta_1,
+            step.beta_2,
+            1.0 - step.beta_2,
+            step.combined,
+            step.epsilon,
+            step.lr,
+        );
+        (p, m, v)
+    }
+
     fn gpu_elu_backward(out: CubeTensor, grad: CubeTensor) -> CubeTensor {
         let grad = into_contiguous(grad);
         let dims = out.meta.shape().dims::<4>();
@@ -327,6 +430,28 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
             }
             OpsKind::UnTracked(prep) => prep.finish(B::gpu_elu(x)),
         }
+    }
+
+    fn gpu_adam(
+        param: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        moment_1: FloatTensor<Self>,
+        moment_2: FloatTensor<Self>,
+        step: AdamStep,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>) {
+        // Optimizers step inner tensors; an autodiff one is stepped untracked.
+        let (p, m, v) = B::gpu_adam(
+            param.into_primitive(),
+            grad.into_primitive(),
+            moment_1.into_primitive(),
+            moment_2.into_primitive(),
+            step,
+        );
+        (
+            FloatTensor::<Self>::new(p),
+            FloatTensor::<Self>::new(m),
+            FloatTensor::<Self>::new(v),
+        )
     }
 
     fn gpu_elu_backward(_out: FloatTensor<Self>, _grad: FloatTensor<Self>) -> FloatTensor<Self> {
