@@ -18,7 +18,7 @@
 # within 1/255 of the CPU engine's MPI (17/255 before tiles sampled exactly as the whole image does).
 #
 # then `run` with command `bash scripts/gpu_check.sh [STAGES]`, carry [".gpu", ".gl"], timeout_s 560; STAGES
-# is any of `infer train net torch` (default: all four; the step timeouts add up to more than one call's 10
+# is any of `infer train net torch dispatches` (default: the first four; the step timeouts add up to more than one call's 10
 # minutes, so on a slow build run `infer train` and `net torch` as two calls). Each step runs
 # under its own timeout; the log and the JSON lines come back in $OUT (gpu.log, bench.jsonl). Give the
 # machine back afterwards unless rerunning at once.
@@ -62,6 +62,13 @@ fi
 if want train; then
   for p in cpu paper-kalantari paper-spaces-4view; do
     step 150 $B bench train --device wgpu --preset $p --views 4 --planes 32 --crop 32 --steps 3 --vgg-weights "$VGG"
+  done
+fi
+if want dispatches; then
+  # Kernel launches per training step on the GPU (scripts/dispatches.sh; the count lavapipe gives here).
+  for p in cpu paper-kalantari; do
+    log "dispatches $p"
+    VGG=$(realpath "$VGG") timeout 200 bash scripts/dispatches.sh wgpu $p $B 2>&1 | head -25 | tee -a "$LOG"
   done
 fi
 if want net; then
