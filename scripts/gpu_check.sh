@@ -9,6 +9,9 @@
 #   strip -o /tmp/deepview-wgpu target/release/deepview && xz -T2 -6 -c /tmp/deepview-wgpu > .gpu/deepview.xz
 #   cp -r ../shared/data/vgg16 .gpu/data/ && cp -r ../shared/data/llff/fern/{images_8,poses_bounds.npy} .gpu/data/llff/fern/
 #   cp ../shared/bench/corenet_gpu.py .gpu/bench/
+#   # optional, for the `tune` stage: the same build with cubecl's autotuning (burn's default conv is direct)
+#   cargo build --release -p deepview --features wgpu,autotune && strip -o /tmp/dv-tune target/release/deepview \
+#     && xz -T2 -6 -c /tmp/dv-tune > .gpu/deepview-tune.xz
 #   # the Vulkan loaders into .gl: the device README's `apt-get download` recipe
 #
 # Dry runs here (lavapipe instead of the H200: `OUT=/tmp/x bash scripts/gpu_check.sh infer`): on
@@ -18,7 +21,7 @@
 # within 1/255 of the CPU engine's MPI (17/255 before tiles sampled exactly as the whole image does).
 #
 # then `run` with command `bash scripts/gpu_check.sh [STAGES]`, carry [".gpu", ".gl"], timeout_s 560; STAGES
-# is any of `infer train net torch dispatches` (default: the first four; the step timeouts add up to more than one call's 10
+# is any of `infer train net torch dispatches tune` (default: the first four; the step timeouts add up to more than one call's 10
 # minutes, so on a slow build run `infer train` and `net torch` as two calls). Each step runs
 # under its own timeout; the log and the JSON lines come back in $OUT (gpu.log, bench.jsonl). Give the
 # machine back afterwards unless rerunning at once.
@@ -70,6 +73,14 @@ if want dispatches; then
     log "dispatches $p"
     VGG=$(realpath "$VGG") timeout 200 bash scripts/dispatches.sh wgpu $p $B 2>&1 | head -25 | tee -a "$LOG"
   done
+fi
+if want tune && [ -e .gpu/deepview-tune.xz ]; then
+  # The autotuned build against the default one (direct convolutions), paper presets.
+  xz -dc .gpu/deepview-tune.xz >/tmp/deepview-tune && chmod +x /tmp/deepview-tune
+  for p in paper-kalantari paper-spaces-4view; do
+    step 200 /tmp/deepview-tune bench train --device wgpu --preset $p --views 4 --planes 32 --crop 32 --steps 4 --vgg-weights "$VGG"
+  done
+  step 240 /tmp/deepview-tune bench net --device wgpu --preset paper-spaces-4view --views 12 --planes 64 --size 980x580
 fi
 if want net; then
   step 240 $B bench net --device wgpu --preset paper-spaces-4view --views 12 --planes 64 --size 980x580

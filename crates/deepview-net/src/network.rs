@@ -391,20 +391,31 @@ impl ContextRgba {
     }
 }
 
-/// Gradient components (`[D, GRADIENT_CHANNELS, h, w]`) of one view on a window of `w x h` at `offset`
-/// in the model's input window, `mpi_to_view` relative to that window. Without a context the views are
-/// rendered from the window's `rgba` alone (transparent outside); with one, from the context's RGBA with
-/// the window's values in place, so rays that leave the window see the context's content.
-pub fn window_gradient_components(
+/// The RGBA that the views are rendered from for a window of `w x h` at `offset` in the model's input
+/// window ([`window_rgba`]): the window's own RGBA (transparent outside it), or the context's with the
+/// window's values in place; `origin` is the window's place in it.
+#[derive(Clone, Debug)]
+pub struct WindowRgba {
+    pub rgba: Tensor<4>,
+    pub origin: (usize, usize),
+    pub size: (usize, usize),
+}
+
+/// [`WindowRgba`] of the window's `rgba` (once per update, for all views). Without a context the views
+/// are rendered from `rgba` alone; with one, from the context's RGBA with the window's values in place,
+/// so rays that leave the window see the context's content.
+pub fn window_rgba(
     rgba: Tensor<4>,
-    image: Tensor<3>,
-    mpi_to_view: &[Hom],
     (w, h): (usize, usize),
     offset: (usize, usize),
     context: Option<&ContextRgba>,
-) -> Tensor<4> {
+) -> WindowRgba {
     match context {
-        None => gradient_components(rgba, image, mpi_to_view, (0, 0, w, h)),
+        None => WindowRgba {
+            rgba,
+            origin: (0, 0),
+            size: (w, h),
+        },
         Some(c) => {
             let (x0, y0) = (c.origin.0 + offset.0, c.origin.1 + offset.1);
             let [d, _, ch, cw] = c.rgba.dims();
@@ -416,13 +427,32 @@ pub fn window_gradient_components(
                 .rgba
                 .clone()
                 .slice_assign([0..d, 0..4, y0..y0 + h, x0..x0 + w], rgba);
-            let homs: Vec<Hom> = mpi_to_view
-                .iter()
-                .map(|m| crop_output(m, -(x0 as f64), -(y0 as f64)))
-                .collect();
-            gradient_components(full, image, &homs, (x0, y0, w, h))
+            WindowRgba {
+                rgba: full,
+                origin: (x0, y0),
+                size: (w, h),
+            }
         }
     }
+}
+
+/// Gradient components (`[D, GRADIENT_CHANNELS, h, w]`) of one view on a window ([`window_rgba`]),
+/// `mpi_to_view` relative to the window.
+pub fn window_gradient_components(
+    win: &WindowRgba,
+    image: Tensor<3>,
+    mpi_to_view: &[Hom],
+) -> Tensor<4> {
+    let (x0, y0) = win.origin;
+    let (w, h) = win.size;
+    if (x0, y0) == (0, 0) {
+        return gradient_components(win.rgba.clone(), image, mpi_to_view, (0, 0, w, h));
+    }
+    let homs: Vec<Hom> = mpi_to_view
+        .iter()
+        .map(|m| crop_output(m, -(x0 as f64), -(y0 as f64)))
+        .collect();
+    gradient_components(win.rgba.clone(), image, &homs, (x0, y0, w, h))
 }
 
 impl ModelInputs {
@@ -566,17 +596,16 @@ impl DeepViewModel {
         let mut offset = (0usize, 0usize);
         let mut state: Option<Tensor<4>> = None;
         for n in 0..self.nets.len() {
+            // The current MPI's RGBA, once for all views.
+            let win = state
+                .as_ref()
+                .map(|s| window_rgba(state_to_rgba(s.clone()), (w, h), offset, context.as_ref()));
             let per_view: Vec<Tensor<4>> = (0..k)
-                .map(|v| match &state {
+                .map(|v| match &win {
                     None => Self::init_input(inputs.images[v].clone(), &homs[v], (0, 0, w, h)),
-                    Some(s) => window_gradient_components(
-                        state_to_rgba(s.clone()),
-                        inputs.images[v].clone(),
-                        &homs[v],
-                        (w, h),
-                        offset,
-                        context.as_ref(),
-                    ),
+                    Some(win) => {
+                        window_gradient_components(win, inputs.images[v].clone(), &homs[v])
+                    }
                 })
                 .collect();
             let out = self.run_net(n, per_view, state.clone());

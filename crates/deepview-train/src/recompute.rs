@@ -39,7 +39,7 @@ use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor};
 use deepview_net::forward::{Hom, crop_output};
 use deepview_net::network::{
-    ContextRgba, DeepViewModel, ModelInputs, state_to_rgba, window_gradient_components,
+    ContextRgba, DeepViewModel, ModelInputs, state_to_rgba, window_gradient_components, window_rgba,
 };
 
 /// Geometry of a window: its size and the homographies from its pixels (per view, per plane).
@@ -99,19 +99,15 @@ pub fn segment(
     context: Option<&ContextRgba>,
 ) -> Tensor<4> {
     let (w, h) = (input.width, input.height);
+    let win = state
+        .as_ref()
+        .map(|s| window_rgba(state_to_rgba(s.clone()), (w, h), input.offset, context));
     let per_view: Vec<Tensor<4>> = images
         .iter()
         .zip(&input.mpi_to_view)
-        .map(|(im, homs)| match &state {
+        .map(|(im, homs)| match &win {
             None => DeepViewModel::init_input(im.clone(), homs, (0, 0, w, h)),
-            Some(s) => window_gradient_components(
-                state_to_rgba(s.clone()),
-                im.clone(),
-                homs,
-                (w, h),
-                input.offset,
-                context,
-            ),
+            Some(win) => window_gradient_components(win, im.clone(), homs),
         })
         .collect();
     let out = model.run_net(n, per_view, state.clone());
