@@ -156,6 +156,11 @@ mod tests {
     #[test]
     fn wgpu_adam_kernel_equals_burns_adam() {
         let gpu = deepview_net::device::parse_device("wgpu:cpu").expect("lavapipe");
+        // Loading a record materialises its state on burn's default device, which in a wgpu build
+        // initialises the default wgpu runtime lazily; other tests of this process initialise `wgpu`
+        // through the options API, which refuses a runtime already initialised. Initialise it first
+        // through the same cache, so that the order of the tests does not matter.
+        deepview_net::device::parse_device("wgpu").expect("the default wgpu adapter");
         let cpu = Device::flex();
         assert!(deepview_net::gpu::gpu_kernels(&gpu));
         // Modules on autodiff devices as in training (the optimizer steps their inner tensors).

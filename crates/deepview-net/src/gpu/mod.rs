@@ -192,12 +192,12 @@ fn pixel_grid(t: &CubeTensor) -> (CubeCount, CubeDim) {
 
 /// An uninitialised tensor of `dims` on `t`'s device, of its dtype.
 fn empty_like(t: &CubeTensor, dims: [usize; 4]) -> CubeTensor {
-    empty_device_dtype(
-        t.client.clone(),
-        t.device.clone(),
-        Shape::new(dims),
-        t.dtype,
-    )
+    empty_shaped(t, Shape::new(dims))
+}
+
+/// An uninitialised tensor of any `shape` on `t`'s device, of its dtype.
+fn empty_shaped(t: &CubeTensor, shape: Shape) -> CubeTensor {
+    empty_device_dtype(t.client.clone(), t.device.clone(), shape, t.dtype)
 }
 
 impl GpuOps for CubeBackend {
@@ -316,14 +316,7 @@ impl GpuOps for CubeBackend {
             [param, grad, moment_1, moment_2].map(into_contiguous);
         let shape = param.meta.shape().clone();
         let n = shape.num_elements();
-        let new = || {
-            empty_device_dtype(
-                param.client.clone(),
-                param.device.clone(),
-                shape.clone(),
-                param.dtype,
-            )
-        };
+        let new = || empty_shaped(&param, shape.clone());
         let (p, m, v) = (new(), new(), new());
         let (count, dim) = grid(&param, n);
         kernels::adam_kernel::launch(
