@@ -15,6 +15,9 @@ pub struct Composite {
     pub transmittance: Tensor<4>,
     /// `[D, 3, h, w]`: accumulated over `A_d = sum_{i<d} c_i prod_{i<j<d} (1 - a_j)`.
     pub accumulated: Tensor<4>,
+    /// The composite kernel's own output `[D + 1, 4, h, w]` that the three above are views of, where
+    /// one made them: a GPU warps the gradient components straight from it.
+    pub packed: Option<Tensor<4>>,
 }
 
 impl Composite {
@@ -25,9 +28,14 @@ impl Composite {
         let d = d1 - 1;
         let planes = out.clone().narrow(0, 0, d);
         Self {
-            render: out.narrow(0, d, 1).narrow(1, 0, 3).reshape([3, h, w]),
+            render: out
+                .clone()
+                .narrow(0, d, 1)
+                .narrow(1, 0, 3)
+                .reshape([3, h, w]),
             transmittance: planes.clone().narrow(1, 3, 1),
             accumulated: planes.narrow(1, 0, 3),
+            packed: Some(out),
         }
     }
 }
@@ -91,6 +99,7 @@ pub fn composite_scan(rgba: Tensor<4>) -> Composite {
         render,
         transmittance,
         accumulated,
+        packed: None,
     }
 }
 
@@ -122,6 +131,7 @@ pub fn composite_burn(rgba: Tensor<4>) -> Composite {
         render,
         transmittance: Tensor::cat(trans, 0),
         accumulated: Tensor::cat(acc, 0),
+        packed: None,
     }
 }
 
@@ -165,7 +175,12 @@ pub fn plane_sweep_volume_framed(
     let [c, hv, wv] = image.dims();
     let table = WarpTable::new_framed(mpi_to_view, frames, wv, hv, w, h);
     let device = image.device();
-    let psv = table.apply(image.reshape([1, c, hv, wv]));
+    let image = image.reshape([1, c, hv, wv]);
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if crate::gpu::gpu_kernels(&device) {
+        return crate::gpu::sweep(&table, image);
+    }
+    let psv = table.apply(image);
     Tensor::cat(vec![psv, table.valid(&device)], 1)
 }
 
@@ -243,6 +258,12 @@ pub fn gradient_components_framed(
 /// The gradient components of a view image and its render, sampled by `table`.
 fn components_from(image: Tensor<3>, comp: Composite, table: &WarpTable) -> Tensor<4> {
     let [_, hv, wv] = image.dims();
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if let Some(packed) = &comp.packed
+        && crate::gpu::gpu_kernels(&packed.device())
+    {
+        return crate::gpu::components(table, image.reshape([1, 3, hv, wv]), packed.clone());
+    }
     let images = Tensor::cat(
         vec![
             image.reshape([1, 3, hv, wv]),

@@ -2,7 +2,7 @@
 //! [`Hom`]): the data that both the burn warp ([`WarpTable::apply`]) and the CPU operations
 //! ([`crate::cpu::renderops`]) read.
 
-use std::sync::Arc;
+use std::sync::{Arc, OnceLock};
 
 /// A row-major 3x3 homography (f64), output pixels -> source pixels.
 pub type Hom = [f64; 9];
@@ -16,14 +16,23 @@ pub struct WarpTable {
     pub src_h: usize,
     pub out_w: usize,
     pub out_h: usize,
-    /// `[4][planes * out_h * out_w]` texel indices within one source plane (`y * src_w + x`). Shared
-    /// (as the weights and the mask), so that a clone is cheap: [`Self::apply`] hands one to the CPU
-    /// operation, which keeps it for the backward.
-    pub(super) idx: Arc<[i64]>,
+    /// The homographies (output pixels -> source pixels, one per plane) and the frames: what the taps
+    /// are computed from, on the CPU ([`Self::taps`]) or on a GPU ([`Self::coefficients`]).
+    homs: Arc<[Hom]>,
+    frames: Frames,
+    /// The taps, computed on first use (a GPU warp computes its own and never asks) and shared, so that
+    /// a clone is cheap: [`Self::apply`] hands one to the CPU operation, which keeps it for the backward.
+    computed: Arc<OnceLock<Taps>>,
+}
+
+#[derive(Debug)]
+struct Taps {
+    /// `[4][planes * out_h * out_w]` texel indices within one source plane (`y * src_w + x`).
+    idx: Vec<i64>,
     /// `[4][planes * out_h * out_w]` bilinear weights (0 for invalid samples).
-    pub(super) w: Arc<[f32]>,
+    w: Vec<f32>,
     /// `[planes * out_h * out_w]`: 1 where the sample is inside the source.
-    pub(super) valid: Arc<[f32]>,
+    valid: Vec<f32>,
 }
 
 /// A [`WarpTable`]'s taps by source texel ([`WarpTable::transposed`]), in i32 as GPUs index.
@@ -85,37 +94,77 @@ impl WarpTable {
         out_w: usize,
         out_h: usize,
     ) -> Self {
-        #[cfg(target_arch = "x86_64")]
-        if deepview_kernels::simd() {
-            // SAFETY: the CPU has AVX2 and FMA (checked): the same code with hardware `fma`/`floor`
-            // instead of libm calls (identical results: `mul_add` is exact either way).
-            return unsafe { Self::new_fma(homs, frames, src_w, src_h, out_w, out_h) };
+        Self {
+            planes: homs.len(),
+            src_w,
+            src_h,
+            out_w,
+            out_h,
+            homs: homs.into(),
+            frames,
+            computed: Arc::new(OnceLock::new()),
         }
-        Self::new_portable(homs, frames, src_w, src_h, out_w, out_h)
+    }
+
+    /// The taps, computed on the first call.
+    fn computed(&self) -> &Taps {
+        self.computed.get_or_init(|| {
+            let (homs, frames) = (&self.homs[..], self.frames);
+            let (sw, sh, ow, oh) = (self.src_w, self.src_h, self.out_w, self.out_h);
+            #[cfg(target_arch = "x86_64")]
+            if deepview_kernels::simd() {
+                // SAFETY: the CPU has AVX2 and FMA (checked): the same code with hardware
+                // `fma`/`floor` instead of libm calls (identical results: `mul_add` is exact either way).
+                return unsafe { Self::compute_fma(homs, frames, sw, sh, ow, oh) };
+            }
+            Self::compute_portable(homs, frames, sw, sh, ow, oh)
+        })
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn new_fma(
+    unsafe fn compute_fma(
         homs: &[Hom],
         frames: Frames,
         src_w: usize,
         src_h: usize,
         out_w: usize,
         out_h: usize,
-    ) -> Self {
-        Self::new_portable(homs, frames, src_w, src_h, out_w, out_h)
+    ) -> Taps {
+        Self::compute_portable(homs, frames, src_w, src_h, out_w, out_h)
+    }
+
+    /// Per plane `a = [h0, h3, h6]` and per output row `y` `b = [h1 v + h2, h4 v + h5, h7 v + h8]`
+    /// (`v` the row's centre in the output frame, in f64), all rounded to f32: the projective sample
+    /// position of output column centre `u` is `(a0 u + b0, a1 u + b1) / (a2 u + b2)`. The taps
+    /// ([`Self::taps`]) are computed from these numbers, and a GPU warp computes its own from them
+    /// (layout `[planes][3 + 3 * out_h]`).
+    pub fn coefficients(&self) -> Vec<f32> {
+        let uy = self.frames.out_origin.1;
+        let mut out = Vec::with_capacity(self.planes * (3 + 3 * self.out_h));
+        for h in self.homs.iter() {
+            out.extend([h[0] as f32, h[3] as f32, h[6] as f32]);
+            for y in 0..self.out_h {
+                out.extend(row_coefficients(h, (uy + y) as f64 + 0.5));
+            }
+        }
+        out
+    }
+
+    /// The frames the homographies map between.
+    pub fn frames(&self) -> Frames {
+        self.frames
     }
 
     #[inline(always)]
-    fn new_portable(
+    fn compute_portable(
         homs: &[Hom],
         frames: Frames,
         src_w: usize,
         src_h: usize,
         out_w: usize,
         out_h: usize,
-    ) -> Self {
+    ) -> Taps {
         let n = homs.len() * out_w * out_h;
         let mut idx = vec![0i64; 4 * n];
         let mut w = vec![0f32; 4 * n];
@@ -129,12 +178,7 @@ impl WarpTable {
         for (d, h) in homs.iter().enumerate() {
             let a = [h[0] as f32, h[3] as f32, h[6] as f32];
             for y in 0..out_h {
-                let v = (uy + y) as f64 + 0.5;
-                let b = [
-                    (h[1] * v + h[2]) as f32,
-                    (h[4] * v + h[5]) as f32,
-                    (h[7] * v + h[8]) as f32,
-                ];
+                let b = row_coefficients(h, (uy + y) as f64 + 0.5);
                 for x in 0..out_w {
                     let o = (d * out_h + y) * out_w + x;
                     let u = (ux + x) as f32 + 0.5;
@@ -171,22 +215,14 @@ impl WarpTable {
                 }
             }
         }
-        Self {
-            planes: homs.len(),
-            src_w,
-            src_h,
-            out_w,
-            out_h,
-            idx: idx.into(),
-            w: w.into(),
-            valid: valid.into(),
-        }
+        Taps { idx, w, valid }
     }
 
     /// The bilinear taps: `[4][planes * out_h * out_w]` source texel indices within one plane and
-    /// weights (0 for invalid samples).
+    /// weights (0 for invalid samples). Computed on the first call.
     pub fn taps(&self) -> (&[i64], &[f32]) {
-        (&self.idx, &self.w)
+        let t = self.computed();
+        (&t.idx, &t.w)
     }
 
     /// The taps transposed (the warp's adjoint, for a gather-only backward): for each source texel of
@@ -198,9 +234,10 @@ impl WarpTable {
         assert!(s == self.planes || s == 1, "warp source has {s} planes");
         let per = self.out_h * self.out_w;
         let shw = self.src_h * self.src_w;
-        let n = self.valid.len();
+        let taps = self.computed();
+        let n = taps.valid.len();
         let key = |t: usize, k: usize| {
-            let texel = self.idx[t * n + k] as usize;
+            let texel = taps.idx[t * n + k] as usize;
             if s == 1 {
                 texel
             } else {
@@ -210,7 +247,7 @@ impl WarpTable {
         let mut offsets = vec![0usize; s * shw + 1];
         for k in 0..n {
             for t in 0..4 {
-                if self.w[t * n + k] != 0.0 {
+                if taps.w[t * n + k] != 0.0 {
                     offsets[key(t, k) + 1] += 1;
                 }
             }
@@ -228,7 +265,7 @@ impl WarpTable {
         let mut w = vec![0f32; total];
         for k in 0..n {
             for t in 0..4 {
-                let v = self.w[t * n + k];
+                let v = taps.w[t * n + k];
                 if v != 0.0 {
                     let e = key(t, k);
                     pos[next[e]] = k as i32;
@@ -246,6 +283,15 @@ impl WarpTable {
 
     /// The validity mask as plain data, `[planes][out_h][out_w]`.
     pub fn valid_data(&self) -> &[f32] {
-        &self.valid
+        &self.computed().valid
     }
+}
+
+/// The row coefficients `b` of [`WarpTable::coefficients`] for output row centre `v`.
+fn row_coefficients(h: &Hom, v: f64) -> [f32; 3] {
+    [
+        (h[1] * v + h[2]) as f32,
+        (h[4] * v + h[5]) as f32,
+        (h[7] * v + h[8]) as f32,
+    ]
 }

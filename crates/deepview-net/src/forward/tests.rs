@@ -639,11 +639,11 @@ fn framed_taps_are_the_whole_tables_crop() {
             for y in oy..oy + wh {
                 for x in ox..ox + ww {
                     let o = (d * oh + y) * ow + x;
-                    if whole.valid[o] == 0.0 {
+                    if whole.valid_data()[o] == 0.0 {
                         continue;
                     }
                     for t in 0..4 {
-                        let i = whole.idx[t * whole.valid.len() + o] as usize;
+                        let i = whole.taps().0[t * whole.valid_data().len() + o] as usize;
                         let (tx, ty) = (i % sw, i / sw);
                         (x0, y0, x1, y1) = (x0.min(tx), y0.min(ty), x1.max(tx + 1), y1.max(ty + 1));
                     }
@@ -657,26 +657,30 @@ fn framed_taps_are_the_whole_tables_crop() {
             out_origin: (ox, oy),
         };
         let framed = WarpTable::new_framed(&homs, frames, cw, ch, ww, wh);
-        let (n, nw) = (framed.valid.len(), whole.valid.len());
+        let (n, nw) = (framed.valid_data().len(), whole.valid_data().len());
         for d in 0..homs.len() {
             for y in 0..wh {
                 for x in 0..ww {
                     let o = (d * wh + y) * ww + x;
                     let ow_ = (d * oh + oy + y) * ow + ox + x;
-                    assert_eq!(framed.valid[o], whole.valid[ow_], "plane {d} ({x}, {y})");
+                    assert_eq!(
+                        framed.valid_data()[o],
+                        whole.valid_data()[ow_],
+                        "plane {d} ({x}, {y})"
+                    );
                     for t in 0..4 {
                         assert_eq!(
-                            framed.w[t * n + o].to_bits(),
-                            whole.w[t * nw + ow_].to_bits()
+                            framed.taps().1[t * n + o].to_bits(),
+                            whole.taps().1[t * nw + ow_].to_bits()
                         );
-                        if framed.valid[o] != 0.0 {
-                            let i = framed.idx[t * n + o] as usize;
+                        if framed.valid_data()[o] != 0.0 {
+                            let i = framed.taps().0[t * n + o] as usize;
                             let moved = (i / cw + y0) * sw + i % cw + x0;
-                            assert_eq!(moved as i64, whole.idx[t * nw + ow_]);
+                            assert_eq!(moved as i64, whole.taps().0[t * nw + ow_]);
                         }
                     }
                     // Samples at exactly x = sw: plane 0, output column sw - 11 - 0.5 + 0.5.
-                    if d == 0 && ox + x == sw - 11 && framed.valid[o] != 0.0 {
+                    if d == 0 && ox + x == sw - 11 && framed.valid_data()[o] != 0.0 {
                         edge += 1;
                     }
                 }

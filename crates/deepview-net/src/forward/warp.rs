@@ -62,7 +62,8 @@ impl WarpTable {
         self.check_source(&src);
         let [s, c, sh, sw] = src.dims();
         let device = src.device();
-        let n = self.valid.len();
+        let (idx, w) = self.taps();
+        let n = w.len() / 4;
         let (d, oh, ow) = (self.planes, self.out_h, self.out_w);
         if n == 0 || sh * sw == 0 {
             return Tensor::zeros([d, c, oh, ow], &device);
@@ -70,16 +71,15 @@ impl WarpTable {
         let per_plane = oh * ow;
         let plane_len = (sh * sw) as i64;
         let idx: Vec<i64> = if s == 1 {
-            self.idx.to_vec()
+            idx.to_vec()
         } else {
-            self.idx
-                .iter()
+            idx.iter()
                 .enumerate()
                 .map(|(i, &v)| v + ((i % n) / per_plane) as i64 * plane_len)
                 .collect()
         };
         let idx = Tensor::<1, Int>::from_data(TensorData::new(idx, [4 * n]), &device);
-        let w = Tensor::<3>::from_data(TensorData::new(self.w.to_vec(), [4, n, 1]), &device);
+        let w = Tensor::<3>::from_data(TensorData::new(w.to_vec(), [4, n, 1]), &device);
         let flat = src.permute([0, 2, 3, 1]).reshape([s * sh * sw, c]);
         let taps = flat.select(0, idx).reshape([4, n, c]);
         let out = (taps * w).sum_dim(0).reshape([d, oh, ow, c]);
@@ -90,7 +90,7 @@ impl WarpTable {
     pub fn valid(&self, device: &Device) -> Tensor<4> {
         Tensor::from_data(
             TensorData::new(
-                self.valid.to_vec(),
+                self.valid_data().to_vec(),
                 [self.planes, 1, self.out_h, self.out_w],
             ),
             device,

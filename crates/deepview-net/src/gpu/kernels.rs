@@ -182,72 +182,170 @@ fn clamped_logit(p: f32, eps: f32) -> f32 {
     (q / (1.0f32 - q)).ln()
 }
 
-/// A warp by precomputed bilinear taps ([`crate::forward::WarpTable`]): `src` `[S, C, sh, sw]` (`S` is
-/// `D`, or 1 for a source broadcast to every plane), `idx` and `w` `[4 * D*oh*ow]` (texel index within a
-/// source plane and weight of each tap; 0 weight for invalid samples) -> `out` `[D, C, oh, ow]`. One
-/// thread per output sample, the taps summed in order as burn's ops do.
+/// `v` clamped to `lo..=hi`.
+#[cube]
+fn clamp_i32(v: i32, lo: i32, hi: i32) -> i32 {
+    let mut r = v;
+    if r < lo {
+        r = lo;
+    }
+    if r > hi {
+        r = hi;
+    }
+    r
+}
+
+/// A homography warp that computes its own bilinear taps, as [`crate::forward::WarpTable`] does on the
+/// CPU, from the table's coefficients (`coef` `[D][3 + 3 * oh]`: per plane `a`, then per output row `b`;
+/// [`crate::forward::WarpTable::coefficients`]): channels `src_c0..src_c0 + c` of `src` `[S, C, sh, sw]`
+/// (plane `d` warped into plane `d`, or where `src_plane < S` that one plane into every plane, as also
+/// for `S = 1`; a crop at `(ox, oy)` of a `full_w x full_h` source) -> channels `c0..c0 + c` of `out`
+/// `[D, C', oh, ow]` (a window at column `ux` of the output frame), and where `valid_ch < C'` the
+/// validity (1 inside the source) into channel `valid_ch`. One thread per output sample; nothing but
+/// the coefficients is uploaded.
 #[cube(launch)]
-pub(super) fn warp_kernel(
+#[allow(clippy::too_many_arguments)]
+pub(super) fn warp_hom_kernel(
     src: &Tensor<f32>,
-    idx: &Tensor<i32>,
-    w: &Tensor<f32>,
+    coef: &Tensor<f32>,
     out: &mut Tensor<f32>,
+    src_plane: u32,
+    src_c0: u32,
+    c: u32,
+    c0: u32,
+    valid_ch: u32,
+    ux: u32,
+    full_w: u32,
+    full_h: u32,
+    ox: i32,
+    oy: i32,
 ) {
-    let (d, c, oh, ow) = (out.shape(0), out.shape(1), out.shape(2), out.shape(3));
-    let n = d * oh * ow;
+    let (d, oh, ow) = (out.shape(0), out.shape(2), out.shape(3));
+    let (sh, sw) = (src.shape(2), src.shape(3));
     let pos = ABSOLUTE_POS;
-    if pos >= n {
+    if pos >= d * oh * ow {
         terminate!();
     }
     let per = oh * ow;
     let p = pos / per;
     let pix = pos % per;
     let (y, x) = (pix / ow, pix % ow);
-    let sw = src.shape(3);
+    let cb = p * (3 + 3 * oh);
+    let rb = cb + 3 + 3 * y;
+    let u = f32::cast_from(ux + u32::cast_from(x)) + 0.5f32;
+    let wn = fma(coef[cb + 2], u, coef[rb + 2]);
+    let inv = 1.0f32 / wn;
+    let sx = fma(coef[cb], u, coef[rb]) * inv;
+    let sy = fma(coef[cb + 1], u, coef[rb + 1]) * inv;
+    let (wf, hf) = (f32::cast_from(full_w), f32::cast_from(full_h));
+    // Comparisons with NaN are false: a NaN position is invalid, as on the CPU.
+    let mut valid = false;
+    let inside = sx >= 0.0f32 && sx <= wf && sy >= 0.0f32 && sy <= hf;
+    if wn > 0.0f32 && sw > 0 && sh > 0 && full_w > 0 && full_h > 0 && inside {
+        valid = true;
+    }
+    let mut ws = Array::<f32>::new(4usize);
+    let mut taps = Array::<usize>::new(4usize);
+    for t in 0..4usize {
+        ws[t] = 0.0f32;
+        taps[t] = 0usize;
+    }
+    if valid {
+        let fx = sx - 0.5f32;
+        let fy = sy - 0.5f32;
+        let x0f = fx.floor();
+        let y0f = fy.floor();
+        let tx = fx - x0f;
+        let ty = fy - y0f;
+        let x0 = i32::cast_from(x0f);
+        let y0 = i32::cast_from(y0f);
+        let (wmax, hmax) = (i32::cast_from(full_w) - 1, i32::cast_from(full_h) - 1);
+        let (cwmax, chmax) = (i32::cast_from(sw) - 1, i32::cast_from(sh) - 1);
+        // Clamped to the whole source, then moved into the crop.
+        let xa = usize::cast_from(clamp_i32(clamp_i32(x0, 0, wmax) - ox, 0, cwmax));
+        let xb = usize::cast_from(clamp_i32(clamp_i32(x0 + 1, 0, wmax) - ox, 0, cwmax));
+        let ya = usize::cast_from(clamp_i32(clamp_i32(y0, 0, hmax) - oy, 0, chmax));
+        let yb = usize::cast_from(clamp_i32(clamp_i32(y0 + 1, 0, hmax) - oy, 0, chmax));
+        let (s2, s3) = (src.stride(2), src.stride(3));
+        taps[0] = ya * s2 + xa * s3;
+        taps[1] = ya * s2 + xb * s3;
+        taps[2] = yb * s2 + xa * s3;
+        taps[3] = yb * s2 + xb * s3;
+        ws[0] = (1.0f32 - tx) * (1.0f32 - ty);
+        ws[1] = tx * (1.0f32 - ty);
+        ws[2] = (1.0f32 - tx) * ty;
+        ws[3] = tx * ty;
+    }
     let mut plane = p;
-    if src.shape(0) == 1 {
+    let fixed = usize::cast_from(src_plane);
+    if fixed < src.shape(0) {
+        plane = fixed;
+    } else if src.shape(0) == 1 {
         plane = 0;
     }
-    let sb = plane * src.stride(0);
+    let sb = plane * src.stride(0) + usize::cast_from(src_c0) * src.stride(1);
     let ob = p * out.stride(0) + y * out.stride(2) + x * out.stride(3);
     let oc = out.stride(1);
-    for ch in 0..c {
-        let cb = sb + ch * src.stride(1);
+    let first = usize::cast_from(c0);
+    for ch in 0..usize::cast_from(c) {
         let mut acc = 0.0f32;
-        for t in 0..4usize {
-            let i = usize::cast_from(idx[t * n + pos]);
-            acc += w[t * n + pos] * src[cb + (i / sw) * src.stride(2) + (i % sw) * src.stride(3)];
+        if valid {
+            let b = sb + ch * src.stride(1);
+            acc = ws[0] * src[b + taps[0]]
+                + ws[1] * src[b + taps[1]]
+                + ws[2] * src[b + taps[2]]
+                + ws[3] * src[b + taps[3]];
         }
-        out[ob + ch * oc] = acc;
+        out[ob + (first + ch) * oc] = acc;
+    }
+    let vc = usize::cast_from(valid_ch);
+    if vc < out.shape(1) {
+        let mut v = 0.0f32;
+        if valid {
+            v = 1.0f32;
+        }
+        out[ob + vc * oc] = v;
     }
 }
 
-/// The gradient of [`warp_kernel`] at its source: `grad` `[D, C, oh, ow]`, the transposed taps
-/// ([`crate::forward::WarpTable::transposed`]: `offsets` `[S*sh*sw + 1]`, sample `pos` and weight `w` of
-/// each entry) -> `gsrc` `[S, C, sh, sw]`. One thread per source texel, gathering its samples in order.
+/// The gradient of [`warp_hom_kernel`] at its source: channels `grad_c0..grad_c0 + c` of `grad`
+/// `[D, C, oh, ow]` and the transposed taps of `s` source planes
+/// ([`crate::forward::WarpTable::transposed`]: `offsets` `[s*sh*sw + 1]`, sample `pos` and weight `w`
+/// of each entry) -> planes `p0..p0 + s`, channels `c0..c0 + c` of `gsrc` `[S', C', sh, sw]`. One
+/// thread per source texel, gathering its samples in order.
 #[cube(launch)]
+#[allow(clippy::too_many_arguments)]
 pub(super) fn warp_backward_kernel(
     grad: &Tensor<f32>,
     offsets: &Tensor<i32>,
     pos: &Tensor<i32>,
     w: &Tensor<f32>,
     gsrc: &mut Tensor<f32>,
+    s: u32,
+    c: u32,
+    grad_c0: u32,
+    p0: u32,
+    c0: u32,
 ) {
-    let (s, c, sh, sw) = (gsrc.shape(0), gsrc.shape(1), gsrc.shape(2), gsrc.shape(3));
+    let (sh, sw) = (gsrc.shape(2), gsrc.shape(3));
     let (oh, ow) = (grad.shape(2), grad.shape(3));
     let shw = sh * sw;
     let e = ABSOLUTE_POS;
-    if e >= s * shw {
+    if e >= usize::cast_from(s) * shw {
         terminate!();
     }
     let (sp, texel) = (e / shw, e % shw);
-    let gb = sp * gsrc.stride(0) + (texel / sw) * gsrc.stride(2) + (texel % sw) * gsrc.stride(3);
+    let gb = (usize::cast_from(p0) + sp) * gsrc.stride(0)
+        + usize::cast_from(c0) * gsrc.stride(1)
+        + (texel / sw) * gsrc.stride(2)
+        + (texel % sw) * gsrc.stride(3);
     let start = usize::cast_from(offsets[e]);
     let end = usize::cast_from(offsets[e + 1]);
     let per = oh * ow;
     let gc = gsrc.stride(1);
-    for ch in 0..c {
-        let cb = ch * grad.stride(1);
+    let g0 = usize::cast_from(grad_c0);
+    for ch in 0..usize::cast_from(c) {
+        let cb = (g0 + ch) * grad.stride(1);
         let mut acc = 0.0f32;
         for j in start..end {
             let q = usize::cast_from(pos[j]);
@@ -262,7 +360,7 @@ pub(super) fn warp_backward_kernel(
     }
 }
 
-/// ELU (alpha 1), element-wise on contiguous tensors: `x` where `x > 0`, `exp(x) - 1` elsewhere (burn's
+/// ELU (alpha 1), element-wise over the buffers of two tensors of one dense layout: `x` where `x > 0`, `exp(x) - 1` elsewhere (burn's
 /// `elu`).
 #[cube(launch)]
 pub(super) fn elu_kernel(x: &Tensor<f32>, out: &mut Tensor<f32>) {

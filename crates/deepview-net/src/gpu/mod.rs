@@ -4,8 +4,10 @@
 //! - the over-composite and its backward (a loop over the planes; the arithmetic of the CPU kernel
 //!   [`crate::cpu::renderops::composite_forward`]);
 //! - the agreement prior of net 0's input ([`crate::network::agreement_prior_logits`]; no gradient);
-//! - warps by precomputed taps ([`crate::forward::WarpTable::apply`]), and their backward as a gather
-//!   over the transposed taps (no atomics);
+//! - homography warps ([`crate::forward::WarpTable::apply`]) that compute their bilinear taps on the
+//!   device from the table's per-plane and per-row coefficients (nothing but those uploaded; the plane
+//!   sweep and the gradient components write their validity channel in the same dispatch), and their
+//!   backward as a gather over the transposed taps (no atomics);
 //! - the nets' ELU and its backward;
 //! - Adam's step of a parameter (the training's optimizer on a GPU).
 //!
@@ -23,7 +25,7 @@ use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, backend_extensi
 use burn::tensor::{Device, Shape, Tensor, TensorData};
 use burn_cubecl::CubeBackend;
 use burn_cubecl::kernel::into_contiguous;
-use burn_cubecl::ops::numeric::empty_device_dtype;
+use burn_cubecl::ops::numeric::{empty_device_dtype, full_client};
 use burn_cubecl::tensor::CubeTensor;
 use cubecl::calculate_cube_count_elemwise;
 use cubecl::prelude::*;
@@ -47,10 +49,42 @@ pub trait GpuOps: Backend {
     /// (the views' plane sweeps, view-major) -> `[D, 4, h, w]`. No gradient (the sweeps are data).
     fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self>;
 
-    /// A warp by precomputed taps ([`crate::forward::WarpTable`], uploaded as i32 indices and weights):
-    /// `src` `[S, C, sh, sw]` (`S` the table's planes, or 1: broadcast) -> `[planes, C, out_h, out_w]`.
-    /// Under autodiff a tracked source gets [`GpuOps::gpu_warp_backward`].
+    /// A homography warp ([`crate::forward::WarpTable`]: the taps computed on the device from the
+    /// table's coefficients, nothing but them uploaded): `src` `[S, C, sh, sw]` (`S` the table's
+    /// planes, or 1: broadcast) -> `[planes, C, out_h, out_w]`. Under autodiff a tracked source gets
+    /// [`GpuOps::gpu_warp_backward`].
     fn gpu_warp(src: FloatTensor<Self>, table: Arc<WarpTable>) -> FloatTensor<Self>;
+
+    /// A plane sweep ([`crate::forward::plane_sweep_volume`]): [`GpuOps::gpu_warp`] of `src`
+    /// `[1, C, sh, sw]` with the validity as channel `C`, `[planes, C + 1, out_h, out_w]`, in one
+    /// dispatch. No gradient (the images are data).
+    fn gpu_sweep(src: FloatTensor<Self>, table: Arc<WarpTable>) -> FloatTensor<Self>;
+
+    /// The gradient components' warp ([`crate::forward::gradient_components`]) straight from the
+    /// view's image `[1, Ci, ..]` and the composite kernel's packed output `[planes + 1, 4, ..]`
+    /// ([`GpuOps::gpu_composite`]: `A` and `T` of each plane, the render in the last), warped by one
+    /// table into `[planes, Ci + 8, out_h, out_w]`: the image, the render, `A`, `T` and the validity.
+    /// Three dispatches, no slices or concatenations; both inputs differentiable.
+    fn gpu_components(
+        image: FloatTensor<Self>,
+        packed: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+    ) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_components`] at its image (`ci` channels), given the output's.
+    fn gpu_components_image_grad(
+        grad: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+        ci: usize,
+    ) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_components`] at the packed composite (zero at the render plane's
+    /// fourth channel), given the output's (whose image has `ci` channels).
+    fn gpu_components_packed_grad(
+        grad: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+        ci: usize,
+    ) -> FloatTensor<Self>;
 
     /// The gradient of [`GpuOps::gpu_warp`] at its source of `s` planes, given the output's gradient
     /// `[planes, C, out_h, out_w]`: a gather over the transposed taps ([`WarpTable::transposed`]), one
@@ -161,6 +195,23 @@ pub(crate) fn warp(table: &WarpTable, src: Tensor<4>) -> Tensor<4> {
     Tensor::from_dispatch(out)
 }
 
+/// [`GpuOps::gpu_sweep`]: the plane sweep of `src` `[1, C, sh, sw]` with its validity channel.
+pub(crate) fn sweep(table: &WarpTable, src: Tensor<4>) -> Tensor<4> {
+    let out = <Dispatch as GpuOps>::gpu_sweep(src.into_dispatch(), Arc::new(table.clone()));
+    Tensor::from_dispatch(out)
+}
+
+/// [`GpuOps::gpu_components`]: `image` `[1, Ci, ..]` and the composite's `packed` output warped by
+/// `table`: `[D, Ci + 8, ..]`.
+pub(crate) fn components(table: &WarpTable, image: Tensor<4>, packed: Tensor<4>) -> Tensor<4> {
+    let out = <Dispatch as GpuOps>::gpu_components(
+        image.into_dispatch(),
+        packed.into_dispatch(),
+        Arc::new(table.clone()),
+    );
+    Tensor::from_dispatch(out)
+}
+
 /// [`GpuOps::gpu_elu`] on a cubecl device.
 pub(crate) fn elu(x: Tensor<4>) -> Tensor<4> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_elu(x.into_dispatch()))
@@ -178,6 +229,95 @@ fn upload_f32(t: &CubeTensor, values: Vec<f32>) -> CubeTensor {
     CubeBackend::float_from_data(TensorData::new(values, [n]), &t.device)
 }
 
+/// What a warp reads of its source tensor: one fixed plane for every output plane (else plane `d` for
+/// plane `d`, or a single-plane source broadcast), and `c` channels from `c0`.
+#[derive(Clone, Copy)]
+struct Source {
+    plane: Option<usize>,
+    c0: usize,
+    c: usize,
+}
+
+impl Source {
+    /// The first `c` channels, plane by plane (or broadcast).
+    fn all(c: usize) -> Self {
+        Self {
+            plane: None,
+            c0: 0,
+            c,
+        }
+    }
+}
+
+/// [`kernels::warp_hom_kernel`]: `from` of `src` warped by `table` (its coefficients uploaded as
+/// `coef`) into channels `c0..` of `out`, and the validity into channel `valid` where given.
+fn warp_into(
+    table: &WarpTable,
+    coef: &CubeTensor,
+    src: CubeTensor,
+    from: Source,
+    out: &CubeTensor,
+    c0: usize,
+    valid: Option<usize>,
+) {
+    let f = table.frames();
+    let (count, dim) = grid(out, table.planes * table.out_h * table.out_w);
+    kernels::warp_hom_kernel::launch(
+        &out.client,
+        count,
+        dim,
+        src.into_tensor_arg(),
+        coef.clone().into_tensor_arg(),
+        out.clone().into_tensor_arg(),
+        from.plane.map_or(u32::MAX, |p| p as u32),
+        from.c0 as u32,
+        from.c as u32,
+        c0 as u32,
+        valid.map_or(u32::MAX, |v| v as u32),
+        f.out_origin.0 as u32,
+        f.src_full.0 as u32,
+        f.src_full.1 as u32,
+        f.src_origin.0 as i32,
+        f.src_origin.1 as i32,
+    );
+}
+
+/// [`kernels::warp_backward_kernel`]: the gradient of a warp of `s` source planes by `table` from
+/// channels `grad_c0..grad_c0 + c` of `grad`, into planes `p0..p0 + s` and channels `c0..c0 + c` of
+/// `gsrc` (the transposed taps computed on the host and uploaded).
+#[allow(clippy::too_many_arguments)]
+fn warp_backward_into(
+    table: &WarpTable,
+    s: usize,
+    grad: &CubeTensor,
+    grad_c0: usize,
+    c: usize,
+    gsrc: &CubeTensor,
+    p0: usize,
+    c0: usize,
+) {
+    let t = table.transposed(s);
+    let offsets = upload_i32(grad, t.offsets);
+    let pos = upload_i32(grad, t.pos);
+    let w = upload_f32(grad, t.w);
+    let (count, dim) = grid(grad, s * table.src_h * table.src_w);
+    kernels::warp_backward_kernel::launch(
+        &gsrc.client,
+        count,
+        dim,
+        grad.clone().into_tensor_arg(),
+        offsets.into_tensor_arg(),
+        pos.into_tensor_arg(),
+        w.into_tensor_arg(),
+        gsrc.clone().into_tensor_arg(),
+        s as u32,
+        c as u32,
+        grad_c0 as u32,
+        p0 as u32,
+        c0 as u32,
+    );
+}
+
 /// One thread for each of `n` items on `t`'s device.
 fn grid(t: &CubeTensor, n: usize) -> (CubeCount, CubeDim) {
     let dim = CubeDim::new(&t.client, n);
@@ -188,6 +328,39 @@ fn grid(t: &CubeTensor, n: usize) -> (CubeCount, CubeDim) {
 fn pixel_grid(t: &CubeTensor) -> (CubeCount, CubeDim) {
     let [_, _, h, w] = t.meta.shape().dims::<4>();
     grid(t, h * w)
+}
+
+/// Whether `t`'s elements fill the start of its buffer without gaps, in some order of its axes (a contiguous tensor, or
+/// a permuted one such as a convolution's channels-last output): element-wise kernels may then run
+/// over the buffer.
+fn is_dense(t: &CubeTensor) -> bool {
+    let (shape, strides) = (t.meta.shape(), t.meta.strides());
+    let n = shape.num_elements();
+    // The buffer may be longer (allocations are padded): the elements must span exactly its first `n`.
+    let span = 1 + shape
+        .iter()
+        .zip(strides.iter())
+        .map(|(&d, &s)| d.saturating_sub(1) * s)
+        .sum::<usize>();
+    n > 0 && span == n && t.is_nonoverlapping() && t.handle.size() as usize >= n * t.dtype.size()
+}
+
+/// `t` itself where [`is_dense`], else a contiguous copy.
+fn dense(t: CubeTensor) -> CubeTensor {
+    if is_dense(&t) { t } else { into_contiguous(t) }
+}
+
+/// An uninitialised tensor with the shape and the strides of the dense tensor `t` ([`is_dense`]).
+fn empty_same_layout(t: &CubeTensor) -> CubeTensor {
+    let mut out = empty_shaped(t, t.meta.shape().clone());
+    if out.meta.strides() != t.meta.strides() {
+        assert!(
+            out.handle.size() as usize >= t.meta.shape().num_elements() * t.dtype.size(),
+            "an allocation of the tensor's elements"
+        );
+        out.meta = t.meta.clone();
+    }
+    out
 }
 
 /// An uninitialised tensor of `dims` on `t`'s device, of its dtype.
@@ -252,49 +425,81 @@ impl GpuOps for CubeBackend {
 
     fn gpu_warp(src: CubeTensor, table: Arc<WarpTable>) -> CubeTensor {
         let [_, c, _, _] = src.meta.shape().dims::<4>();
-        let (idx, w) = table.taps();
-        let idx = upload_i32(&src, idx.iter().map(|&i| i as i32).collect());
-        let w = upload_f32(&src, w.to_vec());
         let out = empty_like(&src, [table.planes, c, table.out_h, table.out_w]);
-        let (count, dim) = grid(&src, table.planes * table.out_h * table.out_w);
-        kernels::warp_kernel::launch(
-            &out.client,
-            count,
-            dim,
-            src.into_tensor_arg(),
-            idx.into_tensor_arg(),
-            w.into_tensor_arg(),
-            out.clone().into_tensor_arg(),
-        );
+        let coef = upload_f32(&src, table.coefficients());
+        let from = Source::all(c);
+        warp_into(&table, &coef, src, from, &out, 0, None);
         out
+    }
+
+    fn gpu_sweep(src: CubeTensor, table: Arc<WarpTable>) -> CubeTensor {
+        let [_, c, _, _] = src.meta.shape().dims::<4>();
+        let out = empty_like(&src, [table.planes, c + 1, table.out_h, table.out_w]);
+        let coef = upload_f32(&src, table.coefficients());
+        warp_into(&table, &coef, src, Source::all(c), &out, 0, Some(c));
+        out
+    }
+
+    fn gpu_components(image: CubeTensor, packed: CubeTensor, table: Arc<WarpTable>) -> CubeTensor {
+        let ci = image.meta.shape().dims::<4>()[1];
+        let [d1, pc, _, _] = packed.meta.shape().dims::<4>();
+        assert!(
+            d1 == table.planes + 1 && pc == 4,
+            "components take the composite's packed output"
+        );
+        let dims = [table.planes, ci + 8, table.out_h, table.out_w];
+        let out = empty_like(&image, dims);
+        let coef = upload_f32(&image, table.coefficients());
+        warp_into(&table, &coef, image, Source::all(ci), &out, 0, None);
+        // The render (plane D's colour) into every plane, then each plane's A and T.
+        let render = Source {
+            plane: Some(table.planes),
+            c0: 0,
+            c: 3,
+        };
+        warp_into(&table, &coef, packed.clone(), render, &out, ci, None);
+        let planes = Source::all(4);
+        warp_into(&table, &coef, packed, planes, &out, ci + 3, Some(ci + 7));
+        out
+    }
+
+    fn gpu_components_image_grad(grad: CubeTensor, table: Arc<WarpTable>, ci: usize) -> CubeTensor {
+        let gi = empty_like(&grad, [1, ci, table.src_h, table.src_w]);
+        warp_backward_into(&table, 1, &grad, 0, ci, &gi, 0, 0);
+        gi
+    }
+
+    fn gpu_components_packed_grad(
+        grad: CubeTensor,
+        table: Arc<WarpTable>,
+        ci: usize,
+    ) -> CubeTensor {
+        let (d, sh, sw) = (table.planes, table.src_h, table.src_w);
+        // Every texel of the packed gradient is written but the render plane's fourth channel.
+        let gp = full_client::<f32>(
+            grad.client.clone(),
+            Shape::new([d + 1, 4, sh, sw]),
+            grad.device.clone(),
+            0.0,
+        );
+        warp_backward_into(&table, 1, &grad, ci, 3, &gp, d, 0);
+        warp_backward_into(&table, d, &grad, ci + 3, 4, &gp, 0, 0);
+        gp
     }
 
     fn gpu_warp_backward(grad: CubeTensor, table: Arc<WarpTable>, s: usize) -> CubeTensor {
         let [_, c, _, _] = grad.meta.shape().dims::<4>();
-        let t = table.transposed(s);
-        let offsets = upload_i32(&grad, t.offsets);
-        let pos = upload_i32(&grad, t.pos);
-        let w = upload_f32(&grad, t.w);
         let gsrc = empty_like(&grad, [s, c, table.src_h, table.src_w]);
-        let (count, dim) = grid(&grad, s * table.src_h * table.src_w);
-        kernels::warp_backward_kernel::launch(
-            &gsrc.client,
-            count,
-            dim,
-            grad.into_tensor_arg(),
-            offsets.into_tensor_arg(),
-            pos.into_tensor_arg(),
-            w.into_tensor_arg(),
-            gsrc.clone().into_tensor_arg(),
-        );
+        warp_backward_into(&table, s, &grad, 0, c, &gsrc, 0, 0);
         gsrc
     }
 
     fn gpu_elu(x: CubeTensor) -> CubeTensor {
-        let x = into_contiguous(x);
-        let dims = x.meta.shape().dims::<4>();
-        let out = empty_like(&x, dims);
-        let (count, dim) = grid(&x, dims.iter().product());
+        // Element-wise over the buffer, in the input's layout: a convolution's output (channels
+        // last in memory) stays so, and the next convolution reads it without a layout copy.
+        let x = dense(x);
+        let out = empty_same_layout(&x);
+        let (count, dim) = grid(&x, x.meta.shape().num_elements());
         kernels::elu_kernel::launch(
             &out.client,
             count,
@@ -342,10 +547,16 @@ impl GpuOps for CubeBackend {
     }
 
     fn gpu_elu_backward(out: CubeTensor, grad: CubeTensor) -> CubeTensor {
-        let grad = into_contiguous(grad);
-        let dims = out.meta.shape().dims::<4>();
-        let gin = empty_like(&out, dims);
-        let (count, dim) = grid(&out, dims.iter().product());
+        // Element-wise over the buffers where both share a dense layout (the gradient of a
+        // convolution's input comes back in the layout its output had), else both made contiguous.
+        let (out, grad) =
+            if is_dense(&out) && is_dense(&grad) && out.meta.strides() == grad.meta.strides() {
+                (out, grad)
+            } else {
+                (into_contiguous(out), into_contiguous(grad))
+            };
+        let gin = empty_same_layout(&out);
+        let (count, dim) = grid(&out, out.meta.shape().num_elements());
         kernels::elu_backward_kernel::launch(
             &gin.client,
             count,
@@ -411,6 +622,51 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         _s: usize,
     ) -> FloatTensor<Self> {
         unimplemented!("second-order gradients of warp")
+    }
+
+    fn gpu_sweep(src: FloatTensor<Self>, table: Arc<WarpTable>) -> FloatTensor<Self> {
+        assert!(
+            !src.is_tracked(),
+            "a plane sweep has no gradient (its image must not require one)"
+        );
+        FloatTensor::<Self>::new(B::gpu_sweep(src.into_primitive(), table))
+    }
+
+    fn gpu_components(
+        image: FloatTensor<Self>,
+        packed: FloatTensor<Self>,
+        table: Arc<WarpTable>,
+    ) -> FloatTensor<Self> {
+        let guards = [image.node(), packed.node()];
+        let (image, packed) = (image.into_primitive(), packed.into_primitive());
+        let ci = image.shape().dims::<4>()[1];
+        match ComponentsBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_components(image, packed, table.clone());
+                prep.finish((table, ci), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_components(image, packed, table)),
+        }
+    }
+
+    fn gpu_components_image_grad(
+        _grad: FloatTensor<Self>,
+        _table: Arc<WarpTable>,
+        _ci: usize,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of the components")
+    }
+
+    fn gpu_components_packed_grad(
+        _grad: FloatTensor<Self>,
+        _table: Arc<WarpTable>,
+        _ci: usize,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of the components")
     }
 
     fn gpu_elu(x: FloatTensor<Self>) -> FloatTensor<Self> {
@@ -481,6 +737,27 @@ impl<B: Backend + GpuOps> Backward<B, 1> for WarpBackward {
         let (table, s) = ops.state;
         if let Some(node) = node {
             grads.register::<B>(node.id, B::gpu_warp_backward(grad, table, s));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct ComponentsBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 2> for ComponentsBackward {
+    /// The table and the image's channels.
+    type State = (Arc<WarpTable>, usize);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [image, packed] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (table, ci) = ops.state;
+        if let Some(node) = image {
+            let g = B::gpu_components_image_grad(grad.clone(), table.clone(), ci);
+            grads.register::<B>(node.id, g);
+        }
+        if let Some(node) = packed {
+            grads.register::<B>(node.id, B::gpu_components_packed_grad(grad, table, ci));
         }
     }
 }
