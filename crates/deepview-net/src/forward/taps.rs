@@ -151,6 +151,15 @@ impl WarpTable {
         out
     }
 
+    /// The inverse homographies (source pixels -> output pixels, both in their whole frames), `[planes][9]`
+    /// row-major in f32: where a GPU warp's backward looks for the samples that read a source texel.
+    pub fn inverse_coefficients(&self) -> Vec<f32> {
+        self.homs
+            .iter()
+            .flat_map(|h| super::warp::invert(h).map(|v| v as f32))
+            .collect()
+    }
+
     /// The frames the homographies map between.
     pub fn frames(&self) -> Frames {
         self.frames

@@ -308,19 +308,85 @@ pub(super) fn warp_hom_kernel(
     }
 }
 
-/// The gradient of [`warp_hom_kernel`] at its source: channels `grad_c0..grad_c0 + c` of `grad`
-/// `[D, C, oh, ow]` and the transposed taps of `s` source planes
-/// ([`crate::forward::WarpTable::transposed`]: `offsets` `[s*sh*sw + 1]`, sample `pos` and weight `w`
-/// of each entry) -> planes `p0..p0 + s`, channels `c0..c0 + c` of `gsrc` `[S', C', sh, sw]`. One
-/// thread per source texel, gathering its samples in order.
+/// The texel a tap of an output sample reads, computed as [`warp_hom_kernel`] does: for output
+/// column `x` of row coefficients `rb` in plane coefficients `cb`, tap `t` (0..4: `(x0, y0)`,
+/// `(x0 + 1, y0)`, `(x0, y0 + 1)`, `(x0 + 1, y0 + 1)`), its weight where it reads texel `(tx, ty)` of the
+/// crop, else 0 (and 0 for an invalid sample).
+#[cube]
+#[allow(clippy::too_many_arguments)]
+fn tap_weight_at(
+    coef: &Tensor<f32>,
+    cb: usize,
+    rb: usize,
+    x: usize,
+    geometry: &Array<i32>,
+    tx: i32,
+    ty: i32,
+) -> Array<f32> {
+    let (gux, full_w, full_h) = (geometry[0], geometry[2], geometry[3]);
+    let (ox, oy, cwmax, chmax) = (geometry[4], geometry[5], geometry[6], geometry[7]);
+    let mut ws = Array::<f32>::new(4usize);
+    for t in 0..4usize {
+        ws[t] = 0.0f32;
+    }
+    let u = f32::cast_from(gux + i32::cast_from(x)) + 0.5f32;
+    let wn = fma(coef[cb + 2], u, coef[rb + 2]);
+    let inv = 1.0f32 / wn;
+    let sx = fma(coef[cb], u, coef[rb]) * inv;
+    let sy = fma(coef[cb + 1], u, coef[rb + 1]) * inv;
+    let (wf, hf) = (f32::cast_from(full_w), f32::cast_from(full_h));
+    let inside = sx >= 0.0f32 && sx <= wf && sy >= 0.0f32 && sy <= hf;
+    if wn > 0.0f32 && full_w > 0 && full_h > 0 && inside {
+        let fx = sx - 0.5f32;
+        let fy = sy - 0.5f32;
+        let x0f = fx.floor();
+        let y0f = fy.floor();
+        let ax = fx - x0f;
+        let ay = fy - y0f;
+        let x0 = i32::cast_from(x0f);
+        let y0 = i32::cast_from(y0f);
+        let (wmax, hmax) = (full_w - 1, full_h - 1);
+        let xa = clamp_i32(clamp_i32(x0, 0, wmax) - ox, 0, cwmax);
+        let xb = clamp_i32(clamp_i32(x0 + 1, 0, wmax) - ox, 0, cwmax);
+        let ya = clamp_i32(clamp_i32(y0, 0, hmax) - oy, 0, chmax);
+        let yb = clamp_i32(clamp_i32(y0 + 1, 0, hmax) - oy, 0, chmax);
+        if ya == ty && xa == tx {
+            ws[0] = (1.0f32 - ax) * (1.0f32 - ay);
+        }
+        if ya == ty && xb == tx {
+            ws[1] = ax * (1.0f32 - ay);
+        }
+        if yb == ty && xa == tx {
+            ws[2] = (1.0f32 - ax) * ay;
+        }
+        if yb == ty && xb == tx {
+            ws[3] = ax * ay;
+        }
+    }
+    ws
+}
+
+/// The gradient of [`warp_hom_kernel`] at its source, on the device: channels `grad_c0..grad_c0 + c` of
+/// `grad` `[D, C, oh, ow]` -> planes `p0..p0 + s`, channels `c0..c0 + c` of `gsrc` `[S', C', sh, sw]`
+/// (`s` the source's planes: `D`, or 1 for a source broadcast to every plane). One thread per source
+/// texel: the output samples that can read it lie where the inverse homography (`inv` `[D][9]`,
+/// row-major, source -> output frame) maps the texel's bilinear footprint (a 2 x 2 texel square), so
+/// the thread visits that box (the whole window where the map is not finite in front of the camera),
+/// recomputes each sample's taps exactly as the forward does, and sums `weight * grad` over the taps
+/// that read it: in sample order, no atomics, nothing computed on the host.
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn warp_backward_kernel(
     grad: &Tensor<f32>,
-    offsets: &Tensor<i32>,
-    pos: &Tensor<i32>,
-    w: &Tensor<f32>,
+    coef: &Tensor<f32>,
+    inv: &Tensor<f32>,
     gsrc: &mut Tensor<f32>,
+    ux: i32,
+    uy: i32,
+    full_w: i32,
+    full_h: i32,
+    ox: i32,
+    oy: i32,
     s: u32,
     c: u32,
     grad_c0: u32,
@@ -328,35 +394,117 @@ pub(super) fn warp_backward_kernel(
     c0: u32,
 ) {
     let (sh, sw) = (gsrc.shape(2), gsrc.shape(3));
-    let (oh, ow) = (grad.shape(2), grad.shape(3));
+    let (d, oh, ow) = (grad.shape(0), grad.shape(2), grad.shape(3));
     let shw = sh * sw;
     let e = ABSOLUTE_POS;
     if e >= usize::cast_from(s) * shw {
         terminate!();
     }
     let (sp, texel) = (e / shw, e % shw);
+    let (tyu, txu) = (texel / sw, texel % sw);
+    let (tx, ty) = (i32::cast_from(txu), i32::cast_from(tyu));
+    // The frames, as `tap_weight_at` takes them.
+    let mut geometry = Array::<i32>::new(8usize);
+    geometry[0] = ux;
+    geometry[1] = uy;
+    geometry[2] = full_w;
+    geometry[3] = full_h;
+    geometry[4] = ox;
+    geometry[5] = oy;
+    geometry[6] = i32::cast_from(sw) - 1;
+    geometry[7] = i32::cast_from(sh) - 1;
     let gb = (usize::cast_from(p0) + sp) * gsrc.stride(0)
         + usize::cast_from(c0) * gsrc.stride(1)
-        + (texel / sw) * gsrc.stride(2)
-        + (texel % sw) * gsrc.stride(3);
-    let start = usize::cast_from(offsets[e]);
-    let end = usize::cast_from(offsets[e + 1]);
-    let per = oh * ow;
-    let gc = gsrc.stride(1);
+        + tyu * gsrc.stride(2)
+        + txu * gsrc.stride(3);
+    let (mut first, mut last) = (sp, sp + 1);
+    if s == 1 {
+        first = 0;
+        last = d;
+    }
+    // The texel's footprint in the whole source: centres within 1 of the texel's centre.
+    let cx = f32::cast_from(tx + ox) + 0.5f32;
+    let cy = f32::cast_from(ty + oy) + 0.5f32;
+    let (fw, fh) = (f32::cast_from(ow), f32::cast_from(oh));
+    let (uxf, uyf) = (f32::cast_from(ux), f32::cast_from(uy));
     let g0 = usize::cast_from(grad_c0);
+    let gcs = gsrc.stride(1);
     for ch in 0..usize::cast_from(c) {
-        let cb = (g0 + ch) * grad.stride(1);
+        let gc = (g0 + ch) * grad.stride(1);
         let mut acc = 0.0f32;
-        for j in start..end {
-            let q = usize::cast_from(pos[j]);
-            let (p, pix) = (q / per, q % per);
-            acc += w[j]
-                * grad[cb
-                    + p * grad.stride(0)
-                    + (pix / ow) * grad.stride(2)
-                    + (pix % ow) * grad.stride(3)];
+        for p in first..last {
+            let ib = p * 9;
+            // The box of output pixels: the footprint's corners mapped into the output window, one
+            // pixel of margin; everything where a corner does not map in front.
+            // (Initial bounds beyond the window: a box never narrower than the corners'.)
+            let mut x_lo = fw;
+            let mut x_hi = -fw;
+            let mut y_lo = fh;
+            let mut y_hi = -fh;
+            let mut whole = false;
+            for k in 0..4u32 {
+                let mut px = cx - 1.0f32;
+                if k % 2 == 1 {
+                    px = cx + 1.0f32;
+                }
+                let mut py = cy - 1.0f32;
+                if k / 2 == 1 {
+                    py = cy + 1.0f32;
+                }
+                let wq = inv[ib + 6] * px + inv[ib + 7] * py + inv[ib + 8];
+                let qx = (inv[ib] * px + inv[ib + 1] * py + inv[ib + 2]) / wq - uxf - 0.5f32;
+                let qy = (inv[ib + 3] * px + inv[ib + 4] * py + inv[ib + 5]) / wq - uyf - 0.5f32;
+                // NaN and infinities fail these comparisons too.
+                if wq > 0.0f32 && qx > -1.0e7f32 && qx < 1.0e7f32 && qy > -1.0e7f32 && qy < 1.0e7f32
+                {
+                    if qx < x_lo {
+                        x_lo = qx;
+                    }
+                    if qx > x_hi {
+                        x_hi = qx;
+                    }
+                    if qy < y_lo {
+                        y_lo = qy;
+                    }
+                    if qy > y_hi {
+                        y_hi = qy;
+                    }
+                } else {
+                    whole = true;
+                }
+            }
+            let mut xa = 0i32;
+            let mut xb = i32::cast_from(ow) - 1;
+            let mut ya = 0i32;
+            let mut yb = i32::cast_from(oh) - 1;
+            if !whole {
+                xa = clamp_i32(i32::cast_from(x_lo.floor()) - 1, 0, xb + 1);
+                xb = clamp_i32(i32::cast_from(-(-x_hi).floor()) + 1, -1, xb);
+                ya = clamp_i32(i32::cast_from(y_lo.floor()) - 1, 0, yb + 1);
+                yb = clamp_i32(i32::cast_from(-(-y_hi).floor()) + 1, -1, yb);
+            }
+            let cb = p * (3 + 3 * oh);
+            let pb = p * grad.stride(0) + gc;
+            let mut y = ya;
+            while y <= yb {
+                let yu = usize::cast_from(y);
+                let rb = cb + 3 + 3 * yu;
+                let mut x = xa;
+                while x <= xb {
+                    let xu = usize::cast_from(x);
+                    let ws = tap_weight_at(coef, cb, rb, xu, &geometry, tx, ty);
+                    let gv = grad[pb + yu * grad.stride(2) + xu * grad.stride(3)];
+                    for t in 0..4usize {
+                        if ws[t] != 0.0f32 {
+                            acc += ws[t] * gv;
+                        }
+                    }
+                    x += 1;
+                }
+                y += 1;
+            }
         }
-        gsrc[gb + ch * gc] = acc;
+        gsrc[gb + ch * gcs] = acc;
     }
 }
 

@@ -19,7 +19,7 @@ use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::CheckpointStrategy;
 use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
-use burn::backend::ops::{FloatTensorOps, IntTensorOps};
+use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
 use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, backend_extension};
 use burn::tensor::{Device, Shape, Tensor, TensorData};
@@ -217,12 +217,6 @@ pub(crate) fn elu(x: Tensor<4>) -> Tensor<4> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_elu(x.into_dispatch()))
 }
 
-/// `values` as a 1-d i32 tensor on `t`'s device.
-fn upload_i32(t: &CubeTensor, values: Vec<i32>) -> CubeTensor {
-    let n = values.len();
-    CubeBackend::int_from_data(TensorData::new(values, [n]), &t.device)
-}
-
 /// `values` as a 1-d f32 tensor on `t`'s device.
 fn upload_f32(t: &CubeTensor, values: Vec<f32>) -> CubeTensor {
     let n = values.len();
@@ -284,7 +278,7 @@ fn warp_into(
 
 /// [`kernels::warp_backward_kernel`]: the gradient of a warp of `s` source planes by `table` from
 /// channels `grad_c0..grad_c0 + c` of `grad`, into planes `p0..p0 + s` and channels `c0..c0 + c` of
-/// `gsrc` (the transposed taps computed on the host and uploaded).
+/// `gsrc`, computed on the device (the table's coefficients and inverse homographies uploaded).
 #[allow(clippy::too_many_arguments)]
 fn warp_backward_into(
     table: &WarpTable,
@@ -296,20 +290,24 @@ fn warp_backward_into(
     p0: usize,
     c0: usize,
 ) {
-    let t = table.transposed(s);
-    let offsets = upload_i32(grad, t.offsets);
-    let pos = upload_i32(grad, t.pos);
-    let w = upload_f32(grad, t.w);
+    let coef = upload_f32(grad, table.coefficients());
+    let inv = upload_f32(grad, table.inverse_coefficients());
+    let f = table.frames();
     let (count, dim) = grid(grad, s * table.src_h * table.src_w);
     kernels::warp_backward_kernel::launch(
         &gsrc.client,
         count,
         dim,
         grad.clone().into_tensor_arg(),
-        offsets.into_tensor_arg(),
-        pos.into_tensor_arg(),
-        w.into_tensor_arg(),
+        coef.into_tensor_arg(),
+        inv.into_tensor_arg(),
         gsrc.clone().into_tensor_arg(),
+        f.out_origin.0 as i32,
+        f.out_origin.1 as i32,
+        f.src_full.0 as i32,
+        f.src_full.1 as i32,
+        f.src_origin.0 as i32,
+        f.src_origin.1 as i32,
         s as u32,
         c as u32,
         grad_c0 as u32,

@@ -132,10 +132,11 @@ fn wgpu_prior_kernel_equals_burns_ops() {
     }
 }
 
-/// The warp kernel on wgpu (its taps computed on the device) equals burn's warp on the CPU, for a source per plane and a broadcast one
-/// (a plane sweep), with samples outside the source: outputs without and with autodiff, and under
-/// autodiff the gradient at a tracked source (the gather over transposed taps against burn's
-/// scatter-add).
+/// The warp kernel on wgpu (its taps computed on the device) equals burn's warp on the CPU, for a
+/// source per plane and a broadcast one (a plane sweep), with samples outside the source, minifying and
+/// magnifying planes and one with a horizon: outputs without and with autodiff, and under autodiff the
+/// gradient at a tracked source (the device's gather, which finds each texel's samples through the
+/// inverse homography, against burn's scatter-add).
 #[test]
 fn wgpu_warp_kernel_equals_burns_ops() {
     use crate::forward::{Hom, WarpTable};
@@ -146,6 +147,14 @@ fn wgpu_warp_kernel_equals_burns_ops() {
         [1.0, 0.0, 2.5, 0.0, 1.0, 1.0, 0.0, 0.0, 1.0],
         [1.13, 0.021, -3.7, -0.013, 1.07, 2.9, 1.3e-3, -2.1e-3, 1.0],
         [0.9, -0.05, 6.1, 0.04, 1.01, -1.9, -3.3e-3, 1.7e-3, 0.99],
+        // Minifying (2.5 texels per pixel: texels no sample reads), magnifying, a horizon inside the
+        // output (samples behind the camera for u > 12.5), and one inside the source (x = 2: the
+        // output's columns crowd towards it, and the backward's box search falls back to the whole
+        // window for texels whose footprint crosses it).
+        [2.5, 0.1, -4.0, -0.2, 2.3, 1.0, 0.0, 0.0, 1.0],
+        [0.3, 0.0, 5.0, 0.02, 0.35, 4.0, 0.0, 0.0, 1.0],
+        [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, -0.08, 0.0, 1.0],
+        [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.5, 0.0, 1.0],
     ];
     let d = homs.len();
     let table = WarpTable::new(&homs, sw, sh, ow, oh);
