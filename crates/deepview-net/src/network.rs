@@ -134,6 +134,22 @@ impl CoreNet {
             };
             return self.upsample(o, h, w);
         }
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if crate::gpu::gpu_kernels(&x.device()) {
+            let mut f = x;
+            for c in &self.input {
+                f = conv3x3_act(f, c, Act::Elu);
+            }
+            for pair in self.stages.chunks(2) {
+                f = crate::gpu::view_max(f, views, true);
+                for c in pair {
+                    f = conv3x3_act(f, c, Act::Elu);
+                }
+            }
+            let m = crate::gpu::view_max(f, views, false);
+            let o = conv3x3_act(conv3x3_act(m, &self.head, Act::Elu), &self.out, Act::Linear);
+            return self.upsample(o, h, w);
+        }
         let mut f = x;
         for c in &self.input {
             f = conv3x3_act(f, c, Act::Elu);

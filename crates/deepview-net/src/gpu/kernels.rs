@@ -508,6 +508,103 @@ pub(super) fn warp_backward_kernel(
     }
 }
 
+/// The max over views of `f` `[K*D, C, h, w]` (view-major: plane `d` of view `k` at `k*D + d`): where
+/// `keep`, `out` `[K*D, 2C, h, w]` holds `f` in channels `..C` and the max (broadcast to every view) in
+/// channels `C..` (a stage's input: the concatenation of the views' features with their max), else
+/// `out` `[D, C, h, w]` holds the max. One thread per `(d, y, x, c)`, channels fastest (the layout a
+/// convolution reads).
+#[cube(launch)]
+pub(super) fn view_max_kernel(f: &Tensor<f32>, out: &mut Tensor<f32>, views: u32, keep: u32) {
+    let (kd, c, h, w) = (f.shape(0), f.shape(1), f.shape(2), f.shape(3));
+    let k_n = usize::cast_from(views);
+    let d_n = kd / k_n;
+    let pos = ABSOLUTE_POS;
+    if pos >= d_n * h * w * c {
+        terminate!();
+    }
+    let ch = pos % c;
+    let pix = pos / c;
+    let x = pix % w;
+    let y = (pix / w) % h;
+    let d = pix / (w * h);
+    let fb = ch * f.stride(1) + y * f.stride(2) + x * f.stride(3);
+    let ob = y * out.stride(2) + x * out.stride(3);
+    let (o0, o1) = (out.stride(0), out.stride(1));
+    let mut m = f[fb + d * f.stride(0)];
+    for k in 1..k_n {
+        let v = f[fb + (k * d_n + d) * f.stride(0)];
+        if v > m {
+            m = v;
+        }
+    }
+    if keep == 1 {
+        for k in 0..k_n {
+            let p = k * d_n + d;
+            out[ob + p * o0 + ch * o1] = f[fb + p * f.stride(0)];
+            out[ob + p * o0 + (c + ch) * o1] = m;
+        }
+    } else {
+        out[ob + d * o0 + ch * o1] = m;
+    }
+}
+
+/// The gradient of [`view_max_kernel`] at `f`, given the output's `grad`: where `keep`, `grad`'s first
+/// `C` channels pass through and its last `C` (the max's copies) are summed over the views; the max's
+/// gradient goes to the first view that holds the maximum (as the CPU engine routes it).
+#[cube(launch)]
+pub(super) fn view_max_backward_kernel(
+    f: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    gin: &mut Tensor<f32>,
+    views: u32,
+    keep: u32,
+) {
+    let (kd, c, h, w) = (f.shape(0), f.shape(1), f.shape(2), f.shape(3));
+    let k_n = usize::cast_from(views);
+    let d_n = kd / k_n;
+    let pos = ABSOLUTE_POS;
+    if pos >= d_n * h * w * c {
+        terminate!();
+    }
+    let ch = pos % c;
+    let pix = pos / c;
+    let x = pix % w;
+    let y = (pix / w) % h;
+    let d = pix / (w * h);
+    let fb = ch * f.stride(1) + y * f.stride(2) + x * f.stride(3);
+    let gb = y * grad.stride(2) + x * grad.stride(3);
+    let ib = ch * gin.stride(1) + y * gin.stride(2) + x * gin.stride(3);
+    let i0 = gin.stride(0);
+    let mut m = f[fb + d * f.stride(0)];
+    let mut first = 0usize;
+    for k in 1..k_n {
+        let v = f[fb + (k * d_n + d) * f.stride(0)];
+        if v > m {
+            m = v;
+            first = k;
+        }
+    }
+    let mut gm = 0.0f32;
+    if keep == 1 {
+        for k in 0..k_n {
+            gm += grad[gb + (k * d_n + d) * grad.stride(0) + (c + ch) * grad.stride(1)];
+        }
+    } else {
+        gm = grad[gb + d * grad.stride(0) + ch * grad.stride(1)];
+    }
+    for k in 0..k_n {
+        let p = k * d_n + d;
+        let mut g = 0.0f32;
+        if keep == 1 {
+            g = grad[gb + p * grad.stride(0) + ch * grad.stride(1)];
+        }
+        if k == first {
+            g += gm;
+        }
+        gin[ib + p * i0] = g;
+    }
+}
+
 /// ELU (alpha 1), element-wise over the buffers of two tensors of one dense layout: `x` where `x > 0`, `exp(x) - 1` elsewhere (burn's
 /// `elu`).
 #[cube(launch)]

@@ -8,7 +8,8 @@
 //!   device from the table's per-plane and per-row coefficients (nothing but those uploaded; the plane
 //!   sweep and the gradient components write their validity channel in the same dispatch), and their
 //!   backward as a gather over the transposed taps (no atomics);
-//! - the nets' ELU and its backward;
+//! - the nets' ELU and its backward (in the layout of its input), and their max over views with the
+//!   concatenation a stage takes (written channels-last for the convolution that reads it);
 //! - Adam's step of a parameter (the training's optimizer on a GPU).
 //!
 //! burn's ops stay the reference: the tests compare each kernel's outputs (and gradients) with them.
@@ -26,6 +27,7 @@ use burn::tensor::{Device, Shape, Tensor, TensorData};
 use burn_cubecl::CubeBackend;
 use burn_cubecl::kernel::into_contiguous;
 use burn_cubecl::ops::numeric::{empty_device_dtype, full_client};
+use burn_cubecl::ops::permute_nhwc_to_nchw;
 use burn_cubecl::tensor::CubeTensor;
 use cubecl::calculate_cube_count_elemwise;
 use cubecl::prelude::*;
@@ -101,6 +103,21 @@ pub trait GpuOps: Backend {
 
     /// The gradient of [`GpuOps::gpu_elu`] from its output and the output's gradient.
     fn gpu_elu_backward(out: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The max over views of `f` `[K*D, C, h, w]` (view-major): with `keep`, `[K*D, 2C, h, w]`, the
+    /// features with the max beside them (a stage's input), else the max `[D, C, h, w]`; one dispatch
+    /// where burn's reshape, max, repeat and concatenation take five, written channels-last (the
+    /// next convolution reads it without a layout copy).
+    fn gpu_view_max(f: FloatTensor<Self>, views: usize, keep: bool) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_view_max`] at `f`, given the output's (the max's to the first view
+    /// holding it).
+    fn gpu_view_max_backward(
+        f: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        views: usize,
+        keep: bool,
+    ) -> FloatTensor<Self>;
 
     /// One Adam step of a parameter (any rank): `(param, moment_1, moment_2)` after the step, in one
     /// dispatch where burn's `Adam` takes a dozen. No gradient (the optimizer works on inner tensors).
@@ -210,6 +227,16 @@ pub(crate) fn components(table: &WarpTable, image: Tensor<4>, packed: Tensor<4>)
         Arc::new(table.clone()),
     );
     Tensor::from_dispatch(out)
+}
+
+/// [`GpuOps::gpu_view_max`] on a cubecl device: with `keep` the features and their max over views
+/// `[K*D, 2C, h, w]`, else the max `[D, C, h, w]`.
+pub(crate) fn view_max(f: Tensor<4>, views: usize, keep: bool) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_view_max(
+        f.into_dispatch(),
+        views,
+        keep,
+    ))
 }
 
 /// [`GpuOps::gpu_elu`] on a cubecl device.
@@ -508,6 +535,45 @@ impl GpuOps for CubeBackend {
         out
     }
 
+    fn gpu_view_max(f: CubeTensor, views: usize, keep: bool) -> CubeTensor {
+        let [kd, c, h, w] = f.meta.shape().dims::<4>();
+        let (d, oc) = if keep { (kd, 2 * c) } else { (kd / views, c) };
+        let out = permute_nhwc_to_nchw(empty_shaped(&f, Shape::new([d, h, w, oc])));
+        let (count, dim) = grid(&f, (kd / views) * c * h * w);
+        kernels::view_max_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            f.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            views as u32,
+            keep as u32,
+        );
+        out
+    }
+
+    fn gpu_view_max_backward(
+        f: CubeTensor,
+        grad: CubeTensor,
+        views: usize,
+        keep: bool,
+    ) -> CubeTensor {
+        let [kd, c, h, w] = f.meta.shape().dims::<4>();
+        let gin = permute_nhwc_to_nchw(empty_shaped(&f, Shape::new([kd, h, w, c])));
+        let (count, dim) = grid(&f, (kd / views) * c * h * w);
+        kernels::view_max_backward_kernel::launch(
+            &gin.client,
+            count,
+            dim,
+            f.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            gin.clone().into_tensor_arg(),
+            views as u32,
+            keep as u32,
+        );
+        gin
+    }
+
     fn gpu_adam(
         param: CubeTensor,
         grad: CubeTensor,
@@ -679,6 +745,31 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         }
     }
 
+    fn gpu_view_max(f: FloatTensor<Self>, views: usize, keep: bool) -> FloatTensor<Self> {
+        let guards = [f.node()];
+        let f = f.into_primitive();
+        match ViewMaxBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_view_max(f.clone(), views, keep);
+                prep.finish((f, views, keep), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_view_max(f, views, keep)),
+        }
+    }
+
+    fn gpu_view_max_backward(
+        _f: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+        _views: usize,
+        _keep: bool,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of the max over views")
+    }
+
     fn gpu_adam(
         param: FloatTensor<Self>,
         grad: FloatTensor<Self>,
@@ -735,6 +826,23 @@ impl<B: Backend + GpuOps> Backward<B, 1> for WarpBackward {
         let (table, s) = ops.state;
         if let Some(node) = node {
             grads.register::<B>(node.id, B::gpu_warp_backward(grad, table, s));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct ViewMaxBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 1> for ViewMaxBackward {
+    /// The input, the views and `keep`.
+    type State = (FloatTensor<B>, usize, bool);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (f, views, keep) = ops.state;
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::gpu_view_max_backward(f, grad, views, keep));
         }
     }
 }

@@ -373,3 +373,85 @@ fn wgpu_sweep_and_components_equal_the_cpu() {
     );
     assert!(e < 1e-5, "components without autodiff: {e}");
 }
+
+/// The max over views on wgpu (with the stage's concatenation, and alone) equals burn's reshape, max,
+/// repeat and concatenation on the CPU: outputs and the gradient of a weighted sum, input in either
+/// layout; where views tie, the max's gradient goes to the first of them (as the CPU engine routes it).
+#[test]
+fn wgpu_view_max_equals_burns_ops() {
+    use crate::network::max_over_views;
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let (k, d, c, h, w) = (3, 4, 5, 6, 7);
+    let dims = [k * d, c, h, w];
+    let n: usize = dims.iter().product();
+    let x = to_vec(Tensor::<1>::random(
+        [n],
+        Distribution::Uniform(-1.0, 1.0),
+        &cpu,
+    ));
+    for keep in [true, false] {
+        let od = if keep {
+            [k * d, 2 * c, h, w]
+        } else {
+            [d, c, h, w]
+        };
+        let seed = to_vec(Tensor::<4>::random(
+            od,
+            Distribution::Uniform(-1.0, 1.0),
+            &cpu,
+        ));
+        let run = |dev: &Device, kernel: bool, data: &[f32]| {
+            let ad = dev.clone().autodiff();
+            let t =
+                Tensor::<4>::from_data(TensorData::new(data.to_vec(), dims), &ad).require_grad();
+            let y = if kernel {
+                crate::gpu::view_max(t.clone(), k, keep)
+            } else if keep {
+                let m = max_over_views(t.clone(), k)
+                    .reshape([1, d, c, h, w])
+                    .repeat_dim(0, k);
+                Tensor::cat(vec![t.clone(), m.reshape([k * d, c, h, w])], 1)
+            } else {
+                max_over_views(t.clone(), k)
+            };
+            let out = to_vec(y.clone().inner());
+            let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), od), &ad);
+            let grads = (y * wt).sum().backward();
+            (out, to_vec(t.grad(&grads).unwrap()))
+        };
+        let (want, want_grad) = run(&cpu, false, &x);
+        let (got, got_grad) = run(&gpu, true, &x);
+        assert_eq!(max_diff(&want, &got), 0.0, "keep {keep}");
+        let e = max_diff(&want_grad, &got_grad);
+        assert!(e < 1e-5, "keep {keep}: gradient {e}");
+        // Every view the same: the max's gradient all at view 0.
+        let per = d * c * h * w;
+        let same: Vec<f32> = (0..n).map(|i| x[i % per]).collect();
+        let (_, g) = run(&gpu, true, &same);
+        let od_per = od[1] * h * w;
+        for dd in 0..d {
+            for ch in 0..c {
+                for p in 0..h * w {
+                    let max_grad: f32 = if keep {
+                        (0..k)
+                            .map(|v| seed[(v * d + dd) * od_per + (c + ch) * h * w + p])
+                            .sum()
+                    } else {
+                        seed[dd * od_per + ch * h * w + p]
+                    };
+                    for v in 0..k {
+                        let pass = if keep {
+                            seed[(v * d + dd) * od_per + ch * h * w + p]
+                        } else {
+                            0.0
+                        };
+                        let want = pass + if v == 0 { max_grad } else { 0.0 };
+                        let got = g[((v * d + dd) * c + ch) * h * w + p];
+                        assert!((want - got).abs() < 1e-5, "keep {keep}, tie: view {v}");
+                    }
+                }
+            }
+        }
+    }
+}
