@@ -277,6 +277,15 @@ pub fn max_over_views(x: Tensor<4>, views: usize) -> Tensor<4> {
 
 /// The network state `M` `[D, 4 + extra, h, w]` -> RGBA `[D, 4, h, w]` (sigmoid, colour premultiplied).
 pub fn state_to_rgba(state: Tensor<4>) -> Tensor<4> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if crate::gpu::gpu_kernels(&state.device()) {
+        return crate::gpu::state_rgba(state);
+    }
+    state_to_rgba_burn(state)
+}
+
+/// [`state_to_rgba`] with burn's ops (any device; the reference of the GPU kernel).
+pub fn state_to_rgba_burn(state: Tensor<4>) -> Tensor<4> {
     let s = sigmoid(state.narrow(1, 0, 4));
     let a = s.clone().narrow(1, 3, 1);
     Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)

@@ -605,6 +605,68 @@ pub(super) fn view_max_backward_kernel(
     }
 }
 
+/// The logistic function as burn computes it (`1 / (1 + exp(-x))`).
+#[cube]
+fn logistic(x: f32) -> f32 {
+    1.0f32 / (1.0f32 + (-x).exp())
+}
+
+/// The state's RGBA ([`crate::network::state_to_rgba`]): `state` `[D, S, h, w]` -> `out` `[D, 4, h, w]`,
+/// the sigmoid of channels `..4` with the colour premultiplied by the alpha. One thread per texel.
+#[cube(launch)]
+pub(super) fn state_rgba_kernel(state: &Tensor<f32>, out: &mut Tensor<f32>) {
+    let (d, h, w) = (out.shape(0), out.shape(2), out.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= d * h * w {
+        terminate!();
+    }
+    let x = pos % w;
+    let y = (pos / w) % h;
+    let p = pos / (w * h);
+    let sb = p * state.stride(0) + y * state.stride(2) + x * state.stride(3);
+    let ob = p * out.stride(0) + y * out.stride(2) + x * out.stride(3);
+    let (s1, o1) = (state.stride(1), out.stride(1));
+    let a = logistic(state[sb + 3 * s1]);
+    for c in 0..3usize {
+        out[ob + c * o1] = logistic(state[sb + c * s1]) * a;
+    }
+    out[ob + 3 * o1] = a;
+}
+
+/// The gradient of [`state_rgba_kernel`] at the state `[D, S, h, w]` (zero beyond channel 3), given the
+/// output's `grad`.
+#[cube(launch)]
+pub(super) fn state_rgba_backward_kernel(
+    state: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    gin: &mut Tensor<f32>,
+) {
+    let (d, sc, h, w) = (gin.shape(0), gin.shape(1), gin.shape(2), gin.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= d * h * w {
+        terminate!();
+    }
+    let x = pos % w;
+    let y = (pos / w) % h;
+    let p = pos / (w * h);
+    let sb = p * state.stride(0) + y * state.stride(2) + x * state.stride(3);
+    let gb = p * grad.stride(0) + y * grad.stride(2) + x * grad.stride(3);
+    let ib = p * gin.stride(0) + y * gin.stride(2) + x * gin.stride(3);
+    let (s1, g1, i1) = (state.stride(1), grad.stride(1), gin.stride(1));
+    let a = logistic(state[sb + 3 * s1]);
+    let mut ga = grad[gb + 3 * g1];
+    for c in 0..3usize {
+        let v = logistic(state[sb + c * s1]);
+        let g = grad[gb + c * g1];
+        ga += g * v;
+        gin[ib + c * i1] = g * a * (v * (1.0f32 - v));
+    }
+    gin[ib + 3 * i1] = ga * (a * (1.0f32 - a));
+    for c in 4..sc {
+        gin[ib + c * i1] = 0.0f32;
+    }
+}
+
 /// ELU (alpha 1), element-wise over the buffers of two tensors of one dense layout: `x` where `x > 0`, `exp(x) - 1` elsewhere (burn's
 /// `elu`).
 #[cube(launch)]

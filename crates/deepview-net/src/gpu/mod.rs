@@ -8,6 +8,7 @@
 //!   device from the table's per-plane and per-row coefficients (nothing but those uploaded; the plane
 //!   sweep and the gradient components write their validity channel in the same dispatch), and their
 //!   backward as a gather over the transposed taps (no atomics);
+//! - the state's RGBA (sigmoid, premultiplied colour) and its backward;
 //! - the nets' ELU and its backward (in the layout of its input), and their max over views with the
 //!   concatenation a stage takes (written channels-last for the convolution that reads it);
 //! - Adam's step of a parameter (the training's optimizer on a GPU).
@@ -103,6 +104,16 @@ pub trait GpuOps: Backend {
 
     /// The gradient of [`GpuOps::gpu_elu`] from its output and the output's gradient.
     fn gpu_elu_backward(out: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The state's RGBA ([`crate::network::state_to_rgba`]): `[D, S, h, w]` -> `[D, 4, h, w]` in one
+    /// dispatch (burn: three slices, a sigmoid, a product and a concatenation, more backward).
+    fn gpu_state_rgba(state: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_state_rgba`] at the state, given the output's.
+    fn gpu_state_rgba_backward(
+        state: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
 
     /// The max over views of `f` `[K*D, C, h, w]` (view-major): with `keep`, `[K*D, 2C, h, w]`, the
     /// features with the max beside them (a stage's input), else the max `[D, C, h, w]`; one dispatch
@@ -227,6 +238,11 @@ pub(crate) fn components(table: &WarpTable, image: Tensor<4>, packed: Tensor<4>)
         Arc::new(table.clone()),
     );
     Tensor::from_dispatch(out)
+}
+
+/// [`GpuOps::gpu_state_rgba`] on a cubecl device.
+pub(crate) fn state_rgba(state: Tensor<4>) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_state_rgba(state.into_dispatch()))
 }
 
 /// [`GpuOps::gpu_view_max`] on a cubecl device: with `keep` the features and their max over views
@@ -535,6 +551,35 @@ impl GpuOps for CubeBackend {
         out
     }
 
+    fn gpu_state_rgba(state: CubeTensor) -> CubeTensor {
+        let [d, _, h, w] = state.meta.shape().dims::<4>();
+        let out = empty_like(&state, [d, 4, h, w]);
+        let (count, dim) = grid(&state, d * h * w);
+        kernels::state_rgba_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            state.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+        );
+        out
+    }
+
+    fn gpu_state_rgba_backward(state: CubeTensor, grad: CubeTensor) -> CubeTensor {
+        let [d, sc, h, w] = state.meta.shape().dims::<4>();
+        let gin = empty_like(&state, [d, sc, h, w]);
+        let (count, dim) = grid(&state, d * h * w);
+        kernels::state_rgba_backward_kernel::launch(
+            &gin.client,
+            count,
+            dim,
+            state.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            gin.clone().into_tensor_arg(),
+        );
+        gin
+    }
+
     fn gpu_view_max(f: CubeTensor, views: usize, keep: bool) -> CubeTensor {
         let [kd, c, h, w] = f.meta.shape().dims::<4>();
         let (d, oc) = if keep { (kd, 2 * c) } else { (kd / views, c) };
@@ -745,6 +790,29 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         }
     }
 
+    fn gpu_state_rgba(state: FloatTensor<Self>) -> FloatTensor<Self> {
+        let guards = [state.node()];
+        let state = state.into_primitive();
+        match StateRgbaBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_state_rgba(state.clone());
+                prep.finish(state, out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_state_rgba(state)),
+        }
+    }
+
+    fn gpu_state_rgba_backward(
+        _state: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of the state's RGBA")
+    }
+
     fn gpu_view_max(f: FloatTensor<Self>, views: usize, keep: bool) -> FloatTensor<Self> {
         let guards = [f.node()];
         let f = f.into_primitive();
@@ -826,6 +894,22 @@ impl<B: Backend + GpuOps> Backward<B, 1> for WarpBackward {
         let (table, s) = ops.state;
         if let Some(node) = node {
             grads.register::<B>(node.id, B::gpu_warp_backward(grad, table, s));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct StateRgbaBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 1> for StateRgbaBackward {
+    /// The state.
+    type State = FloatTensor<B>;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::gpu_state_rgba_backward(ops.state, grad));
         }
     }
 }

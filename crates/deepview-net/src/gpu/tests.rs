@@ -455,3 +455,48 @@ fn wgpu_view_max_equals_burns_ops() {
         }
     }
 }
+
+/// The state's RGBA on wgpu equals burn's sigmoid, premultiplication and concatenation on the CPU:
+/// outputs and the gradient at the state (zero at its extra channels), over saturated and mid-range
+/// logits.
+#[test]
+fn wgpu_state_rgba_equals_burns_ops() {
+    use crate::network::state_to_rgba_burn;
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let dims = [5, 7, 6, 9];
+    let n: usize = dims.iter().product();
+    let mut x = to_vec(Tensor::<1>::random(
+        [n],
+        Distribution::Uniform(-6.0, 6.0),
+        &cpu,
+    ));
+    x[0] = 40.0;
+    x[1] = -40.0;
+    let od = [5, 4, 6, 9];
+    let seed = to_vec(Tensor::<4>::random(
+        od,
+        Distribution::Uniform(-1.0, 1.0),
+        &cpu,
+    ));
+    let run = |dev: &Device, kernel: bool| {
+        let ad = dev.clone().autodiff();
+        let t = Tensor::<4>::from_data(TensorData::new(x.clone(), dims), &ad).require_grad();
+        let y = if kernel {
+            crate::gpu::state_rgba(t.clone())
+        } else {
+            state_to_rgba_burn(t.clone())
+        };
+        let out = to_vec(y.clone().inner());
+        let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), od), &ad);
+        let grads = (y * wt).sum().backward();
+        (out, to_vec(t.grad(&grads).unwrap()))
+    };
+    let (want, want_grad) = run(&cpu, false);
+    let (got, got_grad) = run(&gpu, true);
+    let e = max_diff(&want, &got);
+    assert!(e < 1e-6, "state rgba: {e}");
+    let e = max_diff(&want_grad, &got_grad);
+    assert!(e < 1e-6, "state rgba gradient: {e}");
+    assert!(want_grad.iter().any(|&g| g != 0.0));
+}
