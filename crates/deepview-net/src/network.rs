@@ -558,6 +558,17 @@ impl DeepViewModel {
         state: Option<Tensor<4>>,
     ) -> Tensor<4> {
         let k = per_view.len();
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if crate::gpu::gpu_kernels(&per_view[0].device()) {
+            let prior = (n == 0 && self.prior_temperature > 0.0)
+                .then_some((self.prior_temperature, self.state_channels));
+            let (x, prior) = crate::gpu::net_input(per_view, state, prior);
+            let out = self.nets[n].forward(x, k);
+            return match prior {
+                Some(p) => p + out,
+                None => out,
+            };
+        }
         let prior = (n == 0 && self.prior_temperature > 0.0).then(|| {
             let p = agreement_prior_logits(&per_view, self.prior_temperature);
             let [d, c, h, w] = p.dims();

@@ -93,7 +93,7 @@ pub(super) fn composite_backward_kernel(
 
 /// The agreement prior's logits (see [`crate::network::agreement_prior_logits`], the same arithmetic):
 /// `psv` `[K*D, 4, h, w]` (view-major: view `v`'s plane `p` at `v*D + p`; RGB and validity) -> `out`
-/// `[D, 4, h, w]` (the mean colour's and the depth weight's clamped logits).
+/// `[D, S, h, w]` (the mean colour's and the depth weight's clamped logits; zeros in channels `4..S`).
 #[cube(launch)]
 pub(super) fn prior_kernel(
     psv: &Tensor<f32>,
@@ -167,6 +167,10 @@ pub(super) fn prior_kernel(
         out[o + o1] = clamped_logit(mg, eps);
         out[o + 2 * o1] = clamped_logit(mb, eps);
         out[o + 3 * o1] = clamped_logit(alpha, eps);
+        // A state's extra channels (the prior fills only RGBA).
+        for c in 4..out.shape(1) {
+            out[o + c * o1] = 0.0f32;
+        }
     }
 }
 
@@ -664,6 +668,76 @@ pub(super) fn state_rgba_backward_kernel(
     gin[ib + 3 * i1] = ga * (a * (1.0f32 - a));
     for c in 4..sc {
         gin[ib + c * i1] = 0.0f32;
+    }
+}
+
+/// An update net's input: `x` `[K*D, Cv, h, w]` (the views' components, view-major) with the state `[D,
+/// S, h, w]` beside each view's planes -> `out` `[K*D, Cv + S, h, w]`. One thread per output texel and
+/// channel, channels fastest (the layout a convolution reads).
+#[cube(launch)]
+pub(super) fn append_state_kernel(x: &Tensor<f32>, state: &Tensor<f32>, out: &mut Tensor<f32>) {
+    let (kd, cv, h, w) = (x.shape(0), x.shape(1), x.shape(2), x.shape(3));
+    let (d, sc) = (state.shape(0), state.shape(1));
+    let ct = cv + sc;
+    let pos = ABSOLUTE_POS;
+    if pos >= kd * h * w * ct {
+        terminate!();
+    }
+    let ch = pos % ct;
+    let pix = pos / ct;
+    let xx = pix % w;
+    let y = (pix / w) % h;
+    let p = pix / (w * h);
+    let q = p % d;
+    let v = if ch < cv {
+        x[p * x.stride(0) + ch * x.stride(1) + y * x.stride(2) + xx * x.stride(3)]
+    } else {
+        state[q * state.stride(0)
+            + (ch - cv) * state.stride(1)
+            + y * state.stride(2)
+            + xx * state.stride(3)]
+    };
+    let o = p * out.stride(0) + ch * out.stride(1) + y * out.stride(2) + xx * out.stride(3);
+    out[o] = v;
+}
+
+/// The gradients of [`append_state_kernel`] from the output's `grad` `[K*D, Cv + S, h, w]`: `gx` its first
+/// `Cv` channels, `gs` `[D, S, h, w]` the sum over the views of the rest (in view order).
+#[cube(launch)]
+pub(super) fn append_state_backward_kernel(
+    grad: &Tensor<f32>,
+    gx: &mut Tensor<f32>,
+    gs: &mut Tensor<f32>,
+) {
+    let (kd, ct, h, w) = (grad.shape(0), grad.shape(1), grad.shape(2), grad.shape(3));
+    let (d, sc) = (gs.shape(0), gs.shape(1));
+    let cv = ct - sc;
+    let k_n = kd / d;
+    let pos = ABSOLUTE_POS;
+    if pos >= d * h * w * ct {
+        terminate!();
+    }
+    let ch = pos % ct;
+    let pix = pos / ct;
+    let xx = pix % w;
+    let y = (pix / w) % h;
+    let q = pix / (w * h);
+    let gb = ch * grad.stride(1) + y * grad.stride(2) + xx * grad.stride(3);
+    let g0 = grad.stride(0);
+    if ch < cv {
+        let xb = ch * gx.stride(1) + y * gx.stride(2) + xx * gx.stride(3);
+        let x0 = gx.stride(0);
+        for k in 0..k_n {
+            let p = k * d + q;
+            gx[xb + p * x0] = grad[gb + p * g0];
+        }
+    } else {
+        let mut acc = 0.0f32;
+        for k in 0..k_n {
+            acc += grad[gb + (k * d + q) * g0];
+        }
+        let sb = q * gs.stride(0) + (ch - cv) * gs.stride(1) + y * gs.stride(2) + xx * gs.stride(3);
+        gs[sb] = acc;
     }
 }
 

@@ -52,6 +52,27 @@ pub trait GpuOps: Backend {
     /// (the views' plane sweeps, view-major) -> `[D, 4, h, w]`. No gradient (the sweeps are data).
     fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self>;
 
+    /// [`GpuOps::gpu_prior`] as a state of `channels` channels (zeros beyond the RGBA logits).
+    fn gpu_prior_state(
+        psv: FloatTensor<Self>,
+        planes: usize,
+        temperature: f64,
+        channels: usize,
+    ) -> FloatTensor<Self>;
+
+    /// An update net's input: `x` `[K*D, Cv, h, w]` (view-major) with the state `[D, S, h, w]` beside
+    /// each view's planes, `[K*D, Cv + S, h, w]`, channels-last, in one dispatch (burn: a concatenation
+    /// per view and one over the views).
+    fn gpu_append_state(x: FloatTensor<Self>, state: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The gradients of [`GpuOps::gpu_append_state`] at `x` (`cv` channels) and at the state (summed
+    /// over the views), given the output's.
+    fn gpu_append_state_backward(
+        grad: FloatTensor<Self>,
+        planes: usize,
+        cv: usize,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>);
+
     /// A homography warp ([`crate::forward::WarpTable`]: the taps computed on the device from the
     /// table's coefficients, nothing but them uploaded): `src` `[S, C, sh, sw]` (`S` the table's
     /// planes, or 1: broadcast) -> `[planes, C, out_h, out_w]`. Under autodiff a tracked source gets
@@ -238,6 +259,34 @@ pub(crate) fn components(table: &WarpTable, image: Tensor<4>, packed: Tensor<4>)
         Arc::new(table.clone()),
     );
     Tensor::from_dispatch(out)
+}
+
+/// A net's input on a cubecl device: the views' inputs (each `[D, C, h, w]`) concatenated view-major,
+/// with the state beside each view's planes ([`GpuOps::gpu_append_state`]) where given; and the
+/// agreement prior of the views' plane sweeps as a state of `channels` channels where asked.
+pub(crate) fn net_input(
+    per_view: Vec<Tensor<4>>,
+    state: Option<Tensor<4>>,
+    prior: Option<(f64, usize)>,
+) -> (Tensor<4>, Option<Tensor<4>>) {
+    let d = per_view[0].dims()[0];
+    let views = Tensor::cat(per_view, 0);
+    let prior = prior.map(|(temperature, channels)| {
+        Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_prior_state(
+            views.clone().into_dispatch(),
+            d,
+            temperature,
+            channels,
+        ))
+    });
+    let x = match state {
+        Some(s) => Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_append_state(
+            views.into_dispatch(),
+            s.into_dispatch(),
+        )),
+        None => views,
+    };
+    (x, prior)
 }
 
 /// [`GpuOps::gpu_state_rgba`] on a cubecl device.
@@ -447,9 +496,55 @@ impl GpuOps for CubeBackend {
     }
 
     fn gpu_prior(psv: CubeTensor, planes: usize, temperature: f64) -> CubeTensor {
+        Self::gpu_prior_state(psv, planes, temperature, 4)
+    }
+
+    fn gpu_append_state(x: CubeTensor, state: CubeTensor) -> CubeTensor {
+        let [kd, cv, h, w] = x.meta.shape().dims::<4>();
+        let sc = state.meta.shape().dims::<4>()[1];
+        let out = permute_nhwc_to_nchw(empty_shaped(&x, Shape::new([kd, h, w, cv + sc])));
+        let (count, dim) = grid(&x, kd * h * w * (cv + sc));
+        kernels::append_state_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            x.into_tensor_arg(),
+            state.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+        );
+        out
+    }
+
+    fn gpu_append_state_backward(
+        grad: CubeTensor,
+        planes: usize,
+        cv: usize,
+    ) -> (CubeTensor, CubeTensor) {
+        let [kd, ct, h, w] = grad.meta.shape().dims::<4>();
+        let gx = permute_nhwc_to_nchw(empty_shaped(&grad, Shape::new([kd, h, w, cv])));
+        let gs = permute_nhwc_to_nchw(empty_shaped(&grad, Shape::new([planes, h, w, ct - cv])));
+        let (count, dim) = grid(&grad, planes * h * w * ct);
+        kernels::append_state_backward_kernel::launch(
+            &gx.client,
+            count,
+            dim,
+            grad.into_tensor_arg(),
+            gx.clone().into_tensor_arg(),
+            gs.clone().into_tensor_arg(),
+        );
+        (gx, gs)
+    }
+
+    fn gpu_prior_state(
+        psv: CubeTensor,
+        planes: usize,
+        temperature: f64,
+        channels: usize,
+    ) -> CubeTensor {
         let [_, c, h, w] = psv.meta.shape().dims::<4>();
         assert_eq!(c, 4, "the prior takes RGB and validity");
-        let out = empty_like(&psv, [planes, 4, h, w]);
+        assert!(channels >= 4, "a state has at least RGBA");
+        let out = empty_like(&psv, [planes, channels, h, w]);
         let (count, dim) = pixel_grid(&psv);
         kernels::prior_kernel::launch(
             &out.client,
@@ -712,6 +807,43 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         FloatTensor::<Self>::new(B::gpu_prior(psv.into_primitive(), planes, temperature))
     }
 
+    fn gpu_prior_state(
+        psv: FloatTensor<Self>,
+        planes: usize,
+        temperature: f64,
+        channels: usize,
+    ) -> FloatTensor<Self> {
+        assert!(
+            !psv.is_tracked(),
+            "the agreement prior has no gradient (its plane sweeps must not require one)"
+        );
+        let out = B::gpu_prior_state(psv.into_primitive(), planes, temperature, channels);
+        FloatTensor::<Self>::new(out)
+    }
+
+    fn gpu_append_state(x: FloatTensor<Self>, state: FloatTensor<Self>) -> FloatTensor<Self> {
+        let guards = [x.node(), state.node()];
+        let (x, state) = (x.into_primitive(), state.into_primitive());
+        let d = state.shape().dims::<4>()[0];
+        let cv = x.shape().dims::<4>()[1];
+        match AppendStateBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish((d, cv), B::gpu_append_state(x, state)),
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_append_state(x, state)),
+        }
+    }
+
+    fn gpu_append_state_backward(
+        _grad: FloatTensor<Self>,
+        _planes: usize,
+        _cv: usize,
+    ) -> (FloatTensor<Self>, FloatTensor<Self>) {
+        unimplemented!("second-order gradients of a net's input")
+    }
+
     fn gpu_warp(src: FloatTensor<Self>, table: Arc<WarpTable>) -> FloatTensor<Self> {
         let guards = [src.node()];
         let src = src.into_primitive();
@@ -894,6 +1026,27 @@ impl<B: Backend + GpuOps> Backward<B, 1> for WarpBackward {
         let (table, s) = ops.state;
         if let Some(node) = node {
             grads.register::<B>(node.id, B::gpu_warp_backward(grad, table, s));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct AppendStateBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 2> for AppendStateBackward {
+    /// The planes `D` and the channels of `x`.
+    type State = (usize, usize);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [x, state] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (d, cv) = ops.state;
+        let (gx, gs) = B::gpu_append_state_backward(grad, d, cv);
+        if let Some(node) = x {
+            grads.register::<B>(node.id, gx);
+        }
+        if let Some(node) = state {
+            grads.register::<B>(node.id, gs);
         }
     }
 }

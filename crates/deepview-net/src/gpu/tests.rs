@@ -500,3 +500,81 @@ fn wgpu_state_rgba_equals_burns_ops() {
     assert!(e < 1e-6, "state rgba gradient: {e}");
     assert!(want_grad.iter().any(|&g| g != 0.0));
 }
+
+/// A net's input on wgpu (the views' inputs with the state beside each, one kernel; the prior as a
+/// state with zero extra channels) equals burn's concatenations on the CPU: outputs, and the gradients
+/// at every view's input and at the state (summed over the views).
+#[test]
+fn wgpu_net_input_equals_burns_cats() {
+    use crate::network::agreement_prior_logits_burn;
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let (k, d, cv, sc, h, w) = (3, 4, 11, 6, 5, 7);
+    let rand = |dims: [usize; 4], lo: f64, hi: f64| {
+        to_vec(Tensor::<4>::random(
+            dims,
+            Distribution::Uniform(lo, hi),
+            &cpu,
+        ))
+    };
+    let views: Vec<Vec<f32>> = (0..k).map(|_| rand([d, cv, h, w], -1.0, 1.0)).collect();
+    let state = rand([d, sc, h, w], -2.0, 2.0);
+    let od = [k * d, cv + sc, h, w];
+    let seed = rand(od, -1.0, 1.0);
+    let run = |dev: &Device, kernel: bool| {
+        let ad = dev.clone().autodiff();
+        let vs: Vec<Tensor<4>> = views
+            .iter()
+            .map(|v| {
+                Tensor::from_data(TensorData::new(v.clone(), [d, cv, h, w]), &ad).require_grad()
+            })
+            .collect();
+        let s = Tensor::<4>::from_data(TensorData::new(state.clone(), [d, sc, h, w]), &ad)
+            .require_grad();
+        let y = if kernel {
+            crate::gpu::net_input(vs.clone(), Some(s.clone()), None).0
+        } else {
+            let x: Vec<Tensor<4>> = vs
+                .iter()
+                .map(|v| Tensor::cat(vec![v.clone(), s.clone()], 1))
+                .collect();
+            Tensor::cat(x, 0)
+        };
+        let out = to_vec(y.clone().inner());
+        let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), od), &ad);
+        let grads = (y * wt).sum().backward();
+        let mut g: Vec<Vec<f32>> = vs.iter().map(|v| to_vec(v.grad(&grads).unwrap())).collect();
+        g.push(to_vec(s.grad(&grads).unwrap()));
+        (out, g)
+    };
+    let (want, want_grads) = run(&cpu, false);
+    let (got, got_grads) = run(&gpu, true);
+    assert_eq!(max_diff(&want, &got), 0.0);
+    for (i, (a, b)) in want_grads.iter().zip(&got_grads).enumerate() {
+        let e = max_diff(a, b);
+        assert!(e < 1e-5, "gradient {i}: {e}");
+    }
+    // The prior as an 8-channel state: the RGBA logits, then zeros.
+    let psv: Vec<Vec<f32>> = (0..k)
+        .map(|_| {
+            let mut v = rand([d, 4, h, w], 0.0, 1.0);
+            for x in &mut v[3 * h * w..] {
+                *x = x.round();
+            }
+            v
+        })
+        .collect();
+    let on = |dev: &Device| -> Vec<Tensor<4>> {
+        psv.iter()
+            .map(|v| Tensor::from_data(TensorData::new(v.clone(), [d, 4, h, w]), dev))
+            .collect()
+    };
+    let want = agreement_prior_logits_burn(&on(&cpu), 0.05);
+    let want = to_vec(Tensor::cat(
+        vec![want, Tensor::zeros([d, 4, h, w], &cpu)],
+        1,
+    ));
+    let (_, prior) = crate::gpu::net_input(on(&gpu), None, Some((0.05, 8)));
+    let e = max_diff(&want, &to_vec(prior.unwrap()));
+    assert!(e < 1e-4, "prior state: {e}");
+}
