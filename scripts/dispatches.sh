@@ -6,7 +6,9 @@
 # setup and the first step's one-time work cancel out).
 #
 #   bash scripts/dispatches.sh [DEVICE] [PRESET] [BINARY]
-#   (defaults: wgpu:cpu, cpu, target/release/deepview built with --features wgpu)
+#   (defaults: wgpu:cpu, cpu, target/release/deepview built with --features wgpu; VIEWS, PLANES and CROP
+#   override the tuple's 4 views, 32 planes and 16-pixel crop: e.g. VIEWS=2 PLANES=4 for the paper presets on
+#   lavapipe, where a full-size step takes minutes)
 #
 # Prints the dispatches per step, then the kernels by count (per step).
 set -eu
@@ -23,7 +25,7 @@ file = "$DIR/kernels.log"
 TOML
 count() {
   rm -f "$DIR/kernels.log"
-  (cd "$DIR" && "$BIN" bench train --device "$DEVICE" --preset "$PRESET" --views 4 --planes 32 --crop 16 \
+  (cd "$DIR" && "$BIN" bench train --device "$DEVICE" --preset "$PRESET" --views "${VIEWS:-4}" --planes "${PLANES:-32}" --crop "${CROP:-16}" \
     --steps "$1" --vgg-weights "$VGG" >/dev/null 2>&1)
   sed -E 's/^Executing //; s/_[0-9a-f]{8}$//' "$DIR/kernels.log" | sort | uniq -c |
     awk '{c=$1; $1=""; print substr($0,2) "\t" c}' | sort -t$'\t' -k1,1 >"$DIR/k$1"

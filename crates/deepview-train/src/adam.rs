@@ -5,6 +5,33 @@
 
 use burn::optim::{Adam, AdamConfig, AdamState, LearningRate, ModuleOptimizer, Optimizer};
 use burn::tensor::{Device, Tensor};
+use std::cell::Cell;
+
+thread_local! {
+    /// The gradient factor of the optimizer steps running on this thread ([`with_gradient_scale`]).
+    static GRADIENT_SCALE: Cell<f32> = const { Cell::new(1.0) };
+}
+
+/// Whether Adam on `device` scales the gradients itself ([`with_gradient_scale`]: our GPU kernel, one
+/// dispatch per parameter for the step and the clipping together), rather than taking them scaled.
+pub fn scales_gradients(device: &Device) -> bool {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if deepview_net::gpu::gpu_kernels(device) {
+        return true;
+    }
+    let _ = device;
+    false
+}
+
+/// Run `f` (an optimizer step on this thread, on a device where [`scales_gradients`]) with every
+/// gradient multiplied by `scale` inside the step: the global-norm clipping without a pass of its own
+/// over the gradients (which would also lose the layout a convolution's weight gradient comes in).
+pub fn with_gradient_scale<R>(scale: f32, f: impl FnOnce() -> R) -> R {
+    GRADIENT_SCALE.with(|s| s.set(scale));
+    let r = f();
+    GRADIENT_SCALE.with(|s| s.set(1.0));
+    r
+}
 
 const BETA_1: f32 = 0.9;
 const BETA_2: f32 = 0.999;
@@ -70,7 +97,10 @@ impl Optimizer for DeepviewAdam {
                 None => (0, tensor.zeros_like(), tensor.zeros_like()),
             };
             let time = time + 1;
-            let step = deepview_net::gpu::AdamStep::new(BETA_1, BETA_2, EPSILON, lr, time);
+            let step = deepview_net::gpu::AdamStep {
+                grad_scale: GRADIENT_SCALE.with(Cell::get),
+                ..deepview_net::gpu::AdamStep::new(BETA_1, BETA_2, EPSILON, lr, time)
+            };
             let (p, m, v) = deepview_net::gpu::adam(tensor, grad, m, v, step);
             let state = AdamState::new(burn::optim::AdaptiveMomentumState::new(time, m, v));
             return (p, Some(state));

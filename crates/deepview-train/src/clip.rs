@@ -72,6 +72,12 @@ pub fn scale<M: Module>(module: &M, mut grads: GradientsParams, factor: f32) -> 
     grads
 }
 
+/// The factor that clips gradients of global norm `norm` to `max_norm` (`max_norm / norm`), where it
+/// exceeds it.
+pub fn clip_factor(norm: f64, max_norm: f64) -> Option<f32> {
+    (norm.is_finite() && norm > max_norm).then(|| (max_norm / norm) as f32)
+}
+
 /// Clip to global norm `max_norm`: if the global norm `n` exceeds it, scale every gradient by
 /// `max_norm / n`. Returns the clipped gradients and the norm before clipping.
 pub fn clip_global_norm<M: Module>(
@@ -80,10 +86,9 @@ pub fn clip_global_norm<M: Module>(
     max_norm: f64,
 ) -> (GradientsParams, f64) {
     let norm = global_norm(module, &grads);
-    if norm.is_finite() && norm > max_norm {
-        (scale(module, grads, (max_norm / norm) as f32), norm)
-    } else {
-        (grads, norm)
+    match clip_factor(norm, max_norm) {
+        Some(f) => (scale(module, grads, f), norm),
+        None => (grads, norm),
     }
 }
 

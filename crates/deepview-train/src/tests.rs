@@ -653,11 +653,14 @@ fn unet_model_trains_on_wgpu_as_on_the_cpu() {
 }
 
 /// 50 training steps on `wgpu:cpu` (every GPU kernel of ours: composite, prior, warps with their
-/// backward, ELU, Adam) track 50 on the CPU from the same weights on the same batches: every step's loss
-/// and gradient norm within 1e-3 relative, the final weights within 1e-4 absolute after moving far more.
-/// The two sum in different orders (f32), and training carries the differences along (measured on
-/// lavapipe, the same in three runs: at most 3.2e-6 relative in losses and norms; the weights 1.2e-5
-/// apart after moving up to 8.3e-3).
+/// backward, ELU, the nets' input and max over views, Adam) track 50 on the CPU from the same weights on
+/// the same batches: every step's loss within 1e-3 relative, the final weights within 1e-4 absolute
+/// after moving far more. Every step clips (as real training does: the VGG loss's norms are ~1e5
+/// against 8), which the GPU folds into its Adam kernel and the CPU applies to the gradients first.
+/// The two sum in different orders (f32), and training carries the differences along; the gradient
+/// norms are held to 5e-2 only, since the L1 loss's gradient is the sign of each residual, and the
+/// residuals near zero flip with those differences (measured on lavapipe: losses within 3.1e-4, norms
+/// 2.4e-2, the weights 6.7e-5 apart after moving 7.7e-3; without clipping 3.2e-6 and 1.2e-5).
 #[cfg(feature = "wgpu")]
 #[test]
 fn fifty_wgpu_steps_track_the_cpu() {
@@ -665,34 +668,51 @@ fn fifty_wgpu_steps_track_the_cpu() {
         panic!("no wgpu device `wgpu:cpu` on this machine (needs lavapipe): {e}")
     });
     let dir = tempfile::tempdir().unwrap();
+    const CLIP: f64 = 0.02;
     let create = |name: &str, device: &str| {
-        Trainer::create(
-            &dir.path().join(name),
-            small_config(50, &[device], 1),
-            small_data(),
-        )
-        .unwrap()
+        let mut config = small_config(50, &[device], 1);
+        config.train.clip_norm = CLIP;
+        Trainer::create(&dir.path().join(name), config, small_data()).unwrap()
     };
     let mut one = create("cpu", "cpu");
     let mut two = create("wgpu", "wgpu:cpu");
     let w0 = parameter_values(&one.model);
     two.model = one.model.clone().fork(two.master_device());
-    let mut worst = 0f64;
+    let (mut worst_loss, mut worst_norm) = (0f64, 0f64);
     for _ in 0..50 {
         let batch = one.draw_batch().unwrap();
         let a = one.step_on(batch.clone());
         let b = two.step_on(batch);
         assert!(a.skipped.is_none() && b.skipped.is_none(), "{a:?} vs {b:?}");
-        for (x, y) in [(a.loss, b.loss), (a.grad_norm, b.grad_norm)] {
-            worst = worst.max((x - y).abs() / x.abs());
-        }
-        assert_same_step(&a, &b, 1e-3);
+        assert!(
+            a.grad_norm > CLIP,
+            "a step that did not clip ({})",
+            a.grad_norm
+        );
+        let rel = |x: f64, y: f64| (x - y).abs() / x.abs();
+        let (dl, dn) = (rel(a.loss, b.loss), rel(a.grad_norm, b.grad_norm));
+        worst_loss = worst_loss.max(dl);
+        worst_norm = worst_norm.max(dn);
+        assert!(
+            dl < 1e-3,
+            "step {}: losses {} and {}",
+            a.step,
+            a.loss,
+            b.loss
+        );
+        assert!(
+            dn < 5e-2,
+            "step {}: gradient norms {} and {}",
+            a.step,
+            a.grad_norm,
+            b.grad_norm
+        );
     }
     let (wa, wb) = (parameter_values(&one.model), parameter_values(&two.model));
     let max = max_abs_diff(&wa, &wb);
     let moved = max_abs_diff(&wa, &w0);
     eprintln!(
-        "50 steps: worst relative loss/norm difference {worst:e}; max |w_cpu - w_wgpu| = {max:e}; max move = {moved:e}"
+        "50 steps: worst relative loss difference {worst_loss:e}, norm difference {worst_norm:e}; max |w_cpu - w_wgpu| = {max:e}; max move = {moved:e}"
     );
     assert!(moved > 1e-3, "the weights hardly moved ({moved})");
     assert!(

@@ -529,7 +529,7 @@ impl Trainer {
             ));
             return report;
         }
-        let (grads, norm) = clip::clip_global_norm(&self.model, grads, self.config.train.clip_norm);
+        let norm = clip::global_norm(&self.model, &grads);
         report.grad_norm = norm;
         if !norm.is_finite() {
             report.skipped = Some(format!(
@@ -538,10 +538,17 @@ impl Trainer {
             ));
             return report;
         }
+        // Clipping: folded into the step where Adam is our GPU kernel, else the gradients scaled first.
+        let factor = clip::clip_factor(norm, self.config.train.clip_norm);
+        let in_step = crate::adam::scales_gradients(&self.devices[0]);
+        let grads = match factor {
+            Some(f) if !in_step => clip::scale(&self.model, grads, f),
+            _ => grads,
+        };
         let model = self.model.clone();
-        self.model = self
-            .optim
-            .step(self.config.train.learning_rate, model, grads);
+        let lr = self.config.train.learning_rate;
+        let scale = if in_step { factor.unwrap_or(1.0) } else { 1.0 };
+        self.model = crate::adam::with_gradient_scale(scale, || self.optim.step(lr, model, grads));
         report
     }
 

@@ -741,6 +741,23 @@ pub(super) fn append_state_backward_kernel(
     }
 }
 
+/// A copy of the rank-4 `src` into `out` of the same shape and another layout: one thread per element,
+/// each tensor indexed through its strides.
+#[cube(launch)]
+pub(super) fn relayout_kernel(src: &Tensor<f32>, out: &mut Tensor<f32>) {
+    let (a, b, c, d) = (src.shape(0), src.shape(1), src.shape(2), src.shape(3));
+    let i = ABSOLUTE_POS;
+    if i >= a * b * c * d {
+        terminate!();
+    }
+    let (i3, r3) = (i % d, i / d);
+    let (i2, r2) = (r3 % c, r3 / c);
+    let (i1, i0) = (r2 % b, r2 / b);
+    let si = i0 * src.stride(0) + i1 * src.stride(1) + i2 * src.stride(2) + i3 * src.stride(3);
+    let oi = i0 * out.stride(0) + i1 * out.stride(1) + i2 * out.stride(2) + i3 * out.stride(3);
+    out[oi] = src[si];
+}
+
 /// ELU (alpha 1), element-wise over the buffers of two tensors of one dense layout: `x` where `x > 0`, `exp(x) - 1` elsewhere (burn's
 /// `elu`).
 #[cube(launch)]
@@ -766,7 +783,7 @@ pub(super) fn elu_backward_kernel(y: &Tensor<f32>, grad: &Tensor<f32>, gin: &mut
     gin[i] = grad[i] * d;
 }
 
-/// One Adam step of a parameter tensor (contiguous, element-wise), burn's `Adam` arithmetic in its
+/// One Adam step of a parameter tensor (element-wise over four buffers of one dense layout), burn's `Adam` arithmetic in its
 /// order: `m' = m b1 + g (1 - b1)`, `v' = v b2 + g^2 (1 - b2)`, `p' = p - (m' c) / (sqrt(v') + e) lr`
 /// (`c` and `e` the step's bias corrections, computed on the host).
 #[cube(launch)]
@@ -786,12 +803,14 @@ pub(super) fn adam_kernel(
     combined: f32,
     epsilon: f32,
     lr: f32,
+    grad_scale: f32,
 ) {
     let i = ABSOLUTE_POS;
     if i >= p_out.len() {
         terminate!();
     }
-    let gi = g[i];
+    // The clipped gradient, rounded as burn's scaling of it would be.
+    let gi = g[i] * grad_scale;
     let m1 = m[i] * beta_1 + gi * factor_1;
     let v1 = v[i] * beta_2 + (gi * gi) * factor_2;
     m_out[i] = m1;

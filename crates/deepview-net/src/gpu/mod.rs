@@ -172,6 +172,8 @@ pub struct AdamStep {
     /// `epsilon * sqrt(1 - beta_2^t)`.
     pub epsilon: f32,
     pub lr: f32,
+    /// The factor of the gradient (global-norm clipping folded into the step: 1 for none).
+    pub grad_scale: f32,
 }
 
 impl AdamStep {
@@ -185,6 +187,7 @@ impl AdamStep {
             combined: bias_correction2_sqrt / (1.0 - beta_1.powi(time)),
             epsilon: epsilon * bias_correction2_sqrt,
             lr: lr as f32,
+            grad_scale: 1.0,
         }
     }
 }
@@ -438,6 +441,34 @@ fn is_dense(t: &CubeTensor) -> bool {
 /// `t` itself where [`is_dense`], else a contiguous copy.
 fn dense(t: CubeTensor) -> CubeTensor {
     if is_dense(&t) { t } else { into_contiguous(t) }
+}
+
+/// `t` in the dense layout of `reference` (same shape): itself where it has it, else a copy
+/// (rank 4; tensors of other ranks are contiguous, as is every dense one of them).
+fn like(t: CubeTensor, reference: &CubeTensor) -> CubeTensor {
+    if is_dense(&t) && t.meta.strides() == reference.meta.strides() {
+        return t;
+    }
+    if t.meta.num_dims() != 4 {
+        // Dense tensors of rank below 2 are contiguous; others of these ranks are made so.
+        assert!(
+            reference.is_contiguous(),
+            "a rank-{} layout",
+            t.meta.num_dims()
+        );
+        return into_contiguous(t);
+    }
+    let dims = t.meta.shape().dims::<4>();
+    let out = empty_same_layout(reference);
+    let (count, dim) = grid(&t, dims.iter().product());
+    kernels::relayout_kernel::launch(
+        &out.client,
+        count,
+        dim,
+        t.into_tensor_arg(),
+        out.clone().into_tensor_arg(),
+    );
+    out
 }
 
 /// An uninitialised tensor with the shape and the strides of the dense tensor `t` ([`is_dense`]).
@@ -721,11 +752,13 @@ impl GpuOps for CubeBackend {
         moment_2: CubeTensor,
         step: AdamStep,
     ) -> (CubeTensor, CubeTensor, CubeTensor) {
-        let [param, grad, moment_1, moment_2] =
-            [param, grad, moment_1, moment_2].map(into_contiguous);
-        let shape = param.meta.shape().clone();
-        let n = shape.num_elements();
-        let new = || empty_shaped(&param, shape.clone());
+        // Element-wise in the gradient's layout (a convolution's weight gradient comes channels-last):
+        // the parameter and its moments take it on their first step and keep it, so that the
+        // convolution reads its weights, and Adam its gradient, without a layout copy every step.
+        let grad = dense(grad);
+        let [param, moment_1, moment_2] = [param, moment_1, moment_2].map(|t| like(t, &grad));
+        let n = grad.meta.shape().num_elements();
+        let new = || empty_same_layout(&grad);
         let (p, m, v) = (new(), new(), new());
         let (count, dim) = grid(&param, n);
         kernels::adam_kernel::launch(
@@ -746,6 +779,7 @@ impl GpuOps for CubeBackend {
             step.combined,
             step.epsilon,
             step.lr,
+            step.grad_scale,
         );
         (p, m, v)
     }
