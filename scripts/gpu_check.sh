@@ -12,6 +12,11 @@
 #   # optional, for the `tune` stage: the same build with cubecl's autotuning (burn's default conv is direct)
 #   cargo build --release -p deepview --features wgpu,autotune && strip -o /tmp/dv-tune target/release/deepview \
 #     && xz -T2 -6 -c /tmp/dv-tune > .gpu/deepview-tune.xz
+#   # optional, for the `vulkan` stage: cubecl's SPIR-V compiler (cooperative matrices, i.e. tensor cores,
+#   # which WGSL lacks) with autotuning, so that convolutions may take the implicit GEMM (65 min here beside
+#   # other builds, in its own target folder)
+#   CARGO_TARGET_DIR=../vulkan-target cargo build --release -p deepview --features vulkan,autotune && \
+#     strip -o /tmp/dv-vk ../vulkan-target/release/deepview && xz -T2 -6 -c /tmp/dv-vk > .gpu/deepview-vulkan.xz
 #   # the Vulkan loaders into .gl: the device README's `apt-get download` recipe
 #
 # Dry runs here (lavapipe instead of the H200: `OUT=/tmp/x bash scripts/gpu_check.sh infer`): on
@@ -21,7 +26,7 @@
 # within 1/255 of the CPU engine's MPI (17/255 before tiles sampled exactly as the whole image does).
 #
 # then `run` with command `bash scripts/gpu_check.sh [STAGES]`, carry [".gpu", ".gl"], timeout_s 560; STAGES
-# is any of `infer train net torch dispatches tune` (default: the first four; the step timeouts add up to more than one call's 10
+# is any of `infer train net torch dispatches tune vulkan` (default: the first four; the step timeouts add up to more than one call's 10
 # minutes, so on a slow build run `infer train` and `net torch` as two calls). Each step runs
 # under its own timeout; the log and the JSON lines come back in $OUT (gpu.log, bench.jsonl). Give the
 # machine back afterwards unless rerunning at once.
@@ -81,6 +86,16 @@ if want tune && [ -e .gpu/deepview-tune.xz ]; then
     step 200 /tmp/deepview-tune bench train --device wgpu --preset $p --views 4 --planes 32 --crop 32 --steps 4 --vgg-weights "$VGG"
   done
   step 240 /tmp/deepview-tune bench net --device wgpu --preset paper-spaces-4view --views 12 --planes 64 --size 980x580
+fi
+if want vulkan && [ -e .gpu/deepview-vulkan.xz ]; then
+  # The SPIR-V build (with autotuning): correctness on fern first, then the paper presets and the headline case.
+  xz -dc .gpu/deepview-vulkan.xz >/tmp/deepview-vulkan && chmod +x /tmp/deepview-vulkan
+  step 180 /tmp/deepview-vulkan infer --data $D/llff/fern --images images_8 --planes 32 --device wgpu --out /tmp/fern_vk
+  [ -d /tmp/fern_cpu ] && step 60 $B diff /tmp/fern_cpu /tmp/fern_vk --max 1
+  for p in cpu paper-kalantari paper-spaces-4view; do
+    step 200 /tmp/deepview-vulkan bench train --device wgpu --preset $p --views 4 --planes 32 --crop 32 --steps 4 --vgg-weights "$VGG"
+  done
+  step 240 /tmp/deepview-vulkan bench net --device wgpu --preset paper-spaces-4view --views 12 --planes 64 --size 980x580
 fi
 if want net; then
   step 240 $B bench net --device wgpu --preset paper-spaces-4view --views 12 --planes 64 --size 980x580
