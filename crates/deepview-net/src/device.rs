@@ -169,3 +169,13 @@ fn dispatch_memory(device: &burn::backend::DispatchDevice) -> DeviceMemory {
         _ => DeviceMemory::default(),
     }
 }
+
+/// `module`'s weights in the layout the device's convolutions read them in: channels-last on a GPU
+/// ([`crate::gpu::channels_last_weights`]: no copy of each weight at every convolution), unchanged
+/// elsewhere.
+pub fn weights_layout<M: burn::module::Module>(module: M) -> M {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    return crate::gpu::channels_last_weights(module);
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
+    module
+}

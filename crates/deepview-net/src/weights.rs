@@ -254,7 +254,7 @@ pub fn load_checkpoint(
     if let Some(tensor) = first_non_finite(&model) {
         return Err(WeightsError::NonFinite { path, tensor });
     }
-    Ok((model, config))
+    Ok((crate::device::weights_layout(model), config))
 }
 
 /// Convert a training checkpoint into a weights folder (`config.json` + `model.safetensors`).
@@ -361,7 +361,7 @@ pub fn load_model_bytes(
     if let Some(tensor) = first_non_finite(&model) {
         return Err(WeightsError::NonFinite { path, tensor });
     }
-    Ok((model, config))
+    Ok((crate::device::weights_layout(model), config))
 }
 
 /// Refuse a view count that weights trained for a fixed number of views cannot take.

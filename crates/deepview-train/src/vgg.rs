@@ -252,7 +252,7 @@ impl Vgg16 {
             conv3_3: take("conv3_3", 256, 256)?,
             pool: MaxPool2dConfig::new([2, 2]).with_strides([2, 2]).init(),
         };
-        Ok(vgg.no_grad())
+        Ok(deepview_net::device::weights_layout(vgg.no_grad()))
     }
 
     /// Caffe preprocessing of `rgb` ([n, 3, h, w], RGB in 0..1): BGR, * 255, minus the mean.

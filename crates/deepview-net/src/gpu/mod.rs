@@ -126,6 +126,10 @@ pub trait GpuOps: Backend {
     /// The gradient of [`GpuOps::gpu_elu`] from its output and the output's gradient.
     fn gpu_elu_backward(out: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
 
+    /// A rank-4 tensor with the same values laid out channels-last in memory (the layout burn's GPU
+    /// convolutions read their weights in): itself where it is, else one copy. No gradient.
+    fn gpu_channels_last(t: FloatTensor<Self>) -> FloatTensor<Self>;
+
     /// The state's RGBA ([`crate::network::state_to_rgba`]): `[D, S, h, w]` -> `[D, 4, h, w]` in one
     /// dispatch (burn: three slices, a sigmoid, a product and a concatenation, more backward).
     fn gpu_state_rgba(state: FloatTensor<Self>) -> FloatTensor<Self>;
@@ -290,6 +294,30 @@ pub(crate) fn net_input(
         None => views,
     };
     (x, prior)
+}
+
+/// `module` with its rank-4 float parameters (convolution weights) laid out channels-last in memory
+/// where they are on a cubecl device: burn's GPU convolutions read weights in that layout, and would copy
+/// them into it at every call (frozen or inference weights; trained ones take it from their gradients in
+/// Adam's first step). Values, ids and gradient requirements are kept.
+pub fn channels_last_weights<M: burn::module::Module>(module: M) -> M {
+    struct Mapper;
+    impl burn::module::ModuleMapper for Mapper {
+        fn map_float<const D: usize>(
+            &mut self,
+            param: burn::module::Param<Tensor<D>>,
+        ) -> burn::module::Param<Tensor<D>> {
+            if D != 4 || !gpu_kernels(&param.val().device()) {
+                return param;
+            }
+            param.map(|t| {
+                let grad = t.is_require_grad();
+                let t = <Dispatch as GpuOps>::gpu_channels_last(t.into_dispatch());
+                Tensor::<D>::from_dispatch(t).set_require_grad(grad)
+            })
+        }
+    }
+    module.map(&mut Mapper)
 }
 
 /// [`GpuOps::gpu_state_rgba`] on a cubecl device.
@@ -677,6 +705,12 @@ impl GpuOps for CubeBackend {
         out
     }
 
+    fn gpu_channels_last(t: CubeTensor) -> CubeTensor {
+        let [n, c, h, w] = t.meta.shape().dims::<4>();
+        let reference = permute_nhwc_to_nchw(empty_shaped(&t, Shape::new([n, h, w, c])));
+        like(t, &reference)
+    }
+
     fn gpu_state_rgba(state: CubeTensor) -> CubeTensor {
         let [d, _, h, w] = state.meta.shape().dims::<4>();
         let out = empty_like(&state, [d, 4, h, w]);
@@ -954,6 +988,11 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
             }
             OpsKind::UnTracked(prep) => prep.finish(B::gpu_elu(x)),
         }
+    }
+
+    fn gpu_channels_last(t: FloatTensor<Self>) -> FloatTensor<Self> {
+        // For weights (a leaf; the caller sets its gradient requirement again).
+        FloatTensor::<Self>::new(B::gpu_channels_last(t.into_primitive()))
     }
 
     fn gpu_state_rgba(state: FloatTensor<Self>) -> FloatTensor<Self> {

@@ -578,3 +578,33 @@ fn wgpu_net_input_equals_burns_cats() {
     let e = max_diff(&want, &to_vec(prior.unwrap()));
     assert!(e < 1e-4, "prior state: {e}");
 }
+
+/// Weights laid out channels-last on wgpu keep their values, their gradient requirement (on an autodiff
+/// device) and the convolution's output.
+#[test]
+fn wgpu_channels_last_weights_keep_values_and_gradients() {
+    use burn::module::Module;
+    use burn::nn::PaddingConfig2d;
+    use burn::nn::conv::{Conv2d, Conv2dConfig};
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let ad = gpu.clone().autodiff();
+    let conv: Conv2d = Conv2dConfig::new([5, 7], [3, 3])
+        .with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1))
+        .init(&ad);
+    let before = to_vec(conv.weight.val().inner());
+    let moved = crate::gpu::channels_last_weights(conv.clone());
+    assert_eq!(to_vec(moved.weight.val().inner()), before);
+    assert!(moved.weight.val().is_require_grad());
+    let x = Tensor::<4>::random([2, 5, 6, 8], Distribution::Uniform(-1.0, 1.0), &ad);
+    let (a, b) = (conv.forward(x.clone()), moved.forward(x.clone()));
+    let e = max_diff(&to_vec(a.inner()), &to_vec(b.clone().inner()));
+    assert!(e < 1e-6, "convolution: {e}");
+    let grads = b.sum().backward();
+    assert!(
+        moved.weight.grad(&grads).is_some(),
+        "the weight lost its gradient"
+    );
+    // A frozen module stays frozen.
+    let frozen = crate::gpu::channels_last_weights(conv.no_grad());
+    assert!(!frozen.weight.val().is_require_grad());
+}

@@ -729,7 +729,8 @@ fn wgpu_inference_equals_the_cpu_engine() {
         on_cpu.describe()
     );
     let a = run(&model, &views, &reference, &depths, &on_cpu, &mut |_| {}).unwrap();
-    let model_gpu = model.clone().fork(&gpu);
+    // Its weights laid out as `load_model` lays them out on a GPU (channels-last).
+    let model_gpu = crate::device::weights_layout(model.clone().fork(&gpu));
     let on_gpu = plan(&model_gpu, &views, &reference, &depths, budget).unwrap();
     assert!(
         matches!(on_gpu.execution, Execution::Tiled(_)),
