@@ -35,7 +35,8 @@ struct Taps {
     valid: Vec<f32>,
 }
 
-/// A [`WarpTable`]'s taps by source texel ([`WarpTable::transposed`]), in i32 as GPUs index.
+/// A [`WarpTable`]'s taps by source texel ([`WarpTable::transposed`]): the warp's adjoint as a
+/// gather, in i32 (the order of sums the GPU backward follows; tests check it against the scatter).
 #[derive(Clone, Debug, PartialEq)]
 pub struct TransposedTaps {
     pub offsets: Vec<i32>,

@@ -7,7 +7,8 @@
 //! - homography warps ([`crate::forward::WarpTable::apply`]) that compute their bilinear taps on the
 //!   device from the table's per-plane and per-row coefficients (nothing but those uploaded; the plane
 //!   sweep and the gradient components write their validity channel in the same dispatch), and their
-//!   backward as a gather over the transposed taps (no atomics);
+//!   backward as a gather on the device (each source texel finds its samples through the inverse
+//!   homography; no atomics, nothing built on the host);
 //! - the state's RGBA (sigmoid, premultiplied colour) and its backward;
 //! - the nets' ELU and its backward (in the layout of its input), and their max over views with the
 //!   concatenation a stage takes (written channels-last for the convolution that reads it);
@@ -111,8 +112,9 @@ pub trait GpuOps: Backend {
     ) -> FloatTensor<Self>;
 
     /// The gradient of [`GpuOps::gpu_warp`] at its source of `s` planes, given the output's gradient
-    /// `[planes, C, out_h, out_w]`: a gather over the transposed taps ([`WarpTable::transposed`]), one
-    /// thread per source texel (no atomics, a fixed order of sums).
+    /// `[planes, C, out_h, out_w]`: one thread per source texel gathers the samples that read it, found
+    /// through the inverse homography and their taps recomputed as the forward computes them (no
+    /// atomics, the sums in sample order, as [`WarpTable::transposed`] lists them).
     fn gpu_warp_backward(
         grad: FloatTensor<Self>,
         table: Arc<WarpTable>,
