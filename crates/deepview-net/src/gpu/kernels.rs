@@ -199,6 +199,75 @@ fn clamp_i32(v: i32, lo: i32, hi: i32) -> i32 {
     r
 }
 
+/// Where an output sample of a homography warp reads its source: the texels of its four bilinear taps
+/// (`(xa, ya)`, `(xb, ya)`, `(xa, yb)`, `(xb, yb)`, clamped to the whole `full_w x full_h` source and then
+/// moved into its crop at `(ox, oy)` of `cwmax + 1 x chmax + 1` texels) and the fractions `ax`, `ay`
+/// between them; `valid` where the sample lies inside the source in front of the camera.
+#[derive(CubeType, Clone, Copy)]
+struct Footprint {
+    valid: bool,
+    xa: i32,
+    xb: i32,
+    ya: i32,
+    yb: i32,
+    ax: f32,
+    ay: f32,
+}
+
+/// The [`Footprint`] of output column `u` (a pixel centre, in the output frame) of the row whose
+/// coefficients start at `rb` in the plane's at `cb` (`coef`:
+/// [`crate::forward::WarpTable::coefficients`]), as [`crate::forward::WarpTable`] computes its taps on
+/// the CPU. The forward warp and its backward both take their taps from here, so they agree exactly.
+#[cube]
+#[allow(clippy::too_many_arguments)]
+fn footprint(
+    coef: &Tensor<f32>,
+    cb: usize,
+    rb: usize,
+    u: f32,
+    full_w: i32,
+    full_h: i32,
+    ox: i32,
+    oy: i32,
+    cwmax: i32,
+    chmax: i32,
+) -> Footprint {
+    let wn = fma(coef[cb + 2], u, coef[rb + 2]);
+    let inv = 1.0f32 / wn;
+    let sx = fma(coef[cb], u, coef[rb]) * inv;
+    let sy = fma(coef[cb + 1], u, coef[rb + 1]) * inv;
+    let (wf, hf) = (f32::cast_from(full_w), f32::cast_from(full_h));
+    // Comparisons with NaN are false: a NaN position is invalid, as on the CPU.
+    let inside = sx >= 0.0f32 && sx <= wf && sy >= 0.0f32 && sy <= hf;
+    let mut fp = Footprint {
+        valid: false,
+        xa: 0i32,
+        xb: 0i32,
+        ya: 0i32,
+        yb: 0i32,
+        ax: 0.0f32,
+        ay: 0.0f32,
+    };
+    if wn > 0.0f32 && full_w > 0 && full_h > 0 && cwmax >= 0 && chmax >= 0 && inside {
+        let fx = sx - 0.5f32;
+        let fy = sy - 0.5f32;
+        let x0f = fx.floor();
+        let y0f = fy.floor();
+        let x0 = i32::cast_from(x0f);
+        let y0 = i32::cast_from(y0f);
+        let (wmax, hmax) = (full_w - 1, full_h - 1);
+        fp.valid = true;
+        fp.ax = fx - x0f;
+        fp.ay = fy - y0f;
+        // Clamped to the whole source, then moved into the crop.
+        fp.xa = clamp_i32(clamp_i32(x0, 0, wmax) - ox, 0, cwmax);
+        fp.xb = clamp_i32(clamp_i32(x0 + 1, 0, wmax) - ox, 0, cwmax);
+        fp.ya = clamp_i32(clamp_i32(y0, 0, hmax) - oy, 0, chmax);
+        fp.yb = clamp_i32(clamp_i32(y0 + 1, 0, hmax) - oy, 0, chmax);
+    }
+    fp
+}
+
 /// A homography warp that computes its own bilinear taps, as [`crate::forward::WarpTable`] does on the
 /// CPU, from the table's coefficients (`coef` `[D][3 + 3 * oh]`: per plane `a`, then per output row `b`;
 /// [`crate::forward::WarpTable::coefficients`]): channels `src_c0..src_c0 + c` of `src` `[S, C, sh, sw]`
@@ -237,17 +306,20 @@ pub(super) fn warp_hom_kernel(
     let cb = p * (3 + 3 * oh);
     let rb = cb + 3 + 3 * y;
     let u = f32::cast_from(ux + u32::cast_from(x)) + 0.5f32;
-    let wn = fma(coef[cb + 2], u, coef[rb + 2]);
-    let inv = 1.0f32 / wn;
-    let sx = fma(coef[cb], u, coef[rb]) * inv;
-    let sy = fma(coef[cb + 1], u, coef[rb + 1]) * inv;
-    let (wf, hf) = (f32::cast_from(full_w), f32::cast_from(full_h));
-    // Comparisons with NaN are false: a NaN position is invalid, as on the CPU.
-    let mut valid = false;
-    let inside = sx >= 0.0f32 && sx <= wf && sy >= 0.0f32 && sy <= hf;
-    if wn > 0.0f32 && sw > 0 && sh > 0 && full_w > 0 && full_h > 0 && inside {
-        valid = true;
-    }
+    let (cwmax, chmax) = (i32::cast_from(sw) - 1, i32::cast_from(sh) - 1);
+    let fp = footprint(
+        coef,
+        cb,
+        rb,
+        u,
+        i32::cast_from(full_w),
+        i32::cast_from(full_h),
+        ox,
+        oy,
+        cwmax,
+        chmax,
+    );
+    let valid = fp.valid;
     let mut ws = Array::<f32>::new(4usize);
     let mut taps = Array::<usize>::new(4usize);
     for t in 0..4usize {
@@ -255,30 +327,17 @@ pub(super) fn warp_hom_kernel(
         taps[t] = 0usize;
     }
     if valid {
-        let fx = sx - 0.5f32;
-        let fy = sy - 0.5f32;
-        let x0f = fx.floor();
-        let y0f = fy.floor();
-        let tx = fx - x0f;
-        let ty = fy - y0f;
-        let x0 = i32::cast_from(x0f);
-        let y0 = i32::cast_from(y0f);
-        let (wmax, hmax) = (i32::cast_from(full_w) - 1, i32::cast_from(full_h) - 1);
-        let (cwmax, chmax) = (i32::cast_from(sw) - 1, i32::cast_from(sh) - 1);
-        // Clamped to the whole source, then moved into the crop.
-        let xa = usize::cast_from(clamp_i32(clamp_i32(x0, 0, wmax) - ox, 0, cwmax));
-        let xb = usize::cast_from(clamp_i32(clamp_i32(x0 + 1, 0, wmax) - ox, 0, cwmax));
-        let ya = usize::cast_from(clamp_i32(clamp_i32(y0, 0, hmax) - oy, 0, chmax));
-        let yb = usize::cast_from(clamp_i32(clamp_i32(y0 + 1, 0, hmax) - oy, 0, chmax));
+        let (xa, xb) = (usize::cast_from(fp.xa), usize::cast_from(fp.xb));
+        let (ya, yb) = (usize::cast_from(fp.ya), usize::cast_from(fp.yb));
         let (s2, s3) = (src.stride(2), src.stride(3));
         taps[0] = ya * s2 + xa * s3;
         taps[1] = ya * s2 + xb * s3;
         taps[2] = yb * s2 + xa * s3;
         taps[3] = yb * s2 + xb * s3;
-        ws[0] = (1.0f32 - tx) * (1.0f32 - ty);
-        ws[1] = tx * (1.0f32 - ty);
-        ws[2] = (1.0f32 - tx) * ty;
-        ws[3] = tx * ty;
+        ws[0] = (1.0f32 - fp.ax) * (1.0f32 - fp.ay);
+        ws[1] = fp.ax * (1.0f32 - fp.ay);
+        ws[2] = (1.0f32 - fp.ax) * fp.ay;
+        ws[3] = fp.ax * fp.ay;
     }
     let mut plane = p;
     let fixed = usize::cast_from(src_plane);
@@ -334,37 +393,19 @@ fn tap_weight_at(
         ws[t] = 0.0f32;
     }
     let u = f32::cast_from(gux + i32::cast_from(x)) + 0.5f32;
-    let wn = fma(coef[cb + 2], u, coef[rb + 2]);
-    let inv = 1.0f32 / wn;
-    let sx = fma(coef[cb], u, coef[rb]) * inv;
-    let sy = fma(coef[cb + 1], u, coef[rb + 1]) * inv;
-    let (wf, hf) = (f32::cast_from(full_w), f32::cast_from(full_h));
-    let inside = sx >= 0.0f32 && sx <= wf && sy >= 0.0f32 && sy <= hf;
-    if wn > 0.0f32 && full_w > 0 && full_h > 0 && inside {
-        let fx = sx - 0.5f32;
-        let fy = sy - 0.5f32;
-        let x0f = fx.floor();
-        let y0f = fy.floor();
-        let ax = fx - x0f;
-        let ay = fy - y0f;
-        let x0 = i32::cast_from(x0f);
-        let y0 = i32::cast_from(y0f);
-        let (wmax, hmax) = (full_w - 1, full_h - 1);
-        let xa = clamp_i32(clamp_i32(x0, 0, wmax) - ox, 0, cwmax);
-        let xb = clamp_i32(clamp_i32(x0 + 1, 0, wmax) - ox, 0, cwmax);
-        let ya = clamp_i32(clamp_i32(y0, 0, hmax) - oy, 0, chmax);
-        let yb = clamp_i32(clamp_i32(y0 + 1, 0, hmax) - oy, 0, chmax);
-        if ya == ty && xa == tx {
-            ws[0] = (1.0f32 - ax) * (1.0f32 - ay);
+    let fp = footprint(coef, cb, rb, u, full_w, full_h, ox, oy, cwmax, chmax);
+    if fp.valid {
+        if fp.ya == ty && fp.xa == tx {
+            ws[0] = (1.0f32 - fp.ax) * (1.0f32 - fp.ay);
         }
-        if ya == ty && xb == tx {
-            ws[1] = ax * (1.0f32 - ay);
+        if fp.ya == ty && fp.xb == tx {
+            ws[1] = fp.ax * (1.0f32 - fp.ay);
         }
-        if yb == ty && xa == tx {
-            ws[2] = (1.0f32 - ax) * ay;
+        if fp.yb == ty && fp.xa == tx {
+            ws[2] = (1.0f32 - fp.ax) * fp.ay;
         }
-        if yb == ty && xb == tx {
-            ws[3] = ax * ay;
+        if fp.yb == ty && fp.xb == tx {
+            ws[3] = fp.ax * fp.ay;
         }
     }
     ws
@@ -512,6 +553,31 @@ pub(super) fn warp_backward_kernel(
     }
 }
 
+/// A texel index of a `[D, C, h, w]` iteration with channels fastest (the layout a convolution reads)
+/// split into `(d, y, x, ch)`.
+#[cube]
+fn channels_fastest(pos: usize, c: usize, h: usize, w: usize) -> (usize, usize, usize, usize) {
+    let ch = pos % c;
+    let pix = pos / c;
+    (pix / (w * h), (pix / w) % h, pix % w, ch)
+}
+
+/// The max over the `k_n` views of plane `d` of `f` (view `k`'s plane at `k * d_n + d`; `fb` the
+/// texel's offset within a plane) and the first view that holds it.
+#[cube]
+fn view_argmax(f: &Tensor<f32>, fb: usize, d: usize, d_n: usize, k_n: usize) -> (f32, usize) {
+    let mut m = f[fb + d * f.stride(0)];
+    let mut first = 0usize;
+    for k in 1..k_n {
+        let v = f[fb + (k * d_n + d) * f.stride(0)];
+        if v > m {
+            m = v;
+            first = k;
+        }
+    }
+    (m, first)
+}
+
 /// The max over views of `f` `[K*D, C, h, w]` (view-major: plane `d` of view `k` at `k*D + d`): where
 /// `keep`, `out` `[K*D, 2C, h, w]` holds `f` in channels `..C` and the max (broadcast to every view) in
 /// channels `C..` (a stage's input: the concatenation of the views' features with their max), else
@@ -526,21 +592,11 @@ pub(super) fn view_max_kernel(f: &Tensor<f32>, out: &mut Tensor<f32>, views: u32
     if pos >= d_n * h * w * c {
         terminate!();
     }
-    let ch = pos % c;
-    let pix = pos / c;
-    let x = pix % w;
-    let y = (pix / w) % h;
-    let d = pix / (w * h);
+    let (d, y, x, ch) = channels_fastest(pos, c, h, w);
     let fb = ch * f.stride(1) + y * f.stride(2) + x * f.stride(3);
     let ob = y * out.stride(2) + x * out.stride(3);
     let (o0, o1) = (out.stride(0), out.stride(1));
-    let mut m = f[fb + d * f.stride(0)];
-    for k in 1..k_n {
-        let v = f[fb + (k * d_n + d) * f.stride(0)];
-        if v > m {
-            m = v;
-        }
-    }
+    let (m, _) = view_argmax(f, fb, d, d_n, k_n);
     if keep == 1 {
         for k in 0..k_n {
             let p = k * d_n + d;
@@ -570,24 +626,12 @@ pub(super) fn view_max_backward_kernel(
     if pos >= d_n * h * w * c {
         terminate!();
     }
-    let ch = pos % c;
-    let pix = pos / c;
-    let x = pix % w;
-    let y = (pix / w) % h;
-    let d = pix / (w * h);
+    let (d, y, x, ch) = channels_fastest(pos, c, h, w);
     let fb = ch * f.stride(1) + y * f.stride(2) + x * f.stride(3);
     let gb = y * grad.stride(2) + x * grad.stride(3);
     let ib = ch * gin.stride(1) + y * gin.stride(2) + x * gin.stride(3);
     let i0 = gin.stride(0);
-    let mut m = f[fb + d * f.stride(0)];
-    let mut first = 0usize;
-    for k in 1..k_n {
-        let v = f[fb + (k * d_n + d) * f.stride(0)];
-        if v > m {
-            m = v;
-            first = k;
-        }
-    }
+    let (_, first) = view_argmax(f, fb, d, d_n, k_n);
     let mut gm = 0.0f32;
     if keep == 1 {
         for k in 0..k_n {
@@ -683,11 +727,7 @@ pub(super) fn append_state_kernel(x: &Tensor<f32>, state: &Tensor<f32>, out: &mu
     if pos >= kd * h * w * ct {
         terminate!();
     }
-    let ch = pos % ct;
-    let pix = pos / ct;
-    let xx = pix % w;
-    let y = (pix / w) % h;
-    let p = pix / (w * h);
+    let (p, y, xx, ch) = channels_fastest(pos, ct, h, w);
     let q = p % d;
     let v = if ch < cv {
         x[p * x.stride(0) + ch * x.stride(1) + y * x.stride(2) + xx * x.stride(3)]
@@ -717,11 +757,7 @@ pub(super) fn append_state_backward_kernel(
     if pos >= d * h * w * ct {
         terminate!();
     }
-    let ch = pos % ct;
-    let pix = pos / ct;
-    let xx = pix % w;
-    let y = (pix / w) % h;
-    let q = pix / (w * h);
+    let (q, y, xx, ch) = channels_fastest(pos, ct, h, w);
     let gb = ch * grad.stride(1) + y * grad.stride(2) + xx * grad.stride(3);
     let g0 = grad.stride(0);
     if ch < cv {

@@ -401,12 +401,22 @@ fn warp_into(
     );
 }
 
+/// What [`warp_backward_into`] reads of `table`, uploaded to `t`'s device: its coefficients and its
+/// inverse homographies (one upload for every backward launch of one table).
+fn backward_tables(table: &WarpTable, t: &CubeTensor) -> (CubeTensor, CubeTensor) {
+    (
+        upload_f32(t, table.coefficients()),
+        upload_f32(t, table.inverse_coefficients()),
+    )
+}
+
 /// [`kernels::warp_backward_kernel`]: the gradient of a warp of `s` source planes by `table` from
 /// channels `grad_c0..grad_c0 + c` of `grad`, into planes `p0..p0 + s` and channels `c0..c0 + c` of
 /// `gsrc`, computed on the device (the table's coefficients and inverse homographies uploaded).
 #[allow(clippy::too_many_arguments)]
 fn warp_backward_into(
     table: &WarpTable,
+    (coef, inv): &(CubeTensor, CubeTensor),
     s: usize,
     grad: &CubeTensor,
     grad_c0: usize,
@@ -415,8 +425,6 @@ fn warp_backward_into(
     p0: usize,
     c0: usize,
 ) {
-    let coef = upload_f32(grad, table.coefficients());
-    let inv = upload_f32(grad, table.inverse_coefficients());
     let f = table.frames();
     let (count, dim) = grid(grad, s * table.src_h * table.src_w);
     kernels::warp_backward_kernel::launch(
@@ -424,8 +432,8 @@ fn warp_backward_into(
         count,
         dim,
         grad.clone().into_tensor_arg(),
-        coef.into_tensor_arg(),
-        inv.into_tensor_arg(),
+        coef.clone().into_tensor_arg(),
+        inv.clone().into_tensor_arg(),
         gsrc.clone().into_tensor_arg(),
         f.out_origin.0 as i32,
         f.out_origin.1 as i32,
@@ -662,7 +670,8 @@ impl GpuOps for CubeBackend {
 
     fn gpu_components_image_grad(grad: CubeTensor, table: Arc<WarpTable>, ci: usize) -> CubeTensor {
         let gi = empty_like(&grad, [1, ci, table.src_h, table.src_w]);
-        warp_backward_into(&table, 1, &grad, 0, ci, &gi, 0, 0);
+        let tables = backward_tables(&table, &grad);
+        warp_backward_into(&table, &tables, 1, &grad, 0, ci, &gi, 0, 0);
         gi
     }
 
@@ -679,15 +688,17 @@ impl GpuOps for CubeBackend {
             grad.device.clone(),
             0.0,
         );
-        warp_backward_into(&table, 1, &grad, ci, 3, &gp, d, 0);
-        warp_backward_into(&table, d, &grad, ci + 3, 4, &gp, 0, 0);
+        let tables = backward_tables(&table, &grad);
+        warp_backward_into(&table, &tables, 1, &grad, ci, 3, &gp, d, 0);
+        warp_backward_into(&table, &tables, d, &grad, ci + 3, 4, &gp, 0, 0);
         gp
     }
 
     fn gpu_warp_backward(grad: CubeTensor, table: Arc<WarpTable>, s: usize) -> CubeTensor {
         let [_, c, _, _] = grad.meta.shape().dims::<4>();
         let gsrc = empty_like(&grad, [s, c, table.src_h, table.src_w]);
-        warp_backward_into(&table, s, &grad, 0, c, &gsrc, 0, 0);
+        let tables = backward_tables(&table, &grad);
+        warp_backward_into(&table, &tables, s, &grad, 0, c, &gsrc, 0, 0);
         gsrc
     }
 
@@ -709,6 +720,10 @@ impl GpuOps for CubeBackend {
 
     fn gpu_channels_last(t: CubeTensor) -> CubeTensor {
         let [n, c, h, w] = t.meta.shape().dims::<4>();
+        // Already so: nothing allocated.
+        if is_dense(&t) && t.meta.strides()[..] == [h * w * c, 1, w * c, c] {
+            return t;
+        }
         let reference = permute_nhwc_to_nchw(empty_shaped(&t, Shape::new([n, h, w, c])));
         like(t, &reference)
     }
