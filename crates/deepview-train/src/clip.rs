@@ -33,10 +33,46 @@ impl ModuleVisitor for SquaredNorm<'_> {
     }
 }
 
+/// The gradients of a module on a device of our GPU kernels, for [`deepview_net::gpu::squared_norms`]
+/// (none collected elsewhere).
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+struct GpuGradients<'a> {
+    grads: &'a GradientsParams,
+    tensors: Vec<burn::tensor::DispatchTensor>,
+    device: Option<Device>,
+}
+
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+impl ModuleVisitor for GpuGradients<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if let Some(g) = self.grads.get::<D>(param.id) {
+            let device = g.device();
+            if !deepview_net::gpu::gpu_kernels(&device) {
+                return;
+            }
+            self.device.get_or_insert(device);
+            self.tensors.push(g.into_dispatch());
+        }
+    }
+}
+
 /// `sqrt(sum over all parameters of |grad|^2)`, over the parameters of `module` that have a gradient.
-/// Non-finite if any gradient is. On the CPU each parameter's f32 sum is added in f64; elsewhere the sum
-/// stays on the device (f32) and is read once.
+/// Non-finite if any gradient is. Each parameter's f32 sum is added in f64: on the CPU as each is
+/// read; with our GPU kernels the sums go into one buffer on the device (a dispatch per parameter),
+/// read once; on other devices the sum stays on the device (f32) and is read once.
 pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    {
+        let mut gpu = GpuGradients {
+            grads,
+            tensors: Vec::new(),
+            device: None,
+        };
+        module.visit(&mut gpu);
+        if let Some(device) = gpu.device {
+            return deepview_net::gpu::squared_norms(gpu.tensors, &device).sqrt();
+        }
+    }
     let mut v = SquaredNorm {
         grads,
         sum: 0.0,

@@ -853,3 +853,140 @@ pub(super) fn adam_kernel(
     v_out[i] = v1;
     p_out[i] = p[i] - ((m1 * combined) / (v1.sqrt() + epsilon)) * lr;
 }
+
+/// `i` reflected into `0..n` as reflection padding reads it (the edge not repeated: `-1 -> 1`,
+/// `n -> n - 2`; for `|i|` under `n` outside `0..n`).
+#[cube]
+fn reflect_index(i: i32, n: i32) -> i32 {
+    let mut j = i;
+    if j < 0 {
+        j = -j;
+    }
+    if j >= n {
+        j = 2 * (n - 1) - j;
+    }
+    j
+}
+
+/// The feature loss's input: `a` and `b` `[n, C, h, w]`, each reflect-padded by `ph` rows and `pw`
+/// columns per side, concatenated into `out` `[2n, C, h + 2ph, w + 2pw]` (`a`'s examples first). One
+/// thread per output texel and channel, channels fastest (the layout a convolution reads).
+#[cube(launch)]
+pub(super) fn reflect_pad_pair_kernel(
+    a: &Tensor<f32>,
+    b: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    ph: u32,
+    pw: u32,
+) {
+    let (n2, c, oh, ow) = (out.shape(0), out.shape(1), out.shape(2), out.shape(3));
+    let (h, w) = (a.shape(2), a.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= n2 * c * oh * ow {
+        terminate!();
+    }
+    let (e, y, x, ch) = channels_fastest(pos, c, oh, ow);
+    let n = n2 / 2;
+    let sy = usize::cast_from(reflect_index(
+        i32::cast_from(y) - i32::cast_from(ph),
+        i32::cast_from(h),
+    ));
+    let sx = usize::cast_from(reflect_index(
+        i32::cast_from(x) - i32::cast_from(pw),
+        i32::cast_from(w),
+    ));
+    let v = if e < n {
+        a[e * a.stride(0) + ch * a.stride(1) + sy * a.stride(2) + sx * a.stride(3)]
+    } else {
+        b[(e - n) * b.stride(0) + ch * b.stride(1) + sy * b.stride(2) + sx * b.stride(3)]
+    };
+    let o = e * out.stride(0) + ch * out.stride(1) + y * out.stride(2) + x * out.stride(3);
+    out[o] = v;
+}
+
+/// The padded rows (or columns) of a padding by `p` of `n` that read source row `s` (as
+/// [`reflect_index`] maps them): `s + p`, its mirror above the top (`p - s`, for `1 <= s <= p`) and
+/// below the bottom (`2(n - 1) - s + p`, for `n - 1 - p <= s <= n - 2`); -1 where there is none.
+#[cube]
+fn reflect_sources(s: i32, n: i32, p: i32) -> Array<i32> {
+    let mut r = Array::<i32>::new(3usize);
+    r[0] = s + p;
+    r[1] = -1i32;
+    r[2] = -1i32;
+    if s >= 1 && s <= p {
+        r[1] = p - s;
+    }
+    if s >= n - 1 - p && s <= n - 2 {
+        r[2] = 2 * (n - 1) - s + p;
+    }
+    r
+}
+
+/// The gradient of [`reflect_pad_pair_kernel`] at one of its inputs (`e0`: 0 for `a`, `n` for `b`):
+/// each texel of `gin` `[n, C, h, w]` sums the output gradient `grad` `[2n, C, h + 2ph, w + 2pw]` at
+/// the (up to 3 x 3) padded positions that read it. One thread per texel, no atomics.
+#[cube(launch)]
+pub(super) fn reflect_pad_backward_kernel(
+    grad: &Tensor<f32>,
+    gin: &mut Tensor<f32>,
+    e0: u32,
+    ph: u32,
+    pw: u32,
+) {
+    let (n, c, h, w) = (gin.shape(0), gin.shape(1), gin.shape(2), gin.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= n * c * h * w {
+        terminate!();
+    }
+    let x = pos % w;
+    let y = (pos / w) % h;
+    let ch = (pos / (w * h)) % c;
+    let e = pos / (w * h * c);
+    let rows = reflect_sources(i32::cast_from(y), i32::cast_from(h), i32::cast_from(ph));
+    let cols = reflect_sources(i32::cast_from(x), i32::cast_from(w), i32::cast_from(pw));
+    let gb = (usize::cast_from(e0) + e) * grad.stride(0) + ch * grad.stride(1);
+    let (g2, g3) = (grad.stride(2), grad.stride(3));
+    let mut acc = 0.0f32;
+    for i in 0..3usize {
+        if rows[i] >= 0 {
+            let rb = gb + usize::cast_from(rows[i]) * g2;
+            for j in 0..3usize {
+                if cols[j] >= 0 {
+                    acc += grad[rb + usize::cast_from(cols[j]) * g3];
+                }
+            }
+        }
+    }
+    let o = e * gin.stride(0) + ch * gin.stride(1) + y * gin.stride(2) + x * gin.stride(3);
+    gin[o] = acc;
+}
+
+/// The sum of the squares of the `n` elements of the dense buffer `t`, into element `slot` of `acc`:
+/// one cube of 256 units, each summing a strided share, then a tree in shared memory (a gradient's
+/// share of the global norm, with no zero-fill, square, reduction and addition of its own).
+#[cube(launch)]
+pub(super) fn sum_squares_kernel(t: &Tensor<f32>, acc: &mut Tensor<f32>, slot: u32, n: u32) {
+    let u = UNIT_POS_X as usize;
+    let threads = CUBE_DIM_X as usize;
+    let len = usize::cast_from(n);
+    let mut s = 0.0f32;
+    let mut i = u;
+    while i < len {
+        let v = t[i];
+        s += v * v;
+        i += threads;
+    }
+    let mut shared = Shared::<[f32]>::new_slice(256usize);
+    shared[u] = s;
+    sync_cube();
+    for k in 0..8u32 {
+        let half = usize::cast_from(128u32 >> k);
+        if u < half {
+            shared[u] += shared[u + half];
+        }
+        sync_cube();
+    }
+    if u == 0 {
+        acc[usize::cast_from(slot)] = shared[0];
+    }
+}

@@ -12,7 +12,9 @@
 //! - the state's RGBA (sigmoid, premultiplied colour) and its backward;
 //! - the nets' ELU and its backward (in the layout of its input), and their max over views with the
 //!   concatenation a stage takes (written channels-last for the convolution that reads it);
-//! - Adam's step of a parameter (the training's optimizer on a GPU).
+//! - Adam's step of a parameter (the training's optimizer on a GPU) and each gradient's share of the
+//!   global norm (one dispatch per parameter into one buffer, read once);
+//! - the feature loss's input: prediction and target reflect-padded and concatenated, and its backward.
 //!
 //! burn's ops stay the reference: the tests compare each kernel's outputs (and gradients) with them.
 
@@ -157,6 +159,35 @@ pub trait GpuOps: Backend {
         keep: bool,
     ) -> FloatTensor<Self>;
 
+    /// The feature loss's input: `a` and `b` `[n, C, h, w]` each reflect-padded by `ph` rows and `pw`
+    /// columns per side (burn's `PadMode::Reflect`) and concatenated, `[2n, C, h + 2ph, w + 2pw]`,
+    /// channels-last, in one dispatch (burn: a fill, slices, flips and slice-assigns per side and per
+    /// tensor, then the concatenation, and more backward).
+    fn gpu_reflect_pad_pair(
+        a: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+        ph: usize,
+        pw: usize,
+    ) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_reflect_pad_pair`] at `a` (`second` false) or `b`, given the
+    /// output's.
+    fn gpu_reflect_pad_pair_backward(
+        grad: FloatTensor<Self>,
+        second: bool,
+        ph: usize,
+        pw: usize,
+    ) -> FloatTensor<Self>;
+
+    /// The sum of the squares of `t`'s elements (any rank) written into element `slot` of `acc` (a
+    /// rank-1 tensor), in one dispatch; returns `acc`. No gradient (a gradient's share of the global
+    /// norm).
+    fn gpu_sum_squares_into(
+        t: FloatTensor<Self>,
+        acc: FloatTensor<Self>,
+        slot: usize,
+    ) -> FloatTensor<Self>;
+
     /// One Adam step of a parameter (any rank): `(param, moment_1, moment_2)` after the step, in one
     /// dispatch where burn's `Adam` takes a dozen. No gradient (the optimizer works on inner tensors).
     fn gpu_adam(
@@ -218,6 +249,32 @@ pub fn adam<const D: usize>(
         Tensor::from_dispatch(m),
         Tensor::from_dispatch(v),
     )
+}
+
+/// [`GpuOps::gpu_reflect_pad_pair`]: `a` and `b` `[n, C, h, w]` reflect-padded by `ph` rows and `pw`
+/// columns per side and concatenated (`a` first), with gradients to both.
+pub fn reflect_pad_pair(a: Tensor<4>, b: Tensor<4>, ph: usize, pw: usize) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_reflect_pad_pair(
+        a.into_dispatch(),
+        b.into_dispatch(),
+        ph,
+        pw,
+    ))
+}
+
+/// The squared global norm of `tensors` (any ranks, on one cubecl device): one dispatch per tensor
+/// (each tensor's f32 sum of squares into a slot of one buffer) and one read of that buffer, the
+/// per-tensor sums added in f64 as the CPU path adds them.
+pub fn squared_norms(tensors: Vec<burn::tensor::DispatchTensor>, device: &Device) -> f64 {
+    if tensors.is_empty() {
+        return 0.0;
+    }
+    let mut acc = Tensor::<1>::zeros([tensors.len()], device).into_dispatch();
+    for (slot, t) in tensors.into_iter().enumerate() {
+        acc = <Dispatch as GpuOps>::gpu_sum_squares_into(t, acc, slot);
+    }
+    let sums = Tensor::<1>::from_dispatch(acc).into_data();
+    sums.iter::<f32>().map(f64::from).sum()
 }
 
 /// Whether tensors on `device` take our GPU kernels: a cubecl device (with or without autodiff),
@@ -796,6 +853,75 @@ impl GpuOps for CubeBackend {
         gin
     }
 
+    fn gpu_reflect_pad_pair(a: CubeTensor, b: CubeTensor, ph: usize, pw: usize) -> CubeTensor {
+        let [n, c, h, w] = a.meta.shape().dims::<4>();
+        assert_eq!(
+            [n, c, h, w],
+            b.meta.shape().dims::<4>(),
+            "a padded pair has one shape"
+        );
+        assert!(
+            ph < h && pw < w,
+            "reflection padding narrower than the image"
+        );
+        let (oh, ow) = (h + 2 * ph, w + 2 * pw);
+        let out = permute_nhwc_to_nchw(empty_shaped(&a, Shape::new([2 * n, oh, ow, c])));
+        let (count, dim) = grid(&a, 2 * n * c * oh * ow);
+        kernels::reflect_pad_pair_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            a.into_tensor_arg(),
+            b.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            ph as u32,
+            pw as u32,
+        );
+        out
+    }
+
+    fn gpu_reflect_pad_pair_backward(
+        grad: CubeTensor,
+        second: bool,
+        ph: usize,
+        pw: usize,
+    ) -> CubeTensor {
+        let [n2, c, oh, ow] = grad.meta.shape().dims::<4>();
+        let n = n2 / 2;
+        let gin = empty_like(&grad, [n, c, oh - 2 * ph, ow - 2 * pw]);
+        let (count, dim) = grid(&grad, gin.meta.shape().num_elements());
+        kernels::reflect_pad_backward_kernel::launch(
+            &gin.client,
+            count,
+            dim,
+            grad.into_tensor_arg(),
+            gin.clone().into_tensor_arg(),
+            if second { n as u32 } else { 0 },
+            ph as u32,
+            pw as u32,
+        );
+        gin
+    }
+
+    fn gpu_sum_squares_into(t: CubeTensor, acc: CubeTensor, slot: usize) -> CubeTensor {
+        assert!(
+            acc.meta.num_dims() == 1 && slot < acc.meta.shape()[0] && acc.is_contiguous(),
+            "a slot of a contiguous rank-1 tensor"
+        );
+        let t = dense(t);
+        let n = t.meta.shape().num_elements();
+        kernels::sum_squares_kernel::launch(
+            &acc.client,
+            CubeCount::Static(1, 1, 1),
+            CubeDim::new_1d(256),
+            t.into_tensor_arg(),
+            acc.clone().into_tensor_arg(),
+            slot as u32,
+            n as u32,
+        );
+        acc
+    }
+
     fn gpu_adam(
         param: CubeTensor,
         grad: CubeTensor,
@@ -1060,6 +1186,43 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         unimplemented!("second-order gradients of the max over views")
     }
 
+    fn gpu_reflect_pad_pair(
+        a: FloatTensor<Self>,
+        b: FloatTensor<Self>,
+        ph: usize,
+        pw: usize,
+    ) -> FloatTensor<Self> {
+        let guards = [a.node(), b.node()];
+        let (a, b) = (a.into_primitive(), b.into_primitive());
+        match PadPairBackward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => prep.finish((ph, pw), B::gpu_reflect_pad_pair(a, b, ph, pw)),
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_reflect_pad_pair(a, b, ph, pw)),
+        }
+    }
+
+    fn gpu_reflect_pad_pair_backward(
+        _grad: FloatTensor<Self>,
+        _second: bool,
+        _ph: usize,
+        _pw: usize,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of the padding")
+    }
+
+    fn gpu_sum_squares_into(
+        t: FloatTensor<Self>,
+        acc: FloatTensor<Self>,
+        slot: usize,
+    ) -> FloatTensor<Self> {
+        // Gradients are inner tensors; a tracked one is read untracked.
+        let out = B::gpu_sum_squares_into(t.into_primitive(), acc.into_primitive(), slot);
+        FloatTensor::<Self>::new(out)
+    }
+
     fn gpu_adam(
         param: FloatTensor<Self>,
         grad: FloatTensor<Self>,
@@ -1170,6 +1333,30 @@ impl<B: Backend + GpuOps> Backward<B, 1> for ViewMaxBackward {
         let (f, views, keep) = ops.state;
         if let Some(node) = node {
             grads.register::<B>(node.id, B::gpu_view_max_backward(f, grad, views, keep));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct PadPairBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 2> for PadPairBackward {
+    /// The padding's rows and columns per side.
+    type State = (usize, usize);
+
+    fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [a, b] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (ph, pw) = ops.state;
+        if let Some(node) = a {
+            let g = B::gpu_reflect_pad_pair_backward(grad.clone(), false, ph, pw);
+            grads.register::<B>(node.id, g);
+        }
+        if let Some(node) = b {
+            grads.register::<B>(
+                node.id,
+                B::gpu_reflect_pad_pair_backward(grad, true, ph, pw),
+            );
         }
     }
 }

@@ -608,3 +608,85 @@ fn wgpu_channels_last_weights_keep_values_and_gradients() {
     let frozen = crate::gpu::channels_last_weights(conv.no_grad());
     assert!(!frozen.weight.val().is_require_grad());
 }
+
+/// The feature loss's padded pair on wgpu (one kernel) equals burn's reflection padding and
+/// concatenation on the CPU: the values, and the gradients at both inputs (each texel summing the
+/// padded positions that read it: a texel next to a corner reaches up to four), for pads of 1 to 4 on
+/// sizes from 5 to 32; the second input also given transposed in memory (the kernel reads strides).
+#[test]
+fn wgpu_reflect_pad_pair_equals_burns_pad() {
+    use burn::tensor::ops::PadMode;
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    for (n, c, h, w, ph, pw) in [
+        (1, 3, 16, 16, 2, 2),
+        (2, 3, 5, 9, 1, 4),
+        (1, 2, 32, 24, 4, 3),
+    ] {
+        let rand = |dims: [usize; 4]| {
+            to_vec(Tensor::<4>::random(
+                dims,
+                Distribution::Uniform(-1.0, 1.0),
+                &cpu,
+            ))
+        };
+        let (va, vb) = (rand([n, c, h, w]), rand([n, c, w, h]));
+        let od = [2 * n, c, h + 2 * ph, w + 2 * pw];
+        let seed = rand(od);
+        let run = |dev: &Device, kernel: bool| {
+            let ad = dev.clone().autodiff();
+            let a = Tensor::<4>::from_data(TensorData::new(va.clone(), [n, c, h, w]), &ad)
+                .require_grad();
+            let b = Tensor::<4>::from_data(TensorData::new(vb.clone(), [n, c, w, h]), &ad)
+                .require_grad();
+            let bt = b.clone().swap_dims(2, 3);
+            let y = if kernel {
+                crate::gpu::reflect_pad_pair(a.clone(), bt, ph, pw)
+            } else {
+                let pad = |t: Tensor<4>| t.pad([(ph, ph), (pw, pw)], PadMode::Reflect);
+                Tensor::cat(vec![pad(a.clone()), pad(bt)], 0)
+            };
+            assert_eq!(y.dims(), od);
+            let out = to_vec(y.clone().inner());
+            let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), od), &ad);
+            let grads = (y * wt).sum().backward();
+            let ga = to_vec(a.grad(&grads).unwrap());
+            (out, ga, to_vec(b.grad(&grads).unwrap()))
+        };
+        let (want, want_a, want_b) = run(&cpu, false);
+        let (got, got_a, got_b) = run(&gpu, true);
+        let what = format!("{n}x{c}x{h}x{w} padded by {ph}, {pw}");
+        assert_eq!(max_diff(&want, &got), 0.0, "values, {what}");
+        let e = max_diff(&want_a, &got_a).max(max_diff(&want_b, &got_b));
+        assert!(e < 1e-5, "gradients, {what}: {e}");
+        // The corner's neighbour gets four reads (itself and its mirrors); the test sees them.
+        assert!(want_a.iter().any(|&g| g != 0.0));
+    }
+}
+
+/// The global norm's squared sums on wgpu (a one-cube reduction per tensor into a shared buffer) equal
+/// f64 sums of squares on the host, for tensors of several ranks and sizes (one under the cube's 256
+/// units, one of many strides' worth), one given transposed in memory.
+#[test]
+fn wgpu_squared_norms_equal_host_sums() {
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let a = Tensor::<1>::random([7], Distribution::Uniform(-2.0, 2.0), &cpu);
+    let b = Tensor::<4>::random([8, 12, 3, 3], Distribution::Uniform(-1.0, 1.0), &cpu);
+    let c = Tensor::<2>::random([300, 41], Distribution::Uniform(-0.5, 0.5), &cpu);
+    let host: f64 = [to_vec(a.clone()), to_vec(b.clone()), to_vec(c.clone())]
+        .iter()
+        .flatten()
+        .map(|&v| f64::from(v) * f64::from(v))
+        .sum();
+    let tensors = vec![
+        a.to_device(&gpu).into_dispatch(),
+        b.to_device(&gpu).into_dispatch(),
+        c.to_device(&gpu).transpose().into_dispatch(),
+    ];
+    let got = crate::gpu::squared_norms(tensors, &gpu);
+    assert!(
+        (got - host).abs() <= 1e-6 * host,
+        "device {got}, host {host}"
+    );
+}
