@@ -819,9 +819,11 @@ pub(super) fn elu_backward_kernel(y: &Tensor<f32>, grad: &Tensor<f32>, gin: &mut
     gin[i] = grad[i] * d;
 }
 
-/// One Adam step of a parameter tensor (element-wise over four buffers of one dense layout), burn's `Adam` arithmetic in its
-/// order: `m' = m b1 + g (1 - b1)`, `v' = v b2 + g^2 (1 - b2)`, `p' = p - (m' c) / (sqrt(v') + e) lr`
-/// (`c` and `e` the step's bias corrections, computed on the host).
+/// One Adam step of a parameter tensor, element-wise over the buffers of the parameter and its moments
+/// (one dense layout: the `n` elements at the start of each), the gradient read through its own
+/// strides (any layout), burn's `Adam` arithmetic in its order: `m' = m b1 + g (1 - b1)`,
+/// `v' = v b2 + g^2 (1 - b2)`, `p' = p - (m' c) / (sqrt(v') + e) lr` (`c` and `e` the step's bias
+/// corrections, computed on the host).
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn adam_kernel(
@@ -832,6 +834,7 @@ pub(super) fn adam_kernel(
     p_out: &mut Tensor<f32>,
     m_out: &mut Tensor<f32>,
     v_out: &mut Tensor<f32>,
+    n: u32,
     beta_1: f32,
     factor_1: f32,
     beta_2: f32,
@@ -842,11 +845,16 @@ pub(super) fn adam_kernel(
     grad_scale: f32,
 ) {
     let i = ABSOLUTE_POS;
-    if i >= p_out.len() {
+    if i >= usize::cast_from(n) {
         terminate!();
     }
+    // Element `i` of a dense layout sits at coordinate `(i / stride) % size` along each axis.
+    let mut gi_at = 0usize;
+    for d in 0..p.rank() {
+        gi_at += ((i / p.stride(d)) % p.shape(d)) * g.stride(d);
+    }
     // The clipped gradient, rounded as burn's scaling of it would be.
-    let gi = g[i] * grad_scale;
+    let gi = g[gi_at] * grad_scale;
     let m1 = m[i] * beta_1 + gi * factor_1;
     let v1 = v[i] * beta_2 + (gi * gi) * factor_2;
     m_out[i] = m1;

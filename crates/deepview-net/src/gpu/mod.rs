@@ -189,7 +189,9 @@ pub trait GpuOps: Backend {
     ) -> FloatTensor<Self>;
 
     /// One Adam step of a parameter (any rank): `(param, moment_1, moment_2)` after the step, in one
-    /// dispatch where burn's `Adam` takes a dozen. No gradient (the optimizer works on inner tensors).
+    /// dispatch where burn's `Adam` takes a dozen, in the parameter's layout (channels-last for a
+    /// rank-4 one, taken on its first step), the gradient read in its own. No gradient (the optimizer
+    /// works on inner tensors).
     fn gpu_adam(
         param: FloatTensor<Self>,
         grad: FloatTensor<Self>,
@@ -357,8 +359,8 @@ pub(crate) fn net_input(
 
 /// `module` with its rank-4 float parameters (convolution weights) laid out channels-last in memory
 /// where they are on a cubecl device: burn's GPU convolutions read weights in that layout, and would copy
-/// them into it at every call (frozen or inference weights; trained ones take it from their gradients in
-/// Adam's first step). Values, ids and gradient requirements are kept.
+/// them into it at every call (frozen or inference weights; trained ones also take it in Adam's first
+/// step, [`GpuOps::gpu_adam`]). Values, ids and gradient requirements are kept.
 pub fn channels_last_weights<M: burn::module::Module>(module: M) -> M {
     struct Mapper;
     impl burn::module::ModuleMapper for Mapper {
@@ -929,13 +931,18 @@ impl GpuOps for CubeBackend {
         moment_2: CubeTensor,
         step: AdamStep,
     ) -> (CubeTensor, CubeTensor, CubeTensor) {
-        // Element-wise in the gradient's layout (a convolution's weight gradient comes channels-last):
-        // the parameter and its moments take it on their first step and keep it, so that the
-        // convolution reads its weights, and Adam its gradient, without a layout copy every step.
-        let grad = dense(grad);
-        let [param, moment_1, moment_2] = [param, moment_1, moment_2].map(|t| like(t, &grad));
-        let n = grad.meta.shape().num_elements();
-        let new = || empty_same_layout(&grad);
+        // Element-wise in the parameter's layout, channels-last for a convolution's weights (the
+        // layout burn's convolutions read them in; they take it on their first step and keep it),
+        // the gradient read through its strides: burn's weight gradient comes with the output
+        // channels fastest, and a parameter in that layout would be copied by every convolution.
+        let param = if param.meta.num_dims() == 4 {
+            Self::gpu_channels_last(param)
+        } else {
+            dense(param)
+        };
+        let [moment_1, moment_2] = [moment_1, moment_2].map(|t| like(t, &param));
+        let n = param.meta.shape().num_elements();
+        let new = || empty_same_layout(&param);
         let (p, m, v) = (new(), new(), new());
         let (count, dim) = grid(&param, n);
         kernels::adam_kernel::launch(
@@ -949,6 +956,7 @@ impl GpuOps for CubeBackend {
             p.clone().into_tensor_arg(),
             m.clone().into_tensor_arg(),
             v.clone().into_tensor_arg(),
+            n as u32,
             step.beta_1,
             1.0 - step.beta_1,
             step.beta_2,
