@@ -152,6 +152,8 @@ pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act: Act) -> Tensor<4> {
             #[cfg(any(feature = "wgpu", feature = "cuda"))]
             Act::Elu if crate::gpu::gpu_kernels(&y.device()) => crate::gpu::elu(y),
             Act::Elu => elu(y, 1.0),
+            #[cfg(any(feature = "wgpu", feature = "cuda"))]
+            Act::Relu if crate::gpu::gpu_kernels(&y.device()) => crate::gpu::relu(y),
             Act::Relu => relu(y),
         };
     }

@@ -794,28 +794,47 @@ pub(super) fn relayout_kernel(src: &Tensor<f32>, out: &mut Tensor<f32>) {
     out[oi] = src[si];
 }
 
-/// ELU (alpha 1), element-wise over the buffers of two tensors of one dense layout: `x` where `x > 0`, `exp(x) - 1` elsewhere (burn's
-/// `elu`).
+/// The nets' activation, element-wise over the buffers of two tensors of one dense layout: `x` where
+/// `x > 0`, elsewhere `exp(x) - 1` (ELU with alpha 1, burn's `elu`) or, where `relu` is 1, 0 (burn's
+/// `relu`: VGG's).
 #[cube(launch)]
-pub(super) fn elu_kernel(x: &Tensor<f32>, out: &mut Tensor<f32>) {
+pub(super) fn act_kernel(x: &Tensor<f32>, out: &mut Tensor<f32>, relu: u32) {
     let i = ABSOLUTE_POS;
     if i >= out.len() {
         terminate!();
     }
     let v = x[i];
-    out[i] = if v > 0.0f32 { v } else { v.exp() - 1.0f32 };
+    let mut y = v;
+    if v <= 0.0f32 {
+        y = 0.0f32;
+        if relu == 0 {
+            y = v.exp() - 1.0f32;
+        }
+    }
+    out[i] = y;
 }
 
-/// The gradient of [`elu_kernel`] from its output `y`: `grad` where `y > 0`, `grad * (y + 1)` (that is
-/// `grad * exp(x)`) elsewhere.
+/// The gradient of [`act_kernel`] from its output `y`: `grad` where `y > 0`, elsewhere `grad * (y + 1)`
+/// (ELU's `grad * exp(x)`) or 0 (ReLU's).
 #[cube(launch)]
-pub(super) fn elu_backward_kernel(y: &Tensor<f32>, grad: &Tensor<f32>, gin: &mut Tensor<f32>) {
+pub(super) fn act_backward_kernel(
+    y: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    gin: &mut Tensor<f32>,
+    relu: u32,
+) {
     let i = ABSOLUTE_POS;
     if i >= gin.len() {
         terminate!();
     }
     let v = y[i];
-    let d = if v > 0.0f32 { 1.0f32 } else { v + 1.0f32 };
+    let mut d = 1.0f32;
+    if v <= 0.0f32 {
+        d = 0.0f32;
+        if relu == 0 {
+            d = v + 1.0f32;
+        }
+    }
     gin[i] = grad[i] * d;
 }
 

@@ -123,12 +123,16 @@ pub trait GpuOps: Backend {
         s: usize,
     ) -> FloatTensor<Self>;
 
-    /// ELU (alpha 1) of a feature map (the nets' activation): one dispatch forward and one backward
-    /// where burn's `elu` takes five and more.
-    fn gpu_elu(x: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The nets' activation, ELU (alpha 1), or with `relu` VGG's ReLU, of a feature map: one dispatch
+    /// forward and one backward (in the layout of its input) where burn's take two to five and more.
+    fn gpu_act(x: FloatTensor<Self>, relu: bool) -> FloatTensor<Self>;
 
-    /// The gradient of [`GpuOps::gpu_elu`] from its output and the output's gradient.
-    fn gpu_elu_backward(out: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The gradient of [`GpuOps::gpu_act`] from its output and the output's gradient.
+    fn gpu_act_backward(
+        out: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        relu: bool,
+    ) -> FloatTensor<Self>;
 
     /// A rank-4 tensor with the same values laid out channels-last in memory (the layout burn's GPU
     /// convolutions read their weights in): itself where it is, else one copy. No gradient.
@@ -396,9 +400,14 @@ pub(crate) fn view_max(f: Tensor<4>, views: usize, keep: bool) -> Tensor<4> {
     ))
 }
 
-/// [`GpuOps::gpu_elu`] on a cubecl device.
+/// ELU ([`GpuOps::gpu_act`]) on a cubecl device.
 pub(crate) fn elu(x: Tensor<4>) -> Tensor<4> {
-    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_elu(x.into_dispatch()))
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_act(x.into_dispatch(), false))
+}
+
+/// ReLU ([`GpuOps::gpu_act`]) on a cubecl device.
+pub(crate) fn relu(x: Tensor<4>) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_act(x.into_dispatch(), true))
 }
 
 /// `values` as a 1-d f32 tensor on `t`'s device.
@@ -761,18 +770,19 @@ impl GpuOps for CubeBackend {
         gsrc
     }
 
-    fn gpu_elu(x: CubeTensor) -> CubeTensor {
+    fn gpu_act(x: CubeTensor, relu: bool) -> CubeTensor {
         // Element-wise over the buffer, in the input's layout: a convolution's output (channels
         // last in memory) stays so, and the next convolution reads it without a layout copy.
         let x = dense(x);
         let out = empty_same_layout(&x);
         let (count, dim) = grid(&x, x.meta.shape().num_elements());
-        kernels::elu_kernel::launch(
+        kernels::act_kernel::launch(
             &out.client,
             count,
             dim,
             x.into_tensor_arg(),
             out.clone().into_tensor_arg(),
+            relu as u32,
         );
         out
     }
@@ -969,7 +979,7 @@ impl GpuOps for CubeBackend {
         (p, m, v)
     }
 
-    fn gpu_elu_backward(out: CubeTensor, grad: CubeTensor) -> CubeTensor {
+    fn gpu_act_backward(out: CubeTensor, grad: CubeTensor, relu: bool) -> CubeTensor {
         // Element-wise over the buffers where both share a dense layout (the gradient of a
         // convolution's input comes back in the layout its output had), else both made contiguous.
         let (out, grad) =
@@ -980,13 +990,14 @@ impl GpuOps for CubeBackend {
             };
         let gin = empty_same_layout(&out);
         let (count, dim) = grid(&out, out.meta.shape().num_elements());
-        kernels::elu_backward_kernel::launch(
+        kernels::act_backward_kernel::launch(
             &gin.client,
             count,
             dim,
             out.into_tensor_arg(),
             grad.into_tensor_arg(),
             gin.clone().into_tensor_arg(),
+            relu as u32,
         );
         gin
     }
@@ -1129,15 +1140,15 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         unimplemented!("second-order gradients of the components")
     }
 
-    fn gpu_elu(x: FloatTensor<Self>) -> FloatTensor<Self> {
+    fn gpu_act(x: FloatTensor<Self>, relu: bool) -> FloatTensor<Self> {
         let guards = [x.node()];
         let x = x.into_primitive();
-        match EluBackward.prepare::<C>(guards).compute_bound().stateful() {
+        match ActBackward.prepare::<C>(guards).compute_bound().stateful() {
             OpsKind::Tracked(prep) => {
-                let out = B::gpu_elu(x);
-                prep.finish(out.clone(), out)
+                let out = B::gpu_act(x, relu);
+                prep.finish((out.clone(), relu), out)
             }
-            OpsKind::UnTracked(prep) => prep.finish(B::gpu_elu(x)),
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_act(x, relu)),
         }
     }
 
@@ -1253,23 +1264,28 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         )
     }
 
-    fn gpu_elu_backward(_out: FloatTensor<Self>, _grad: FloatTensor<Self>) -> FloatTensor<Self> {
-        unimplemented!("second-order gradients of elu")
+    fn gpu_act_backward(
+        _out: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+        _relu: bool,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of an activation")
     }
 }
 
 #[derive(Debug)]
-struct EluBackward;
+struct ActBackward;
 
-impl<B: Backend + GpuOps> Backward<B, 1> for EluBackward {
-    /// The output.
-    type State = FloatTensor<B>;
+impl<B: Backend + GpuOps> Backward<B, 1> for ActBackward {
+    /// The output, and whether it is a ReLU.
+    type State = (FloatTensor<B>, bool);
 
     fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
+        let (out, relu) = ops.state;
         if let Some(node) = node {
-            grads.register::<B>(node.id, B::gpu_elu_backward(ops.state, grad));
+            grads.register::<B>(node.id, B::gpu_act_backward(out, grad, relu));
         }
     }
 }

@@ -203,12 +203,13 @@ fn wgpu_warp_kernel_equals_burns_ops() {
     }
 }
 
-/// The ELU kernel on wgpu equals burn's `elu` on the CPU: outputs and the gradient of a weighted sum,
-/// over negative, zero and positive inputs (the nets take it for every ELU layer on a GPU), for a
+/// The activation kernel on wgpu equals burn's `elu` and `relu` on the CPU: outputs and the gradient of
+/// a weighted sum, over negative, zero and positive inputs (the nets take it for every ELU layer on a
+/// GPU, the VGG loss for its ReLUs), for a
 /// contiguous input and for a channels-last one (a convolution's output, which the kernel keeps in its
 /// layout), with the incoming gradient in the same layout or another.
 #[test]
-fn wgpu_elu_kernel_equals_burns_elu() {
+fn wgpu_activation_kernel_equals_burns_elu_and_relu() {
     let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
     let cpu = Device::flex();
     let dims = [3, 5, 7, 9];
@@ -241,7 +242,7 @@ fn wgpu_elu_kernel_equals_burns_elu() {
             burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1),
         )
     };
-    let run = |dev: &Device, kernel: bool, channels_last: bool, grad_last: bool| {
+    let run = |dev: &Device, kernel: bool, channels_last: bool, grad_last: bool, relu: bool| {
         let ad = dev.clone().autodiff();
         let t = Tensor::<4>::from_data(TensorData::new(x.clone(), dims), &ad).require_grad();
         let input = if channels_last {
@@ -249,10 +250,11 @@ fn wgpu_elu_kernel_equals_burns_elu() {
         } else {
             t.clone()
         };
-        let y = if kernel {
-            crate::gpu::elu(input)
-        } else {
-            burn::tensor::activation::elu(input, 1.0)
+        let y = match (kernel, relu) {
+            (true, false) => crate::gpu::elu(input),
+            (true, true) => crate::gpu::relu(input),
+            (false, false) => burn::tensor::activation::elu(input, 1.0),
+            (false, true) => burn::tensor::activation::relu(input),
         };
         let out = to_vec(y.clone().inner());
         let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), dims), &ad);
@@ -260,13 +262,19 @@ fn wgpu_elu_kernel_equals_burns_elu() {
         let grads = (y * wt).sum().backward();
         (out, to_vec(t.grad(&grads).unwrap()))
     };
-    for (channels_last, grad_last) in [(false, false), (true, true), (true, false), (false, true)] {
-        let (want, want_grad) = run(&cpu, false, channels_last, grad_last);
-        let (got, got_grad) = run(&gpu, true, channels_last, grad_last);
-        let e = max_diff(&want, &got);
-        assert!(e < 1e-6, "elu ({channels_last}, {grad_last}): {e}");
-        let e = max_diff(&want_grad, &got_grad);
-        assert!(e < 1e-6, "elu gradient ({channels_last}, {grad_last}): {e}");
+    for relu in [false, true] {
+        for (channels_last, grad_last) in
+            [(false, false), (true, true), (true, false), (false, true)]
+        {
+            let (want, want_grad) = run(&cpu, false, channels_last, grad_last, relu);
+            let (got, got_grad) = run(&gpu, true, channels_last, grad_last, relu);
+            let what = format!("relu {relu}, layouts ({channels_last}, {grad_last})");
+            let e = max_diff(&want, &got);
+            assert!(e < 1e-6, "{what}: {e}");
+            let e = max_diff(&want_grad, &got_grad);
+            assert!(e < 1e-6, "gradient, {what}: {e}");
+            assert!(want.iter().any(|&v| v < 0.0) != relu, "{what}");
+        }
     }
 }
 
