@@ -114,19 +114,30 @@ pub(crate) fn pad_for_feature_loss(t: Tensor<4>) -> Tensor<4> {
     }
 }
 
-/// `pred` and `target` as [`pad_for_feature_loss`] pads them, concatenated (`pred` first): one
-/// dispatch with our GPU kernels ([`deepview_net::gpu::reflect_pad_pair`]), burn's ops elsewhere.
-fn padded_pair(pred: Tensor<4>, target: Tensor<4>) -> Tensor<4> {
+/// VGG's features of `pred` and `target` (`[2n, ..]`, `pred`'s first) as [`pad_for_feature_loss`] pads
+/// them: the padding, concatenation and preprocessing in one dispatch with our GPU kernels
+/// ([`deepview_net::gpu::reflect_pad_pair`]), burn's ops elsewhere.
+fn padded_pair_features(
+    vgg: &Vgg16,
+    pred: Tensor<4>,
+    target: Tensor<4>,
+) -> crate::vgg::VggFeatures {
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     if deepview_net::gpu::gpu_kernels(&pred.device()) {
         let [_, _, h, w] = pred.dims();
         let (ph, pw) = feature_loss_padding(h, w);
-        return deepview_net::gpu::reflect_pad_pair(pred, target, ph, pw);
+        let caffe = deepview_net::gpu::ChannelMap {
+            scale: 255.0,
+            offset: crate::vgg::CAFFE_MEAN_BGR,
+            reverse: true,
+        };
+        let both = deepview_net::gpu::reflect_pad_pair(pred, target, ph, pw, caffe);
+        return vgg.features_preprocessed(both);
     }
-    Tensor::cat(
+    vgg.features(Tensor::cat(
         vec![pad_for_feature_loss(pred), pad_for_feature_loss(target)],
         0,
-    )
+    ))
 }
 
 /// SSIM of each example, shape [n], with autodiff: `deepview_metrics::ssim` (see the module docs) on
@@ -178,8 +189,7 @@ fn vgg_feature_loss(
 ) -> Tensor<1> {
     let n = pred.dims()[0];
     // One VGG pass over prediction and target together.
-    let both = padded_pair(pred, target);
-    let f = vgg.features(both);
+    let f = padded_pair_features(vgg, pred, target);
     let l1 = |t: Tensor<4>| {
         let d = t.dims()[0] / 2;
         (t.clone().narrow(0, 0, d) - t.narrow(0, d, d))

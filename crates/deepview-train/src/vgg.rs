@@ -266,7 +266,11 @@ impl Vgg16 {
 
     /// Features of `rgb` ([n, 3, h, w], RGB in 0..1; h and w multiples of 4).
     pub fn features(&self, rgb: Tensor<4>) -> VggFeatures {
-        let x = Self::preprocess(rgb);
+        self.features_preprocessed(Self::preprocess(rgb))
+    }
+
+    /// Features of an input already preprocessed ([`Vgg16::preprocess`]).
+    pub fn features_preprocessed(&self, x: Tensor<4>) -> VggFeatures {
         let x = conv3x3_act(x, &self.conv1_1, Act::Relu);
         let conv1_2 = conv3x3_act(x, &self.conv1_2, Act::Relu);
         let x = self.pool.forward(conv1_2.clone());

@@ -896,15 +896,21 @@ fn reflect_index(i: i32, n: i32) -> i32 {
 }
 
 /// The feature loss's input: `a` and `b` `[n, C, h, w]`, each reflect-padded by `ph` rows and `pw`
-/// columns per side, concatenated into `out` `[2n, C, h + 2ph, w + 2pw]` (`a`'s examples first). One
-/// thread per output texel and channel, channels fastest (the layout a convolution reads).
+/// columns per side, concatenated into `out` `[2n, C, h + 2ph, w + 2pw]` (`a`'s examples first), each
+/// value mapped as `v * scale - offset[c]`, read from channel `C - 1 - c` where `reverse` (VGG's
+/// preprocessing: RGB to BGR, the 0..255 scale, the mean removed). One thread per output texel and
+/// channel, channels fastest (the layout a convolution reads).
 #[cube(launch)]
+#[allow(clippy::too_many_arguments)]
 pub(super) fn reflect_pad_pair_kernel(
     a: &Tensor<f32>,
     b: &Tensor<f32>,
     out: &mut Tensor<f32>,
     ph: u32,
     pw: u32,
+    scale: f32,
+    offset: &Tensor<f32>,
+    reverse: u32,
 ) {
     let (n2, c, oh, ow) = (out.shape(0), out.shape(1), out.shape(2), out.shape(3));
     let (h, w) = (a.shape(2), a.shape(3));
@@ -922,13 +928,17 @@ pub(super) fn reflect_pad_pair_kernel(
         i32::cast_from(x) - i32::cast_from(pw),
         i32::cast_from(w),
     ));
+    let mut sc = ch;
+    if reverse == 1 {
+        sc = c - 1 - ch;
+    }
     let v = if e < n {
-        a[e * a.stride(0) + ch * a.stride(1) + sy * a.stride(2) + sx * a.stride(3)]
+        a[e * a.stride(0) + sc * a.stride(1) + sy * a.stride(2) + sx * a.stride(3)]
     } else {
-        b[(e - n) * b.stride(0) + ch * b.stride(1) + sy * b.stride(2) + sx * b.stride(3)]
+        b[(e - n) * b.stride(0) + sc * b.stride(1) + sy * b.stride(2) + sx * b.stride(3)]
     };
     let o = e * out.stride(0) + ch * out.stride(1) + y * out.stride(2) + x * out.stride(3);
-    out[o] = v;
+    out[o] = v * scale - offset[ch];
 }
 
 /// The padded rows (or columns) of a padding by `p` of `n` that read source row `s` (as
@@ -951,14 +961,18 @@ fn reflect_sources(s: i32, n: i32, p: i32) -> Array<i32> {
 
 /// The gradient of [`reflect_pad_pair_kernel`] at one of its inputs (`e0`: 0 for `a`, `n` for `b`):
 /// each texel of `gin` `[n, C, h, w]` sums the output gradient `grad` `[2n, C, h + 2ph, w + 2pw]` at
-/// the (up to 3 x 3) padded positions that read it. One thread per texel, no atomics.
+/// the (up to 3 x 3) padded positions that read it (in the channel it was moved to), times `scale`.
+/// One thread per texel, no atomics.
 #[cube(launch)]
+#[allow(clippy::too_many_arguments)]
 pub(super) fn reflect_pad_backward_kernel(
     grad: &Tensor<f32>,
     gin: &mut Tensor<f32>,
     e0: u32,
     ph: u32,
     pw: u32,
+    scale: f32,
+    reverse: u32,
 ) {
     let (n, c, h, w) = (gin.shape(0), gin.shape(1), gin.shape(2), gin.shape(3));
     let pos = ABSOLUTE_POS;
@@ -971,7 +985,11 @@ pub(super) fn reflect_pad_backward_kernel(
     let e = pos / (w * h * c);
     let rows = reflect_sources(i32::cast_from(y), i32::cast_from(h), i32::cast_from(ph));
     let cols = reflect_sources(i32::cast_from(x), i32::cast_from(w), i32::cast_from(pw));
-    let gb = (usize::cast_from(e0) + e) * grad.stride(0) + ch * grad.stride(1);
+    let mut gc = ch;
+    if reverse == 1 {
+        gc = c - 1 - ch;
+    }
+    let gb = (usize::cast_from(e0) + e) * grad.stride(0) + gc * grad.stride(1);
     let (g2, g3) = (grad.stride(2), grad.stride(3));
     let mut acc = 0.0f32;
     for i in 0..3usize {
@@ -985,7 +1003,7 @@ pub(super) fn reflect_pad_backward_kernel(
         }
     }
     let o = e * gin.stride(0) + ch * gin.stride(1) + y * gin.stride(2) + x * gin.stride(3);
-    gin[o] = acc;
+    gin[o] = acc * scale;
 }
 
 /// The sum of the squares of the `n` elements of the dense buffer `t`, into element `slot` of `acc`:

@@ -14,7 +14,8 @@
 //!   concatenation a stage takes (written channels-last for the convolution that reads it);
 //! - Adam's step of a parameter (the training's optimizer on a GPU) and each gradient's share of the
 //!   global norm (one dispatch per parameter into one buffer, read once);
-//! - the feature loss's input: prediction and target reflect-padded and concatenated, and its backward.
+//! - the feature loss's input: prediction and target reflect-padded, concatenated and preprocessed for
+//!   VGG, and its backward.
 //!
 //! burn's ops stay the reference: the tests compare each kernel's outputs (and gradients) with them.
 
@@ -167,11 +168,13 @@ pub trait GpuOps: Backend {
     /// columns per side (burn's `PadMode::Reflect`) and concatenated, `[2n, C, h + 2ph, w + 2pw]`,
     /// channels-last, in one dispatch (burn: a fill, slices, flips and slice-assigns per side and per
     /// tensor, then the concatenation, and more backward).
+    /// Each value is mapped by `map` on the way (VGG's preprocessing, or the identity).
     fn gpu_reflect_pad_pair(
         a: FloatTensor<Self>,
         b: FloatTensor<Self>,
         ph: usize,
         pw: usize,
+        map: ChannelMap,
     ) -> FloatTensor<Self>;
 
     /// The gradient of [`GpuOps::gpu_reflect_pad_pair`] at `a` (`second` false) or `b`, given the
@@ -181,6 +184,7 @@ pub trait GpuOps: Backend {
         second: bool,
         ph: usize,
         pw: usize,
+        map: ChannelMap,
     ) -> FloatTensor<Self>;
 
     /// The sum of the squares of `t`'s elements (any rank) written into element `slot` of `acc` (a
@@ -203,6 +207,25 @@ pub trait GpuOps: Backend {
         moment_2: FloatTensor<Self>,
         step: AdamStep,
     ) -> (FloatTensor<Self>, FloatTensor<Self>, FloatTensor<Self>);
+}
+
+/// A per-channel affine map of a padded pair ([`GpuOps::gpu_reflect_pad_pair`]): channel `c` of the
+/// output is `v * scale - offset[c]` of the input's channel `c`, or of `C - 1 - c` where `reverse`
+/// (RGB <-> BGR). Offsets beyond the input's channels must be zero.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChannelMap {
+    pub scale: f32,
+    pub offset: [f32; 3],
+    pub reverse: bool,
+}
+
+impl ChannelMap {
+    /// Values as they are.
+    pub const IDENTITY: Self = Self {
+        scale: 1.0,
+        offset: [0.0; 3],
+        reverse: false,
+    };
 }
 
 /// The scalars of one Adam step ([`GpuOps::gpu_adam`]), as burn's `Adam` computes them.
@@ -258,13 +281,20 @@ pub fn adam<const D: usize>(
 }
 
 /// [`GpuOps::gpu_reflect_pad_pair`]: `a` and `b` `[n, C, h, w]` reflect-padded by `ph` rows and `pw`
-/// columns per side and concatenated (`a` first), with gradients to both.
-pub fn reflect_pad_pair(a: Tensor<4>, b: Tensor<4>, ph: usize, pw: usize) -> Tensor<4> {
+/// columns per side, concatenated (`a` first) and mapped by `map`, with gradients to both.
+pub fn reflect_pad_pair(
+    a: Tensor<4>,
+    b: Tensor<4>,
+    ph: usize,
+    pw: usize,
+    map: ChannelMap,
+) -> Tensor<4> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_reflect_pad_pair(
         a.into_dispatch(),
         b.into_dispatch(),
         ph,
         pw,
+        map,
     ))
 }
 
@@ -865,8 +895,21 @@ impl GpuOps for CubeBackend {
         gin
     }
 
-    fn gpu_reflect_pad_pair(a: CubeTensor, b: CubeTensor, ph: usize, pw: usize) -> CubeTensor {
+    fn gpu_reflect_pad_pair(
+        a: CubeTensor,
+        b: CubeTensor,
+        ph: usize,
+        pw: usize,
+        map: ChannelMap,
+    ) -> CubeTensor {
         let [n, c, h, w] = a.meta.shape().dims::<4>();
+        let mut offset = vec![0.0f32; c.max(3)];
+        offset[..3].copy_from_slice(&map.offset);
+        assert!(
+            offset[c..].iter().all(|&o| o == 0.0),
+            "offsets for the input's channels only"
+        );
+        let offset = upload_f32(&a, offset);
         assert_eq!(
             [n, c, h, w],
             b.meta.shape().dims::<4>(),
@@ -888,6 +931,9 @@ impl GpuOps for CubeBackend {
             out.clone().into_tensor_arg(),
             ph as u32,
             pw as u32,
+            map.scale,
+            offset.into_tensor_arg(),
+            map.reverse as u32,
         );
         out
     }
@@ -897,6 +943,7 @@ impl GpuOps for CubeBackend {
         second: bool,
         ph: usize,
         pw: usize,
+        map: ChannelMap,
     ) -> CubeTensor {
         let [n2, c, oh, ow] = grad.meta.shape().dims::<4>();
         let n = n2 / 2;
@@ -911,6 +958,8 @@ impl GpuOps for CubeBackend {
             if second { n as u32 } else { 0 },
             ph as u32,
             pw as u32,
+            map.scale,
+            map.reverse as u32,
         );
         gin
     }
@@ -1210,6 +1259,7 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         b: FloatTensor<Self>,
         ph: usize,
         pw: usize,
+        map: ChannelMap,
     ) -> FloatTensor<Self> {
         let guards = [a.node(), b.node()];
         let (a, b) = (a.into_primitive(), b.into_primitive());
@@ -1218,8 +1268,11 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
             .compute_bound()
             .stateful()
         {
-            OpsKind::Tracked(prep) => prep.finish((ph, pw), B::gpu_reflect_pad_pair(a, b, ph, pw)),
-            OpsKind::UnTracked(prep) => prep.finish(B::gpu_reflect_pad_pair(a, b, ph, pw)),
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_reflect_pad_pair(a, b, ph, pw, map);
+                prep.finish((ph, pw, map), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_reflect_pad_pair(a, b, ph, pw, map)),
         }
     }
 
@@ -1228,6 +1281,7 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         _second: bool,
         _ph: usize,
         _pw: usize,
+        _map: ChannelMap,
     ) -> FloatTensor<Self> {
         unimplemented!("second-order gradients of the padding")
     }
@@ -1365,22 +1419,20 @@ impl<B: Backend + GpuOps> Backward<B, 1> for ViewMaxBackward {
 struct PadPairBackward;
 
 impl<B: Backend + GpuOps> Backward<B, 2> for PadPairBackward {
-    /// The padding's rows and columns per side.
-    type State = (usize, usize);
+    /// The padding's rows and columns per side, and the channel map.
+    type State = (usize, usize, ChannelMap);
 
     fn backward(self, ops: Ops<Self::State, 2>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [a, b] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
-        let (ph, pw) = ops.state;
+        let (ph, pw, map) = ops.state;
         if let Some(node) = a {
-            let g = B::gpu_reflect_pad_pair_backward(grad.clone(), false, ph, pw);
+            let g = B::gpu_reflect_pad_pair_backward(grad.clone(), false, ph, pw, map);
             grads.register::<B>(node.id, g);
         }
         if let Some(node) = b {
-            grads.register::<B>(
-                node.id,
-                B::gpu_reflect_pad_pair_backward(grad, true, ph, pw),
-            );
+            let g = B::gpu_reflect_pad_pair_backward(grad, true, ph, pw, map);
+            grads.register::<B>(node.id, g);
         }
     }
 }
