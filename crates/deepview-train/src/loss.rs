@@ -191,6 +191,10 @@ fn vgg_feature_loss(
     // One VGG pass over prediction and target together.
     let f = padded_pair_features(vgg, pred, target);
     let l1 = |t: Tensor<4>| {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if deepview_net::gpu::gpu_kernels(&t.device()) {
+            return deepview_net::gpu::pair_l1(t);
+        }
         let d = t.dims()[0] / 2;
         (t.clone().narrow(0, 0, d) - t.narrow(0, d, d))
             .abs()

@@ -1035,3 +1035,68 @@ pub(super) fn sum_squares_kernel(t: &Tensor<f32>, acc: &mut Tensor<f32>, slot: u
         acc[usize::cast_from(slot)] = shared[0];
     }
 }
+
+/// The L1 distance between the two halves of `f` `[2n, C, h, w]` per example: `out[e]` =
+/// `sum |f[e] - f[n + e]|` over its `C x h x w` values (the feature loss's per-layer term). One cube of
+/// 256 units per example, each summing a strided share (channels fastest), then a tree in shared
+/// memory.
+#[cube(launch)]
+pub(super) fn pair_l1_kernel(f: &Tensor<f32>, out: &mut Tensor<f32>) {
+    let (c, h, w) = (f.shape(1), f.shape(2), f.shape(3));
+    let n = f.shape(0) / 2;
+    let e = CUBE_POS_X as usize;
+    let u = UNIT_POS_X as usize;
+    let threads = CUBE_DIM_X as usize;
+    let m = c * h * w;
+    let (s0, s1, s2, s3) = (f.stride(0), f.stride(1), f.stride(2), f.stride(3));
+    let mut s = 0.0f32;
+    let mut j = u;
+    while j < m {
+        let (_, y, x, ch) = channels_fastest(j, c, h, w);
+        let o = ch * s1 + y * s2 + x * s3;
+        s += (f[e * s0 + o] - f[(n + e) * s0 + o]).abs();
+        j += threads;
+    }
+    let mut shared = Shared::<[f32]>::new_slice(256usize);
+    shared[u] = s;
+    sync_cube();
+    for k in 0..8u32 {
+        let half = usize::cast_from(128u32 >> k);
+        if u < half {
+            shared[u] += shared[u + half];
+        }
+        sync_cube();
+    }
+    if u == 0 {
+        out[e] = shared[0];
+    }
+}
+
+/// The gradient of [`pair_l1_kernel`] at `f`, given the output's `grad` `[n]`: `sign(d) * grad[e]` for
+/// the first half and its negation for the second, `d = f[e] - f[n + e]` (0 where `d` is: burn's `abs`).
+/// One thread per pair of values.
+#[cube(launch)]
+pub(super) fn pair_l1_backward_kernel(f: &Tensor<f32>, grad: &Tensor<f32>, gin: &mut Tensor<f32>) {
+    let (c, h, w) = (f.shape(1), f.shape(2), f.shape(3));
+    let n = f.shape(0) / 2;
+    let m = c * h * w;
+    let pos = ABSOLUTE_POS;
+    if pos >= n * m {
+        terminate!();
+    }
+    let (e, y, x, ch) = channels_fastest(pos, c, h, w);
+    let s0 = f.stride(0);
+    let o = ch * f.stride(1) + y * f.stride(2) + x * f.stride(3);
+    let d = f[e * s0 + o] - f[(n + e) * s0 + o];
+    let mut g = 0.0f32;
+    if d > 0.0f32 {
+        g = grad[e];
+    }
+    if d < 0.0f32 {
+        g = -grad[e];
+    }
+    let i0 = gin.stride(0);
+    let oi = ch * gin.stride(1) + y * gin.stride(2) + x * gin.stride(3);
+    gin[e * i0 + oi] = g;
+    gin[(n + e) * i0 + oi] = -g;
+}

@@ -15,7 +15,7 @@
 //! - Adam's step of a parameter (the training's optimizer on a GPU) and each gradient's share of the
 //!   global norm (one dispatch per parameter into one buffer, read once);
 //! - the feature loss's input: prediction and target reflect-padded, concatenated and preprocessed for
-//!   VGG, and its backward.
+//!   VGG, and its per-layer L1 terms, with their backward.
 //!
 //! burn's ops stay the reference: the tests compare each kernel's outputs (and gradients) with them.
 
@@ -187,6 +187,14 @@ pub trait GpuOps: Backend {
         map: ChannelMap,
     ) -> FloatTensor<Self>;
 
+    /// The feature loss's per-layer term: `[n]`, the L1 distance between the two halves of `f`
+    /// `[2n, C, h, w]` per example (prediction against target), one dispatch each way (burn: a
+    /// subtraction, an absolute value, a layout copy and a sum, and more backward).
+    fn gpu_pair_l1(f: FloatTensor<Self>) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_pair_l1`] at `f`, given the output's.
+    fn gpu_pair_l1_backward(f: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
+
     /// The sum of the squares of `t`'s elements (any rank) written into element `slot` of `acc` (a
     /// rank-1 tensor), in one dispatch; returns `acc`. No gradient (a gradient's share of the global
     /// norm).
@@ -296,6 +304,11 @@ pub fn reflect_pad_pair(
         pw,
         map,
     ))
+}
+
+/// [`GpuOps::gpu_pair_l1`]: per example, the L1 distance between the two halves of `f` `[2n, ..]`.
+pub fn pair_l1(f: Tensor<4>) -> Tensor<1> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_pair_l1(f.into_dispatch()))
 }
 
 /// The squared global norm of `tensors` (any ranks, on one cubecl device): one dispatch per tensor
@@ -964,6 +977,35 @@ impl GpuOps for CubeBackend {
         gin
     }
 
+    fn gpu_pair_l1(f: CubeTensor) -> CubeTensor {
+        let n = f.meta.shape()[0] / 2;
+        let out = empty_shaped(&f, Shape::new([n]));
+        kernels::pair_l1_kernel::launch(
+            &out.client,
+            CubeCount::Static(n as u32, 1, 1),
+            CubeDim::new_1d(256),
+            f.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+        );
+        out
+    }
+
+    fn gpu_pair_l1_backward(f: CubeTensor, grad: CubeTensor) -> CubeTensor {
+        // In the features' layout (a convolution's, channels last), as the ReLU's backward reads it.
+        let f = dense(f);
+        let gin = empty_same_layout(&f);
+        let (count, dim) = grid(&f, f.meta.shape().num_elements() / 2);
+        kernels::pair_l1_backward_kernel::launch(
+            &gin.client,
+            count,
+            dim,
+            f.into_tensor_arg(),
+            grad.into_tensor_arg(),
+            gin.clone().into_tensor_arg(),
+        );
+        gin
+    }
+
     fn gpu_sum_squares_into(t: CubeTensor, acc: CubeTensor, slot: usize) -> CubeTensor {
         assert!(
             acc.meta.num_dims() == 1 && slot < acc.meta.shape()[0] && acc.is_contiguous(),
@@ -1286,6 +1328,26 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         unimplemented!("second-order gradients of the padding")
     }
 
+    fn gpu_pair_l1(f: FloatTensor<Self>) -> FloatTensor<Self> {
+        let guards = [f.node()];
+        let f = f.into_primitive();
+        match PairL1Backward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_pair_l1(f.clone());
+                prep.finish(f, out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_pair_l1(f)),
+        }
+    }
+
+    fn gpu_pair_l1_backward(_f: FloatTensor<Self>, _grad: FloatTensor<Self>) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of the feature loss")
+    }
+
     fn gpu_sum_squares_into(
         t: FloatTensor<Self>,
         acc: FloatTensor<Self>,
@@ -1411,6 +1473,22 @@ impl<B: Backend + GpuOps> Backward<B, 1> for ViewMaxBackward {
         let (f, views, keep) = ops.state;
         if let Some(node) = node {
             grads.register::<B>(node.id, B::gpu_view_max_backward(f, grad, views, keep));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct PairL1Backward;
+
+impl<B: Backend + GpuOps> Backward<B, 1> for PairL1Backward {
+    /// The features.
+    type State = FloatTensor<B>;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::gpu_pair_l1_backward(ops.state, grad));
         }
     }
 }

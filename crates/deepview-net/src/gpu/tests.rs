@@ -710,3 +710,71 @@ fn wgpu_squared_norms_equal_host_sums() {
         "device {got}, host {host}"
     );
 }
+
+/// The feature loss's per-layer term on wgpu (one reduction kernel, one backward) equals burn's
+/// subtraction, absolute value and sum on the CPU: values and gradients, with some pairs equal (burn's
+/// `abs` has no gradient there), for a contiguous input and a channels-last one (a convolution's
+/// output: VGG's features), with more values per example than the cube's 256 units and fewer.
+#[test]
+fn wgpu_pair_l1_equals_burns_ops() {
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    for (n, c, h, w, last) in [
+        (2, 5, 6, 7, false),
+        (1, 16, 9, 11, true),
+        (3, 2, 3, 4, true),
+    ] {
+        let dims = [2 * n, c, h, w];
+        let len: usize = dims.iter().product();
+        let mut v = to_vec(Tensor::<1>::random(
+            [len],
+            Distribution::Uniform(-1.0, 1.0),
+            &cpu,
+        ));
+        // Every 7th pair equal: zero difference (values in [N, C, h, w] order).
+        for i in (0..len / 2).step_by(7) {
+            v[len / 2 + i] = v[i];
+        }
+        let weights = to_vec(Tensor::<1>::random(
+            [n],
+            Distribution::Uniform(0.5, 2.0),
+            &cpu,
+        ));
+        let run = |dev: &Device, kernel: bool| {
+            let ad = dev.clone().autodiff();
+            let t = Tensor::<4>::from_data(TensorData::new(v.clone(), dims), &ad).require_grad();
+            // Channels-last in memory, the same values: an identity 1x1 convolution's output.
+            let f = if last {
+                let eye: Vec<f32> = (0..c * c)
+                    .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
+                    .collect();
+                let w = Tensor::<4>::from_data(TensorData::new(eye, [c, c, 1, 1]), &ad);
+                let opts = burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
+                burn::tensor::module::conv2d(t.clone(), w, None, opts)
+            } else {
+                t.clone()
+            };
+            let l = if kernel {
+                crate::gpu::pair_l1(f)
+            } else {
+                (f.clone().narrow(0, 0, n) - f.narrow(0, n, n))
+                    .abs()
+                    .reshape([n as i32, -1])
+                    .sum_dim(1)
+                    .reshape([n])
+            };
+            let out = to_vec(l.clone().inner());
+            let wt = Tensor::<1>::from_data(TensorData::new(weights.clone(), [n]), &ad);
+            let grads = (l * wt).sum().backward();
+            (out, to_vec(t.grad(&grads).unwrap()))
+        };
+        let (want, want_grad) = run(&cpu, false);
+        let (got, got_grad) = run(&gpu, true);
+        let what = format!("{dims:?}, channels last {last}");
+        for (a, b) in want.iter().zip(&got) {
+            assert!((a - b).abs() <= 1e-5 * a.abs(), "{what}: {a} vs {b}");
+        }
+        assert_eq!(max_diff(&want_grad, &got_grad), 0.0, "gradient, {what}");
+        assert!(want_grad.iter().any(|&g| g == 0.0) && want_grad.iter().any(|&g| g != 0.0));
+    }
+}
