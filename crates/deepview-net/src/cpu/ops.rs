@@ -146,6 +146,14 @@ pub fn fast_device(device: &Device) -> bool {
 /// of VGG-16): through the custom kernels on the CPU, through burn's ops elsewhere.
 pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act: Act) -> Tensor<4> {
     if !fast_device(&x.device()) {
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        let y = match &conv.bias {
+            Some(b) if crate::gpu::gpu_kernels(&x.device()) && same_3x3(conv) => {
+                crate::gpu::conv3x3(x, conv.weight.val(), b.val())
+            }
+            _ => conv.forward(x),
+        };
+        #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
         let y = conv.forward(x);
         return match act {
             Act::Linear => y,
@@ -169,6 +177,20 @@ pub fn conv3x3_act(x: Tensor<4>, conv: &Conv2d, act: Act) -> Tensor<4> {
         b.into_dispatch(),
         act_code(act),
     ))
+}
+
+/// Whether `conv` is a 3x3 convolution with stride 1 and padding 1 (`crate::gpu::conv3x3`'s).
+#[cfg(any(feature = "wgpu", feature = "cuda"))]
+fn same_3x3(conv: &Conv2d) -> bool {
+    use burn::nn::PaddingConfig2d;
+    conv.kernel_size == [3, 3]
+        && conv.stride == [1, 1]
+        && conv.dilation == [1, 1]
+        && conv.groups == 1
+        && matches!(
+            conv.padding,
+            PaddingConfig2d::Same | PaddingConfig2d::Explicit(1, 1, 1, 1)
+        )
 }
 
 /// The values of a flex tensor, borrowed when contiguous (no copy), and its shape.

@@ -1100,3 +1100,20 @@ pub(super) fn pair_l1_backward_kernel(f: &Tensor<f32>, grad: &Tensor<f32>, gin: 
     gin[e * i0 + oi] = g;
     gin[(n + e) * i0 + oi] = -g;
 }
+
+/// A convolution's weights `w` `[O, I, kh, kw]` as the weights of its gradient at the input (a
+/// convolution of the output's gradient, for stride 1): `out` `[I, O, kh, kw]`, out[i, o, y, x] =
+/// w[o, i, kh - 1 - y, kw - 1 - x]. One thread per weight, channels fastest (`out` is channels-last).
+#[cube(launch)]
+pub(super) fn flip_transpose_kernel(w: &Tensor<f32>, out: &mut Tensor<f32>) {
+    let (ni, no, kh, kw) = (out.shape(0), out.shape(1), out.shape(2), out.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= ni * no * kh * kw {
+        terminate!();
+    }
+    let (i, y, x, o) = channels_fastest(pos, no, kh, kw);
+    let src =
+        o * w.stride(0) + i * w.stride(1) + (kh - 1 - y) * w.stride(2) + (kw - 1 - x) * w.stride(3);
+    let dst = i * out.stride(0) + o * out.stride(1) + y * out.stride(2) + x * out.stride(3);
+    out[dst] = w[src];
+}

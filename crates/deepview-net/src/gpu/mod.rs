@@ -187,6 +187,24 @@ pub trait GpuOps: Backend {
         map: ChannelMap,
     ) -> FloatTensor<Self>;
 
+    /// A 3x3 convolution with stride 1 and padding 1 (every convolution of the nets and of VGG):
+    /// `x` `[N, I, h, w]`, `weight` `[O, I, 3, 3]`, `bias` `[O]` -> `[N, O, h, w]`, burn's forward. Its
+    /// gradient at `x` is the convolution of the output's gradient with the weights flipped and
+    /// transposed ([`GpuOps::gpu_conv3x3_x_backward`]: burn's forward kernel, where burn's own
+    /// backward takes its slower transposed convolution); at the weights and bias, burn's.
+    fn gpu_conv3x3(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_conv3x3`] at its input, given the output's: two dispatches (the
+    /// weights flipped and transposed, channels-last; the convolution).
+    fn gpu_conv3x3_x_backward(
+        weight: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self>;
+
     /// The feature loss's per-layer term: `[n]`, the L1 distance between the two halves of `f`
     /// `[2n, C, h, w]` per example (prediction against target), one dispatch each way (burn: a
     /// subtraction, an absolute value, a layout copy and a sum, and more backward).
@@ -304,6 +322,20 @@ pub fn reflect_pad_pair(
         pw,
         map,
     ))
+}
+
+/// [`GpuOps::gpu_conv3x3`] on a cubecl device: a 3x3 convolution, stride 1, padding 1, with bias.
+pub(crate) fn conv3x3(x: Tensor<4>, weight: Tensor<4>, bias: Tensor<1>) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_conv3x3(
+        x.into_dispatch(),
+        weight.into_dispatch(),
+        bias.into_dispatch(),
+    ))
+}
+
+/// The options of [`GpuOps::gpu_conv3x3`]'s convolutions: stride 1, padding 1.
+fn same3x3() -> burn::backend::ops::ConvOptions<2> {
+    burn::backend::ops::ConvOptions::new([1, 1], [1, 1], [1, 1], 1)
 }
 
 /// [`GpuOps::gpu_pair_l1`]: per example, the L1 distance between the two halves of `f` `[2n, ..]`.
@@ -977,6 +1009,25 @@ impl GpuOps for CubeBackend {
         gin
     }
 
+    fn gpu_conv3x3(x: CubeTensor, weight: CubeTensor, bias: CubeTensor) -> CubeTensor {
+        <Self as burn::backend::ops::ModuleOps<Self>>::conv2d(x, weight, Some(bias), same3x3())
+    }
+
+    fn gpu_conv3x3_x_backward(weight: CubeTensor, grad: CubeTensor) -> CubeTensor {
+        let [o, i, kh, kw] = weight.meta.shape().dims::<4>();
+        assert_eq!([kh, kw], [3, 3], "a 3x3 convolution");
+        let flipped = permute_nhwc_to_nchw(empty_shaped(&weight, Shape::new([i, kh, kw, o])));
+        let (count, dim) = grid(&weight, o * i * kh * kw);
+        kernels::flip_transpose_kernel::launch(
+            &flipped.client,
+            count,
+            dim,
+            weight.into_tensor_arg(),
+            flipped.clone().into_tensor_arg(),
+        );
+        <Self as burn::backend::ops::ModuleOps<Self>>::conv2d(grad, flipped, None, same3x3())
+    }
+
     fn gpu_pair_l1(f: CubeTensor) -> CubeTensor {
         let n = f.meta.shape()[0] / 2;
         let out = empty_shaped(&f, Shape::new([n]));
@@ -1328,6 +1379,37 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         unimplemented!("second-order gradients of the padding")
     }
 
+    fn gpu_conv3x3(
+        x: FloatTensor<Self>,
+        weight: FloatTensor<Self>,
+        bias: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        let guards = [x.node(), weight.node(), bias.node()];
+        let (x, weight, bias) = (
+            x.into_primitive(),
+            weight.into_primitive(),
+            bias.into_primitive(),
+        );
+        match Conv3x3Backward
+            .prepare::<C>(guards)
+            .compute_bound()
+            .stateful()
+        {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_conv3x3(x.clone(), weight.clone(), bias.clone());
+                prep.finish((x, weight, bias), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_conv3x3(x, weight, bias)),
+        }
+    }
+
+    fn gpu_conv3x3_x_backward(
+        _weight: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of a convolution")
+    }
+
     fn gpu_pair_l1(f: FloatTensor<Self>) -> FloatTensor<Self> {
         let guards = [f.node()];
         let f = f.into_primitive();
@@ -1473,6 +1555,31 @@ impl<B: Backend + GpuOps> Backward<B, 1> for ViewMaxBackward {
         let (f, views, keep) = ops.state;
         if let Some(node) = node {
             grads.register::<B>(node.id, B::gpu_view_max_backward(f, grad, views, keep));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct Conv3x3Backward;
+
+impl<B: Backend + GpuOps> Backward<B, 3> for Conv3x3Backward {
+    /// The input, the weights and the bias.
+    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>);
+
+    fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [x_node, w_node, b_node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (x, weight, bias) = ops.state;
+        if let Some(node) = b_node {
+            let g = B::conv2d_bias_backward(x.clone(), bias, grad.clone());
+            grads.register::<B>(node.id, g);
+        }
+        if let Some(node) = w_node {
+            let g = B::conv2d_weight_backward(x, weight.clone(), grad.clone(), same3x3());
+            grads.register::<B>(node.id, g);
+        }
+        if let Some(node) = x_node {
+            grads.register::<B>(node.id, B::gpu_conv3x3_x_backward(weight, grad));
         }
     }
 }

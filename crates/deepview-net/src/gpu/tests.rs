@@ -778,3 +778,73 @@ fn wgpu_pair_l1_equals_burns_ops() {
         assert!(want_grad.contains(&0.0) && want_grad.iter().any(|&g| g != 0.0));
     }
 }
+
+/// The 3x3 convolution on wgpu (burn's forward; its input gradient as a convolution with the weights
+/// flipped and transposed) equals burn's `conv2d` on the CPU: values and the gradients at the input, the
+/// weights and the bias, with the input contiguous or channels-last, for channel counts of the nets
+/// and more.
+#[test]
+fn wgpu_conv3x3_equals_burns_conv() {
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    for (n, ci, co, h, w, last) in [
+        (3, 8, 8, 9, 7, false),
+        (2, 19, 8, 6, 11, true),
+        (1, 4, 13, 5, 5, true),
+    ] {
+        let rand = |len: usize| {
+            to_vec(Tensor::<1>::random(
+                [len],
+                Distribution::Uniform(-1.0, 1.0),
+                &cpu,
+            ))
+        };
+        let (vx, vw, vb) = (rand(n * ci * h * w), rand(co * ci * 9), rand(co));
+        let seed = rand(n * co * h * w);
+        let run = |dev: &Device, kernel: bool| {
+            let ad = dev.clone().autodiff();
+            let x = Tensor::<4>::from_data(TensorData::new(vx.clone(), [n, ci, h, w]), &ad)
+                .require_grad();
+            let wt = Tensor::<4>::from_data(TensorData::new(vw.clone(), [co, ci, 3, 3]), &ad)
+                .require_grad();
+            let b = Tensor::<1>::from_data(TensorData::new(vb.clone(), [co]), &ad).require_grad();
+            let input = if last {
+                // The same values, channels-last in memory: an identity 1x1 convolution's output.
+                let eye: Vec<f32> = (0..ci * ci)
+                    .map(|i| if i / ci == i % ci { 1.0 } else { 0.0 })
+                    .collect();
+                let e = Tensor::<4>::from_data(TensorData::new(eye, [ci, ci, 1, 1]), &ad);
+                let opts = burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
+                burn::tensor::module::conv2d(x.clone(), e, None, opts)
+            } else {
+                x.clone()
+            };
+            let y = if kernel {
+                crate::gpu::conv3x3(input, wt.clone(), b.clone())
+            } else {
+                let opts = burn::tensor::ops::ConvOptions::new([1, 1], [1, 1], [1, 1], 1);
+                burn::tensor::module::conv2d(input, wt.clone(), Some(b.clone()), opts)
+            };
+            let out = to_vec(y.clone().inner());
+            let s = Tensor::<4>::from_data(TensorData::new(seed.clone(), [n, co, h, w]), &ad);
+            let grads = (y * s).sum().backward();
+            (
+                out,
+                to_vec(x.grad(&grads).unwrap()),
+                to_vec(wt.grad(&grads).unwrap()),
+                b.grad(&grads)
+                    .unwrap()
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .unwrap(),
+            )
+        };
+        let want = run(&cpu, false);
+        let got = run(&gpu, true);
+        let what = format!("{n}x{ci}x{h}x{w} -> {co}, channels last {last}");
+        assert!(max_diff(&want.0, &got.0) < 1e-5, "values, {what}");
+        assert!(max_diff(&want.1, &got.1) < 1e-5, "input gradient, {what}");
+        assert!(max_diff(&want.2, &got.2) < 1e-4, "weight gradient, {what}");
+        assert!(max_diff(&want.3, &got.3) < 1e-4, "bias gradient, {what}");
+    }
+}
