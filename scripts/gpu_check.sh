@@ -26,7 +26,7 @@
 # within 1/255 of the CPU engine's MPI (17/255 before tiles sampled exactly as the whole image does).
 #
 # then `run` with command `bash scripts/gpu_check.sh [STAGES]`, carry [".gpu", ".gl"], timeout_s 560; STAGES
-# is any of `infer train net torch dispatches tune vulkan` (default: the first four; the step timeouts add up to more than one call's 10
+# is any of `infer train net torch dispatches times tune vulkan` (default: the first four; the step timeouts add up to more than one call's 10
 # minutes, so on a slow build run `infer train` and `net torch` as two calls). Each step runs
 # under its own timeout; the log and the JSON lines come back in $OUT (gpu.log, bench.jsonl). Give the
 # machine back afterwards unless rerunning at once.
@@ -77,6 +77,14 @@ if want dispatches; then
   for p in cpu paper-kalantari; do
     log "dispatches $p"
     VGG=$(realpath "$VGG") timeout 200 bash scripts/dispatches.sh wgpu $p $B 2>&1 | head -25 | tee -a "$LOG"
+  done
+fi
+if want times; then
+  # Each kernel's time on the GPU (scripts/kernel_times.sh: cubecl's profiling logger, every launch timed):
+  # where a step's time goes, kernel by kernel, for the next kernels to write.
+  for p in cpu paper-kalantari; do
+    log "kernel times $p"
+    VGG=$(realpath "$VGG") CROP=32 timeout 200 bash scripts/kernel_times.sh wgpu $p $B 2 2>&1 | head -30 | tee -a "$LOG"
   done
 fi
 if want tune && [ -e .gpu/deepview-tune.xz ]; then
