@@ -1006,6 +1006,23 @@ pub(super) fn reflect_pad_backward_kernel(
     gin[o] = acc * scale;
 }
 
+/// The sum of `s` over the 256 units of a cube (`u` this unit's position), valid at unit 0: a tree in
+/// shared memory. Every unit must call it (it synchronises the cube).
+#[cube]
+fn cube_sum(s: f32, u: usize) -> f32 {
+    let mut shared = Shared::<[f32]>::new_slice(256usize);
+    shared[u] = s;
+    sync_cube();
+    for k in 0..8u32 {
+        let half = usize::cast_from(128u32 >> k);
+        if u < half {
+            shared[u] += shared[u + half];
+        }
+        sync_cube();
+    }
+    shared[0]
+}
+
 /// The sum of the squares of the `n` elements of the dense buffer `t`, into element `slot` of `acc`:
 /// one cube of 256 units, each summing a strided share, then a tree in shared memory (a gradient's
 /// share of the global norm, with no zero-fill, square, reduction and addition of its own).
@@ -1021,18 +1038,9 @@ pub(super) fn sum_squares_kernel(t: &Tensor<f32>, acc: &mut Tensor<f32>, slot: u
         s += v * v;
         i += threads;
     }
-    let mut shared = Shared::<[f32]>::new_slice(256usize);
-    shared[u] = s;
-    sync_cube();
-    for k in 0..8u32 {
-        let half = usize::cast_from(128u32 >> k);
-        if u < half {
-            shared[u] += shared[u + half];
-        }
-        sync_cube();
-    }
+    let total = cube_sum(s, u);
     if u == 0 {
-        acc[usize::cast_from(slot)] = shared[0];
+        acc[usize::cast_from(slot)] = total;
     }
 }
 
@@ -1057,18 +1065,9 @@ pub(super) fn pair_l1_kernel(f: &Tensor<f32>, out: &mut Tensor<f32>) {
         s += (f[e * s0 + o] - f[(n + e) * s0 + o]).abs();
         j += threads;
     }
-    let mut shared = Shared::<[f32]>::new_slice(256usize);
-    shared[u] = s;
-    sync_cube();
-    for k in 0..8u32 {
-        let half = usize::cast_from(128u32 >> k);
-        if u < half {
-            shared[u] += shared[u + half];
-        }
-        sync_cube();
-    }
+    let total = cube_sum(s, u);
     if u == 0 {
-        out[e] = shared[0];
+        out[e] = total;
     }
 }
 

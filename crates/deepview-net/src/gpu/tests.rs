@@ -8,6 +8,18 @@ fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_to_vec::<f32>().unwrap()
 }
 
+/// `t` with the same values laid out channels-last in memory, as a GPU convolution writes its output:
+/// the output of an identity 1x1 convolution (differentiable, so gradients reach `t`).
+fn channels_last_copy(t: Tensor<4>) -> Tensor<4> {
+    let c = t.dims()[1];
+    let eye: Vec<f32> = (0..c * c)
+        .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
+        .collect();
+    let w = Tensor::<4>::from_data(TensorData::new(eye, [c, c, 1, 1]), &t.device());
+    let opts = burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
+    burn::tensor::module::conv2d(t, w, None, opts)
+}
+
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
@@ -229,24 +241,11 @@ fn wgpu_activation_kernel_equals_burns_elu_and_relu() {
     // `channels_last`: the input is a convolution's output (an identity 1x1 convolution: the same
     // values, in a buffer that a GPU convolution writes channels last); `grad_last`: so is the weight
     // of the sum, whose layout the incoming gradient has.
-    let identity = |t: Tensor<4>| {
-        let c = dims[1];
-        let eye: Vec<f32> = (0..c * c)
-            .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
-            .collect();
-        let w = Tensor::<4>::from_data(TensorData::new(eye, [c, c, 1, 1]), &t.device());
-        burn::tensor::module::conv2d(
-            t,
-            w,
-            None,
-            burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1),
-        )
-    };
     let run = |dev: &Device, kernel: bool, channels_last: bool, grad_last: bool, relu: bool| {
         let ad = dev.clone().autodiff();
         let t = Tensor::<4>::from_data(TensorData::new(x.clone(), dims), &ad).require_grad();
         let input = if channels_last {
-            identity(t.clone())
+            channels_last_copy(t.clone())
         } else {
             t.clone()
         };
@@ -258,7 +257,11 @@ fn wgpu_activation_kernel_equals_burns_elu_and_relu() {
         };
         let out = to_vec(y.clone().inner());
         let wt = Tensor::<4>::from_data(TensorData::new(seed.clone(), dims), &ad);
-        let wt = if grad_last { identity(wt) } else { wt };
+        let wt = if grad_last {
+            channels_last_copy(wt)
+        } else {
+            wt
+        };
         let grads = (y * wt).sum().backward();
         (out, to_vec(t.grad(&grads).unwrap()))
     };
@@ -743,14 +746,8 @@ fn wgpu_pair_l1_equals_burns_ops() {
         let run = |dev: &Device, kernel: bool| {
             let ad = dev.clone().autodiff();
             let t = Tensor::<4>::from_data(TensorData::new(v.clone(), dims), &ad).require_grad();
-            // Channels-last in memory, the same values: an identity 1x1 convolution's output.
             let f = if last {
-                let eye: Vec<f32> = (0..c * c)
-                    .map(|i| if i / c == i % c { 1.0 } else { 0.0 })
-                    .collect();
-                let w = Tensor::<4>::from_data(TensorData::new(eye, [c, c, 1, 1]), &ad);
-                let opts = burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
-                burn::tensor::module::conv2d(t.clone(), w, None, opts)
+                channels_last_copy(t.clone())
             } else {
                 t.clone()
             };
@@ -809,13 +806,7 @@ fn wgpu_conv3x3_equals_burns_conv() {
                 .require_grad();
             let b = Tensor::<1>::from_data(TensorData::new(vb.clone(), [co]), &ad).require_grad();
             let input = if last {
-                // The same values, channels-last in memory: an identity 1x1 convolution's output.
-                let eye: Vec<f32> = (0..ci * ci)
-                    .map(|i| if i / ci == i % ci { 1.0 } else { 0.0 })
-                    .collect();
-                let e = Tensor::<4>::from_data(TensorData::new(eye, [ci, ci, 1, 1]), &ad);
-                let opts = burn::tensor::ops::ConvOptions::new([1, 1], [0, 0], [1, 1], 1);
-                burn::tensor::module::conv2d(x.clone(), e, None, opts)
+                channels_last_copy(x.clone())
             } else {
                 x.clone()
             };
