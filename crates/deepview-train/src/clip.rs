@@ -58,7 +58,7 @@ impl ModuleVisitor for GpuGradients<'_> {
 
 /// `sqrt(sum over all parameters of |grad|^2)`, over the parameters of `module` that have a gradient.
 /// Non-finite if any gradient is. Each parameter's f32 sum is added in f64: on the CPU as each is
-/// read; with our GPU kernels the sums go into one buffer on the device (a dispatch per parameter),
+/// read; with our GPU kernels the sums go into one buffer on the device (one dispatch per 32 parameters),
 /// read once; on other devices the sum stays on the device (f32) and is read once.
 pub fn global_norm<M: Module>(module: &M, grads: &GradientsParams) -> f64 {
     #[cfg(any(feature = "wgpu", feature = "cuda"))]

@@ -1023,24 +1023,39 @@ fn cube_sum(s: f32, u: usize) -> f32 {
     shared[0]
 }
 
-/// The sum of the squares of the `n` elements of the dense buffer `t`, into element `slot` of `acc`:
-/// one cube of 256 units, each summing a strided share, then a tree in shared memory (a gradient's
-/// share of the global norm, with no zero-fill, square, reduction and addition of its own).
+/// The sums of the squares of several dense buffers in one dispatch: cube `k` of 256 units sums the
+/// squares of `ts[k]` (each unit a strided share, then a tree in shared memory) into element
+/// `first + k` of `acc` (the gradients' shares of the global norm, as many per
+/// launch as the device binds buffers).
 #[cube(launch)]
-pub(super) fn sum_squares_kernel(t: &Tensor<f32>, acc: &mut Tensor<f32>, slot: u32, n: u32) {
+pub(super) fn sum_squares_many_kernel(
+    ts: &Sequence<OwnedTensor<f32>>,
+    acc: &mut Tensor<f32>,
+    first: u32,
+) {
     let u = UNIT_POS_X as usize;
     let threads = CUBE_DIM_X as usize;
-    let len = usize::cast_from(n);
+    let which = CUBE_POS_X as usize;
     let mut s = 0.0f32;
-    let mut i = u;
-    while i < len {
-        let v = t[i];
-        s += v * v;
-        i += threads;
+    #[unroll]
+    for k in 0..ts.len() {
+        if which == k {
+            let t = ts.index(k);
+            let mut len = 1usize;
+            for d in 0..t.rank() {
+                len *= t.shape(d);
+            }
+            let mut i = u;
+            while i < len {
+                let v = t[i];
+                s += v * v;
+                i += threads;
+            }
+        }
     }
     let total = cube_sum(s, u);
     if u == 0 {
-        acc[usize::cast_from(slot)] = total;
+        acc[usize::cast_from(first) + which] = total;
     }
 }
 

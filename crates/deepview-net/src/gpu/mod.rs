@@ -27,7 +27,10 @@ use burn::backend::autodiff::grads::Gradients;
 use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
 use burn::backend::ops::FloatTensorOps;
 use burn::backend::tensor::FloatTensor;
-use burn::backend::{Autodiff, Backend, Dispatch, DispatchDevice, backend_extension};
+use burn::backend::{
+    Autodiff, Backend, BackendTensor, Dispatch, DispatchAutodiffContext, DispatchDevice,
+    DispatchTensor, DispatchTensorKind, backend_extension,
+};
 use burn::tensor::{Device, Shape, Tensor, TensorData};
 use burn_cubecl::CubeBackend;
 use burn_cubecl::kernel::into_contiguous;
@@ -213,15 +216,6 @@ pub trait GpuOps: Backend {
     /// The gradient of [`GpuOps::gpu_pair_l1`] at `f`, given the output's.
     fn gpu_pair_l1_backward(f: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
 
-    /// The sum of the squares of `t`'s elements (any rank) written into element `slot` of `acc` (a
-    /// rank-1 tensor), in one dispatch; returns `acc`. No gradient (a gradient's share of the global
-    /// norm).
-    fn gpu_sum_squares_into(
-        t: FloatTensor<Self>,
-        acc: FloatTensor<Self>,
-        slot: usize,
-    ) -> FloatTensor<Self>;
-
     /// One Adam step of a parameter (any rank): `(param, moment_1, moment_2)` after the step, in one
     /// dispatch where burn's `Adam` takes a dozen, in the parameter's layout (channels-last for a
     /// rank-4 one, taken on its first step), the gradient read in its own. No gradient (the optimizer
@@ -343,19 +337,70 @@ pub fn pair_l1(f: Tensor<4>) -> Tensor<1> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_pair_l1(f.into_dispatch()))
 }
 
-/// The squared global norm of `tensors` (any ranks, on one cubecl device): one dispatch per tensor
-/// (each tensor's f32 sum of squares into a slot of one buffer) and one read of that buffer, the
-/// per-tensor sums added in f64 as the CPU path adds them.
+/// The squared global norm of `tensors` (any ranks, on one cubecl device): each tensor's f32 sum of
+/// squares into a slot of one buffer (one dispatch for as many tensors as the device binds at once)
+/// and one read of that buffer, the per-tensor sums added in f64 as the CPU path adds them.
 pub fn squared_norms(tensors: Vec<burn::tensor::DispatchTensor>, device: &Device) -> f64 {
     if tensors.is_empty() {
         return 0.0;
     }
-    let mut acc = Tensor::<1>::zeros([tensors.len()], device).into_dispatch();
-    for (slot, t) in tensors.into_iter().enumerate() {
-        acc = <Dispatch as GpuOps>::gpu_sum_squares_into(t, acc, slot);
-    }
+    // Several tensors per dispatch, which burn's backend extensions cannot take (no `Vec` of
+    // tensors): the cubecl tensors are taken out of their dispatch wrappers here.
+    let acc = cube_float(Tensor::<1>::zeros([tensors.len()], device).into_dispatch());
+    let acc = sum_squares_into(tensors.into_iter().map(cube_float).collect(), acc, 0);
+    let acc = DispatchTensor {
+        kind: DispatchTensorKind::Cube(BackendTensor::Float(acc)),
+        autodiff: DispatchAutodiffContext::Disabled,
+    };
     let sums = Tensor::<1>::from_dispatch(acc).into_data();
     sums.iter::<f32>().map(f64::from).sum()
+}
+
+/// The sum of the squares of each of `ts`'s elements (dense, any ranks) written into elements
+/// `first..` of `acc` (a contiguous rank-1 tensor): one dispatch for as many tensors as the device
+/// binds (at most 32); returns `acc`.
+fn sum_squares_into(ts: Vec<CubeTensor>, acc: CubeTensor, first: usize) -> CubeTensor {
+    assert!(
+        acc.meta.num_dims() == 1 && first + ts.len() <= acc.meta.shape()[0] && acc.is_contiguous(),
+        "slots of a contiguous rank-1 tensor"
+    );
+    // One buffer of the device's bindings is `acc`; at most 32 tensors per launch bounds the
+    // unrolled kernel (each count of tensors and their ranks is one compiled variant).
+    let per_launch = (acc.client.properties().hardware.max_bindings as usize)
+        .saturating_sub(1)
+        .clamp(1, 32);
+    let mut slot = first;
+    let mut ts = ts.into_iter().map(dense).peekable();
+    while ts.peek().is_some() {
+        let mut seq = SequenceArg::<OwnedTensor<f32>>::new();
+        let mut count = 0;
+        for t in ts.by_ref().take(per_launch) {
+            seq.push(t.into_tensor_arg());
+            count += 1;
+        }
+        kernels::sum_squares_many_kernel::launch(
+            &acc.client,
+            CubeCount::Static(count as u32, 1, 1),
+            CubeDim::new_1d(256),
+            seq,
+            acc.clone().into_tensor_arg(),
+            slot as u32,
+        );
+        slot += count;
+    }
+    acc
+}
+
+/// The cubecl tensor of a float tensor of a cubecl device (an autodiff one's inner tensor).
+fn cube_float(t: DispatchTensor) -> CubeTensor {
+    fn inner(kind: DispatchTensorKind) -> CubeTensor {
+        match kind {
+            DispatchTensorKind::Cube(BackendTensor::Float(t)) => t,
+            DispatchTensorKind::Autodiff(kind) => inner(*kind),
+            other => panic!("a float tensor of a cubecl device, got {other:?}"),
+        }
+    }
+    inner(t.kind)
 }
 
 /// Whether tensors on `device` take our GPU kernels: a cubecl device (with or without autodiff),
@@ -1057,25 +1102,6 @@ impl GpuOps for CubeBackend {
         gin
     }
 
-    fn gpu_sum_squares_into(t: CubeTensor, acc: CubeTensor, slot: usize) -> CubeTensor {
-        assert!(
-            acc.meta.num_dims() == 1 && slot < acc.meta.shape()[0] && acc.is_contiguous(),
-            "a slot of a contiguous rank-1 tensor"
-        );
-        let t = dense(t);
-        let n = t.meta.shape().num_elements();
-        kernels::sum_squares_kernel::launch(
-            &acc.client,
-            CubeCount::Static(1, 1, 1),
-            CubeDim::new_1d(256),
-            t.into_tensor_arg(),
-            acc.clone().into_tensor_arg(),
-            slot as u32,
-            n as u32,
-        );
-        acc
-    }
-
     fn gpu_adam(
         param: CubeTensor,
         grad: CubeTensor,
@@ -1428,16 +1454,6 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
 
     fn gpu_pair_l1_backward(_f: FloatTensor<Self>, _grad: FloatTensor<Self>) -> FloatTensor<Self> {
         unimplemented!("second-order gradients of the feature loss")
-    }
-
-    fn gpu_sum_squares_into(
-        t: FloatTensor<Self>,
-        acc: FloatTensor<Self>,
-        slot: usize,
-    ) -> FloatTensor<Self> {
-        // Gradients are inner tensors; a tracked one is read untracked.
-        let out = B::gpu_sum_squares_into(t.into_primitive(), acc.into_primitive(), slot);
-        FloatTensor::<Self>::new(out)
     }
 
     fn gpu_adam(

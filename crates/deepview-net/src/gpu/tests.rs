@@ -687,9 +687,10 @@ fn wgpu_reflect_pad_pair_equals_burns_pad() {
     }
 }
 
-/// The global norm's squared sums on wgpu (a one-cube reduction per tensor into a shared buffer) equal
-/// f64 sums of squares on the host, for tensors of several ranks and sizes (one under the cube's 256
-/// units, one of many strides' worth), one given transposed in memory.
+/// The global norm's squared sums on wgpu (a one-cube reduction per tensor into a shared buffer, up to
+/// 32 tensors per dispatch) equal f64 sums of squares on the host, for tensors of several ranks and
+/// sizes (one under the cube's 256 units, one of many strides' worth), one given transposed in memory,
+/// and more tensors than one dispatch takes.
 #[test]
 fn wgpu_squared_norms_equal_host_sums() {
     let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
@@ -697,16 +698,27 @@ fn wgpu_squared_norms_equal_host_sums() {
     let a = Tensor::<1>::random([7], Distribution::Uniform(-2.0, 2.0), &cpu);
     let b = Tensor::<4>::random([8, 12, 3, 3], Distribution::Uniform(-1.0, 1.0), &cpu);
     let c = Tensor::<2>::random([300, 41], Distribution::Uniform(-0.5, 0.5), &cpu);
-    let host: f64 = [to_vec(a.clone()), to_vec(b.clone()), to_vec(c.clone())]
+    // 40 more of a few hundred values each, of growing scale: a slot written twice, or a chunk's
+    // sums put in another chunk's slots, changes the total.
+    let more: Vec<Tensor<2>> = (0..40)
+        .map(|i| {
+            let s = 0.1 * (i + 1) as f64;
+            Tensor::<2>::random([3 + i % 5, 50 + i], Distribution::Uniform(-s, s), &cpu)
+        })
+        .collect();
+    let mut values = vec![to_vec(a.clone()), to_vec(b.clone()), to_vec(c.clone())];
+    values.extend(more.iter().map(|t| to_vec(t.clone())));
+    let host: f64 = values
         .iter()
         .flatten()
         .map(|&v| f64::from(v) * f64::from(v))
         .sum();
-    let tensors = vec![
+    let mut tensors = vec![
         a.to_device(&gpu).into_dispatch(),
         b.to_device(&gpu).into_dispatch(),
         c.to_device(&gpu).transpose().into_dispatch(),
     ];
+    tensors.extend(more.into_iter().map(|t| t.to_device(&gpu).into_dispatch()));
     let got = crate::gpu::squared_norms(tensors, &gpu);
     assert!(
         (got - host).abs() <= 1e-6 * host,
