@@ -1,6 +1,7 @@
 //! The training's optimizer: Adam with TensorFlow's defaults (the paper's framework: beta 0.9 / 0.999,
 //! epsilon 1e-8). burn's `Adam` on the CPU; on a GPU each parameter's step is one kernel
-//! ([`deepview_net::gpu::adam`], burn's arithmetic in its order) where burn's takes a dozen dispatches.
+//! ([`deepview_net::gpu::adam`], burn's arithmetic in its order) where burn's takes a dozen dispatches,
+//! and inside the trainer's step ([`with_gradient_scale`]) up to 8 parameters share one dispatch.
 //! The state is burn's [`AdamState`], so checkpoints (`optimizer.bpk`) are the same either way.
 
 use burn::optim::{Adam, AdamConfig, AdamState, LearningRate, ModuleOptimizer, Optimizer};
@@ -26,8 +27,13 @@ pub fn scales_gradients(device: &Device) -> bool {
 /// Run `f` (an optimizer step on this thread, on a device where [`scales_gradients`]) with every
 /// gradient multiplied by `scale` inside the step: the global-norm clipping without a pass of its own
 /// over the gradients (which would also lose the layout a convolution's weight gradient comes in).
+/// With our GPU kernels the parameters' steps are launched together when `f` returns
+/// ([`deepview_net::gpu::adam_batch`]: a dispatch per 8 parameters rather than one each).
 pub fn with_gradient_scale<R>(scale: f32, f: impl FnOnce() -> R) -> R {
     GRADIENT_SCALE.with(|s| s.set(scale));
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    let r = deepview_net::gpu::adam_batch(f);
+    #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
     let r = f();
     GRADIENT_SCALE.with(|s| s.set(1.0));
     r
@@ -179,7 +185,8 @@ mod tests {
     }
 
     /// The Adam kernel on wgpu (lavapipe) steps a module as burn's `Adam` does on the CPU (first step
-    /// without state, then with it; gradients of very different sizes), and its state is burn's: saved
+    /// without state, then with it; gradients of very different sizes), one dispatch per parameter and
+    /// the parameters batched into one (the trainer's way), and its state is burn's: saved
     /// after two kernel steps and loaded into burn's optimizer on the CPU, the third step gives the same
     /// weights as three CPU steps.
     #[cfg(feature = "wgpu")]
@@ -201,15 +208,21 @@ mod tests {
         let mut oa = DeepviewAdam::burn_only().module_optimizer();
         let mut b = start.clone().fork(&gpu.clone().autodiff());
         let mut ob = DeepviewAdam::new().module_optimizer();
+        // The trainer's way: the parameters' steps batched into one dispatch.
+        let mut d = start.clone().fork(&gpu.clone().autodiff());
+        let mut od = DeepviewAdam::new().module_optimizer();
         for k in 0..2 {
             a = oa.step(lr, a, grads(&start, k, &cpu));
             b = ob.step(lr, b, grads(&start, k, &gpu));
-            let (va, vb) = (values(&a), values(&b));
-            let e = va
-                .iter()
-                .zip(&vb)
-                .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
-            assert!(e < 1e-6, "step {k}: weights differ by {e}");
+            d = with_gradient_scale(1.0, || od.step(lr, d, grads(&start, k, &gpu)));
+            for (other, how) in [(&b, "one dispatch each"), (&d, "batched")] {
+                let (va, vb) = (values(&a), values(other));
+                let e = va
+                    .iter()
+                    .zip(&vb)
+                    .fold(0f32, |m, (x, y)| m.max((x - y).abs()));
+                assert!(e < 1e-6, "step {k} ({how}): weights differ by {e}");
+            }
         }
         let moved = values(&a)
             .iter()

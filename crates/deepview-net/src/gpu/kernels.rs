@@ -881,6 +881,59 @@ pub(super) fn adam_kernel(
     p_out[i] = p[i] - ((m1 * combined) / (v1.sqrt() + epsilon)) * lr;
 }
 
+/// [`adam_kernel`] of several parameters in one dispatch: cube row `k` (`CUBE_POS_Y`) steps parameter
+/// `ps[k]` (dense, its moments in its layout, the gradient read through its strides) into `p_outs[k]`,
+/// `m_outs[k]` and `v_outs[k]`, one unit per element; every parameter takes the same step scalars.
+#[cube(launch)]
+#[allow(clippy::too_many_arguments)]
+pub(super) fn adam_many_kernel(
+    ps: &Sequence<OwnedTensor<f32>>,
+    gs: &Sequence<OwnedTensor<f32>>,
+    ms: &Sequence<OwnedTensor<f32>>,
+    vs: &Sequence<OwnedTensor<f32>>,
+    p_outs: &mut Sequence<OwnedTensor<f32>>,
+    m_outs: &mut Sequence<OwnedTensor<f32>>,
+    v_outs: &mut Sequence<OwnedTensor<f32>>,
+    beta_1: f32,
+    factor_1: f32,
+    beta_2: f32,
+    factor_2: f32,
+    combined: f32,
+    epsilon: f32,
+    lr: f32,
+    grad_scale: f32,
+) {
+    let which = CUBE_POS_Y as usize;
+    let i = (CUBE_POS_X * CUBE_DIM_X + UNIT_POS_X) as usize;
+    #[unroll]
+    for k in 0..ps.len() {
+        if which == k {
+            let p = ps.index(k);
+            let mut n = 1usize;
+            for d in 0..p.rank() {
+                n *= p.shape(d);
+            }
+            if i < n {
+                let g = gs.index(k);
+                let mut gi_at = 0usize;
+                for d in 0..p.rank() {
+                    gi_at += ((i / p.stride(d)) % p.shape(d)) * g.stride(d);
+                }
+                let gi = g[gi_at] * grad_scale;
+                let m1 = ms.index(k)[i] * beta_1 + gi * factor_1;
+                let v1 = vs.index(k)[i] * beta_2 + (gi * gi) * factor_2;
+                let p1 = p[i] - ((m1 * combined) / (v1.sqrt() + epsilon)) * lr;
+                let mo = m_outs.index_mut(k);
+                mo[i] = m1;
+                let vo = v_outs.index_mut(k);
+                vo[i] = v1;
+                let po = p_outs.index_mut(k);
+                po[i] = p1;
+            }
+        }
+    }
+}
+
 /// `i` reflected into `0..n` as reflection padding reads it (the edge not repeated: `-1 -> 1`,
 /// `n -> n - 2`; for `|i|` under `n` outside `0..n`).
 #[cube]

@@ -286,13 +286,19 @@ pub fn adam<const D: usize>(
     moment_2: Tensor<D>,
     step: AdamStep,
 ) -> (Tensor<D>, Tensor<D>, Tensor<D>) {
-    let (p, m, v) = <Dispatch as GpuOps>::gpu_adam(
-        param.into_dispatch(),
-        grad.into_dispatch(),
-        moment_1.into_dispatch(),
-        moment_2.into_dispatch(),
-        step,
-    );
+    let batching = ADAM_BATCH.with(|b| b.borrow().is_some());
+    let [param, grad, moment_1, moment_2] =
+        [param, grad, moment_1, moment_2].map(Tensor::into_dispatch);
+    if batching
+        && [&param, &grad, &moment_1, &moment_2]
+            .iter()
+            .all(|t| plain_cube(t))
+    {
+        let [p, m, v] = defer_adam([param, grad, moment_1, moment_2].map(cube_float), step)
+            .map(|t| Tensor::from_dispatch(plain_dispatch(t)));
+        return (p, m, v);
+    }
+    let (p, m, v) = <Dispatch as GpuOps>::gpu_adam(param, grad, moment_1, moment_2, step);
     (
         Tensor::from_dispatch(p),
         Tensor::from_dispatch(m),
@@ -337,6 +343,144 @@ pub fn pair_l1(f: Tensor<4>) -> Tensor<1> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_pair_l1(f.into_dispatch()))
 }
 
+/// An Adam step taken inside [`adam_batch`], waiting for its launch: the parameter, its gradient and
+/// moments, and the outputs already handed back.
+struct PendingAdam {
+    inputs: [CubeTensor; 4],
+    outputs: [CubeTensor; 3],
+    step: AdamStep,
+}
+
+thread_local! {
+    /// The Adam steps of the [`adam_batch`] running on this thread (`None` outside one).
+    static ADAM_BATCH: std::cell::RefCell<Option<Vec<PendingAdam>>> =
+        const { std::cell::RefCell::new(None) };
+}
+
+/// Run `f` with the Adam steps it takes through [`adam`] on cubecl devices gathered and launched
+/// together when it returns: one dispatch for as many parameters as the device binds (7 buffers
+/// each, at most 8 parameters) where each would take its own. What [`adam`] hands back inside `f` is
+/// written by that launch, so `f` must not read it (an optimizer's step over a module only stores
+/// it). Launches happen in submission order, so everything after `f` sees the stepped values.
+pub fn adam_batch<R>(f: impl FnOnce() -> R) -> R {
+    /// Ends the batch even if `f` panics (its steps are then dropped unlaunched).
+    struct Batch;
+    impl Drop for Batch {
+        fn drop(&mut self) {
+            ADAM_BATCH.with(|b| b.borrow_mut().take());
+        }
+    }
+    ADAM_BATCH.with(|b| *b.borrow_mut() = Some(Vec::new()));
+    let batch = Batch;
+    let r = f();
+    let pending = ADAM_BATCH
+        .with(|b| b.borrow_mut().take())
+        .unwrap_or_default();
+    drop(batch);
+    launch_adam_many(pending);
+    r
+}
+
+/// [`adam`] inside [`adam_batch`]: the parameter laid out as [`GpuOps::gpu_adam`] lays it out, the
+/// outputs allocated and handed back, the step queued.
+fn defer_adam(inputs: [CubeTensor; 4], step: AdamStep) -> [CubeTensor; 3] {
+    let [param, grad, moment_1, moment_2] = inputs;
+    let param = if param.meta.num_dims() == 4 {
+        <CubeBackend as GpuOps>::gpu_channels_last(param)
+    } else {
+        dense(param)
+    };
+    let [moment_1, moment_2] = [moment_1, moment_2].map(|t| like(t, &param));
+    let outputs = [(); 3].map(|_| empty_same_layout(&param));
+    ADAM_BATCH.with(|b| {
+        b.borrow_mut()
+            .as_mut()
+            .expect("inside adam_batch")
+            .push(PendingAdam {
+                inputs: [param, grad, moment_1, moment_2],
+                outputs: outputs.clone(),
+                step,
+            })
+    });
+    outputs
+}
+
+/// Launch the queued Adam steps: consecutive ones with the same scalars together, as many per
+/// dispatch as the device binds.
+fn launch_adam_many(pending: Vec<PendingAdam>) {
+    let Some(first) = pending.first() else {
+        return;
+    };
+    let per_launch =
+        (first.inputs[0].client.properties().hardware.max_bindings as usize / 7).clamp(1, 8);
+    let mut rest = pending.as_slice();
+    while let Some(head) = rest.first() {
+        let same = rest
+            .iter()
+            .take(per_launch)
+            .take_while(|p| p.step == head.step)
+            .count();
+        let (chunk, tail) = rest.split_at(same);
+        rest = tail;
+        let mut ins: [SequenceArg<OwnedTensor<f32>>; 4] = Default::default();
+        let mut outs: [SequenceArg<OwnedTensor<f32>>; 3] = Default::default();
+        let mut most = 1;
+        for p in chunk {
+            most = most.max(p.inputs[0].meta.shape().num_elements());
+            for (seq, t) in ins.iter_mut().zip(&p.inputs) {
+                seq.push(t.clone().into_tensor_arg());
+            }
+            for (seq, t) in outs.iter_mut().zip(&p.outputs) {
+                seq.push(t.clone().into_tensor_arg());
+            }
+        }
+        let [ps, gs, ms, vs] = ins;
+        let [p_outs, m_outs, v_outs] = outs;
+        let step = head.step;
+        let client = &head.inputs[0].client;
+        kernels::adam_many_kernel::launch(
+            client,
+            CubeCount::Static(most.div_ceil(256) as u32, chunk.len() as u32, 1),
+            CubeDim::new_1d(256),
+            ps,
+            gs,
+            ms,
+            vs,
+            p_outs,
+            m_outs,
+            v_outs,
+            step.beta_1,
+            1.0 - step.beta_1,
+            step.beta_2,
+            1.0 - step.beta_2,
+            step.combined,
+            step.epsilon,
+            step.lr,
+            step.grad_scale,
+        );
+    }
+}
+
+/// Whether `t` is a float tensor of a cubecl device outside autodiff (what [`cube_float`] unwraps and
+/// [`plain_dispatch`] wraps back unchanged).
+fn plain_cube(t: &DispatchTensor) -> bool {
+    matches!(
+        (&t.kind, &t.autodiff),
+        (
+            DispatchTensorKind::Cube(BackendTensor::Float(_)),
+            DispatchAutodiffContext::Disabled
+        )
+    )
+}
+
+/// A cubecl float tensor as a dispatch tensor outside autodiff.
+fn plain_dispatch(t: CubeTensor) -> DispatchTensor {
+    DispatchTensor {
+        kind: DispatchTensorKind::Cube(BackendTensor::Float(t)),
+        autodiff: DispatchAutodiffContext::Disabled,
+    }
+}
+
 /// The squared global norm of `tensors` (any ranks, on one cubecl device): each tensor's f32 sum of
 /// squares into a slot of one buffer (one dispatch for as many tensors as the device binds at once)
 /// and one read of that buffer, the per-tensor sums added in f64 as the CPU path adds them.
@@ -348,11 +492,7 @@ pub fn squared_norms(tensors: Vec<burn::tensor::DispatchTensor>, device: &Device
     // tensors): the cubecl tensors are taken out of their dispatch wrappers here.
     let acc = cube_float(Tensor::<1>::zeros([tensors.len()], device).into_dispatch());
     let acc = sum_squares_into(tensors.into_iter().map(cube_float).collect(), acc, 0);
-    let acc = DispatchTensor {
-        kind: DispatchTensorKind::Cube(BackendTensor::Float(acc)),
-        autodiff: DispatchAutodiffContext::Disabled,
-    };
-    let sums = Tensor::<1>::from_dispatch(acc).into_data();
+    let sums = Tensor::<1>::from_dispatch(plain_dispatch(acc)).into_data();
     sums.iter::<f32>().map(f64::from).sum()
 }
 
