@@ -1112,6 +1112,33 @@ pub(super) fn sum_squares_many_kernel(
     }
 }
 
+/// A convolution's bias gradient: `out[c]` = the sum of `g` `[N, C, h, w]` (any strides: a
+/// convolution's output gradient comes channels-last) over everything but its channel. One cube of 256
+/// units per channel, each summing a strided share, then a tree in shared memory (burn: a contiguous
+/// copy, then its reduction).
+#[cube(launch)]
+pub(super) fn bias_grad_kernel(g: &Tensor<f32>, out: &mut Tensor<f32>) {
+    let c = CUBE_POS_X as usize;
+    let u = UNIT_POS_X as usize;
+    let threads = CUBE_DIM_X as usize;
+    let (h, w) = (g.shape(2), g.shape(3));
+    let m = g.shape(0) * h * w;
+    let (s0, s1, s2, s3) = (g.stride(0), g.stride(1), g.stride(2), g.stride(3));
+    let base = c * s1;
+    let mut s = 0.0f32;
+    let mut j = u;
+    while j < m {
+        let e = j / (h * w);
+        let r = j % (h * w);
+        s += g[base + e * s0 + (r / w) * s2 + (r % w) * s3];
+        j += threads;
+    }
+    let total = cube_sum(s, u);
+    if u == 0 {
+        out[c] = total;
+    }
+}
+
 /// The L1 distance between the two halves of `f` `[2n, C, h, w]` per example: `out[e]` =
 /// `sum |f[e] - f[n + e]|` over its `C x h x w` values (the feature loss's per-layer term). One cube of
 /// 256 units per example, each summing a strided share (channels fastest), then a tree in shared

@@ -208,6 +208,10 @@ pub trait GpuOps: Backend {
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
 
+    /// A convolution's bias gradient given its output's `grad` `[N, C, h, w]` (any layout): `[C]`, in
+    /// one dispatch (burn: a contiguous copy and a reduction). No gradient.
+    fn gpu_bias_grad(grad: FloatTensor<Self>) -> FloatTensor<Self>;
+
     /// The feature loss's per-layer term: `[n]`, the L1 distance between the two halves of `f`
     /// `[2n, C, h, w]` per example (prediction against target), one dispatch each way (burn: a
     /// subtraction, an absolute value, a layout copy and a sum, and more backward).
@@ -1213,6 +1217,19 @@ impl GpuOps for CubeBackend {
         <Self as burn::backend::ops::ModuleOps<Self>>::conv2d(grad, flipped, None, same3x3())
     }
 
+    fn gpu_bias_grad(grad: CubeTensor) -> CubeTensor {
+        let c = grad.meta.shape()[1];
+        let out = empty_shaped(&grad, Shape::new([c]));
+        kernels::bias_grad_kernel::launch(
+            &out.client,
+            CubeCount::Static(c as u32, 1, 1),
+            CubeDim::new_1d(256),
+            grad.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+        );
+        out
+    }
+
     fn gpu_pair_l1(f: CubeTensor) -> CubeTensor {
         let n = f.meta.shape()[0] / 2;
         let out = empty_shaped(&f, Shape::new([n]));
@@ -1562,8 +1579,8 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let out = B::gpu_conv3x3(x.clone(), weight.clone(), bias.clone());
-                prep.finish((x, weight, bias), out)
+                let out = B::gpu_conv3x3(x.clone(), weight.clone(), bias);
+                prep.finish((x, weight), out)
             }
             OpsKind::UnTracked(prep) => prep.finish(B::gpu_conv3x3(x, weight, bias)),
         }
@@ -1573,6 +1590,10 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         _weight: FloatTensor<Self>,
         _grad: FloatTensor<Self>,
     ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of a convolution")
+    }
+
+    fn gpu_bias_grad(_grad: FloatTensor<Self>) -> FloatTensor<Self> {
         unimplemented!("second-order gradients of a convolution")
     }
 
@@ -1719,16 +1740,15 @@ impl<B: Backend + GpuOps> Backward<B, 1> for ViewMaxBackward {
 struct Conv3x3Backward;
 
 impl<B: Backend + GpuOps> Backward<B, 3> for Conv3x3Backward {
-    /// The input, the weights and the bias.
-    type State = (FloatTensor<B>, FloatTensor<B>, FloatTensor<B>);
+    /// The input and the weights.
+    type State = (FloatTensor<B>, FloatTensor<B>);
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [x_node, w_node, b_node] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
-        let (x, weight, bias) = ops.state;
+        let (x, weight) = ops.state;
         if let Some(node) = b_node {
-            let g = B::conv2d_bias_backward(x.clone(), bias, grad.clone());
-            grads.register::<B>(node.id, g);
+            grads.register::<B>(node.id, B::gpu_bias_grad(grad.clone()));
         }
         if let Some(node) = w_node {
             let g = B::conv2d_weight_backward(x, weight.clone(), grad.clone(), same3x3());

@@ -800,6 +800,8 @@ fn wgpu_conv3x3_equals_burns_conv() {
         (3, 8, 8, 9, 7, false),
         (2, 19, 8, 6, 11, true),
         (1, 4, 13, 5, 5, true),
+        // More output positions than a cube's 256 units (the bias gradient's strided share).
+        (4, 8, 8, 12, 10, true),
     ] {
         let rand = |len: usize| {
             to_vec(Tensor::<1>::random(
