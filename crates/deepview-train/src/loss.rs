@@ -190,11 +190,15 @@ fn vgg_feature_loss(
     let n = pred.dims()[0];
     // One VGG pass over prediction and target together.
     let f = padded_pair_features(vgg, pred, target);
+    let [a, b, c] = VGG_LAYER_WEIGHTS;
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if deepview_net::gpu::gpu_kernels(&f.conv1_2.device()) {
+        // Each layer's weight and the area folded into its kernel (one launch each way per layer).
+        let area = (h * w) as f32;
+        let l1 = deepview_net::gpu::pair_l1;
+        return l1(f.conv1_2, a / area) + l1(f.conv2_2, b / area) + l1(f.conv3_3, c / area);
+    }
     let l1 = |t: Tensor<4>| {
-        #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if deepview_net::gpu::gpu_kernels(&t.device()) {
-            return deepview_net::gpu::pair_l1(t);
-        }
         let d = t.dims()[0] / 2;
         (t.clone().narrow(0, 0, d) - t.narrow(0, d, d))
             .abs()
@@ -202,7 +206,6 @@ fn vgg_feature_loss(
             .sum_dim(1)
             .reshape([n])
     };
-    let [a, b, c] = VGG_LAYER_WEIGHTS;
     (l1(f.conv1_2) * a + l1(f.conv2_2) * b + l1(f.conv3_3) * c) / (h * w) as f32
 }
 

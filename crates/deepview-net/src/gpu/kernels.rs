@@ -1139,12 +1139,13 @@ pub(super) fn bias_grad_kernel(g: &Tensor<f32>, out: &mut Tensor<f32>) {
     }
 }
 
-/// The L1 distance between the two halves of `f` `[2n, C, h, w]` per example: `out[e]` =
-/// `sum |f[e] - f[n + e]|` over its `C x h x w` values (the feature loss's per-layer term). One cube of
+/// The L1 distance between the two halves of `f` `[2n, C, h, w]` per example, scaled: `out[e]` =
+/// `scale * sum |f[e] - f[n + e]|` over its `C x h x w` values (the feature loss's weighted per-layer
+/// term). One cube of
 /// 256 units per example, each summing a strided share (channels fastest), then a tree in shared
 /// memory.
 #[cube(launch)]
-pub(super) fn pair_l1_kernel(f: &Tensor<f32>, out: &mut Tensor<f32>) {
+pub(super) fn pair_l1_kernel(f: &Tensor<f32>, out: &mut Tensor<f32>, scale: f32) {
     let (c, h, w) = (f.shape(1), f.shape(2), f.shape(3));
     let n = f.shape(0) / 2;
     let e = CUBE_POS_X as usize;
@@ -1162,15 +1163,20 @@ pub(super) fn pair_l1_kernel(f: &Tensor<f32>, out: &mut Tensor<f32>) {
     }
     let total = cube_sum(s, u);
     if u == 0 {
-        out[e] = total;
+        out[e] = total * scale;
     }
 }
 
-/// The gradient of [`pair_l1_kernel`] at `f`, given the output's `grad` `[n]`: `sign(d) * grad[e]` for
+/// The gradient of [`pair_l1_kernel`] at `f`, given the output's `grad` `[n]`: `sign(d) * grad[e] * scale` for
 /// the first half and its negation for the second, `d = f[e] - f[n + e]` (0 where `d` is: burn's `abs`).
 /// One thread per pair of values.
 #[cube(launch)]
-pub(super) fn pair_l1_backward_kernel(f: &Tensor<f32>, grad: &Tensor<f32>, gin: &mut Tensor<f32>) {
+pub(super) fn pair_l1_backward_kernel(
+    f: &Tensor<f32>,
+    grad: &Tensor<f32>,
+    gin: &mut Tensor<f32>,
+    scale: f32,
+) {
     let (c, h, w) = (f.shape(1), f.shape(2), f.shape(3));
     let n = f.shape(0) / 2;
     let m = c * h * w;
@@ -1184,10 +1190,10 @@ pub(super) fn pair_l1_backward_kernel(f: &Tensor<f32>, grad: &Tensor<f32>, gin: 
     let d = f[e * s0 + o] - f[(n + e) * s0 + o];
     let mut g = 0.0f32;
     if d > 0.0f32 {
-        g = grad[e];
+        g = grad[e] * scale;
     }
     if d < 0.0f32 {
-        g = -grad[e];
+        g = -(grad[e] * scale);
     }
     let i0 = gin.stride(0);
     let oi = ch * gin.stride(1) + y * gin.stride(2) + x * gin.stride(3);

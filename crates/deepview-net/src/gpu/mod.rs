@@ -212,13 +212,18 @@ pub trait GpuOps: Backend {
     /// one dispatch (burn: a contiguous copy and a reduction). No gradient.
     fn gpu_bias_grad(grad: FloatTensor<Self>) -> FloatTensor<Self>;
 
-    /// The feature loss's per-layer term: `[n]`, the L1 distance between the two halves of `f`
-    /// `[2n, C, h, w]` per example (prediction against target), one dispatch each way (burn: a
-    /// subtraction, an absolute value, a layout copy and a sum, and more backward).
-    fn gpu_pair_l1(f: FloatTensor<Self>) -> FloatTensor<Self>;
+    /// The feature loss's weighted per-layer term: `[n]`, `scale` times the L1 distance between the
+    /// two halves of `f` `[2n, C, h, w]` per example (prediction against target), one dispatch each
+    /// way (burn: a subtraction, an absolute value, a layout copy, a sum and a product, and more
+    /// backward).
+    fn gpu_pair_l1(f: FloatTensor<Self>, scale: f32) -> FloatTensor<Self>;
 
     /// The gradient of [`GpuOps::gpu_pair_l1`] at `f`, given the output's.
-    fn gpu_pair_l1_backward(f: FloatTensor<Self>, grad: FloatTensor<Self>) -> FloatTensor<Self>;
+    fn gpu_pair_l1_backward(
+        f: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+        scale: f32,
+    ) -> FloatTensor<Self>;
 
     /// One Adam step of a parameter (any rank): `(param, moment_1, moment_2)` after the step, in one
     /// dispatch where burn's `Adam` takes a dozen, in the parameter's layout (channels-last for a
@@ -342,9 +347,10 @@ fn same3x3() -> burn::backend::ops::ConvOptions<2> {
     burn::backend::ops::ConvOptions::new([1, 1], [1, 1], [1, 1], 1)
 }
 
-/// [`GpuOps::gpu_pair_l1`]: per example, the L1 distance between the two halves of `f` `[2n, ..]`.
-pub fn pair_l1(f: Tensor<4>) -> Tensor<1> {
-    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_pair_l1(f.into_dispatch()))
+/// [`GpuOps::gpu_pair_l1`]: per example, `scale` times the L1 distance between the two halves of
+/// `f` `[2n, ..]`.
+pub fn pair_l1(f: Tensor<4>, scale: f32) -> Tensor<1> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_pair_l1(f.into_dispatch(), scale))
 }
 
 /// An Adam step taken inside [`adam_batch`], waiting for its launch: the parameter, its gradient and
@@ -1230,7 +1236,7 @@ impl GpuOps for CubeBackend {
         out
     }
 
-    fn gpu_pair_l1(f: CubeTensor) -> CubeTensor {
+    fn gpu_pair_l1(f: CubeTensor, scale: f32) -> CubeTensor {
         let n = f.meta.shape()[0] / 2;
         let out = empty_shaped(&f, Shape::new([n]));
         kernels::pair_l1_kernel::launch(
@@ -1239,11 +1245,12 @@ impl GpuOps for CubeBackend {
             CubeDim::new_1d(256),
             f.into_tensor_arg(),
             out.clone().into_tensor_arg(),
+            scale,
         );
         out
     }
 
-    fn gpu_pair_l1_backward(f: CubeTensor, grad: CubeTensor) -> CubeTensor {
+    fn gpu_pair_l1_backward(f: CubeTensor, grad: CubeTensor, scale: f32) -> CubeTensor {
         // In the features' layout (a convolution's, channels last), as the ReLU's backward reads it.
         let f = dense(f);
         let gin = empty_same_layout(&f);
@@ -1255,6 +1262,7 @@ impl GpuOps for CubeBackend {
             f.into_tensor_arg(),
             grad.into_tensor_arg(),
             gin.clone().into_tensor_arg(),
+            scale,
         );
         gin
     }
@@ -1597,7 +1605,7 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         unimplemented!("second-order gradients of a convolution")
     }
 
-    fn gpu_pair_l1(f: FloatTensor<Self>) -> FloatTensor<Self> {
+    fn gpu_pair_l1(f: FloatTensor<Self>, scale: f32) -> FloatTensor<Self> {
         let guards = [f.node()];
         let f = f.into_primitive();
         match PairL1Backward
@@ -1606,14 +1614,18 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
             .stateful()
         {
             OpsKind::Tracked(prep) => {
-                let out = B::gpu_pair_l1(f.clone());
-                prep.finish(f, out)
+                let out = B::gpu_pair_l1(f.clone(), scale);
+                prep.finish((f, scale), out)
             }
-            OpsKind::UnTracked(prep) => prep.finish(B::gpu_pair_l1(f)),
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_pair_l1(f, scale)),
         }
     }
 
-    fn gpu_pair_l1_backward(_f: FloatTensor<Self>, _grad: FloatTensor<Self>) -> FloatTensor<Self> {
+    fn gpu_pair_l1_backward(
+        _f: FloatTensor<Self>,
+        _grad: FloatTensor<Self>,
+        _scale: f32,
+    ) -> FloatTensor<Self> {
         unimplemented!("second-order gradients of the feature loss")
     }
 
@@ -1764,14 +1776,15 @@ impl<B: Backend + GpuOps> Backward<B, 3> for Conv3x3Backward {
 struct PairL1Backward;
 
 impl<B: Backend + GpuOps> Backward<B, 1> for PairL1Backward {
-    /// The features.
-    type State = FloatTensor<B>;
+    /// The features and the scale.
+    type State = (FloatTensor<B>, f32);
 
     fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [node] = ops.parents;
         let grad = grads.consume::<B>(&ops.node);
         if let Some(node) = node {
-            grads.register::<B>(node.id, B::gpu_pair_l1_backward(ops.state, grad));
+            let (f, scale) = ops.state;
+            grads.register::<B>(node.id, B::gpu_pair_l1_backward(f, grad, scale));
         }
     }
 }
