@@ -40,6 +40,16 @@ use burn::tensor::ops::{AvgPoolOptions, InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
 use deepview_kernels::Act;
 
+/// Rows and columns `m..` of `s` `[D, C, .., ..]`, `h x w` of them: one kernel on our GPU devices,
+/// burn's slices elsewhere.
+fn crop_window(s: Tensor<4>, m: usize, h: usize, w: usize) -> Tensor<4> {
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if crate::gpu::gpu_kernels(&s.device()) {
+        return crate::gpu::crop(s, m, m, h, w);
+    }
+    s.narrow(3, m, w).narrow(2, m, h)
+}
+
 /// Input channels per (view, plane) slice of the initialisation net: PSV RGB + validity.
 pub const INIT_CHANNELS: usize = 4;
 
@@ -658,7 +668,7 @@ impl DeepViewModel {
                 if m > 0 {
                     w -= 2 * m;
                     h -= 2 * m;
-                    s = s.narrow(3, m, w).narrow(2, m, h);
+                    s = crop_window(s, m, h, w);
                     offset = (offset.0 + m, offset.1 + m);
                     for hv in homs.iter_mut() {
                         for hom in hv.iter_mut() {

@@ -1112,6 +1112,45 @@ pub(super) fn sum_squares_many_kernel(
     }
 }
 
+/// A window of `x` `[N, C, h, w]`: `out` `[N, C, oh, ow]` holds rows `y0..` and columns `x0..` of `x`
+/// (any strides both). One thread per output value, channels fastest.
+#[cube(launch)]
+pub(super) fn crop_kernel(x: &Tensor<f32>, out: &mut Tensor<f32>, y0: u32, x0: u32) {
+    let (n, c, oh, ow) = (out.shape(0), out.shape(1), out.shape(2), out.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= n * c * oh * ow {
+        terminate!();
+    }
+    let (e, y, xx, ch) = channels_fastest(pos, c, oh, ow);
+    let (y0, x0) = (usize::cast_from(y0), usize::cast_from(x0));
+    let i = e * x.stride(0) + ch * x.stride(1) + (y + y0) * x.stride(2) + (xx + x0) * x.stride(3);
+    let o = e * out.stride(0) + ch * out.stride(1) + y * out.stride(2) + xx * out.stride(3);
+    out[o] = x[i];
+}
+
+/// The gradient of [`crop_kernel`] at its input: `gin` `[N, C, h, w]` is `grad` `[N, C, oh, ow]` at
+/// rows `y0..` and columns `x0..`, zero elsewhere. One thread per input value, channels fastest.
+#[cube(launch)]
+pub(super) fn crop_backward_kernel(grad: &Tensor<f32>, gin: &mut Tensor<f32>, y0: u32, x0: u32) {
+    let (n, c, h, w) = (gin.shape(0), gin.shape(1), gin.shape(2), gin.shape(3));
+    let (oh, ow) = (grad.shape(2), grad.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= n * c * h * w {
+        terminate!();
+    }
+    let (e, y, x, ch) = channels_fastest(pos, c, h, w);
+    let (y0, x0) = (usize::cast_from(y0), usize::cast_from(x0));
+    let mut g = 0.0f32;
+    if y >= y0 && y < y0 + oh && x >= x0 && x < x0 + ow {
+        g = grad[e * grad.stride(0)
+            + ch * grad.stride(1)
+            + (y - y0) * grad.stride(2)
+            + (x - x0) * grad.stride(3)];
+    }
+    let o = e * gin.stride(0) + ch * gin.stride(1) + y * gin.stride(2) + x * gin.stride(3);
+    gin[o] = g;
+}
+
 /// A convolution's bias gradient: `out[c]` = the sum of `g` `[N, C, h, w]` (any strides: a
 /// convolution's output gradient comes channels-last) over everything but its channel. One cube of 256
 /// units per channel, each summing a strided share, then a tree in shared memory (burn: a contiguous

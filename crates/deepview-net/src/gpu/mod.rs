@@ -208,6 +208,27 @@ pub trait GpuOps: Backend {
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
 
+    /// A window of `x` `[N, C, h, w]`: rows `y0..y0 + oh` and columns `x0..x0 + ow`, `[N, C, oh, ow]`
+    /// in `x`'s layout (channels-last stays so), one dispatch (burn: a slice per axis); under autodiff
+    /// its backward pads the gradient back with zeros in one dispatch (burn: a fill and a
+    /// slice-assign per axis).
+    fn gpu_crop(
+        x: FloatTensor<Self>,
+        y0: usize,
+        x0: usize,
+        oh: usize,
+        ow: usize,
+    ) -> FloatTensor<Self>;
+
+    /// The gradient of [`GpuOps::gpu_crop`] at an input of `h x w` pixels, given the output's.
+    fn gpu_crop_backward(
+        grad: FloatTensor<Self>,
+        h: usize,
+        w: usize,
+        y0: usize,
+        x0: usize,
+    ) -> FloatTensor<Self>;
+
     /// A convolution's bias gradient given its output's `grad` `[N, C, h, w]` (any layout): `[C]`, in
     /// one dispatch (burn: a contiguous copy and a reduction). No gradient.
     fn gpu_bias_grad(grad: FloatTensor<Self>) -> FloatTensor<Self>;
@@ -330,6 +351,17 @@ pub fn reflect_pad_pair(
         ph,
         pw,
         map,
+    ))
+}
+
+/// [`GpuOps::gpu_crop`] on a cubecl device: rows `y0..y0 + h` and columns `x0..x0 + w` of `x`.
+pub(crate) fn crop(x: Tensor<4>, y0: usize, x0: usize, h: usize, w: usize) -> Tensor<4> {
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_crop(
+        x.into_dispatch(),
+        y0,
+        x0,
+        h,
+        w,
     ))
 }
 
@@ -865,6 +897,18 @@ fn empty_like(t: &CubeTensor, dims: [usize; 4]) -> CubeTensor {
     empty_shaped(t, Shape::new(dims))
 }
 
+/// An uninitialised `dims` tensor on `t`'s device laid out as `t` is: channels-last where `t` is
+/// (a convolution's output), else contiguous.
+fn empty_in_layout(t: &CubeTensor, dims: [usize; 4]) -> CubeTensor {
+    let [n, c, h, w] = t.meta.shape().dims::<4>();
+    if is_dense(t) && t.meta.strides()[..] == [h * w * c, 1, w * c, c] {
+        let [n, c, h, w] = dims;
+        return permute_nhwc_to_nchw(empty_shaped(t, Shape::new([n, h, w, c])));
+    }
+    let _ = n;
+    empty_like(t, dims)
+}
+
 /// An uninitialised tensor of any `shape` on `t`'s device, of its dtype.
 fn empty_shaped(t: &CubeTensor, shape: Shape) -> CubeTensor {
     empty_device_dtype(t.client.clone(), t.device.clone(), shape, t.dtype)
@@ -1221,6 +1265,39 @@ impl GpuOps for CubeBackend {
             flipped.clone().into_tensor_arg(),
         );
         <Self as burn::backend::ops::ModuleOps<Self>>::conv2d(grad, flipped, None, same3x3())
+    }
+
+    fn gpu_crop(x: CubeTensor, y0: usize, x0: usize, oh: usize, ow: usize) -> CubeTensor {
+        let [n, c, h, w] = x.meta.shape().dims::<4>();
+        assert!(y0 + oh <= h && x0 + ow <= w, "a window inside the input");
+        let out = empty_in_layout(&x, [n, c, oh, ow]);
+        let (count, dim) = grid(&x, n * c * oh * ow);
+        kernels::crop_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            x.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            y0 as u32,
+            x0 as u32,
+        );
+        out
+    }
+
+    fn gpu_crop_backward(grad: CubeTensor, h: usize, w: usize, y0: usize, x0: usize) -> CubeTensor {
+        let [n, c, _, _] = grad.meta.shape().dims::<4>();
+        let gin = empty_in_layout(&grad, [n, c, h, w]);
+        let (count, dim) = grid(&grad, n * c * h * w);
+        kernels::crop_backward_kernel::launch(
+            &gin.client,
+            count,
+            dim,
+            grad.into_tensor_arg(),
+            gin.clone().into_tensor_arg(),
+            y0 as u32,
+            x0 as u32,
+        );
+        gin
     }
 
     fn gpu_bias_grad(grad: CubeTensor) -> CubeTensor {
@@ -1601,6 +1678,35 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         unimplemented!("second-order gradients of a convolution")
     }
 
+    fn gpu_crop(
+        x: FloatTensor<Self>,
+        y0: usize,
+        x0: usize,
+        oh: usize,
+        ow: usize,
+    ) -> FloatTensor<Self> {
+        let guards = [x.node()];
+        let x = x.into_primitive();
+        let [_, _, h, w] = x.shape().dims::<4>();
+        match CropBackward.prepare::<C>(guards).compute_bound().stateful() {
+            OpsKind::Tracked(prep) => {
+                let out = B::gpu_crop(x, y0, x0, oh, ow);
+                prep.finish((h, w, y0, x0), out)
+            }
+            OpsKind::UnTracked(prep) => prep.finish(B::gpu_crop(x, y0, x0, oh, ow)),
+        }
+    }
+
+    fn gpu_crop_backward(
+        _grad: FloatTensor<Self>,
+        _h: usize,
+        _w: usize,
+        _y0: usize,
+        _x0: usize,
+    ) -> FloatTensor<Self> {
+        unimplemented!("second-order gradients of a crop")
+    }
+
     fn gpu_bias_grad(_grad: FloatTensor<Self>) -> FloatTensor<Self> {
         unimplemented!("second-order gradients of a convolution")
     }
@@ -1785,6 +1891,23 @@ impl<B: Backend + GpuOps> Backward<B, 1> for PairL1Backward {
         if let Some(node) = node {
             let (f, scale) = ops.state;
             grads.register::<B>(node.id, B::gpu_pair_l1_backward(f, grad, scale));
+        }
+    }
+}
+
+#[derive(Debug)]
+struct CropBackward;
+
+impl<B: Backend + GpuOps> Backward<B, 1> for CropBackward {
+    /// The input's rows and columns, and the window's origin.
+    type State = (usize, usize, usize, usize);
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let [node] = ops.parents;
+        let grad = grads.consume::<B>(&ops.node);
+        let (h, w, y0, x0) = ops.state;
+        if let Some(node) = node {
+            grads.register::<B>(node.id, B::gpu_crop_backward(grad, h, w, y0, x0));
         }
     }
 }

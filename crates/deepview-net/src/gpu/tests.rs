@@ -856,3 +856,64 @@ fn wgpu_conv3x3_equals_burns_conv() {
         assert!(max_diff(&want.3, &got.3) < 1e-4, "bias gradient, {what}");
     }
 }
+
+/// The training window's crop on wgpu (one kernel each way) equals burn's two narrows on the CPU:
+/// values, and gradients (the output's gradient inside the window, zero outside), for a contiguous
+/// input and a channels-last one (the state after a convolution), whose layout the output keeps.
+#[test]
+fn wgpu_crop_equals_burns_narrow() {
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    for (dims, (y0, x0, oh, ow), last) in [
+        ([3, 5, 11, 13], (2, 3, 6, 7), false),
+        ([2, 8, 12, 10], (4, 4, 4, 2), true),
+    ] {
+        let len: usize = dims.iter().product();
+        let v = to_vec(Tensor::<1>::random(
+            [len],
+            Distribution::Uniform(-1.0, 1.0),
+            &cpu,
+        ));
+        let seed = to_vec(Tensor::<1>::random(
+            [dims[0] * dims[1] * oh * ow],
+            Distribution::Uniform(-1.0, 1.0),
+            &cpu,
+        ));
+        let run = |dev: &Device, kernel: bool| {
+            let ad = dev.clone().autodiff();
+            let t = Tensor::<4>::from_data(TensorData::new(v.clone(), dims), &ad).require_grad();
+            let x = if last {
+                channels_last_copy(t.clone())
+            } else {
+                t.clone()
+            };
+            let y = if kernel {
+                let y = crate::gpu::crop(x, y0, x0, oh, ow);
+                if last {
+                    // The output keeps the channels-last layout.
+                    let s = super::cube_float(y.clone().inner().into_dispatch())
+                        .meta
+                        .strides()
+                        .to_vec();
+                    assert_eq!(s[1], 1, "channels fastest: {s:?}");
+                }
+                y
+            } else {
+                x.narrow(3, x0, ow).narrow(2, y0, oh)
+            };
+            let out = to_vec(y.clone().inner());
+            let s = Tensor::<4>::from_data(
+                TensorData::new(seed.clone(), [dims[0], dims[1], oh, ow]),
+                &ad,
+            );
+            let grads = (y * s).sum().backward();
+            (out, to_vec(t.grad(&grads).unwrap()))
+        };
+        let (want, want_grad) = run(&cpu, false);
+        let (got, got_grad) = run(&gpu, true);
+        let what = format!("{dims:?}, channels last {last}");
+        assert_eq!(want, got, "values, {what}");
+        assert_eq!(want_grad, got_grad, "gradient, {what}");
+        assert!(want_grad.contains(&0.0) && want_grad.iter().any(|&g| g != 0.0));
+    }
+}
