@@ -838,52 +838,13 @@ pub(super) fn act_backward_kernel(
     gin[i] = grad[i] * d;
 }
 
-/// One Adam step of a parameter tensor, element-wise over the buffers of the parameter and its moments
-/// (one dense layout: the `n` elements at the start of each), the gradient read through its own
-/// strides (any layout), burn's `Adam` arithmetic in its order: `m' = m b1 + g (1 - b1)`,
+/// One Adam step of each of several parameters in one dispatch: cube row `k` (`CUBE_POS_Y`) steps
+/// parameter `ps[k]` (dense, its moments in its layout, the gradient read through its own strides)
+/// into `p_outs[k]`, `m_outs[k]` and `v_outs[k]`, one unit per element, every parameter with the same
+/// step scalars, burn's `Adam` arithmetic in its order: `m' = m b1 + g (1 - b1)`,
 /// `v' = v b2 + g^2 (1 - b2)`, `p' = p - (m' c) / (sqrt(v') + e) lr` (`c` and `e` the step's bias
-/// corrections, computed on the host).
-#[cube(launch)]
-#[allow(clippy::too_many_arguments)]
-pub(super) fn adam_kernel(
-    p: &Tensor<f32>,
-    g: &Tensor<f32>,
-    m: &Tensor<f32>,
-    v: &Tensor<f32>,
-    p_out: &mut Tensor<f32>,
-    m_out: &mut Tensor<f32>,
-    v_out: &mut Tensor<f32>,
-    n: u32,
-    beta_1: f32,
-    factor_1: f32,
-    beta_2: f32,
-    factor_2: f32,
-    combined: f32,
-    epsilon: f32,
-    lr: f32,
-    grad_scale: f32,
-) {
-    let i = ABSOLUTE_POS;
-    if i >= usize::cast_from(n) {
-        terminate!();
-    }
-    // Element `i` of a dense layout sits at coordinate `(i / stride) % size` along each axis.
-    let mut gi_at = 0usize;
-    for d in 0..p.rank() {
-        gi_at += ((i / p.stride(d)) % p.shape(d)) * g.stride(d);
-    }
-    // The clipped gradient, rounded as burn's scaling of it would be.
-    let gi = g[gi_at] * grad_scale;
-    let m1 = m[i] * beta_1 + gi * factor_1;
-    let v1 = v[i] * beta_2 + (gi * gi) * factor_2;
-    m_out[i] = m1;
-    v_out[i] = v1;
-    p_out[i] = p[i] - ((m1 * combined) / (v1.sqrt() + epsilon)) * lr;
-}
-
-/// [`adam_kernel`] of several parameters in one dispatch: cube row `k` (`CUBE_POS_Y`) steps parameter
-/// `ps[k]` (dense, its moments in its layout, the gradient read through its strides) into `p_outs[k]`,
-/// `m_outs[k]` and `v_outs[k]`, one unit per element; every parameter takes the same step scalars.
+/// corrections, computed on the host; `g` the clipped gradient, rounded as burn's scaling of it would
+/// be).
 #[cube(launch)]
 #[allow(clippy::too_many_arguments)]
 pub(super) fn adam_many_kernel(

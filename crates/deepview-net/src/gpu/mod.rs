@@ -426,6 +426,26 @@ pub fn adam_batch<R>(f: impl FnOnce() -> R) -> R {
 /// [`adam`] inside [`adam_batch`]: the parameter laid out as [`GpuOps::gpu_adam`] lays it out, the
 /// outputs allocated and handed back, the step queued.
 fn defer_adam(inputs: [CubeTensor; 4], step: AdamStep) -> [CubeTensor; 3] {
+    let (inputs, outputs) = adam_prepare(inputs);
+    ADAM_BATCH.with(|b| {
+        b.borrow_mut()
+            .as_mut()
+            .expect("inside adam_batch")
+            .push(PendingAdam {
+                inputs,
+                outputs: outputs.clone(),
+                step,
+            })
+    });
+    outputs
+}
+
+/// An Adam step's `[param, grad, moment_1, moment_2]` laid out for the kernel, and its outputs
+/// allocated: element-wise in the parameter's layout, channels-last for a convolution's weights (the
+/// layout burn's convolutions read them in; they take it on their first step and keep it), the
+/// moments in it too, the gradient read through its strides (burn's weight gradient comes with the
+/// output channels fastest, and a parameter in that layout would be copied by every convolution).
+fn adam_prepare(inputs: [CubeTensor; 4]) -> ([CubeTensor; 4], [CubeTensor; 3]) {
     let [param, grad, moment_1, moment_2] = inputs;
     let param = if param.meta.num_dims() == 4 {
         <CubeBackend as GpuOps>::gpu_channels_last(param)
@@ -434,17 +454,7 @@ fn defer_adam(inputs: [CubeTensor; 4], step: AdamStep) -> [CubeTensor; 3] {
     };
     let [moment_1, moment_2] = [moment_1, moment_2].map(|t| like(t, &param));
     let outputs = [(); 3].map(|_| empty_same_layout(&param));
-    ADAM_BATCH.with(|b| {
-        b.borrow_mut()
-            .as_mut()
-            .expect("inside adam_batch")
-            .push(PendingAdam {
-                inputs: [param, grad, moment_1, moment_2],
-                outputs: outputs.clone(),
-                step,
-            })
-    });
-    outputs
+    ([param, grad, moment_1, moment_2], outputs)
 }
 
 /// Launch the queued Adam steps: consecutive ones with the same scalars together, as many per
@@ -1351,41 +1361,13 @@ impl GpuOps for CubeBackend {
         moment_2: CubeTensor,
         step: AdamStep,
     ) -> (CubeTensor, CubeTensor, CubeTensor) {
-        // Element-wise in the parameter's layout, channels-last for a convolution's weights (the
-        // layout burn's convolutions read them in; they take it on their first step and keep it),
-        // the gradient read through its strides: burn's weight gradient comes with the output
-        // channels fastest, and a parameter in that layout would be copied by every convolution.
-        let param = if param.meta.num_dims() == 4 {
-            Self::gpu_channels_last(param)
-        } else {
-            dense(param)
-        };
-        let [moment_1, moment_2] = [moment_1, moment_2].map(|t| like(t, &param));
-        let n = param.meta.shape().num_elements();
-        let new = || empty_same_layout(&param);
-        let (p, m, v) = (new(), new(), new());
-        let (count, dim) = grid(&param, n);
-        kernels::adam_kernel::launch(
-            &p.client,
-            count,
-            dim,
-            param.into_tensor_arg(),
-            grad.into_tensor_arg(),
-            moment_1.into_tensor_arg(),
-            moment_2.into_tensor_arg(),
-            p.clone().into_tensor_arg(),
-            m.clone().into_tensor_arg(),
-            v.clone().into_tensor_arg(),
-            n as u32,
-            step.beta_1,
-            1.0 - step.beta_1,
-            step.beta_2,
-            1.0 - step.beta_2,
-            step.combined,
-            step.epsilon,
-            step.lr,
-            step.grad_scale,
-        );
+        let (inputs, outputs) = adam_prepare([param, grad, moment_1, moment_2]);
+        launch_adam_many(vec![PendingAdam {
+            inputs,
+            outputs: outputs.clone(),
+            step,
+        }]);
+        let [p, m, v] = outputs;
         (p, m, v)
     }
 
