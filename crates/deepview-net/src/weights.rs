@@ -88,7 +88,7 @@ pub fn save_model(
 /// The parameter count of the model `config` describes (mirrors `CoreNet::new`: 3x3 convs with biases;
 /// net 0 takes the plane sweep volume, update nets the gradient components and the state), in closed form
 /// so that absurd counts are computed, not looped over; `None` when it does not even fit in a u128.
-fn parameter_count(config: &DeepViewConfig) -> Option<u128> {
+pub fn parameter_count(config: &DeepViewConfig) -> Option<u128> {
     let n = |v: usize| v as u128;
     let conv = |i: u128, o: u128| i.checked_mul(o)?.checked_mul(9)?.checked_add(o);
     let sc = n(config.extra_channels).checked_add(4)?;

@@ -80,6 +80,7 @@ impl TrainConfig {
                 surround_inputs: 0.0,
                 spread_inputs: 0.0,
                 window_context: false,
+                budget: None,
             },
             loss: LossKind::Vgg,
             learning_rate: PAPER_LEARNING_RATE,

@@ -110,6 +110,70 @@ pub struct SampleConfig {
     /// training window (with the window's state inside) instead of a transparent MPI there: the rays of
     /// wide inputs leave the window, which inference never sees (`deepview_net::network` module docs).
     pub window_context: bool,
+    /// The memory a tuple's training step may take (`train --max-memory`), set for each session by the
+    /// trainer and not kept in config.json (it is the machine's, not the run's). A tuple whose estimated
+    /// step ([`step_bytes`]) is over it gets fewer planes (down to [`deepview_geometry::AUTO_PLANES_MIN`]),
+    /// or is drawn again when even those do not fit. Tuples within it are drawn exactly as without it.
+    #[serde(skip)]
+    pub budget: Option<StepBudget>,
+}
+
+/// The memory bound of one training step ([`SampleConfig::budget`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StepBudget {
+    /// Bytes the step may take (the whole process: model, optimizer, loss network and the tuple's
+    /// activations).
+    pub bytes: u64,
+    /// Whether the nets recompute their activations in the backward pass (only one net's are held).
+    pub recompute: bool,
+}
+
+/// Tuples drawn before [`TrainData::sample`] gives up on fitting one into [`SampleConfig::budget`].
+pub const BUDGET_TRIES: usize = 64;
+
+/// Estimated peak bytes of a training step (forward and backward) on one tuple of `views` inputs and
+/// `planes` planes whose MPI window has `window_px` pixels, on the CPU: what a step holds whatever the
+/// tuple (the runtime, the VGG loss on the target crop, and 64 bytes per parameter: weights, gradients,
+/// Adam's two moments and the step's copies of them), plus per plane pixel of the window `(views + 0.8) x (100 + 25 F)` bytes,
+/// where `F` sums the feature counts of the nets whose activations are held for the backward pass (all
+/// of them; only the largest with `recompute`), each weighted by its depth, `(4 + max-pool stages) / 5`,
+/// and by a quarter for a U-Net net (half resolution): the plane-sweep volumes and per-view inputs, each
+/// view's conv activations and their gradients, and the state and rendered components per plane (the
+/// 0.8). The loaded datasets come on top. Fitted to the peak RSS of `deepview bench train` (BENCHMARKS.md,
+/// "Training memory": the `cpu`, `cpu-large` and `paper-kalantari` presets within 5%; the U-Net weight
+/// is not measured).
+pub fn step_bytes(
+    model: &DeepViewConfig,
+    views: usize,
+    planes: usize,
+    window_px: usize,
+    recompute: bool,
+) -> u64 {
+    let depth = (4 + model.max_pool_stages) as f64 / 5.0;
+    let weight =
+        |n: usize| model.features(n) as f64 * depth * if model.unet(n) { 0.25 } else { 1.0 };
+    let nets = 0..model.updates + 1;
+    let f = if recompute {
+        nets.map(weight).fold(0.0, f64::max)
+    } else {
+        nets.map(weight).sum()
+    };
+    let params = deepview_net::weights::parameter_count(model).unwrap_or(u128::MAX);
+    let fixed = (STEP_BASE_BYTES as u128).saturating_add(params.saturating_mul(64));
+    let plane_px = planes as f64 * window_px as f64;
+    let tuple = plane_px * (views as f64 + 0.8) * (100.0 + 25.0 * f);
+    (fixed.min(u64::MAX as u128) as u64).saturating_add(tuple as u64)
+}
+
+/// [`step_bytes`]'s fixed part besides the parameters.
+pub const STEP_BASE_BYTES: u64 = 32 << 20;
+
+/// What [`TrainData::tuple_window`] finds.
+struct TupleWindow {
+    reference: Camera,
+    ref_to_target: Vec<Hom>,
+    /// Top-left (reference pixels) and even size.
+    window: (f64, f64, usize, usize),
 }
 
 /// Targets drawn for a surrounded tuple before one with its inputs around it is accepted.
@@ -333,7 +397,8 @@ impl TrainData {
         lo + rng.below(hi - lo + 1)
     }
 
-    /// Draw one tuple with `views` inputs (fewer if the scene has fewer training views).
+    /// Draw one tuple with `views` inputs (fewer if the scene has fewer training views), within
+    /// [`SampleConfig::budget`] when there is one.
     pub fn sample(
         &self,
         cfg: &SampleConfig,
@@ -341,14 +406,41 @@ impl TrainData {
         views: usize,
         rng: &mut Rng,
     ) -> Result<Example, DataError> {
+        for _ in 0..BUDGET_TRIES {
+            if let Some(ex) = self.sample_once(cfg, model, views, rng)? {
+                return Ok(ex);
+            }
+        }
+        let b = cfg.budget.map_or(0, |b| b.bytes);
+        Err(DataError::Invalid {
+            path: PathBuf::from("--data"),
+            message: format!(
+                "none of {BUDGET_TRIES} tuples drawn fits a training step into the memory budget of \
+                 {} MiB, even with {} planes: raise --max-memory, or lower --max-width or --crop",
+                b >> 20,
+                deepview_geometry::AUTO_PLANES_MIN.min(cfg.planes)
+            ),
+        })
+    }
+
+    /// One draw of [`Self::sample`]: `None` when the tuple does not fit the budget with the fewest planes.
+    fn sample_once(
+        &self,
+        cfg: &SampleConfig,
+        model: &DeepViewConfig,
+        views: usize,
+        rng: &mut Rng,
+    ) -> Result<Option<Example>, DataError> {
         if let Some(p) = &self.procedural
             && (self.scenes.is_empty() || rng.uniform() < p.share)
         {
             let seed = rng.next_u64();
             let one = TrainData::new(vec![self.procedural_scene(seed, views)?])?;
-            let mut ex = one.sample(cfg, model, views, rng)?;
-            ex.scene = PROCEDURAL_SCENE;
-            return Ok(ex);
+            let ex = one.sample_once(cfg, model, views, rng)?;
+            return Ok(ex.map(|mut ex| {
+                ex.scene = PROCEDURAL_SCENE;
+                ex
+            }));
         }
         let si = rng.below(self.scenes.len());
         let s = &self.scenes[si];
@@ -391,7 +483,7 @@ impl TrainData {
         } else {
             cfg.planes
         };
-        let depths = jittered_depths(s.near, s.far, planes, u);
+        let mut depths = jittered_depths(s.near, s.far, planes, u);
         let tcam = &s.cameras[target];
         let c = cfg.crop as u32;
         if tcam.width < c || tcam.height < c {
@@ -405,6 +497,40 @@ impl TrainData {
         }
         let cx0 = rng.below((tcam.width - c + 1) as usize) as u32;
         let cy0 = rng.below((tcam.height - c + 1) as usize) as u32;
+        if let Some(b) = cfg.budget {
+            let fewest = deepview_geometry::AUTO_PLANES_MIN.min(cfg.planes);
+            let mut d = planes;
+            loop {
+                let tw = self.tuple_window(
+                    si,
+                    target,
+                    &inputs,
+                    &depths,
+                    (cx0, cy0),
+                    cfg.crop,
+                    model.margin_from(0),
+                )?;
+                let need = step_bytes(
+                    model,
+                    inputs.len(),
+                    d,
+                    tw.window.2 * tw.window.3,
+                    b.recompute,
+                );
+                if need <= b.bytes {
+                    break;
+                }
+                if d <= fewest {
+                    return Ok(None);
+                }
+                // The activations grow in proportion to the planes; the window hardly changes.
+                let base = STEP_BASE_BYTES.min(b.bytes);
+                let scaled =
+                    (d as u128 * (b.bytes - base) as u128 / (need - base).max(1) as u128) as usize;
+                d = scaled.clamp(fewest, d - 1);
+                depths = jittered_depths(s.near, s.far, d, u);
+            }
+        }
         let mut ex = self.example_with_inputs(
             si,
             target,
@@ -431,7 +557,7 @@ impl TrainData {
                 }
             }
         }
-        Ok(ex)
+        Ok(Some(ex))
     }
 
     /// K training views spread over the capture and a target among the others
@@ -569,19 +695,20 @@ impl TrainData {
         self.example_with_inputs(si, target, inputs, depths, crop_origin, crop, margin, false)
     }
 
-    /// [`Self::example`] with the input views given.
+    /// The reference camera of `inputs`, the homographies from it to the target on each plane, and the
+    /// tuple's MPI window (top-left and even size in reference pixels; module docs): what a tuple's
+    /// memory depends on, found before its input crops are made.
     #[allow(clippy::too_many_arguments)]
-    pub fn example_with_inputs(
+    fn tuple_window(
         &self,
         si: usize,
         target: usize,
-        inputs: Vec<usize>,
-        depths: Vec<f64>,
+        inputs: &[usize],
+        depths: &[f64],
         crop_origin: (u32, u32),
         crop: usize,
         margin: usize,
-        with_context: bool,
-    ) -> Result<Example, DataError> {
+    ) -> Result<TupleWindow, DataError> {
         let s = &self.scenes[si];
         let geo = |source| DataError::Geometry {
             scene: s.name.clone(),
@@ -631,6 +758,31 @@ impl TrainData {
                 "MPI window of {ww}x{wh} px for one crop: depth bounds too wide?"
             )));
         }
+        Ok(TupleWindow {
+            reference,
+            ref_to_target,
+            window: (wx0, wy0, ww, wh),
+        })
+    }
+
+    /// [`Self::example`] with the input views given.
+    #[allow(clippy::too_many_arguments)]
+    pub fn example_with_inputs(
+        &self,
+        si: usize,
+        target: usize,
+        inputs: Vec<usize>,
+        depths: Vec<f64>,
+        crop_origin: (u32, u32),
+        crop: usize,
+        margin: usize,
+        with_context: bool,
+    ) -> Result<Example, DataError> {
+        let s = &self.scenes[si];
+        let tw = self.tuple_window(si, target, &inputs, &depths, crop_origin, crop, margin)?;
+        let (reference, ref_to_target) = (tw.reference, tw.ref_to_target);
+        let (wx0, wy0, ww, wh) = tw.window;
+        let (cx0, cy0) = (crop_origin.0 as f64, crop_origin.1 as f64);
 
         // Input crops: what the window sees on all planes.
         let mut images = Vec::with_capacity(inputs.len());
@@ -818,6 +970,7 @@ mod tests {
             surround_inputs: 0.0,
             spread_inputs: 0.0,
             window_context: false,
+            budget: None,
         }
     }
 
@@ -1026,6 +1179,70 @@ mod tests {
         assert!(sets.len() > 10, "only {} input sets", sets.len());
     }
 
+    /// The memory budget: a budget over every tuple's estimate draws exactly the tuples drawn without
+    /// one; a budget at the median estimate bounds every tuple drawn (fewer planes, down to 8, or
+    /// another tuple), and a budget no tuple fits is a clear error, not a panic or an endless loop.
+    #[test]
+    fn memory_budget_bounds_each_tuple() {
+        let data = TrainData::new(vec![two_plane_scene(12, 2, 48, 0.3)]).unwrap();
+        let model = DeepViewConfig::preset("cpu").unwrap();
+        let mut cfg = SampleConfig {
+            spread_inputs: 0.5,
+            ..test_sample(3..=3, 32)
+        };
+        let estimate = |ex: &Example| {
+            step_bytes(
+                &model,
+                ex.inputs.len(),
+                ex.depths.len(),
+                ex.window.2 * ex.window.3,
+                false,
+            )
+        };
+        let draw = |cfg: &SampleConfig| -> Vec<Example> {
+            let mut rng = Rng::new(5);
+            (0..40)
+                .map(|_| data.sample(cfg, &model, 3, &mut rng).unwrap())
+                .collect()
+        };
+        let free = draw(&cfg);
+        let mut needs: Vec<u64> = free.iter().map(estimate).collect();
+        needs.sort();
+        let tuple = |b: u64| b - STEP_BASE_BYTES;
+        assert!(tuple(needs[0]) * 3 / 2 < tuple(needs[39]), "{needs:?}");
+
+        cfg.budget = Some(StepBudget {
+            bytes: needs[39],
+            recompute: false,
+        });
+        for (a, b) in free.iter().zip(draw(&cfg)) {
+            assert_eq!(
+                (&a.inputs, a.target, &a.depths, a.crop_origin),
+                (&b.inputs, b.target, &b.depths, b.crop_origin)
+            );
+        }
+
+        let budget = needs[20];
+        cfg.budget = Some(StepBudget {
+            bytes: budget,
+            recompute: false,
+        });
+        let bounded = draw(&cfg);
+        let fewer = bounded.iter().filter(|e| e.depths.len() < 32).count();
+        for ex in &bounded {
+            assert!(estimate(ex) <= budget, "{} > {budget}", estimate(ex));
+            assert!(ex.depths.len() >= 8);
+        }
+        assert!(fewer > 0, "no tuple got fewer planes");
+
+        cfg.budget = Some(StepBudget {
+            bytes: STEP_BASE_BYTES + 1,
+            recompute: false,
+        });
+        let err = data.sample(&cfg, &model, 3, &mut Rng::new(5)).unwrap_err();
+        assert!(err.to_string().contains("memory budget"), "{err}");
+    }
+
     /// `surround_inputs = 1`, K = 4 on a 5x5 grid: distinct views from the 3K nearest, not always the K
     /// nearest, and around every interior target: seen from the target, no angular gap between the
     /// inputs exceeds 180 degrees (the target is inside their convex hull).
@@ -1038,6 +1255,7 @@ mod tests {
         let mut cfg = SampleConfig {
             wide_inputs: 0.5,
             window_context: true,
+            budget: None,
             ..test_sample(3..=3, 8)
         };
         let model = DeepViewConfig::preset("cpu").unwrap();

@@ -72,7 +72,7 @@ pub use checkpoint::{
     list_checkpoints,
 };
 pub use config::{PAPER_LEARNING_RATE, RunConfig, TrainConfig};
-pub use data::{Example, Rng, SampleConfig, TrainData};
+pub use data::{Example, Rng, SampleConfig, StepBudget, TrainData, step_bytes};
 pub use dist::Collective;
 pub use error::TrainError;
 pub use events::{Notice, TrainEvent};

@@ -14,6 +14,10 @@ pub struct StepReport {
     /// Global gradient norm before clipping (NaN when not computed).
     pub grad_norm: f64,
     pub views: usize,
+    /// The most planes of a tuple in the batch.
+    pub planes: usize,
+    /// The largest estimated memory of a tuple's step in the batch ([`crate::data::step_bytes`]), MiB.
+    pub step_mib: u64,
     /// Why the step was skipped (weights untouched), if it was.
     pub skipped: Option<String>,
 }
@@ -56,6 +60,8 @@ pub(crate) fn append_metrics(
         "loss": num(r.loss),
         "grad_norm": num(r.grad_norm),
         "views": r.views,
+        "planes": r.planes,
+        "step_mib": r.step_mib,
         "steps_per_s": num(steps_per_s),
         "wall_time_s": wall_time_s,
         "skipped": r.skipped.is_some(),

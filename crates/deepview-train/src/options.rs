@@ -73,6 +73,13 @@ pub struct TrainOptions {
     /// config.json: --resume goes on validating (give it again to change N).
     #[arg(long, value_name = "N", value_parser = clap::value_parser!(u64).range(1..))]
     pub validate_every: Option<u64>,
+    /// Memory a training step may take, e.g. 12GiB, 800MiB, or auto (default): three quarters of the
+    /// memory available when the session starts, leaving at least 1 GiB free. A tuple whose step would
+    /// need more (wide spread inputs at a high resolution have large training windows) gets fewer planes,
+    /// down to 8, or is drawn again. A property of the machine, not kept in config.json: give it on every
+    /// session (--resume included) that needs another bound.
+    #[arg(long, value_name = "SIZE")]
+    pub max_memory: Option<String>,
     /// Random seed (weights initialisation and tuple sampling; default 0).
     #[arg(long)]
     pub seed: Option<u64>,

@@ -52,6 +52,7 @@ fn small_config(steps: u64, devices: &[&str], batch: usize) -> RunConfig {
         surround_inputs: 0.0,
         spread_inputs: 0.0,
         window_context: false,
+        budget: None,
     };
     train.loss = LossKind::L1;
     train.checkpoint_every = 1000;

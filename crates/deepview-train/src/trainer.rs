@@ -411,6 +411,19 @@ impl Trainer {
         self.wall_offset + self.session_start.elapsed().as_secs_f64()
     }
 
+    /// Bound each tuple's training step to `bytes` ([`crate::data::SampleConfig::budget`]; `None`: no
+    /// bound). With ranks, every rank takes rank 0's bound, so that all of them draw the same batches.
+    pub fn set_memory_budget(&mut self, bytes: Option<u64>) {
+        let mut v = [bytes.map_or(u64::MAX, |b| b)];
+        if let Some(c) = &self.comm {
+            c.broadcast_u64(&mut v);
+        }
+        self.config.train.sample.budget = (v[0] != u64::MAX).then_some(crate::data::StepBudget {
+            bytes: v[0],
+            recompute: self.config.train.recompute,
+        });
+    }
+
     /// Draw a batch with the run's RNG.
     pub fn draw_batch(&mut self) -> Result<Vec<Example>, TrainError> {
         let t = &self.config.train;
@@ -438,6 +451,20 @@ impl Trainer {
         self.session_steps += 1;
         let n = batch.len();
         let views = batch.first().map_or(0, |e| e.inputs.len());
+        let planes = batch.iter().map(|e| e.depths.len()).max().unwrap_or(0);
+        let step_mib = batch
+            .iter()
+            .map(|e| {
+                crate::data::step_bytes(
+                    &self.config.model,
+                    e.inputs.len(),
+                    e.depths.len(),
+                    e.window.2 * e.window.3,
+                    self.config.train.recompute,
+                ) >> 20
+            })
+            .max()
+            .unwrap_or(0);
         let (rank, size) = self.rank();
         let mine = dist::share(n, rank, size);
         let local = &batch[mine.clone()];
@@ -506,6 +533,8 @@ impl Trainer {
             loss: mean,
             grad_norm: f64::NAN,
             views,
+            planes,
+            step_mib,
             skipped: None,
         };
         if let Some(i) = losses.iter().position(|v| !v.is_finite()) {

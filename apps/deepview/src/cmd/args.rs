@@ -217,6 +217,14 @@ pub fn available_memory() -> Option<u64> {
     parse_mem_available(&text)
 }
 
+/// Bytes this process holds in memory now (`VmRSS` in `/proc/self/status`).
+pub fn resident_bytes() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
 /// Bytes of physical memory (`MemTotal` in `/proc/meminfo`).
 pub fn total_memory() -> Option<u64> {
     let text = std::fs::read_to_string("/proc/meminfo").ok()?;

@@ -442,11 +442,25 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
     let data = load_data(&train.data, train.holdout_every)?;
     let dir = std::env::temp_dir().join(format!("deepview-bench-train-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
+    // The tuple with the most slice pixels (views x planes x window pixels) and its memory estimate.
+    let mut largest = (0usize, 0u64);
     let result = (|| -> anyhow::Result<Vec<f64>> {
         let mut trainer = Trainer::create(&dir, RunConfig { model, train }, data)?;
         let mut times = Vec::new();
         for i in 0..args.steps.max(1) + 2 {
             let batch = trainer.draw_batch()?;
+            for ex in &batch {
+                let px = ex.window.2 * ex.window.3;
+                let slices = ex.inputs.len() * ex.depths.len() * px;
+                let est = deepview_train::step_bytes(
+                    &trainer.config.model,
+                    ex.inputs.len(),
+                    ex.depths.len(),
+                    px,
+                    recompute,
+                );
+                largest = largest.max((slices, est));
+            }
             let t = Instant::now();
             let r = trainer.step_on(batch);
             if let Some(why) = r.skipped {
@@ -471,6 +485,8 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
         "recompute": recompute,
         "steps": times.len(),
         "peak_rss_mb": peak_rss_mb(),
+        "largest_slice_px": largest.0,
+        "largest_estimate_mb": largest.1 >> 20,
         "engine": if deepview_net::cpu::ops::fast_device(&deepview_net::burn::tensor::Device::flex()) { "kernels" } else { "burn" },
         "device": args.device,
     });

@@ -35,7 +35,7 @@ use validate::Validation;
     deepview train --data ../shared/data/llff/fern --data runs/synth/grid-20 --images images_4 --max-width 512 \
     --views 4 --surround-inputs 1 --name mixed --vgg-weights $VGG\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
-    --steps, --devices, --data, --keep-checkpoints, --vgg-weights and --validate-every may be given: the others are the run's own, \
+    --steps, --devices, --data, --keep-checkpoints, --vgg-weights, --validate-every and --max-memory may be given: the others are the run's own, \
     and its datasets load with the scene options they were first loaded with (kept in its config.json).\n\n\
     The VGG loss (the default) reads the VGG-16 weights from --vgg-weights FILE (kept in the run's config.json)."
 )]
@@ -118,6 +118,22 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     check_output("--runs/--name", &run_dir, Kind::Run, &inputs)?;
     let opts = args.scene.load_options();
     let writer = comm.as_ref().is_none_or(|c| c.rank() == 0);
+    // Before the data loads: a wrong --max-memory is refused at once.
+    let (budget, line) = super::args::memory_budget_of(
+        args.options.max_memory.as_deref(),
+        super::args::available_memory(),
+        super::args::total_memory(),
+    )?;
+    if budget <= deepview_train::data::STEP_BASE_BYTES {
+        anyhow::bail!(
+            "--max-memory {}: a training step holds {} MiB whatever its tuple; give more",
+            args.options.max_memory.as_deref().unwrap_or("auto"),
+            deepview_train::data::STEP_BASE_BYTES >> 20
+        );
+    }
+    if writer {
+        eprintln!("training: {line}");
+    }
     let request = deepview_train::Request {
         run_dir: &run_dir,
         data: &args.data,
@@ -132,6 +148,29 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
         }
     }
     let mut trainer = session.trainer;
+    // The datasets, the model and the runtime are loaded: the steps get the rest of the budget.
+    let held = super::args::resident_bytes().unwrap_or(0);
+    let steps = budget.saturating_sub(held);
+    if steps <= deepview_train::data::STEP_BASE_BYTES {
+        anyhow::bail!(
+            "--max-memory {}: the loaded datasets and the model already hold {} MiB of its {} MiB, which \
+             leaves {} MiB for a training step, less than the {} MiB one holds whatever its tuple; give \
+             more, or train on fewer or smaller datasets (--max-width)",
+            args.options.max_memory.as_deref().unwrap_or("auto"),
+            held >> 20,
+            budget >> 20,
+            steps >> 20,
+            deepview_train::data::STEP_BASE_BYTES >> 20
+        );
+    }
+    trainer.set_memory_budget(Some(steps));
+    if writer {
+        eprintln!(
+            "training: the loaded data holds {} MiB of the budget; each step gets up to {} MiB",
+            held >> 20,
+            steps >> 20
+        );
+    }
     let start_step = trainer.step;
     let mut progress = Progress::new(writer && !args.quiet, writer);
     let mut validation = match trainer.config.train.validate_every.filter(|_| writer) {
