@@ -208,6 +208,16 @@ pub trait GpuOps: Backend {
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
 
+    /// [`GpuOps::gpu_conv3x3_x_backward`] for weights that take no gradient (VGG's, in the feature
+    /// loss): they cannot change while a tensor holds them, so on cubecl devices each one's flipped and
+    /// transposed copy is made once and kept ([`frozen_flips`]) instead of at every backward pass.
+    fn gpu_conv3x3_x_backward_frozen(
+        weight: FloatTensor<Self>,
+        grad: FloatTensor<Self>,
+    ) -> FloatTensor<Self> {
+        Self::gpu_conv3x3_x_backward(weight, grad)
+    }
+
     /// A window of `x` `[N, C, h, w]`: rows `y0..y0 + oh` and columns `x0..x0 + ow`, `[N, C, oh, ow]`
     /// in `x`'s layout (channels-last stays so), one dispatch (burn: a slice per axis); under autodiff
     /// its backward pads the gradient back with zeros in one dispatch (burn: a fill and a
@@ -391,6 +401,70 @@ struct PendingAdam {
     inputs: [CubeTensor; 4],
     outputs: [CubeTensor; 3],
     step: AdamStep,
+}
+
+/// A 3x3 convolution's weights `[O, I, 3, 3]` flipped and transposed, `[I, O, 3, 3]` channels-last:
+/// the weights of the convolution that gives its input's gradient. One dispatch.
+fn flip_transpose(weight: CubeTensor) -> CubeTensor {
+    let [o, i, kh, kw] = weight.meta.shape().dims::<4>();
+    assert_eq!([kh, kw], [3, 3], "a 3x3 convolution");
+    let flipped = permute_nhwc_to_nchw(empty_shaped(&weight, Shape::new([i, kh, kw, o])));
+    let (count, dim) = grid(&weight, o * i * kh * kw);
+    kernels::flip_transpose_kernel::launch(
+        &flipped.client,
+        count,
+        dim,
+        weight.into_tensor_arg(),
+        flipped.clone().into_tensor_arg(),
+    );
+    flipped
+}
+
+/// Which weights a kept flip belongs to: the memory (cubecl never reuses a memory id, and the kept
+/// entry holds the weights, so their memory is neither freed nor written in place while it is kept:
+/// burn writes in place only into a tensor nobody else holds) and where the weights lie in it.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct FrozenKey {
+    memory: usize,
+    offset: (Option<u64>, Option<u64>),
+    shape: Vec<usize>,
+    strides: Vec<usize>,
+}
+
+impl FrozenKey {
+    fn of(t: &CubeTensor) -> Self {
+        Self {
+            memory: t.handle.memory.descriptor().id.value,
+            offset: (t.handle.offset_start, t.handle.offset_end),
+            shape: t.meta.shape().to_vec(),
+            strides: t.meta.strides().to_vec(),
+        }
+    }
+}
+
+/// A kept flip ([`GpuOps::gpu_conv3x3_x_backward_frozen`]) and the weights it was made from.
+struct FrozenFlip {
+    key: FrozenKey,
+    _weight: CubeTensor,
+    flipped: CubeTensor,
+}
+
+/// How many flips of frozen weights a thread keeps (VGG's feature loss has 7 convolutions; the oldest
+/// goes first).
+const FROZEN_FLIPS_KEPT: usize = 32;
+
+thread_local! {
+    /// The flips of frozen weights kept on this thread (each replica's thread has its own device).
+    static FROZEN_FLIPS: std::cell::RefCell<Vec<FrozenFlip>> =
+        const { std::cell::RefCell::new(Vec::new()) };
+    /// How many backward passes this thread took a kept flip in (tests).
+    static FROZEN_FLIP_HITS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
+/// How many frozen convolutions' backward passes on this thread used a kept flip
+/// ([`GpuOps::gpu_conv3x3_x_backward_frozen`]).
+pub fn frozen_flip_hits() -> u64 {
+    FROZEN_FLIP_HITS.with(|h| h.get())
 }
 
 thread_local! {
@@ -1263,17 +1337,39 @@ impl GpuOps for CubeBackend {
     }
 
     fn gpu_conv3x3_x_backward(weight: CubeTensor, grad: CubeTensor) -> CubeTensor {
-        let [o, i, kh, kw] = weight.meta.shape().dims::<4>();
-        assert_eq!([kh, kw], [3, 3], "a 3x3 convolution");
-        let flipped = permute_nhwc_to_nchw(empty_shaped(&weight, Shape::new([i, kh, kw, o])));
-        let (count, dim) = grid(&weight, o * i * kh * kw);
-        kernels::flip_transpose_kernel::launch(
-            &flipped.client,
-            count,
-            dim,
-            weight.into_tensor_arg(),
-            flipped.clone().into_tensor_arg(),
-        );
+        let flipped = flip_transpose(weight);
+        <Self as burn::backend::ops::ModuleOps<Self>>::conv2d(grad, flipped, None, same3x3())
+    }
+
+    fn gpu_conv3x3_x_backward_frozen(weight: CubeTensor, grad: CubeTensor) -> CubeTensor {
+        let key = FrozenKey::of(&weight);
+        let cached = FROZEN_FLIPS.with(|c| {
+            c.borrow()
+                .iter()
+                .find(|e| e.key == key)
+                .map(|e| e.flipped.clone())
+        });
+        let flipped = match cached {
+            Some(f) => {
+                FROZEN_FLIP_HITS.with(|h| h.set(h.get() + 1));
+                f
+            }
+            None => {
+                let flipped = flip_transpose(weight.clone());
+                FROZEN_FLIPS.with(|c| {
+                    let mut c = c.borrow_mut();
+                    if c.len() == FROZEN_FLIPS_KEPT {
+                        c.remove(0);
+                    }
+                    c.push(FrozenFlip {
+                        key,
+                        _weight: weight,
+                        flipped: flipped.clone(),
+                    });
+                });
+                flipped
+            }
+        };
         <Self as burn::backend::ops::ModuleOps<Self>>::conv2d(grad, flipped, None, same3x3())
     }
 
@@ -1845,6 +1941,7 @@ impl<B: Backend + GpuOps> Backward<B, 3> for Conv3x3Backward {
 
     fn backward(self, ops: Ops<Self::State, 3>, grads: &mut Gradients, _: &mut Checkpointer) {
         let [x_node, w_node, b_node] = ops.parents;
+        let w_frozen = w_node.is_none() && b_node.is_none();
         let grad = grads.consume::<B>(&ops.node);
         let (x, weight) = ops.state;
         if let Some(node) = b_node {
@@ -1855,7 +1952,12 @@ impl<B: Backend + GpuOps> Backward<B, 3> for Conv3x3Backward {
             grads.register::<B>(node.id, g);
         }
         if let Some(node) = x_node {
-            grads.register::<B>(node.id, B::gpu_conv3x3_x_backward(weight, grad));
+            let gx = if w_frozen {
+                B::gpu_conv3x3_x_backward_frozen(weight, grad)
+            } else {
+                B::gpu_conv3x3_x_backward(weight, grad)
+            };
+            grads.register::<B>(node.id, gx);
         }
     }
 }

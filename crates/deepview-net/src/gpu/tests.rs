@@ -857,6 +857,74 @@ fn wgpu_conv3x3_equals_burns_conv() {
     }
 }
 
+/// A convolution whose weights take no gradient (VGG's in the feature loss) keeps its weights' flip
+/// on wgpu: the input gradient equals burn's `conv2d` on the CPU on the first backward pass (the flip
+/// made), on the second (the flip kept: one hit), and for other weights of the same shape (their own
+/// flip, not the first one's).
+#[test]
+fn wgpu_frozen_conv_keeps_its_flip() {
+    let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
+    let cpu = Device::flex();
+    let (n, ci, co, h, w) = (2, 8, 8, 7, 6);
+    let rand = |len: usize| {
+        to_vec(Tensor::<1>::random(
+            [len],
+            Distribution::Uniform(-1.0, 1.0),
+            &cpu,
+        ))
+    };
+    let (vx, vb, seed) = (rand(n * ci * h * w), rand(co), rand(n * co * h * w));
+    // `ad`: an autodiff device; `wt` on it without require_grad (no gradient: frozen).
+    let x_grad = |ad: &Device, kernel: bool, wt: &Tensor<4>| {
+        let x =
+            Tensor::<4>::from_data(TensorData::new(vx.clone(), [n, ci, h, w]), ad).require_grad();
+        let wt = wt.clone();
+        let b = Tensor::<1>::from_data(TensorData::new(vb.clone(), [co]), ad);
+        let y = if kernel {
+            crate::gpu::conv3x3(channels_last_copy(x.clone()), wt, b)
+        } else {
+            let opts = burn::tensor::ops::ConvOptions::new([1, 1], [1, 1], [1, 1], 1);
+            burn::tensor::module::conv2d(x.clone(), wt, Some(b), opts)
+        };
+        let s = Tensor::<4>::from_data(TensorData::new(seed.clone(), [n, co, h, w]), ad);
+        to_vec(x.grad(&(y * s).sum().backward()).unwrap())
+    };
+    let (gpu, cpu) = (gpu.autodiff(), cpu.clone().autodiff());
+    let weights = |dev: &Device, v: &[f32]| {
+        Tensor::<4>::from_data(TensorData::new(v.to_vec(), [co, ci, 3, 3]), dev)
+    };
+    let (v1, v2) = (rand(co * ci * 9), rand(co * ci * 9));
+    let (w1, w2) = (weights(&gpu, &v1), weights(&gpu, &v2));
+    let want1 = x_grad(&cpu, false, &weights(&cpu, &v1));
+    let want2 = x_grad(&cpu, false, &weights(&cpu, &v2));
+    let hits = crate::gpu::frozen_flip_hits();
+    let first = x_grad(&gpu, true, &w1);
+    assert_eq!(
+        crate::gpu::frozen_flip_hits(),
+        hits,
+        "the first pass makes the flip"
+    );
+    let second = x_grad(&gpu, true, &w1);
+    assert_eq!(
+        crate::gpu::frozen_flip_hits(),
+        hits + 1,
+        "the second pass keeps it"
+    );
+    let other = x_grad(&gpu, true, &w2);
+    assert_eq!(
+        crate::gpu::frozen_flip_hits(),
+        hits + 1,
+        "other weights, another flip"
+    );
+    assert!(max_diff(&want1, &first) < 1e-5, "first pass");
+    assert!(max_diff(&want1, &second) < 1e-5, "second pass");
+    assert!(max_diff(&want2, &other) < 1e-5, "other weights");
+    assert!(
+        max_diff(&want1, &want2) > 1e-2,
+        "the two weights give other gradients"
+    );
+}
+
 /// The training window's crop on wgpu (one kernel each way) equals burn's two narrows on the CPU:
 /// values, and gradients (the output's gradient inside the window, zero outside), for a contiguous
 /// input and a channels-last one (the state after a convolution), whose layout the output keeps.
