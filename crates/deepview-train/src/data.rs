@@ -121,8 +121,8 @@ pub struct SampleConfig {
 /// The memory bound of one training step ([`SampleConfig::budget`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct StepBudget {
-    /// Bytes the step may take (the whole process: model, optimizer, loss network and the tuple's
-    /// activations).
+    /// Bytes the step may take (model, optimizer, loss network and the tuple's activations; the
+    /// loaded datasets are not counted: the trainer's caller gives what its budget leaves after them).
     pub bytes: u64,
     /// Whether the nets recompute their activations in the backward pass (only one net's are held).
     pub recompute: bool,
@@ -134,8 +134,8 @@ pub const BUDGET_TRIES: usize = 64;
 /// Estimated peak bytes of a training step (forward and backward) on one tuple of `views` inputs and
 /// `planes` planes whose MPI window has `window_px` pixels, on the CPU: what a step holds whatever the
 /// tuple (the runtime, the VGG loss on the target crop, and 64 bytes per parameter: weights, gradients,
-/// Adam's two moments and the step's copies of them), plus per plane pixel of the window `(views + 0.8) x (100 + 25 F)` bytes,
-/// where `F` sums the feature counts of the nets whose activations are held for the backward pass (all
+/// Adam's two moments and the step's copies of them), plus per plane pixel of the window
+/// `(views + 0.8) x (100 + 25 F)` bytes, where `F` sums the feature counts of the nets whose activations are held for the backward pass (all
 /// of them; only the largest with `recompute`), each weighted by its depth, `(4 + max-pool stages) / 5`,
 /// and by a quarter for a U-Net net (half resolution): the plane-sweep volumes and per-view inputs, each
 /// view's conv activations and their gradients, and the state and rendered components per plane (the
@@ -215,6 +215,19 @@ pub struct Example {
     pub crop_origin: (u32, u32),
     /// The MPI around the window that the input crops' rays cross ([`SampleConfig::window_context`]).
     pub context: Option<ExampleContext>,
+}
+
+impl Example {
+    /// [`step_bytes`] of this tuple: its inputs, planes and window.
+    pub fn step_bytes(&self, model: &DeepViewConfig, recompute: bool) -> u64 {
+        step_bytes(
+            model,
+            self.inputs.len(),
+            self.depths.len(),
+            self.window.2 * self.window.3,
+            recompute,
+        )
+    }
 }
 
 /// The region of the reference camera around a tuple's window that the rays of its input crops cross
@@ -1190,15 +1203,7 @@ mod tests {
             spread_inputs: 0.5,
             ..test_sample(3..=3, 32)
         };
-        let estimate = |ex: &Example| {
-            step_bytes(
-                &model,
-                ex.inputs.len(),
-                ex.depths.len(),
-                ex.window.2 * ex.window.3,
-                false,
-            )
-        };
+        let estimate = |ex: &Example| ex.step_bytes(&model, false);
         let draw = |cfg: &SampleConfig| -> Vec<Example> {
             let mut rng = Rng::new(5);
             (0..40)

@@ -454,15 +454,7 @@ impl Trainer {
         let planes = batch.iter().map(|e| e.depths.len()).max().unwrap_or(0);
         let step_mib = batch
             .iter()
-            .map(|e| {
-                crate::data::step_bytes(
-                    &self.config.model,
-                    e.inputs.len(),
-                    e.depths.len(),
-                    e.window.2 * e.window.3,
-                    self.config.train.recompute,
-                ) >> 20
-            })
+            .map(|e| e.step_bytes(&self.config.model, self.config.train.recompute) >> 20)
             .max()
             .unwrap_or(0);
         let (rank, size) = self.rank();

@@ -217,12 +217,18 @@ pub fn available_memory() -> Option<u64> {
     parse_mem_available(&text)
 }
 
-/// Bytes this process holds in memory now (`VmRSS` in `/proc/self/status`).
-pub fn resident_bytes() -> Option<u64> {
+/// A kB field of `/proc/self/status` (`VmRSS`, `VmHWM`, ...).
+pub fn proc_status_kb(key: &str) -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
+    let line = s
+        .lines()
+        .find(|l| l.strip_prefix(key).is_some_and(|r| r.starts_with(':')))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// Bytes this process holds in memory now (`VmRSS`).
+pub fn resident_bytes() -> Option<u64> {
+    proc_status_kb("VmRSS").map(|kb| kb * 1024)
 }
 
 /// Bytes of physical memory (`MemTotal` in `/proc/meminfo`).

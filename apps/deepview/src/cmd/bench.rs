@@ -341,10 +341,8 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
 /// Peak resident memory of this process in MB (`VmHWM`), if known.
 /// The process's peak resident memory (VmHWM) in MiB.
 pub(crate) fn peak_rss_mb() -> Option<f64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some((kb / 1024.0).round())
+    let kb = args::proc_status_kb("VmHWM")?;
+    Some((kb as f64 / 1024.0).round())
 }
 
 fn parse_size(spec: &str) -> anyhow::Result<(usize, usize)> {
@@ -450,16 +448,8 @@ fn bench_train(args: TrainArgs) -> anyhow::Result<()> {
         for i in 0..args.steps.max(1) + 2 {
             let batch = trainer.draw_batch()?;
             for ex in &batch {
-                let px = ex.window.2 * ex.window.3;
-                let slices = ex.inputs.len() * ex.depths.len() * px;
-                let est = deepview_train::step_bytes(
-                    &trainer.config.model,
-                    ex.inputs.len(),
-                    ex.depths.len(),
-                    px,
-                    recompute,
-                );
-                largest = largest.max((slices, est));
+                let slices = ex.inputs.len() * ex.depths.len() * ex.window.2 * ex.window.3;
+                largest = largest.max((slices, ex.step_bytes(&trainer.config.model, recompute)));
             }
             let t = Instant::now();
             let r = trainer.step_on(batch);
