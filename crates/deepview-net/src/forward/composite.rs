@@ -15,9 +15,6 @@ pub struct Composite {
     pub transmittance: Tensor<4>,
     /// `[D, 3, h, w]`: accumulated over `A_d = sum_{i<d} c_i prod_{i<j<d} (1 - a_j)`.
     pub accumulated: Tensor<4>,
-    /// The composite kernel's own output `[D + 1, 4, h, w]` that the three above are views of, where
-    /// one made them: a GPU warps the gradient components straight from it.
-    pub packed: Option<Tensor<4>>,
 }
 
 impl Composite {
@@ -35,7 +32,6 @@ impl Composite {
                 .reshape([3, h, w]),
             transmittance: planes.clone().narrow(1, 3, 1),
             accumulated: planes.narrow(1, 0, 3),
-            packed: Some(out),
         }
     }
 }
@@ -99,7 +95,6 @@ pub fn composite_scan(rgba: Tensor<4>) -> Composite {
         render,
         transmittance,
         accumulated,
-        packed: None,
     }
 }
 
@@ -131,7 +126,6 @@ pub fn composite_burn(rgba: Tensor<4>) -> Composite {
         render,
         transmittance: Tensor::cat(trans, 0),
         accumulated: Tensor::cat(acc, 0),
-        packed: None,
     }
 }
 
@@ -204,15 +198,15 @@ pub fn gradient_components(
     region: (usize, usize, usize, usize),
 ) -> Tensor<4> {
     let [_, hv, wv] = image.dims();
+    let [_, _, mh, mw] = rgba.dims();
     let view_to_mpi: Vec<Hom> = mpi_to_view.iter().map(invert).collect();
-    let comp = render_view(rgba, &view_to_mpi, hv, wv);
     let (x0, y0, w, h) = region;
     let region_homs: Vec<Hom> = mpi_to_view
         .iter()
         .map(|m| crop_output(m, x0 as f64, y0 as f64))
         .collect();
     let table = WarpTable::new(&region_homs, wv, hv, w, h);
-    components_from(image, comp, &table)
+    components_of_render(rgba, &view_to_mpi, Frames::whole(mw, mh), image, &table)
 }
 
 /// A window of an MPI and a crop of a view, placed in the whole MPI (`mpi_size`) and view (`view_size`).
@@ -244,7 +238,6 @@ pub fn gradient_components_framed(
         src_full: crops.mpi_size,
         out_origin: crops.crop,
     };
-    let comp = render_view_framed(rgba, &view_to_mpi, render, hv, wv);
     let (x0, y0, w, h) = region;
     let sample = Frames {
         src_origin: crops.crop,
@@ -252,18 +245,34 @@ pub fn gradient_components_framed(
         out_origin: (x0, y0),
     };
     let table = WarpTable::new_framed(mpi_to_view, sample, wv, hv, w, h);
-    components_from(image, comp, &table)
+    components_of_render(rgba, &view_to_mpi, render, image, &table)
+}
+
+/// The gradient components of `image` and the render of `rgba` into it (`view_to_mpi`, `frames`: as
+/// [`render_view_framed`]), sampled by `table`. On a cubecl device the components are warped straight from
+/// the composite kernel's packed output: the render, `A` and `T` are never sliced out of it (each slice
+/// of a tracked tensor is a dispatch there).
+fn components_of_render(
+    rgba: Tensor<4>,
+    view_to_mpi: &[Hom],
+    frames: Frames,
+    image: Tensor<3>,
+    table: &WarpTable,
+) -> Tensor<4> {
+    let [_, hv, wv] = image.dims();
+    let [_, _, h, w] = rgba.dims();
+    let warped = WarpTable::new_framed(view_to_mpi, frames, w, h, wv, hv).apply(rgba);
+    #[cfg(any(feature = "wgpu", feature = "cuda"))]
+    if crate::gpu::gpu_kernels(&warped.device()) {
+        let packed = crate::gpu::composite(warped);
+        return crate::gpu::components(table, image.reshape([1, 3, hv, wv]), packed);
+    }
+    components_from(image, composite(warped), table)
 }
 
 /// The gradient components of a view image and its render, sampled by `table`.
 fn components_from(image: Tensor<3>, comp: Composite, table: &WarpTable) -> Tensor<4> {
     let [_, hv, wv] = image.dims();
-    #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if let Some(packed) = &comp.packed
-        && crate::gpu::gpu_kernels(&packed.device())
-    {
-        return crate::gpu::components(table, image.reshape([1, 3, hv, wv]), packed.clone());
-    }
     let images = Tensor::cat(
         vec![
             image.reshape([1, 3, hv, wv]),
