@@ -20,18 +20,15 @@ pub struct Composite {
 impl Composite {
     /// From one kernel's output `[D + 1, 4, h, w]`: planes `..D` hold `A` (3) and `T` (1), plane `D` the
     /// render (3).
+    /// Each part is one slice of it (under autodiff on a GPU each slice's backward is a fill and a
+    /// slice-assign launch: a slice per axis would double them).
     fn from_packed(out: Tensor<4>) -> Self {
         let [d1, _, h, w] = out.dims();
         let d = d1 - 1;
-        let planes = out.clone().narrow(0, 0, d);
         Self {
-            render: out
-                .clone()
-                .narrow(0, d, 1)
-                .narrow(1, 0, 3)
-                .reshape([3, h, w]),
-            transmittance: planes.clone().narrow(1, 3, 1),
-            accumulated: planes.narrow(1, 0, 3),
+            render: out.clone().slice([d..d1, 0..3]).reshape([3, h, w]),
+            transmittance: out.clone().slice([0..d, 3..4]),
+            accumulated: out.slice([0..d, 0..3]),
         }
     }
 }

@@ -437,6 +437,7 @@ pub(super) fn warp_backward_kernel(
     grad_c0: u32,
     p0: u32,
     c0: u32,
+    zeros: u32,
 ) {
     let (sh, sw) = (gsrc.shape(2), gsrc.shape(3));
     let (d, oh, ow) = (grad.shape(0), grad.shape(2), grad.shape(3));
@@ -550,6 +551,11 @@ pub(super) fn warp_backward_kernel(
             }
         }
         gsrc[gb + ch * gcs] = acc;
+    }
+    // The `zeros` channels after the written ones get 0 (a packed gradient's unused channel, written
+    // here rather than by a fill of the whole tensor first).
+    for ch in 0..usize::cast_from(zeros) {
+        gsrc[gb + (usize::cast_from(c) + ch) * gcs] = 0.0f32;
     }
 }
 

@@ -34,7 +34,7 @@ use burn::backend::{
 use burn::tensor::{Device, Shape, Tensor, TensorData};
 use burn_cubecl::CubeBackend;
 use burn_cubecl::kernel::into_contiguous;
-use burn_cubecl::ops::numeric::{empty_device_dtype, full_client};
+use burn_cubecl::ops::numeric::empty_device_dtype;
 use burn_cubecl::ops::permute_nhwc_to_nchw;
 use burn_cubecl::tensor::CubeTensor;
 use cubecl::calculate_cube_count_elemwise;
@@ -878,6 +878,7 @@ fn warp_backward_into(
     gsrc: &CubeTensor,
     p0: usize,
     c0: usize,
+    zeros: usize,
 ) {
     let f = table.frames();
     let (count, dim) = grid(grad, s * table.src_h * table.src_w);
@@ -900,6 +901,7 @@ fn warp_backward_into(
         grad_c0 as u32,
         p0 as u32,
         c0 as u32,
+        zeros as u32,
     );
 }
 
@@ -1137,7 +1139,7 @@ impl GpuOps for CubeBackend {
     fn gpu_components_image_grad(grad: CubeTensor, table: Arc<WarpTable>, ci: usize) -> CubeTensor {
         let gi = empty_like(&grad, [1, ci, table.src_h, table.src_w]);
         let tables = backward_tables(&table, &grad);
-        warp_backward_into(&table, &tables, 1, &grad, 0, ci, &gi, 0, 0);
+        warp_backward_into(&table, &tables, 1, &grad, 0, ci, &gi, 0, 0, 0);
         gi
     }
 
@@ -1147,16 +1149,12 @@ impl GpuOps for CubeBackend {
         ci: usize,
     ) -> CubeTensor {
         let (d, sh, sw) = (table.planes, table.src_h, table.src_w);
-        // Every texel of the packed gradient is written but the render plane's fourth channel.
-        let gp = full_client::<f32>(
-            grad.client.clone(),
-            Shape::new([d + 1, 4, sh, sw]),
-            grad.device.clone(),
-            0.0,
-        );
+        // Every texel of the packed gradient is written: the render plane's fourth channel (read by
+        // nothing) as 0.
+        let gp = empty_like(&grad, [d + 1, 4, sh, sw]);
         let tables = backward_tables(&table, &grad);
-        warp_backward_into(&table, &tables, 1, &grad, ci, 3, &gp, d, 0);
-        warp_backward_into(&table, &tables, d, &grad, ci + 3, 4, &gp, 0, 0);
+        warp_backward_into(&table, &tables, 1, &grad, ci, 3, &gp, d, 0, 1);
+        warp_backward_into(&table, &tables, d, &grad, ci + 3, 4, &gp, 0, 0, 0);
         gp
     }
 
@@ -1164,7 +1162,7 @@ impl GpuOps for CubeBackend {
         let [_, c, _, _] = grad.meta.shape().dims::<4>();
         let gsrc = empty_like(&grad, [s, c, table.src_h, table.src_w]);
         let tables = backward_tables(&table, &grad);
-        warp_backward_into(&table, &tables, s, &grad, 0, c, &gsrc, 0, 0);
+        warp_backward_into(&table, &tables, s, &grad, 0, c, &gsrc, 0, 0, 0);
         gsrc
     }
 
