@@ -39,6 +39,16 @@ pub enum WeightsError {
     #[error("{path} is {what}")]
     NotWeights { path: PathBuf, what: &'static str },
     #[error(
+        "{checkpoint} is a training checkpoint, and its model configuration, the run's {config}, is \
+         missing: keep the checkpoint in its run folder (runs/NAME/config.json beside \
+         runs/NAME/checkpoints/step-N), or make a weights folder of it there with `deepview \
+         export-weights --checkpoint DIR --out WEIGHTS`"
+    )]
+    NoRunConfig {
+        checkpoint: PathBuf,
+        config: PathBuf,
+    },
+    #[error(
         "these weights were trained for exactly {expected} input views, got {got} (config {config})"
     )]
     WrongViews {
@@ -170,7 +180,16 @@ pub const CHECKPOINT_MODEL_FILE: &str = "model.bpk";
 /// `runs/<name>/config.json`.
 pub fn checkpoint_config(dir: &Path) -> Result<DeepViewConfig, WeightsError> {
     let run_config = run_config_path(dir);
-    let text = std::fs::read_to_string(&run_config).map_err(io(&run_config))?;
+    let text = std::fs::read_to_string(&run_config).map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            WeightsError::NoRunConfig {
+                checkpoint: dir.to_path_buf(),
+                config: run_config.clone(),
+            }
+        } else {
+            io(&run_config)(e)
+        }
+    })?;
     let config_err = |msg: String| WeightsError::Config {
         path: run_config.clone(),
         msg,
@@ -459,6 +478,39 @@ mod tests {
             ..cfg()
         };
         assert_eq!(parameter_count(&huge), None);
+    }
+
+    /// A checkpoint folder copied out of its run (no `config.json` two levels up) is refused with an
+    /// error that names the checkpoint and the run's config file it needs, not only a missing file.
+    #[test]
+    fn a_checkpoint_out_of_its_run_names_the_config_it_needs() {
+        let root = tempfile::tempdir().unwrap();
+        let ck = root.path().join("copied").join("step-0000500");
+        std::fs::create_dir_all(&ck).unwrap();
+        std::fs::write(ck.join(CHECKPOINT_MODEL_FILE), b"not read").unwrap();
+        let want = root.path().join("config.json");
+        for err in [
+            load_config_any(&ck).unwrap_err(),
+            load_checkpoint(&ck, &Device::flex()).unwrap_err(),
+        ] {
+            match &err {
+                WeightsError::NoRunConfig { checkpoint, config } => {
+                    assert_eq!((checkpoint, config), (&ck, &want));
+                }
+                other => panic!("expected NoRunConfig, got {other:?}"),
+            }
+            let msg = err.to_string();
+            assert!(
+                msg.contains("training checkpoint") && msg.contains("export-weights"),
+                "{msg}"
+            );
+        }
+        // With the run's config.json in place the same folder gets past that check (to the model file).
+        std::fs::write(&want, b"{}").unwrap();
+        assert!(matches!(
+            load_config_any(&ck).unwrap_err(),
+            WeightsError::Config { .. }
+        ));
     }
 
     #[test]
