@@ -135,11 +135,11 @@ pub const BUDGET_TRIES: usize = 64;
 /// `planes` planes whose MPI window has `window_px` pixels, on the CPU: what a step holds whatever the
 /// tuple (the runtime, the VGG loss on the target crop, and 64 bytes per parameter: weights, gradients,
 /// Adam's two moments and the step's copies of them), plus per plane pixel of the window
-/// `(views + 0.8) x (100 + 25 F)` bytes, where `F` sums the feature counts of the nets whose activations are held for the backward pass (all
-/// of them; only the largest with `recompute`), each weighted by its depth, `(4 + max-pool stages) / 5`,
-/// and by a quarter for a U-Net net (half resolution): the plane-sweep volumes and per-view inputs, each
-/// view's conv activations and their gradients, and the state and rendered components per plane (the
-/// 0.8). The loaded datasets come on top. Fitted to the peak RSS of `deepview bench train` (BENCHMARKS.md,
+/// `(views + 0.8) x (100 + 25 F)` bytes, where `F` sums the feature counts of the nets whose activations
+/// are held for the backward pass (all of them; only the largest with `recompute`), each weighted by its
+/// depth, `(4 + max-pool stages) / 5`, and by a quarter for a U-Net net (half resolution): the
+/// plane-sweep volumes and per-view inputs, each view's conv activations and their gradients, and the
+/// state and rendered components per plane (the 0.8). The loaded datasets come on top. Fitted to the peak RSS of `deepview bench train` (BENCHMARKS.md,
 /// "Training memory": the `cpu`, `cpu-large` and `paper-kalantari` presets within 5%; the U-Net weight
 /// is not measured).
 pub fn step_bytes(

@@ -338,8 +338,7 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Peak resident memory of this process in MB (`VmHWM`), if known.
-/// The process's peak resident memory (VmHWM) in MiB.
+/// The process's peak resident memory (`VmHWM`) in MiB, if known.
 pub(crate) fn peak_rss_mb() -> Option<f64> {
     let kb = args::proc_status_kb("VmHWM")?;
     Some((kb as f64 / 1024.0).round())

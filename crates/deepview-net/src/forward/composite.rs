@@ -20,6 +20,7 @@ pub struct Composite {
 impl Composite {
     /// From one kernel's output `[D + 1, 4, h, w]`: planes `..D` hold `A` (3) and `T` (1), plane `D` the
     /// render (3).
+    ///
     /// Each part is one slice of it (under autodiff on a GPU each slice's backward is a fill and a
     /// slice-assign launch: a slice per axis would double them).
     fn from_packed(out: Tensor<4>) -> Self {
@@ -142,8 +143,19 @@ pub fn render_view_framed(
     out_h: usize,
     out_w: usize,
 ) -> Composite {
+    composite(warp_to_view(rgba, view_to_mpi, frames, out_h, out_w))
+}
+
+/// `rgba`'s planes warped into the view as [`render_view_framed`] renders them, before compositing.
+fn warp_to_view(
+    rgba: Tensor<4>,
+    view_to_mpi: &[Hom],
+    frames: Frames,
+    out_h: usize,
+    out_w: usize,
+) -> Tensor<4> {
     let [_, _, h, w] = rgba.dims();
-    composite(WarpTable::new_framed(view_to_mpi, frames, w, h, out_w, out_h).apply(rgba))
+    WarpTable::new_framed(view_to_mpi, frames, w, h, out_w, out_h).apply(rgba)
 }
 
 /// The plane sweep volume of `image` `[3, hv, wv]` on a `w x h` MPI window: `mpi_to_view[d]` maps MPI
@@ -257,8 +269,7 @@ fn components_of_render(
     table: &WarpTable,
 ) -> Tensor<4> {
     let [_, hv, wv] = image.dims();
-    let [_, _, h, w] = rgba.dims();
-    let warped = WarpTable::new_framed(view_to_mpi, frames, w, h, wv, hv).apply(rgba);
+    let warped = warp_to_view(rgba, view_to_mpi, frames, hv, wv);
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
     if crate::gpu::gpu_kernels(&warped.device()) {
         let packed = crate::gpu::composite(warped);
