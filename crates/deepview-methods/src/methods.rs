@@ -105,6 +105,11 @@ pub struct MethodOptions {
     /// Colour variance treated as disagreement, s in exp(-variance / s) (psv-mean).
     #[arg(long, default_value_t = PsvMeanOptions::default().temperature, value_parser = positive_f64)]
     pub temperature: f64,
+    /// Cost aggregation radius in MPI pixels (psv-mean): each plane's colour variance is averaged over
+    /// the (2r+1) x (2r+1) window around each pixel before the softmax over planes; 0 (the default) is
+    /// the per-pixel baseline. The learned model's prior takes its own radius from its weights.
+    #[arg(long, default_value_t = 0)]
+    pub aggregate: usize,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -125,6 +130,7 @@ impl Default for MethodOptions {
             weights: None,
             device: "cpu".into(),
             temperature: PsvMeanOptions::default().temperature,
+            aggregate: 0,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -150,6 +156,7 @@ pub fn make_method(
             kind,
             psv: PsvMeanOptions {
                 temperature: options.temperature,
+                radius: options.aggregate,
                 ..Default::default()
             },
             optimize: OptimizeOptions {

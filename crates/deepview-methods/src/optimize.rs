@@ -125,7 +125,14 @@ fn sigmoid(x: f32) -> f32 {
 /// Start: every plane's colour the PSV mean colour (grey where no view sees it), alpha `1 / (d + 1)` so every
 /// plane contributes equally (`1/D`) in the reference view.
 fn initial_logits(views: &[(ImageF32, Camera)], reference: &Camera, depths: Vec<f64>) -> Vec<f32> {
-    let (mean, _) = sweep_statistics(views, reference, depths, TEMPERATURE, SINGLE_VIEW_VARIANCE);
+    let (mean, _) = sweep_statistics(
+        views,
+        reference,
+        depths,
+        TEMPERATURE,
+        SINGLE_VIEW_VARIANCE,
+        0,
+    );
     let plane_len = mean.plane_len();
     let mut z = mean.layers;
     z.par_chunks_mut(plane_len)

@@ -5,7 +5,9 @@
 //! For every plane `d` and reference pixel: colour = mean of the views' valid plane-sweep samples;
 //! agreement logit `l_d = -v_d / s` with `v_d` the variance of the valid samples (mean over RGB;
 //! [`SINGLE_VIEW_VARIANCE`] where one view sees the point, no weight where none does) and `s` the
-//! temperature ([`TEMPERATURE`] by default). A softmax over planes turns the logits into a depth
+//! temperature ([`TEMPERATURE`] by default). With an aggregation radius `r > 0` each plane's variance is
+//! first averaged over the seen pixels of the `(2r+1) x (2r+1)` window around each pixel
+//! ([`box_mean_seen`]: classic stereo cost aggregation; the window is clipped at the image border). A softmax over planes turns the logits into a depth
 //! distribution `w_d` (sum 1), which becomes alpha so that each plane's visible contribution in the
 //! reference view is exactly `w_d`: `a_d = w_d / sum_{i<=d} w_i` (planes back to front, so the farthest
 //! plane with weight is opaque).
@@ -32,9 +34,16 @@ pub fn agreement_mpi(
     depths: Vec<f64>,
     temperature: f64,
     single_view_variance: f64,
+    radius: usize,
 ) -> Mpi {
-    let (mut mpi, logits) =
-        sweep_statistics(inputs, reference, depths, temperature, single_view_variance);
+    let (mut mpi, logits) = sweep_statistics(
+        inputs,
+        reference,
+        depths,
+        temperature,
+        single_view_variance,
+        radius,
+    );
     let n = reference.width as usize * reference.height as usize;
     let alphas = depth_distribution_to_alpha(&logits, mpi.planes(), n);
     // Premultiply: texel (mean colour) * alpha.
@@ -55,13 +64,15 @@ pub fn agreement_mpi(
 }
 
 /// Per plane: the mean colour of the valid samples in the MPI texels (alpha still 0), and the agreement logits
-/// `[D][n]`, computed one plane at a time so memory stays at one MPI.
+/// `[D][n]` (aggregated over `radius`, see the module docs), computed one plane at a time so memory stays
+/// at one MPI.
 pub fn sweep_statistics(
     inputs: &[(ImageF32, Camera)],
     reference: &Camera,
     depths: Vec<f64>,
     temperature: f64,
     single_view_variance: f64,
+    radius: usize,
 ) -> (Mpi, Vec<f32>) {
     let n = reference.width as usize * reference.height as usize;
     let mut mpi = Mpi::transparent(*reference, depths);
@@ -105,8 +116,64 @@ pub fn sweep_statistics(
                     single
                 };
             }
+            let (w, h) = (reference.width as usize, reference.height as usize);
+            box_mean_seen(logit, w, h, radius, &mut Vec::new());
         });
     (mpi, logits)
+}
+
+/// Values at or below this are "unseen" in [`box_mean_seen`] (the engines mark unseen plane points with
+/// `-1e30` or `-inf`).
+pub const UNSEEN_BELOW: f32 = -1e29;
+
+/// Cost aggregation: every seen value of the `w x h` plane `v` (above [`UNSEEN_BELOW`]) becomes the mean of
+/// the seen values in the `(2r+1) x (2r+1)` window around it (clipped at the border); unseen values stay.
+/// Separable running sums in `f64` (`scratch` is reused), `O(1)` per pixel for any radius; `r = 0` is a
+/// no-op.
+pub fn box_mean_seen(v: &mut [f32], w: usize, h: usize, r: usize, scratch: &mut Vec<f64>) {
+    if r == 0 || w == 0 || h == 0 {
+        return;
+    }
+    assert_eq!(v.len(), w * h, "box_mean_seen: plane size");
+    // Horizontal window sums of (value, count) per pixel, then vertical sums of those.
+    scratch.clear();
+    scratch.resize(4 * w * h + 2 * (w.max(h) + 1), 0.0);
+    let (hs, rest) = scratch.split_at_mut(2 * w * h);
+    let (vs, prefix) = rest.split_at_mut(2 * w * h);
+    for y in 0..h {
+        let row = &v[y * w..(y + 1) * w];
+        // prefix[2i], prefix[2i+1]: sums of values and counts before column i.
+        prefix[0] = 0.0;
+        prefix[1] = 0.0;
+        for (x, &t) in row.iter().enumerate() {
+            let seen = t > UNSEEN_BELOW;
+            prefix[2 * x + 2] = prefix[2 * x] + if seen { t as f64 } else { 0.0 };
+            prefix[2 * x + 3] = prefix[2 * x + 1] + if seen { 1.0 } else { 0.0 };
+        }
+        for x in 0..w {
+            let (a, b) = (x.saturating_sub(r), (x + r + 1).min(w));
+            hs[2 * (y * w + x)] = prefix[2 * b] - prefix[2 * a];
+            hs[2 * (y * w + x) + 1] = prefix[2 * b + 1] - prefix[2 * a + 1];
+        }
+    }
+    for x in 0..w {
+        prefix[0] = 0.0;
+        prefix[1] = 0.0;
+        for y in 0..h {
+            prefix[2 * y + 2] = prefix[2 * y] + hs[2 * (y * w + x)];
+            prefix[2 * y + 3] = prefix[2 * y + 1] + hs[2 * (y * w + x) + 1];
+        }
+        for y in 0..h {
+            let (a, b) = (y.saturating_sub(r), (y + r + 1).min(h));
+            vs[2 * (y * w + x)] = prefix[2 * b] - prefix[2 * a];
+            vs[2 * (y * w + x) + 1] = prefix[2 * b + 1] - prefix[2 * a + 1];
+        }
+    }
+    for (i, t) in v.iter_mut().enumerate() {
+        if *t > UNSEEN_BELOW {
+            *t = (vs[2 * i] / vs[2 * i + 1]) as f32;
+        }
+    }
 }
 
 /// Softmax over planes of `logits` (`[D][n]`) and conversion to alphas (`[n][D]`, pixel-major) such that plane
@@ -143,6 +210,48 @@ pub fn depth_distribution_to_alpha(logits: &[f32], planes: usize, n: usize) -> V
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn box_mean_seen_is_the_windowed_mean_of_seen_values() {
+        // Against the definition, pixel by pixel, on a plane with unseen holes and ragged borders.
+        let (w, h) = (13usize, 7usize);
+        let v: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if i % 5 == 3 {
+                    f32::NEG_INFINITY
+                } else if i % 11 == 4 {
+                    -1e30
+                } else {
+                    ((i * 37 % 17) as f32 - 8.0) * 0.25
+                }
+            })
+            .collect();
+        for r in [0usize, 1, 2, 6, 20] {
+            let mut got = v.clone();
+            box_mean_seen(&mut got, w, h, r, &mut Vec::new());
+            for y in 0..h {
+                for x in 0..w {
+                    let t = v[y * w + x];
+                    if t <= UNSEEN_BELOW {
+                        assert_eq!(got[y * w + x], t, "unseen ({x}, {y}) kept");
+                        continue;
+                    }
+                    let (mut s, mut c) = (0.0f64, 0.0f64);
+                    for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+                        for xx in x.saturating_sub(r)..(x + r + 1).min(w) {
+                            let u = v[yy * w + xx];
+                            if u > UNSEEN_BELOW {
+                                s += u as f64;
+                                c += 1.0;
+                            }
+                        }
+                    }
+                    let want = (s / c) as f32;
+                    assert!((got[y * w + x] - want).abs() < 1e-5, "r {r} ({x}, {y})");
+                }
+            }
+        }
+    }
 
     #[test]
     fn alphas_reproduce_the_depth_distribution() {

@@ -62,7 +62,20 @@ pub struct DeepViewConfig {
     /// and every `paper-*` preset): the paper's `M_0 = N_0(PSVs)`.
     #[serde(default)]
     pub init_prior: Option<f64>,
+    /// Cost aggregation of the agreement prior (with `init_prior`): each plane's colour variance is
+    /// averaged over the seen pixels of the `(2r+1) x (2r+1)` window around each pixel before the softmax
+    /// over planes (`deepview_mpi::agreement::box_mean_seen`). 0 (the default, and every config written
+    /// before it existed): per pixel, exactly `psv-mean`'s MPI.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub prior_radius: usize,
 }
+
+fn is_zero(r: &usize) -> bool {
+    *r == 0
+}
+
+/// The largest aggregation radius a config may ask for.
+pub const MAX_PRIOR_RADIUS: usize = 64;
 
 /// The largest feature count of a net a config may ask for.
 pub const MAX_FEATURES: usize = 1024;
@@ -87,6 +100,7 @@ impl DeepViewConfig {
             extra_channels: 4,
             max_pool_stages: 3,
             init_prior: None,
+            prior_radius: 0,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -111,6 +125,7 @@ impl DeepViewConfig {
                 extra_channels: 4,
                 max_pool_stages: 1,
                 init_prior: Some(CPU_PRIOR_TEMPERATURE),
+                prior_radius: 0,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -128,6 +143,7 @@ impl DeepViewConfig {
                 extra_channels: 4,
                 max_pool_stages: 1,
                 init_prior: Some(CPU_PRIOR_TEMPERATURE),
+                prior_radius: 0,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -149,6 +165,15 @@ impl DeepViewConfig {
             && !(s.is_finite() && s > 0.0)
         {
             return bad("the init prior's temperature must be positive");
+        }
+        if self.prior_radius > MAX_PRIOR_RADIUS {
+            return bad(&format!(
+                "the prior's aggregation radius {} is above {MAX_PRIOR_RADIUS}",
+                self.prior_radius
+            ));
+        }
+        if self.prior_radius > 0 && self.init_prior.is_none() {
+            return bad("an aggregation radius needs the agreement prior (init_prior)");
         }
         if self.max_pool_stages == 0 {
             return bad("at least one max-pool stage is needed");
@@ -205,10 +230,17 @@ impl DeepViewConfig {
     /// Receptive-field radius of net `net` in MPI pixels (how far an output pixel sees), rounded up to
     /// an even number so crops by it keep the U-Net's 2x2 grid aligned. U-Net nets: `2 r + 4`
     /// (downsampling by 2 and the bilinear upsample's extra texel on each side).
+    /// Net 0 with an aggregated prior adds the aggregation radius (its output's prior at a pixel reads
+    /// the variances `prior_radius` away).
     pub fn net_margin(&self, net: usize) -> usize {
         let r = self.convs_per_net();
         let m = if self.unet(net) { 2 * r + 4 } else { r };
-        m.next_multiple_of(2)
+        let prior = if net == 0 && self.init_prior.is_some() {
+            self.prior_radius
+        } else {
+            0
+        };
+        (m + prior).next_multiple_of(2)
     }
 
     /// Sum of [`Self::net_margin`] over nets `from..`.

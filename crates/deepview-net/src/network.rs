@@ -308,18 +308,51 @@ use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
 /// pixel, colour = mean of the valid samples; variance = mean over RGB of the valid samples' variance
 /// (`SINGLE_VIEW_VARIANCE` where one view sees the point; no weight where none does); weights =
 /// softmax over planes of `-variance / temperature`; alpha `a_d = w_d / sum_{i<=d} w_i` (back to front).
-/// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits.
+/// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits. With `radius > 0`
+/// the variance is first averaged over the seen pixels of the `(2r+1) x (2r+1)` window around each pixel
+/// (clipped at the tensor's border; [`deepview_mpi::agreement::box_mean_seen`]).
 /// `per_view`: K tensors `[D, 4, h, w]` (PSV RGB, validity) as built by [`DeepViewModel::init_input`].
-pub fn agreement_prior_logits(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
+pub fn agreement_prior_logits(
+    per_view: &[Tensor<4>],
+    temperature: f64,
+    radius: usize,
+) -> Tensor<4> {
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if crate::gpu::gpu_kernels(&per_view[0].device()) {
+    if radius == 0 && crate::gpu::gpu_kernels(&per_view[0].device()) {
         return crate::gpu::prior(per_view, temperature);
     }
-    agreement_prior_logits_burn(per_view, temperature)
+    agreement_prior_logits_burn(per_view, temperature, radius)
+}
+
+/// The mean of `x` over the seen pixels (`seen` 1, else 0) of the `(2r+1)^2` window around each pixel,
+/// clipped at the border (separable average pools; both sums share the pool's divisor).
+fn box_mean_seen_burn(x: Tensor<4>, seen: Tensor<4>, r: usize) -> Tensor<4> {
+    let k = 2 * r + 1;
+    let pool = |t: Tensor<4>| {
+        let t = avg_pool2d(
+            t,
+            AvgPoolOptions::new([1, k])
+                .with_stride([1, 1])
+                .with_padding_pairs([(0, 0), (r, r)]),
+        );
+        avg_pool2d(
+            t,
+            AvgPoolOptions::new([k, 1])
+                .with_stride([1, 1])
+                .with_padding_pairs([(r, r), (0, 0)]),
+        )
+    };
+    let num = pool(x * seen.clone());
+    let den = pool(seen);
+    num / den.clamp_min(1e-12)
 }
 
 /// [`agreement_prior_logits`] with burn's ops (a loop over the planes; the reference of the GPU kernel).
-pub fn agreement_prior_logits_burn(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
+pub fn agreement_prior_logits_burn(
+    per_view: &[Tensor<4>],
+    temperature: f64,
+    radius: usize,
+) -> Tensor<4> {
     let valid: Vec<Tensor<4>> = per_view.iter().map(|v| v.clone().narrow(1, 3, 1)).collect();
     let rgb: Vec<Tensor<4>> = per_view
         .iter()
@@ -345,6 +378,11 @@ pub fn agreement_prior_logits_burn(per_view: &[Tensor<4>], temperature: f64) -> 
     let single = count.clone().equal_elem(1.0);
     let var = var.mask_fill(single, SINGLE_VIEW_VARIANCE);
     let seen = count.greater_elem(0.5).float();
+    let var = if radius > 0 {
+        box_mean_seen_burn(var, seen.clone(), radius)
+    } else {
+        var
+    };
     let logit = var.neg() / temperature;
     // Unseen (plane, pixel) pairs get no weight; a ray no view sees at all stays transparent.
     // `a_d = w_d / sum_{i<=d} w_i = exp(l_d - logsumexp_{i<=d} l_i)`, accumulated in the log domain (f32
@@ -520,6 +558,8 @@ pub struct DeepViewModel {
     pub fixed_views: usize,
     /// Temperature of the agreement prior added to net 0's output (0 = no prior; see config.rs).
     pub prior_temperature: f64,
+    /// Cost aggregation radius of the prior (`DeepViewConfig::prior_radius`; 0 = per pixel).
+    pub prior_radius: usize,
 }
 
 impl DeepViewModel {
@@ -540,6 +580,11 @@ impl DeepViewModel {
             state_channels: sc,
             fixed_views: config.views.unwrap_or(0),
             prior_temperature: config.init_prior.unwrap_or(0.0),
+            prior_radius: if config.init_prior.is_some() {
+                config.prior_radius
+            } else {
+                0
+            },
         }
     }
 
@@ -568,19 +613,9 @@ impl DeepViewModel {
         state: Option<Tensor<4>>,
     ) -> Tensor<4> {
         let k = per_view.len();
-        #[cfg(any(feature = "wgpu", feature = "cuda"))]
-        if crate::gpu::gpu_kernels(&per_view[0].device()) {
-            let prior = (n == 0 && self.prior_temperature > 0.0)
-                .then_some((self.prior_temperature, self.state_channels));
-            let (x, prior) = crate::gpu::net_input(per_view, state, prior);
-            let out = self.nets[n].forward(x, k);
-            return match prior {
-                Some(p) => p + out,
-                None => out,
-            };
-        }
-        let prior = (n == 0 && self.prior_temperature > 0.0).then(|| {
-            let p = agreement_prior_logits(&per_view, self.prior_temperature);
+        // The prior as a state: its RGBA logits and zeros for the extra channels.
+        let prior_state = |per_view: &[Tensor<4>]| {
+            let p = agreement_prior_logits(per_view, self.prior_temperature, self.prior_radius);
             let [d, c, h, w] = p.dims();
             let extra = self.state_channels - c;
             if extra == 0 {
@@ -589,7 +624,22 @@ impl DeepViewModel {
                 let device = p.device();
                 Tensor::cat(vec![p, Tensor::zeros([d, extra, h, w], &device)], 1)
             }
-        });
+        };
+        #[cfg(any(feature = "wgpu", feature = "cuda"))]
+        if crate::gpu::gpu_kernels(&per_view[0].device()) {
+            // The fused prior kernel is per pixel; an aggregated prior takes burn's ops.
+            let with_prior = n == 0 && self.prior_temperature > 0.0;
+            let fused = (with_prior && self.prior_radius == 0)
+                .then_some((self.prior_temperature, self.state_channels));
+            let aggregated = (with_prior && self.prior_radius > 0).then(|| prior_state(&per_view));
+            let (x, prior) = crate::gpu::net_input(per_view, state, fused);
+            let out = self.nets[n].forward(x, k);
+            return match prior.or(aggregated) {
+                Some(p) => p + out,
+                None => out,
+            };
+        }
+        let prior = (n == 0 && self.prior_temperature > 0.0).then(|| prior_state(&per_view));
         let x = per_view
             .into_iter()
             .map(|v| match &state {
@@ -628,6 +678,7 @@ impl DeepViewModel {
             rgba: state_to_rgba(agreement_prior_logits(
                 &per_view,
                 self.context_temperature(),
+                self.prior_radius,
             )),
             origin: context.origin,
         }
@@ -691,7 +742,12 @@ impl DeepViewModel {
     pub fn margin(&self, n: usize) -> usize {
         let r = self.nets[n].input.len() + self.nets[n].stages.len() + 2;
         let m = if self.nets[n].unet { 2 * r + 4 } else { r };
-        m.next_multiple_of(2)
+        let prior = if n == 0 && self.prior_temperature > 0.0 {
+            self.prior_radius
+        } else {
+            0
+        };
+        (m + prior).next_multiple_of(2)
     }
 
     /// Sum of the margins of nets `from..`.

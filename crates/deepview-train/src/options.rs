@@ -21,6 +21,12 @@ pub struct TrainOptions {
     /// computes the same MPI; the new feature channels and update nets then train).
     #[arg(long)]
     pub preset: Option<String>,
+    /// Cost aggregation radius of the agreement prior in MPI pixels (`cpu` and `cpu-large`, whose
+    /// prior it is): each plane's colour variance averaged over the (2r+1) x (2r+1) window around each
+    /// pixel before the softmax over planes. Default: the preset's or --init's (0, per pixel). Kept in
+    /// the weights' config.json; --init weights train on with a new radius (it has no parameters).
+    #[arg(long, value_name = "R")]
+    pub prior_radius: Option<usize>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -148,6 +154,20 @@ impl TrainOptions {
             })
         };
         let cfg_err = TrainError::Refused;
+        let mut cfg = self.model_before_radius(load)?;
+        if let Some(r) = self.prior_radius {
+            cfg.prior_radius = r;
+            cfg.validate()
+                .map_err(|e| cfg_err(format!("--prior-radius {r}: {e}")))?;
+        }
+        Ok(cfg)
+    }
+
+    fn model_before_radius(
+        &self,
+        load: impl Fn(&std::path::Path) -> Result<DeepViewConfig, TrainError>,
+    ) -> Result<DeepViewConfig, TrainError> {
+        let cfg_err = TrainError::Refused;
         match (&self.init, &self.preset) {
             (Some(dir), None) => load(dir),
             (init, preset) => {
@@ -250,6 +270,11 @@ impl TrainOptions {
                     .as_ref()
                     .is_some_and(|i| Some(i) != t.init.as_ref()),
                 "--init",
+            ),
+            (
+                self.prior_radius
+                    .is_some_and(|r| r != cfg.model.prior_radius),
+                "--prior-radius",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
             (
@@ -456,9 +481,12 @@ mod tests {
             "--recompute",
             "--vgg-weights",
             "v.safetensors",
+            "--prior-radius",
+            "8",
         ])
         .unwrap();
         let o = cli.options;
+        assert_eq!(o.prior_radius, Some(8));
         assert_eq!(o.preset.as_deref(), Some("cpu-large"));
         assert_eq!(o.views, Some((2, 4)));
         assert_eq!(o.planes, Some((true, 32)));
@@ -472,6 +500,26 @@ mod tests {
         assert_eq!(o.max_width, Some(512));
         assert!(Cli::try_parse_from(["train", "--devices", ","]).is_err());
         assert!(Cli::try_parse_from(["train", "--holdout-every", "1"]).is_err());
+    }
+
+    /// `--prior-radius` sets the new run's model (a prior preset's, or --init's), and is refused
+    /// for a model without the agreement prior.
+    #[test]
+    fn prior_radius_sets_the_model() {
+        let with = |preset: &str, r| TrainOptions {
+            preset: Some(preset.into()),
+            prior_radius: Some(r),
+            ..Default::default()
+        };
+        assert_eq!(with("cpu", 8).model().unwrap().prior_radius, 8);
+        // Net 0's margin 6 + 3, rounded up to even; the update nets' 6 each.
+        assert_eq!(
+            with("cpu-large", 3).model().unwrap().margin_from(0),
+            10 + 6 + 6
+        );
+        let err = with("paper-kalantari", 2).model().unwrap_err().to_string();
+        assert!(err.contains("--prior-radius 2"), "{err}");
+        assert!(with("cpu", 65).model().is_err());
     }
 
     #[test]
@@ -527,6 +575,11 @@ mod tests {
             other.fixed_on_resume(&cfg),
             ["--crop", "--no-colour-jitter"]
         );
+        let radius = TrainOptions {
+            prior_radius: Some(8),
+            ..Default::default()
+        };
+        assert_eq!(radius.fixed_on_resume(&cfg), ["--prior-radius"]);
         let mut resumed = cfg.train.clone();
         other.adjust_on_resume(&mut resumed);
         assert_eq!(resumed.steps, 500);

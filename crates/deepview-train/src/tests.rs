@@ -31,6 +31,7 @@ fn tiny_model() -> DeepViewConfig {
         extra_channels: 4,
         max_pool_stages: 1,
         init_prior: None,
+        prior_radius: 0,
     }
 }
 
@@ -1186,82 +1187,99 @@ fn training_tuple_renders_what_the_full_image_model_renders() {
     let dev = Device::flex();
     let data = TrainData::new(vec![two_plane_scene(4, 4, 72, 0.1)]).unwrap();
     let s = &data.scenes[0];
-    let cfg = DeepViewConfig::preset("cpu").unwrap();
-    let mut model = DeepViewModel::new(&cfg, &dev);
-    model.nets[1] = CoreNet::of_config(&cfg, 1, &dev);
-    // An update large enough to matter (random output convs start small).
-    let out = &mut model.nets[1].out;
-    out.weight = Param::from_tensor(out.weight.val() * 30.0);
-    let (target, inputs, crop) = (5usize, vec![0usize, 3, 12, 15], 12usize);
-    let depths = data::jittered_depths(s.near, s.far, 8, 0.0);
-    let crop_origin = (30u32, 28u32);
-    let tcam = s.cameras[target];
-    // Inference: the whole reference image, rendered into the target view's crop.
-    let cams: Vec<_> = inputs.iter().map(|&i| s.cameras[i]).collect();
-    let reference = reference_camera(&cams, &ReferenceOptions::default()).unwrap();
-    let tensor = |im: &deepview_image::ImageF32| {
-        image_tensor(
-            &im.data,
-            im.width as usize,
-            im.height as usize,
-            im.channels,
-            &dev,
-        )
-    };
-    let full = model.forward(&ModelInputs {
-        images: inputs.iter().map(|&i| tensor(&s.images[i])).collect(),
-        mpi_to_view: cams
-            .iter()
-            .map(|c| {
-                depths
-                    .iter()
-                    .map(|&d| plane_homography(&reference, c, d).to_row_major())
-                    .collect()
-            })
-            .collect(),
-        height: reference.height as usize,
-        width: reference.width as usize,
-        shrink: false,
-        context: None,
-    });
-    let to_crop: Vec<Hom> = depths
-        .iter()
-        .map(|&d| {
-            let h = plane_homography(&reference, &tcam, d).to_row_major();
-            invert(&crop_source(&h, crop_origin.0 as f64, crop_origin.1 as f64))
-        })
-        .collect();
-    let expected = render_view(full.rgba, &to_crop, crop, crop).render;
-    // Training: the tuple's window, with and without its context.
-    let render = |with_context: bool| {
-        let ex = data
-            .example_with_inputs(
-                0,
-                target,
-                inputs.clone(),
-                depths.clone(),
-                crop_origin,
-                crop,
-                cfg.margin_from(0),
-                with_context,
+    // Per pixel, and with an aggregated prior (the window's margin grows by its radius).
+    for radius in [0, 3] {
+        let cfg = DeepViewConfig {
+            prior_radius: radius,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        let mut model = DeepViewModel::new(&cfg, &dev);
+        model.nets[1] = CoreNet::of_config(&cfg, 1, &dev);
+        // An update large enough to matter (random output convs start small).
+        let out = &mut model.nets[1].out;
+        out.weight = Param::from_tensor(out.weight.val() * 30.0);
+        let (target, inputs, crop) = (5usize, vec![0usize, 3, 12, 15], 12usize);
+        let depths = data::jittered_depths(s.near, s.far, 8, 0.0);
+        let crop_origin = (30u32, 28u32);
+        let tcam = s.cameras[target];
+        // Inference: the whole reference image, rendered into the target view's crop.
+        let cams: Vec<_> = inputs.iter().map(|&i| s.cameras[i]).collect();
+        let reference = reference_camera(&cams, &ReferenceOptions::default()).unwrap();
+        let tensor = |im: &deepview_image::ImageF32| {
+            image_tensor(
+                &im.data,
+                im.width as usize,
+                im.height as usize,
+                im.channels,
+                &dev,
             )
-            .unwrap();
-        let out = model.forward(&crate::example::example_inputs(&ex, &dev));
-        let (ox, oy) = out.offset;
-        let homs: Vec<Hom> = ex
-            .window_to_target
+        };
+        let full = model.forward(&ModelInputs {
+            images: inputs.iter().map(|&i| tensor(&s.images[i])).collect(),
+            mpi_to_view: cams
+                .iter()
+                .map(|c| {
+                    depths
+                        .iter()
+                        .map(|&d| plane_homography(&reference, c, d).to_row_major())
+                        .collect()
+                })
+                .collect(),
+            height: reference.height as usize,
+            width: reference.width as usize,
+            shrink: false,
+            context: None,
+        });
+        let to_crop: Vec<Hom> = depths
             .iter()
-            .map(|h| invert(&crop_output(h, ox as f64, oy as f64)))
+            .map(|&d| {
+                let h = plane_homography(&reference, &tcam, d).to_row_major();
+                invert(&crop_source(&h, crop_origin.0 as f64, crop_origin.1 as f64))
+            })
             .collect();
-        render_view(out.rgba, &homs, crop, crop).render
-    };
-    let diff = |a: Tensor<3>| -> f32 { (a - expected.clone()).abs().max().into_scalar() };
-    let with = diff(render(true));
-    let without = diff(render(false));
-    // Measured: 1.2e-6 with the context, 5.6e-4 without (the rays of the corners leave the window).
-    assert!(with < 1e-5, "with the context: {with} (without: {without})");
-    assert!(
-        without > 100.0 * with,
-        "without the context: {without} (with: {with})"
-    );
+        let expected = render_view(full.rgba, &to_crop, crop, crop).render;
+        // Training: the tuple's window, with and without its context.
+        let render = |with_context: bool| {
+            let ex = data
+                .example_with_inputs(
+                    0,
+                    target,
+                    inputs.clone(),
+                    depths.clone(),
+                    crop_origin,
+                    crop,
+                    cfg.margin_from(0),
+                    with_context,
+                )
+                .unwrap();
+            let out = model.forward(&crate::example::example_inputs(&ex, &dev));
+            let (ox, oy) = out.offset;
+            let homs: Vec<Hom> = ex
+                .window_to_target
+                .iter()
+                .map(|h| invert(&crop_output(h, ox as f64, oy as f64)))
+                .collect();
+            render_view(out.rgba, &homs, crop, crop).render
+        };
+        let diff = |a: Tensor<3>| -> f32 { (a - expected.clone()).abs().max().into_scalar() };
+        let with = diff(render(true));
+        let without = diff(render(false));
+        // Measured: 1.2e-6 with the context, 5.6e-4 without (the rays of the corners leave the window).
+        assert!(
+            with < 1e-5,
+            "radius {radius}, with the context: {with} (without: {without})"
+        );
+        // With radius 3 the window's margin is 4 px wider and holds the corners' rays: both exact.
+        if radius == 0 {
+            assert!(
+                without > 100.0 * with,
+                "without the context: {without} (with: {with})"
+            );
+        } else {
+            assert!(
+                without < 1e-5,
+                "radius {radius}, without the context: {without}"
+            );
+        }
+    }
 }

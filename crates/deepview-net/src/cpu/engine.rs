@@ -22,6 +22,7 @@ use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
+use deepview_mpi::agreement::box_mean_seen;
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -421,6 +422,13 @@ pub(crate) fn infer_engine_blocks(
                 unsafe { state.with_plane(p, buf, body) }
             });
             if temperature > 0.0 {
+                if model.prior_radius > 0 {
+                    weights
+                        .par_chunks_mut(hw)
+                        .for_each_init(Vec::new, |scratch, plane| {
+                            box_mean_seen(plane, w, h, model.prior_radius, scratch)
+                        });
+                }
                 prior_logits(&mut weights, d, hw);
                 weights
                     .par_chunks(hw)
@@ -596,6 +604,8 @@ mod tests {
             let mut model = DeepViewModel::new(&cfg, &dev);
             if prior {
                 model.prior_temperature = crate::config::CPU_PRIOR_TEMPERATURE;
+                // Odd view counts with an aggregated prior (a radius the strips' heights cross).
+                model.prior_radius = if k % 2 == 1 { 3 } else { 0 };
             }
             let (views, reference, depths) = scene(k, d);
             let inputs = ModelInputs {
@@ -647,7 +657,8 @@ mod tests {
             };
             let max = max_diff(&got);
             let case = format!(
-                "{k} views, {d} planes, {updates} updates, prior {prior}, {unet_nets} U-Net"
+                "{k} views, {d} planes, {updates} updates, prior {prior} (radius {}), {unet_nets} U-Net",
+                model.prior_radius
             );
             assert!(max < 2e-5, "{case}: {max}");
             // The renders streamed in blocks of any size and the nets run on strips of any height

@@ -123,16 +123,17 @@ fn wgpu_prior_kernel_equals_burns_ops() {
             x
         })
         .collect();
-    for temperature in [0.05, 1e-4] {
+    // Radius 0: the fused kernel; radius 2: burn's ops (the aggregation's pools) on the device.
+    for (temperature, radius) in [(0.05, 0), (1e-4, 0), (0.05, 2)] {
         let run = |dev: &Device, gpu: bool| {
             let t: Vec<Tensor<4>> = views
                 .iter()
                 .map(|x| Tensor::<4>::from_data(TensorData::new(x.clone(), [d, 4, h, w]), dev))
                 .collect();
             to_vec(if gpu {
-                agreement_prior_logits(&t, temperature)
+                agreement_prior_logits(&t, temperature, radius)
             } else {
-                agreement_prior_logits_burn(&t, temperature)
+                agreement_prior_logits_burn(&t, temperature, radius)
             })
         };
         assert!(crate::gpu::gpu_kernels(&gpu));
@@ -140,7 +141,10 @@ fn wgpu_prior_kernel_equals_burns_ops() {
         // Logits within [-11.5, 11.5]; at temperature 1e-4 the depth weights' exponents reach ~1e3, where
         // f32 `exp`/`ln` of the GPU and the CPU differ by ~1e-4 (both are f32 computations of the same sums).
         let e = max_diff(&want, &got);
-        assert!(e < 1e-3, "temperature {temperature}: logits differ by {e}");
+        assert!(
+            e < 1e-3,
+            "temperature {temperature}, radius {radius}: logits differ by {e}"
+        );
     }
 }
 
@@ -580,7 +584,7 @@ fn wgpu_net_input_equals_burns_cats() {
             .map(|v| Tensor::from_data(TensorData::new(v.clone(), [d, 4, h, w]), dev))
             .collect()
     };
-    let want = agreement_prior_logits_burn(&on(&cpu), 0.05);
+    let want = agreement_prior_logits_burn(&on(&cpu), 0.05, 0);
     let want = to_vec(Tensor::cat(
         vec![want, Tensor::zeros([d, 4, h, w], &cpu)],
         1,

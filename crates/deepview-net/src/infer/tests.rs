@@ -109,12 +109,20 @@ fn untrained_prior_model_equals_agreement_mpi() {
     use deepview_geometry::{ReferenceOptions, reference_camera};
     use deepview_mpi::agreement::{SINGLE_VIEW_VARIANCE, TEMPERATURE, agreement_mpi};
     let dev = Device::flex();
-    for (k, planes, smooth) in [(3, 8, true), (4, 5, false), (2, 6, true)] {
+    // With an aggregation radius the 16-px tiles' margins must reach `radius` further.
+    for (k, planes, smooth, radius) in [
+        (3, 8, true, 0),
+        (4, 5, false, 0),
+        (2, 6, true, 0),
+        (3, 6, true, 3),
+        (4, 5, false, 9),
+    ] {
         let cfg = DeepViewConfig {
             features_large: 4,
             features_small: 3,
             updates: 2,
             max_pool_stages: 1,
+            prior_radius: radius,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         let model = DeepViewModel::new(&cfg, &dev);
@@ -147,6 +155,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             depths.clone(),
             TEMPERATURE,
             SINGLE_VIEW_VARIANCE,
+            radius,
         );
         let mpi = infer_mpi_tiled(&model, &views, &reference, &depths, 16, &mut |_| {}).unwrap();
         assert_eq!(mpi.layers.len(), expected.layers.len());
@@ -161,7 +170,10 @@ fn untrained_prior_model_equals_agreement_mpi() {
             }
             mixed += usize::from(b[3] > 0.05 && b[3] < 0.95);
         }
-        assert!(max < 3e-4, "k {k}, planes {planes}: max difference {max}");
+        assert!(
+            max < 3e-4,
+            "k {k}, planes {planes}, radius {radius}: max difference {max}"
+        );
         if smooth {
             assert!(mixed > 100, "only {mixed} partially transparent texels");
         }
