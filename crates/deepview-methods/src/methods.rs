@@ -80,6 +80,14 @@ fn positive(s: &str) -> Result<usize, String> {
     }
 }
 
+fn aggregation_radius(s: &str) -> Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(r) if r <= 64 => Ok(r),
+        Ok(r) => Err(format!("{r} is above the largest radius, 64")),
+        Err(_) => Err(format!("{s:?} is not a whole number of pixels")),
+    }
+}
+
 fn positive_f64(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -107,8 +115,9 @@ pub struct MethodOptions {
     pub temperature: f64,
     /// Cost aggregation radius in MPI pixels (psv-mean): each plane's colour variance is averaged over
     /// the (2r+1) x (2r+1) window around each pixel before the softmax over planes; 0 (the default) is
-    /// the per-pixel baseline. The learned model's prior takes its own radius from its weights.
-    #[arg(long, default_value_t = 0)]
+    /// the per-pixel baseline; at most 64. The learned model's prior takes its own radius from its
+    /// weights.
+    #[arg(long, default_value_t = 0, value_parser = aggregation_radius)]
     pub aggregate: usize,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
@@ -183,21 +192,19 @@ pub struct Classical {
     pub budget: u64,
 }
 
-/// The plane count of a classical method (`psv-mean` or `optimize`, whose working width is
-/// `max_width`) for input cameras `cams` (dataset indices `ids`, may be empty).
+/// The plane count of `method` (`psv-mean`, whose aggregation radius counts, or `optimize`, whose working
+/// width does) within its budget for input cameras `cams` (dataset indices `ids`, may be empty).
 pub fn classical_planes(
-    kind: MethodKind,
-    planes: Planes,
-    budget: u64,
+    method: &Classical,
     cams: &[Camera],
     ids: &[usize],
     near_far: (f64, f64),
-    max_width: u32,
 ) -> Result<PlaneChoice, MethodError> {
+    let (planes, budget) = (method.planes, method.budget);
     let reference = mpi_reference(cams, near_far)?;
-    let (fixed, per_plane) = match kind {
-        MethodKind::Optimize => optimize_bytes(&reference, cams, max_width),
-        _ => psv_mean_bytes(&reference, cams),
+    let (fixed, per_plane) = match method.kind {
+        MethodKind::Optimize => optimize_bytes(&reference, cams, method.optimize.max_width),
+        _ => psv_mean_bytes(&reference, cams, method.psv.radius),
     };
     let mut fits = fits_estimate(fixed, per_plane, budget);
     let mut minimum = |n: usize| fixed.saturating_add(per_plane.saturating_mul(n as u64));
@@ -270,15 +277,7 @@ impl MpiMethod for Classical {
                 note: Some(note),
             });
         }
-        let choice = classical_planes(
-            self.kind,
-            self.planes,
-            self.budget,
-            &cams,
-            request.ids,
-            near_far,
-            self.optimize.max_width,
-        )?;
+        let choice = classical_planes(self, &cams, request.ids, near_far)?;
         events(MethodEvent::Planes(&choice));
         let (mpi, note) = if self.kind == MethodKind::Optimize {
             let options = OptimizeOptions {

@@ -189,15 +189,17 @@ pub fn mpi_bytes(w: u32, h: u32, planes: usize, u8: bool) -> u64 {
 }
 
 /// Bytes of a `psv-mean` MPI in `reference`: the fixed part (`inputs` RGB f32 images, per-thread running
-/// sums) and the part per plane (f32 RGBA texels, agreement logits, alphas).
-pub fn psv_mean_bytes(reference: &Camera, inputs: &[Camera]) -> (u64, u64) {
+/// sums, and with an aggregation `radius` its f64 window sums) and the part per plane (f32 RGBA texels,
+/// agreement logits, alphas).
+pub fn psv_mean_bytes(reference: &Camera, inputs: &[Camera], radius: usize) -> (u64, u64) {
     let px = reference.width as u64 * reference.height as u64;
     let input_px: u64 = inputs
         .iter()
         .map(|c| c.width as u64 * c.height as u64)
         .sum();
     let threads = rayon::current_num_threads() as u64;
-    (12 * input_px + 56 * px * threads, 24 * px)
+    let aggregation = if radius > 0 { 32 } else { 0 };
+    (12 * input_px + (56 + aggregation) * px * threads, 24 * px)
 }
 
 /// Bytes of the `optimize` baseline: the fixed part of [`psv_mean_bytes`], and per plane Adam's logits,
@@ -207,7 +209,7 @@ pub fn optimize_bytes(reference: &Camera, inputs: &[Camera], max_width: u32) -> 
     let f = reference.width.div_ceil(max_width.max(1)).max(1) as u64;
     let px = reference.width as u64 * reference.height as u64;
     let small = px / (f * f);
-    let (fixed, _) = psv_mean_bytes(reference, inputs);
+    let (fixed, _) = psv_mean_bytes(reference, inputs, 0);
     (fixed, 64 * small + 16 * px)
 }
 

@@ -230,8 +230,8 @@ impl DeepViewConfig {
     /// Receptive-field radius of net `net` in MPI pixels (how far an output pixel sees), rounded up to
     /// an even number so crops by it keep the U-Net's 2x2 grid aligned. U-Net nets: `2 r + 4`
     /// (downsampling by 2 and the bilinear upsample's extra texel on each side).
-    /// Net 0 with an aggregated prior adds the aggregation radius (its output's prior at a pixel reads
-    /// the variances `prior_radius` away).
+    /// Net 0 with an aggregated prior reaches at least the aggregation radius (its output's prior at a
+    /// pixel reads the variances `prior_radius` away; its convolutions, their own margin).
     pub fn net_margin(&self, net: usize) -> usize {
         let r = self.convs_per_net();
         let m = if self.unet(net) { 2 * r + 4 } else { r };
@@ -240,7 +240,7 @@ impl DeepViewConfig {
         } else {
             0
         };
-        (m + prior).next_multiple_of(2)
+        m.max(prior).next_multiple_of(2)
     }
 
     /// Sum of [`Self::net_margin`] over nets `from..`.

@@ -740,14 +740,20 @@ impl DeepViewModel {
 
     /// Receptive-field margin of net `n` (same rule as [`DeepViewConfig::net_margin`]).
     pub fn margin(&self, n: usize) -> usize {
-        let r = self.nets[n].input.len() + self.nets[n].stages.len() + 2;
-        let m = if self.nets[n].unet { 2 * r + 4 } else { r };
         let prior = if n == 0 && self.prior_temperature > 0.0 {
             self.prior_radius
         } else {
             0
         };
-        (m + prior).next_multiple_of(2)
+        self.conv_margin(n).max(prior).next_multiple_of(2)
+    }
+
+    /// The receptive-field margin of net `n`'s convolutions alone (without the prior's aggregation:
+    /// the CPU engine aggregates on whole planes).
+    pub fn conv_margin(&self, n: usize) -> usize {
+        let r = self.nets[n].input.len() + self.nets[n].stages.len() + 2;
+        let m = if self.nets[n].unet { 2 * r + 4 } else { r };
+        m.next_multiple_of(2)
     }
 
     /// Sum of the margins of nets `from..`.

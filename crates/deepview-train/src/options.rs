@@ -171,11 +171,15 @@ impl TrainOptions {
         match (&self.init, &self.preset) {
             (Some(dir), None) => load(dir),
             (init, preset) => {
-                let to = DeepViewConfig::preset(preset.as_deref().unwrap_or("cpu"))
+                let mut to = DeepViewConfig::preset(preset.as_deref().unwrap_or("cpu"))
                     .map_err(|e| cfg_err(e.to_string()))?;
                 if let Some(dir) = init {
                     // Refuse a preset the weights cannot grow into now, not after loading the data.
                     let from = load(dir)?;
+                    // The grown model keeps the weights' prior radius (--prior-radius sets another).
+                    if to.init_prior.is_some() && from.init_prior.is_some() {
+                        to.prior_radius = from.prior_radius;
+                    }
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
                             cfg_err(format!(
@@ -512,14 +516,34 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(with("cpu", 8).model().unwrap().prior_radius, 8);
-        // Net 0's margin 6 + 3, rounded up to even; the update nets' 6 each.
+        // Net 0 reaches max(6, 9) rounded up to even; the update nets 6 each.
         assert_eq!(
-            with("cpu-large", 3).model().unwrap().margin_from(0),
+            with("cpu-large", 9).model().unwrap().margin_from(0),
             10 + 6 + 6
         );
+        assert_eq!(with("cpu-large", 3).model().unwrap().margin_from(0), 18);
         let err = with("paper-kalantari", 2).model().unwrap_err().to_string();
         assert!(err.contains("--prior-radius 2"), "{err}");
         assert!(with("cpu", 65).model().is_err());
+        // --init weights with a radius grown into a larger preset keep it unless --prior-radius is given.
+        let dir = tempfile::tempdir().unwrap();
+        let weights = DeepViewConfig {
+            prior_radius: 5,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        std::fs::write(
+            dir.path().join("config.json"),
+            serde_json::to_string(&weights).unwrap(),
+        )
+        .unwrap();
+        let grow = |radius| TrainOptions {
+            init: Some(dir.path().to_path_buf()),
+            preset: Some("cpu-large".into()),
+            prior_radius: radius,
+            ..Default::default()
+        };
+        assert_eq!(grow(None).model().unwrap().prior_radius, 5);
+        assert_eq!(grow(Some(2)).model().unwrap().prior_radius, 2);
     }
 
     #[test]

@@ -1187,8 +1187,8 @@ fn training_tuple_renders_what_the_full_image_model_renders() {
     let dev = Device::flex();
     let data = TrainData::new(vec![two_plane_scene(4, 4, 72, 0.1)]).unwrap();
     let s = &data.scenes[0];
-    // Per pixel, and with an aggregated prior (the window's margin grows by its radius).
-    for radius in [0, 3] {
+    // Per pixel, and with an aggregated prior reaching past the convolutions (net 0's margin 6 -> 10).
+    for radius in [0, 9] {
         let cfg = DeepViewConfig {
             prior_radius: radius,
             ..DeepViewConfig::preset("cpu").unwrap()
@@ -1269,16 +1269,12 @@ fn training_tuple_renders_what_the_full_image_model_renders() {
             with < 1e-5,
             "radius {radius}, with the context: {with} (without: {without})"
         );
-        // With radius 3 the window's margin is 4 px wider and holds the corners' rays: both exact.
+        // Without the context the update net's rays leave the window (and with radius 9 cross its
+        // border's clipped aggregation): only the per-pixel case's margin is pinned by this.
         if radius == 0 {
             assert!(
                 without > 100.0 * with,
                 "without the context: {without} (with: {with})"
-            );
-        } else {
-            assert!(
-                without < 1e-5,
-                "radius {radius}, without the context: {without}"
             );
         }
     }

@@ -51,7 +51,12 @@ pub fn engine_bytes(
     let scratch = |n: usize| {
         let net = &model.nets[n];
         let k = views.len() as u64;
-        let strip = Strips::new(h, if net.unet { h } else { STRIP_ROWS }, model.margin(n)).height;
+        let strip = Strips::new(
+            h,
+            if net.unet { h } else { STRIP_ROWS },
+            model.conv_margin(n),
+        )
+        .height;
         let plane = Plane::new(strip, w).len() as u64;
         let half = Plane::new(h.div_ceil(2), w.div_ceil(2)).len() as u64;
         let cin = net.input[0].weight.dims()[1] as u64;
@@ -65,12 +70,18 @@ pub fn engine_bytes(
         };
         (floats, (strip * w) as u64)
     };
-    // Besides the state: the first net's scratch, the mean colour and the prior's depth weights; an
-    // update net's scratch, the plane's update and the streamed renders; at the end the RGBA result.
+    // Besides the state: the first net's scratch, the mean colour and the prior's depth weights (then
+    // the aggregation's f64 sums per thread, 32 bytes a pixel); an update net's scratch, the plane's
+    // update and the streamed renders; at the end the RGBA result.
+    let aggregation = if model.prior_radius > 0 {
+        threads * 32 * hw
+    } else {
+        0
+    };
     let first = (!model.nets.is_empty())
         .then(|| scratch(0))
         .map_or(0, |(sc, px)| {
-            4 * (threads * (sc + 4 * px + widened) + d64 * hw)
+            (4 * threads * (sc + 4 * px + widened)).max(aggregation) + 4 * d64 * hw
         });
     let update = (1..model.nets.len())
         .map(|n| scratch(n).0)
@@ -318,7 +329,7 @@ pub(crate) fn infer_engine_blocks(
         // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch, on the
         // whole plane; other nets on strips of rows.
         let unet = model.nets[n].unet;
-        let strips = Strips::new(h, if unet { h } else { strip_rows }, model.margin(n));
+        let strips = Strips::new(h, if unet { h } else { strip_rows }, model.conv_margin(n));
         // The planes of a strip, and the net's (half of them for a U-Net).
         let sp = Plane::new(strips.height, w);
         let np = if unet {
