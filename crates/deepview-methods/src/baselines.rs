@@ -39,9 +39,9 @@ pub struct PsvMeanOptions {
     /// The variance assumed where only one view sees a plane point (default
     /// [`agreement::SINGLE_VIEW_VARIANCE`]).
     pub single_view_variance: f64,
-    /// Cost aggregation radius in MPI pixels ([`agreement::box_mean_seen`]); 0, the default, is the
-    /// per-pixel baseline of the tables.
-    pub radius: usize,
+    /// Cost aggregation ([`agreement::aggregate_seen`]); the default, [`agreement::Aggregation::NONE`], is
+    /// the per-pixel baseline of the tables.
+    pub aggregation: agreement::Aggregation,
 }
 
 impl Default for PsvMeanOptions {
@@ -50,7 +50,7 @@ impl Default for PsvMeanOptions {
             planes: 32,
             temperature: agreement::TEMPERATURE,
             single_view_variance: agreement::SINGLE_VIEW_VARIANCE,
-            radius: 0,
+            aggregation: agreement::Aggregation::NONE,
         }
     }
 }
@@ -101,6 +101,6 @@ pub fn agreement_mpi(
         depths,
         options.temperature,
         options.single_view_variance,
-        options.radius,
+        options.aggregation,
     ))
 }

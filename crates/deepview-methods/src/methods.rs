@@ -88,6 +88,13 @@ fn aggregation_radius(s: &str) -> Result<usize, String> {
     }
 }
 
+fn unit_f64(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=1.0).contains(&v) => Ok(v),
+        _ => Err(format!("{s:?} is not a number from 0 to 1")),
+    }
+}
+
 fn positive_f64(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -119,6 +126,10 @@ pub struct MethodOptions {
     /// weights.
     #[arg(long, default_value_t = 0, value_parser = aggregation_radius)]
     pub aggregate: usize,
+    /// The weight of the window's mean in the aggregated variance, the rest being the pixel's own
+    /// (psv-mean with --aggregate; 0..1, default 1).
+    #[arg(long, default_value_t = 1.0, value_parser = unit_f64)]
+    pub aggregate_weight: f64,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -140,6 +151,7 @@ impl Default for MethodOptions {
             device: "cpu".into(),
             temperature: PsvMeanOptions::default().temperature,
             aggregate: 0,
+            aggregate_weight: 1.0,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -165,7 +177,10 @@ pub fn make_method(
             kind,
             psv: PsvMeanOptions {
                 temperature: options.temperature,
-                radius: options.aggregate,
+                aggregation: deepview_mpi::agreement::Aggregation {
+                    radius: options.aggregate,
+                    weight: options.aggregate_weight,
+                },
                 ..Default::default()
             },
             optimize: OptimizeOptions {
@@ -204,7 +219,15 @@ pub fn classical_planes(
     let reference = mpi_reference(cams, near_far)?;
     let (fixed, per_plane) = match method.kind {
         MethodKind::Optimize => optimize_bytes(&reference, cams, method.optimize.max_width),
-        _ => psv_mean_bytes(&reference, cams, method.psv.radius),
+        _ => psv_mean_bytes(
+            &reference,
+            cams,
+            if method.psv.aggregation.is_active() {
+                method.psv.aggregation.radius
+            } else {
+                0
+            },
+        ),
     };
     let mut fits = fits_estimate(fixed, per_plane, budget);
     let mut minimum = |n: usize| fixed.saturating_add(per_plane.saturating_mul(n as u64));

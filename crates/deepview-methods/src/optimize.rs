@@ -131,7 +131,7 @@ fn initial_logits(views: &[(ImageF32, Camera)], reference: &Camera, depths: Vec<
         depths,
         TEMPERATURE,
         SINGLE_VIEW_VARIANCE,
-        0,
+        deepview_mpi::agreement::Aggregation::NONE,
     );
     let plane_len = mean.plane_len();
     let mut z = mean.layers;

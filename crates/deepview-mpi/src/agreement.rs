@@ -5,9 +5,11 @@
 //! For every plane `d` and reference pixel: colour = mean of the views' valid plane-sweep samples;
 //! agreement logit `l_d = -v_d / s` with `v_d` the variance of the valid samples (mean over RGB;
 //! [`SINGLE_VIEW_VARIANCE`] where one view sees the point, no weight where none does) and `s` the
-//! temperature ([`TEMPERATURE`] by default). With an aggregation radius `r > 0` each plane's variance is
-//! first averaged over the seen pixels of the `(2r+1) x (2r+1)` window around each pixel
-//! ([`box_mean_seen`]: classic stereo cost aggregation; the window is clipped at the image border). A softmax over planes turns the logits into a depth
+//! temperature ([`TEMPERATURE`] by default). With an [`Aggregation`] of radius `r > 0` and weight `a`
+//! each plane's variance is first replaced by `a` times its mean over the seen pixels of the
+//! `(2r+1) x (2r+1)` window around each pixel plus `1 - a` times its own value ([`aggregate_seen`]:
+//! classic stereo cost aggregation, the window clipped at the image border, with extra weight on the
+//! centre). A softmax over planes turns the logits into a depth
 //! distribution `w_d` (sum 1), which becomes alpha so that each plane's visible contribution in the
 //! reference view is exactly `w_d`: `a_d = w_d / sum_{i<=d} w_i` (planes back to front, so the farthest
 //! plane with weight is opaque).
@@ -34,7 +36,7 @@ pub fn agreement_mpi(
     depths: Vec<f64>,
     temperature: f64,
     single_view_variance: f64,
-    radius: usize,
+    aggregation: Aggregation,
 ) -> Mpi {
     let (mut mpi, logits) = sweep_statistics(
         inputs,
@@ -42,7 +44,7 @@ pub fn agreement_mpi(
         depths,
         temperature,
         single_view_variance,
-        radius,
+        aggregation,
     );
     let n = reference.width as usize * reference.height as usize;
     let alphas = depth_distribution_to_alpha(&logits, mpi.planes(), n);
@@ -64,7 +66,7 @@ pub fn agreement_mpi(
 }
 
 /// Per plane: the mean colour of the valid samples in the MPI texels (alpha still 0), and the agreement logits
-/// `[D][n]` (aggregated over `radius`, see the module docs), computed one plane at a time so memory stays
+/// `[D][n]` (with `aggregation`, see the module docs), computed one plane at a time so memory stays
 /// at one MPI.
 pub fn sweep_statistics(
     inputs: &[(ImageF32, Camera)],
@@ -72,7 +74,7 @@ pub fn sweep_statistics(
     depths: Vec<f64>,
     temperature: f64,
     single_view_variance: f64,
-    radius: usize,
+    aggregation: Aggregation,
 ) -> (Mpi, Vec<f32>) {
     let n = reference.width as usize * reference.height as usize;
     let mut mpi = Mpi::transparent(*reference, depths);
@@ -117,24 +119,58 @@ pub fn sweep_statistics(
                 };
             }
             let (w, h) = (reference.width as usize, reference.height as usize);
-            box_mean_seen(logit, w, h, radius, &mut Vec::new());
+            aggregate_seen(logit, w, h, aggregation, &mut Vec::new());
         });
     (mpi, logits)
 }
 
-/// Values at or below this are "unseen" in [`box_mean_seen`] (the engines mark unseen plane points with
+/// Values at or below this are "unseen" in [`aggregate_seen`] (the engines mark unseen plane points with
 /// `-1e30` or `-inf`).
 pub const UNSEEN_BELOW: f32 = -1e29;
 
-/// Cost aggregation: every seen value of the `w x h` plane `v` (above [`UNSEEN_BELOW`]) becomes the mean of
-/// the seen values in the `(2r+1) x (2r+1)` window around it (clipped at the border); unseen values stay.
-/// Separable running sums in `f64` (`scratch` is reused), `O(1)` per pixel for any radius; `r = 0` is a
-/// no-op.
-pub fn box_mean_seen(v: &mut [f32], w: usize, h: usize, r: usize, scratch: &mut Vec<f64>) {
-    if r == 0 || w == 0 || h == 0 {
+/// Cost aggregation of the agreement: the radius `r` of the window and the weight `a` of its mean (the
+/// rest is the pixel's own cost). `r = 0` or `a = 0`: per pixel.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aggregation {
+    pub radius: usize,
+    pub weight: f64,
+}
+
+impl Aggregation {
+    /// Per pixel (`psv-mean`'s default).
+    pub const NONE: Aggregation = Aggregation {
+        radius: 0,
+        weight: 1.0,
+    };
+
+    /// Whether it changes anything.
+    pub fn is_active(&self) -> bool {
+        self.radius > 0 && self.weight > 0.0
+    }
+}
+
+impl Default for Aggregation {
+    fn default() -> Self {
+        Self::NONE
+    }
+}
+
+/// Cost aggregation: every seen value `x` of the `w x h` plane `v` (above [`UNSEEN_BELOW`]) becomes
+/// `a * m + (1 - a) * x`, with `m` the mean of the seen values in the `(2r+1) x (2r+1)` window around it
+/// (clipped at the border) and `(r, a)` = `aggregation`; unseen values stay. Separable running sums in
+/// `f64` (`scratch` is reused), `O(1)` per pixel for any radius.
+pub fn aggregate_seen(
+    v: &mut [f32],
+    w: usize,
+    h: usize,
+    aggregation: Aggregation,
+    scratch: &mut Vec<f64>,
+) {
+    let Aggregation { radius: r, weight } = aggregation;
+    if !aggregation.is_active() || w == 0 || h == 0 {
         return;
     }
-    assert_eq!(v.len(), w * h, "box_mean_seen: plane size");
+    assert_eq!(v.len(), w * h, "aggregate_seen: plane size");
     // Horizontal window sums of (value, count) per pixel, then vertical sums of those.
     scratch.clear();
     scratch.resize(4 * w * h + 2 * (w.max(h) + 1), 0.0);
@@ -171,7 +207,8 @@ pub fn box_mean_seen(v: &mut [f32], w: usize, h: usize, r: usize, scratch: &mut 
     }
     for (i, t) in v.iter_mut().enumerate() {
         if *t > UNSEEN_BELOW {
-            *t = (vs[2 * i] / vs[2 * i + 1]) as f32;
+            let mean = vs[2 * i] / vs[2 * i + 1];
+            *t = (weight * mean + (1.0 - weight) * *t as f64) as f32;
         }
     }
 }
@@ -212,7 +249,7 @@ mod tests {
     use super::*;
 
     #[test]
-    fn box_mean_seen_is_the_windowed_mean_of_seen_values() {
+    fn aggregation_is_the_weighted_windowed_mean_of_seen_values() {
         // Against the definition, pixel by pixel, on a plane with unseen holes and ragged borders.
         let (w, h) = (13usize, 7usize);
         let v: Vec<f32> = (0..w * h)
@@ -226,9 +263,22 @@ mod tests {
                 }
             })
             .collect();
-        for r in [0usize, 1, 2, 6, 20] {
+        for (r, weight) in [
+            (0usize, 1.0),
+            (1, 1.0),
+            (2, 0.5),
+            (6, 1.0),
+            (20, 0.3),
+            (3, 0.0),
+        ] {
             let mut got = v.clone();
-            box_mean_seen(&mut got, w, h, r, &mut Vec::new());
+            aggregate_seen(
+                &mut got,
+                w,
+                h,
+                Aggregation { radius: r, weight },
+                &mut Vec::new(),
+            );
             for y in 0..h {
                 for x in 0..w {
                     let t = v[y * w + x];
@@ -246,7 +296,7 @@ mod tests {
                             }
                         }
                     }
-                    let want = (s / c) as f32;
+                    let want = (weight * s / c + (1.0 - weight) * t as f64) as f32;
                     assert!((got[y * w + x] - want).abs() < 1e-5, "r {r} ({x}, {y})");
                 }
             }

@@ -64,14 +64,36 @@ pub struct DeepViewConfig {
     pub init_prior: Option<f64>,
     /// Cost aggregation of the agreement prior (with `init_prior`): each plane's colour variance is
     /// averaged over the seen pixels of the `(2r+1) x (2r+1)` window around each pixel before the softmax
-    /// over planes (`deepview_mpi::agreement::box_mean_seen`). 0 (the default, and every config written
+    /// over planes (`deepview_mpi::agreement::aggregate_seen`). 0 (the default, and every config written
     /// before it existed): per pixel, exactly `psv-mean`'s MPI.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub prior_radius: usize,
+    /// The weight of the window's mean in the aggregated variance (the rest is the pixel's own), in
+    /// `0..=1`; default 1.
+    #[serde(default = "one", skip_serializing_if = "is_one")]
+    pub prior_weight: f64,
 }
 
 fn is_zero(r: &usize) -> bool {
     *r == 0
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+fn is_one(w: &f64) -> bool {
+    *w == 1.0
+}
+
+impl DeepViewConfig {
+    /// The prior's cost aggregation.
+    pub fn prior_aggregation(&self) -> deepview_mpi::agreement::Aggregation {
+        deepview_mpi::agreement::Aggregation {
+            radius: self.prior_radius,
+            weight: self.prior_weight,
+        }
+    }
 }
 
 /// The largest aggregation radius a config may ask for.
@@ -101,6 +123,7 @@ impl DeepViewConfig {
             max_pool_stages: 3,
             init_prior: None,
             prior_radius: 0,
+            prior_weight: 1.0,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -126,6 +149,7 @@ impl DeepViewConfig {
                 max_pool_stages: 1,
                 init_prior: Some(CPU_PRIOR_TEMPERATURE),
                 prior_radius: 0,
+                prior_weight: 1.0,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -144,6 +168,7 @@ impl DeepViewConfig {
                 max_pool_stages: 1,
                 init_prior: Some(CPU_PRIOR_TEMPERATURE),
                 prior_radius: 0,
+                prior_weight: 1.0,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -170,6 +195,12 @@ impl DeepViewConfig {
             return bad(&format!(
                 "the prior's aggregation radius {} is above {MAX_PRIOR_RADIUS}",
                 self.prior_radius
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.prior_weight) {
+            return bad(&format!(
+                "the prior's aggregation weight {} is not within 0..=1",
+                self.prior_weight
             ));
         }
         if self.prior_radius > 0 && self.init_prior.is_none() {

@@ -301,27 +301,28 @@ pub fn state_to_rgba_burn(state: Tensor<4>) -> Tensor<4> {
     Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)
 }
 
-use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
+use deepview_mpi::agreement::{Aggregation, LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
 
 /// The cross-view agreement MPI of plane sweep volumes as RGBA *logits* `[D, 4, h, w]` (see
 /// `DeepViewConfig::init_prior`), computed exactly like [`deepview_mpi::agreement::agreement_mpi`] (its one definition): per plane and
 /// pixel, colour = mean of the valid samples; variance = mean over RGB of the valid samples' variance
 /// (`SINGLE_VIEW_VARIANCE` where one view sees the point; no weight where none does); weights =
 /// softmax over planes of `-variance / temperature`; alpha `a_d = w_d / sum_{i<=d} w_i` (back to front).
-/// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits. With `radius > 0`
-/// the variance is first averaged over the seen pixels of the `(2r+1) x (2r+1)` window around each pixel
-/// (clipped at the tensor's border; [`deepview_mpi::agreement::box_mean_seen`]).
+/// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits. With an active
+/// `aggregation` (radius `r`, weight `a`) the variance is first `a` times its mean over the seen pixels of
+/// the `(2r+1) x (2r+1)` window around each pixel (clipped at the tensor's border) plus `1 - a` times its
+/// own ([`deepview_mpi::agreement::aggregate_seen`]).
 /// `per_view`: K tensors `[D, 4, h, w]` (PSV RGB, validity) as built by [`DeepViewModel::init_input`].
 pub fn agreement_prior_logits(
     per_view: &[Tensor<4>],
     temperature: f64,
-    radius: usize,
+    aggregation: Aggregation,
 ) -> Tensor<4> {
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if radius == 0 && crate::gpu::gpu_kernels(&per_view[0].device()) {
+    if !aggregation.is_active() && crate::gpu::gpu_kernels(&per_view[0].device()) {
         return crate::gpu::prior(per_view, temperature);
     }
-    agreement_prior_logits_burn(per_view, temperature, radius)
+    agreement_prior_logits_burn(per_view, temperature, aggregation)
 }
 
 /// The mean of `x` over the seen pixels (`seen` 1, else 0) of the `(2r+1)^2` window around each pixel,
@@ -351,7 +352,7 @@ fn box_mean_seen_burn(x: Tensor<4>, seen: Tensor<4>, r: usize) -> Tensor<4> {
 pub fn agreement_prior_logits_burn(
     per_view: &[Tensor<4>],
     temperature: f64,
-    radius: usize,
+    aggregation: Aggregation,
 ) -> Tensor<4> {
     let valid: Vec<Tensor<4>> = per_view.iter().map(|v| v.clone().narrow(1, 3, 1)).collect();
     let rgb: Vec<Tensor<4>> = per_view
@@ -378,8 +379,9 @@ pub fn agreement_prior_logits_burn(
     let single = count.clone().equal_elem(1.0);
     let var = var.mask_fill(single, SINGLE_VIEW_VARIANCE);
     let seen = count.greater_elem(0.5).float();
-    let var = if radius > 0 {
-        box_mean_seen_burn(var, seen.clone(), radius)
+    let var = if aggregation.is_active() {
+        let a = aggregation.weight;
+        box_mean_seen_burn(var.clone(), seen.clone(), aggregation.radius) * a + var * (1.0 - a)
     } else {
         var
     };
@@ -560,6 +562,8 @@ pub struct DeepViewModel {
     pub prior_temperature: f64,
     /// Cost aggregation radius of the prior (`DeepViewConfig::prior_radius`; 0 = per pixel).
     pub prior_radius: usize,
+    /// The weight of the window's mean in the aggregated variance (`DeepViewConfig::prior_weight`).
+    pub prior_weight: f64,
 }
 
 impl DeepViewModel {
@@ -585,6 +589,15 @@ impl DeepViewModel {
             } else {
                 0
             },
+            prior_weight: config.prior_weight,
+        }
+    }
+
+    /// The prior's cost aggregation.
+    pub fn prior_aggregation(&self) -> Aggregation {
+        Aggregation {
+            radius: self.prior_radius,
+            weight: self.prior_weight,
         }
     }
 
@@ -615,7 +628,8 @@ impl DeepViewModel {
         let k = per_view.len();
         // The prior as a state: its RGBA logits and zeros for the extra channels.
         let prior_state = |per_view: &[Tensor<4>]| {
-            let p = agreement_prior_logits(per_view, self.prior_temperature, self.prior_radius);
+            let p =
+                agreement_prior_logits(per_view, self.prior_temperature, self.prior_aggregation());
             let [d, c, h, w] = p.dims();
             let extra = self.state_channels - c;
             if extra == 0 {
@@ -629,9 +643,10 @@ impl DeepViewModel {
         if crate::gpu::gpu_kernels(&per_view[0].device()) {
             // The fused prior kernel is per pixel; an aggregated prior takes burn's ops.
             let with_prior = n == 0 && self.prior_temperature > 0.0;
-            let fused = (with_prior && self.prior_radius == 0)
-                .then_some((self.prior_temperature, self.state_channels));
-            let aggregated = (with_prior && self.prior_radius > 0).then(|| prior_state(&per_view));
+            let active = self.prior_aggregation().is_active();
+            let fused =
+                (with_prior && !active).then_some((self.prior_temperature, self.state_channels));
+            let aggregated = (with_prior && active).then(|| prior_state(&per_view));
             let (x, prior) = crate::gpu::net_input(per_view, state, fused);
             let out = self.nets[n].forward(x, k);
             return match prior.or(aggregated) {
@@ -678,7 +693,7 @@ impl DeepViewModel {
             rgba: state_to_rgba(agreement_prior_logits(
                 &per_view,
                 self.context_temperature(),
-                self.prior_radius,
+                self.prior_aggregation(),
             )),
             origin: context.origin,
         }

@@ -27,6 +27,10 @@ pub struct TrainOptions {
     /// the weights' config.json; --init weights train on with a new radius (it has no parameters).
     #[arg(long, value_name = "R")]
     pub prior_radius: Option<usize>,
+    /// The weight of the aggregation window's mean in the prior's variance, the rest being the pixel's
+    /// own (0..1). Default: the preset's or --init's (1). Kept in the weights' config.json.
+    #[arg(long, value_name = "A")]
+    pub prior_weight: Option<f64>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -160,6 +164,11 @@ impl TrainOptions {
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-radius {r}: {e}")))?;
         }
+        if let Some(a) = self.prior_weight {
+            cfg.prior_weight = a;
+            cfg.validate()
+                .map_err(|e| cfg_err(format!("--prior-weight {a}: {e}")))?;
+        }
         Ok(cfg)
     }
 
@@ -179,6 +188,7 @@ impl TrainOptions {
                     // The grown model keeps the weights' prior radius (--prior-radius sets another).
                     if to.init_prior.is_some() && from.init_prior.is_some() {
                         to.prior_radius = from.prior_radius;
+                        to.prior_weight = from.prior_weight;
                     }
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
@@ -279,6 +289,11 @@ impl TrainOptions {
                 self.prior_radius
                     .is_some_and(|r| r != cfg.model.prior_radius),
                 "--prior-radius",
+            ),
+            (
+                self.prior_weight
+                    .is_some_and(|a| a != cfg.model.prior_weight),
+                "--prior-weight",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
             (
@@ -487,10 +502,12 @@ mod tests {
             "v.safetensors",
             "--prior-radius",
             "8",
+            "--prior-weight",
+            "0.5",
         ])
         .unwrap();
         let o = cli.options;
-        assert_eq!(o.prior_radius, Some(8));
+        assert_eq!((o.prior_radius, o.prior_weight), (Some(8), Some(0.5)));
         assert_eq!(o.preset.as_deref(), Some("cpu-large"));
         assert_eq!(o.views, Some((2, 4)));
         assert_eq!(o.planes, Some((true, 32)));
@@ -525,10 +542,22 @@ mod tests {
         let err = with("paper-kalantari", 2).model().unwrap_err().to_string();
         assert!(err.contains("--prior-radius 2"), "{err}");
         assert!(with("cpu", 65).model().is_err());
+        let weighted = TrainOptions {
+            prior_weight: Some(1.5),
+            ..with("cpu", 4)
+        };
+        assert!(
+            weighted
+                .model()
+                .unwrap_err()
+                .to_string()
+                .contains("--prior-weight 1.5")
+        );
         // --init weights with a radius grown into a larger preset keep it unless --prior-radius is given.
         let dir = tempfile::tempdir().unwrap();
         let weights = DeepViewConfig {
             prior_radius: 5,
+            prior_weight: 0.5,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         std::fs::write(
@@ -542,7 +571,8 @@ mod tests {
             prior_radius: radius,
             ..Default::default()
         };
-        assert_eq!(grow(None).model().unwrap().prior_radius, 5);
+        let grown = grow(None).model().unwrap();
+        assert_eq!((grown.prior_radius, grown.prior_weight), (5, 0.5));
         assert_eq!(grow(Some(2)).model().unwrap().prior_radius, 2);
     }
 

@@ -32,6 +32,7 @@ fn tiny_model() -> DeepViewConfig {
         max_pool_stages: 1,
         init_prior: None,
         prior_radius: 0,
+        prior_weight: 1.0,
     }
 }
 

@@ -22,7 +22,7 @@ use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
-use deepview_mpi::agreement::box_mean_seen;
+use deepview_mpi::agreement::aggregate_seen;
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -73,7 +73,7 @@ pub fn engine_bytes(
     // Besides the state: the first net's scratch, the mean colour and the prior's depth weights (then
     // the aggregation's f64 sums per thread, 32 bytes a pixel); an update net's scratch, the plane's
     // update and the streamed renders; at the end the RGBA result.
-    let aggregation = if model.prior_radius > 0 {
+    let aggregation = if model.prior_aggregation().is_active() {
         threads * 32 * hw
     } else {
         0
@@ -433,11 +433,11 @@ pub(crate) fn infer_engine_blocks(
                 unsafe { state.with_plane(p, buf, body) }
             });
             if temperature > 0.0 {
-                if model.prior_radius > 0 {
+                if model.prior_aggregation().is_active() {
                     weights
                         .par_chunks_mut(hw)
                         .for_each_init(Vec::new, |scratch, plane| {
-                            box_mean_seen(plane, w, h, model.prior_radius, scratch)
+                            aggregate_seen(plane, w, h, model.prior_aggregation(), scratch)
                         });
                 }
                 prior_logits(&mut weights, d, hw);
@@ -617,6 +617,7 @@ mod tests {
                 model.prior_temperature = crate::config::CPU_PRIOR_TEMPERATURE;
                 // Odd view counts with an aggregated prior (a radius the strips' heights cross).
                 model.prior_radius = if k % 2 == 1 { 3 } else { 0 };
+                model.prior_weight = if k == 1 { 0.5 } else { 1.0 };
             }
             let (views, reference, depths) = scene(k, d);
             let inputs = ModelInputs {
@@ -668,8 +669,8 @@ mod tests {
             };
             let max = max_diff(&got);
             let case = format!(
-                "{k} views, {d} planes, {updates} updates, prior {prior} (radius {}), {unet_nets} U-Net",
-                model.prior_radius
+                "{k} views, {d} planes, {updates} updates, prior {prior} (radius {}, weight {}), {unet_nets} U-Net",
+                model.prior_radius, model.prior_weight
             );
             assert!(max < 2e-5, "{case}: {max}");
             // The renders streamed in blocks of any size and the nets run on strips of any height

@@ -95,6 +95,7 @@ fn wgpu_composite_kernel_equals_burns_ops() {
 #[test]
 fn wgpu_prior_kernel_equals_burns_ops() {
     use crate::network::{agreement_prior_logits, agreement_prior_logits_burn};
+    use deepview_mpi::agreement::Aggregation;
     let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
     let cpu = Device::flex();
     let (k, d, h, w) = (4, 9, 6, 7);
@@ -124,16 +125,17 @@ fn wgpu_prior_kernel_equals_burns_ops() {
         })
         .collect();
     // Radius 0: the fused kernel; radius 2: burn's ops (the aggregation's pools) on the device.
-    for (temperature, radius) in [(0.05, 0), (1e-4, 0), (0.05, 2)] {
+    for (temperature, radius, weight) in [(0.05, 0, 1.0), (1e-4, 0, 1.0), (0.05, 2, 0.5)] {
+        let aggregation = Aggregation { radius, weight };
         let run = |dev: &Device, gpu: bool| {
             let t: Vec<Tensor<4>> = views
                 .iter()
                 .map(|x| Tensor::<4>::from_data(TensorData::new(x.clone(), [d, 4, h, w]), dev))
                 .collect();
             to_vec(if gpu {
-                agreement_prior_logits(&t, temperature, radius)
+                agreement_prior_logits(&t, temperature, aggregation)
             } else {
-                agreement_prior_logits_burn(&t, temperature, radius)
+                agreement_prior_logits_burn(&t, temperature, aggregation)
             })
         };
         assert!(crate::gpu::gpu_kernels(&gpu));
@@ -584,7 +586,8 @@ fn wgpu_net_input_equals_burns_cats() {
             .map(|v| Tensor::from_data(TensorData::new(v.clone(), [d, 4, h, w]), dev))
             .collect()
     };
-    let want = agreement_prior_logits_burn(&on(&cpu), 0.05, 0);
+    let want =
+        agreement_prior_logits_burn(&on(&cpu), 0.05, deepview_mpi::agreement::Aggregation::NONE);
     let want = to_vec(Tensor::cat(
         vec![want, Tensor::zeros([d, 4, h, w], &cpu)],
         1,

@@ -110,12 +110,12 @@ fn untrained_prior_model_equals_agreement_mpi() {
     use deepview_mpi::agreement::{SINGLE_VIEW_VARIANCE, TEMPERATURE, agreement_mpi};
     let dev = Device::flex();
     // With an aggregation radius the 16-px tiles' margins must reach `radius` further.
-    for (k, planes, smooth, radius) in [
-        (3, 8, true, 0),
-        (4, 5, false, 0),
-        (2, 6, true, 0),
-        (3, 6, true, 3),
-        (4, 5, false, 9),
+    for (k, planes, smooth, radius, weight) in [
+        (3, 8, true, 0, 1.0),
+        (4, 5, false, 0, 1.0),
+        (2, 6, true, 0, 1.0),
+        (3, 6, true, 3, 0.5),
+        (4, 5, false, 9, 1.0),
     ] {
         let cfg = DeepViewConfig {
             features_large: 4,
@@ -123,6 +123,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             updates: 2,
             max_pool_stages: 1,
             prior_radius: radius,
+            prior_weight: weight,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         let model = DeepViewModel::new(&cfg, &dev);
@@ -155,7 +156,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             depths.clone(),
             TEMPERATURE,
             SINGLE_VIEW_VARIANCE,
-            radius,
+            cfg.prior_aggregation(),
         );
         let mpi = infer_mpi_tiled(&model, &views, &reference, &depths, 16, &mut |_| {}).unwrap();
         assert_eq!(mpi.layers.len(), expected.layers.len());
