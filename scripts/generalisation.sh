@@ -4,6 +4,7 @@
 # plane count of `--planes auto` (the same for every method).
 # Usage: WEIGHTS=runs/gen2/checkpoints/step-N scripts/generalisation.sh [METHOD ...]
 #   (default methods: nearest psv-mean optimize deepview; WEIGHTS defaults to the shipped weights)
+# ARGS adds options to every eval (e.g. ARGS="--aggregate 8" for psv-mean with cost aggregation).
 # Results: ${OUT:-results/gen}/<scene>_<method>.json; then `python3 scripts/quality_table.py results/gen`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -28,7 +29,7 @@ for m in "${methods[@]}"; do
     read -r name dir images <<<"$s"
     [ -n "${SCENES:-}" ] && [[ " $SCENES " != *" $name "* ]] && continue
     $BIN eval --data "$DATA/$dir" --images "$images" --downscale 2 --method "$m" --protocol posed \
-      --targets every:16 --inputs nearest:4 "${extra[@]}" --out "$OUT/${name}_${m}.json"
+      --targets every:16 --inputs nearest:4 "${extra[@]}" ${ARGS:-} --out "$OUT/${name}_${m}.json"
   done
 done
 python3 scripts/quality_table.py "$OUT"

@@ -6,6 +6,7 @@
 # WIDE=1 adds room at its full 996 px (twice the disparities: a stand-in for wider captures).
 # Usage: WEIGHTS=runs/gen27/checkpoints/step-N scripts/spread3.sh [METHOD ...]
 #   (default methods: psv-mean deepview; WEIGHTS defaults to the shipped weights)
+# ARGS adds options to every eval (e.g. ARGS="--aggregate 8" for psv-mean with cost aggregation).
 # Results: ${OUT:-results/spread3}/<scene>_<method>.json; then `python3 scripts/quality_table.py DIR`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -31,7 +32,7 @@ for m in "${methods[@]}"; do
     read -r name dir images down <<<"$s"
     [ -n "${SCENES:-}" ] && [[ " $SCENES " != *" $name "* ]] && continue
     $BIN eval --data "$DATA/$dir" --images "$images" --downscale "$down" --method "$m" \
-      --inputs spread:3 --crop 0 "${extra[@]}" --out "$OUT/${name}_${m}.json"
+      --inputs spread:3 --crop 0 "${extra[@]}" ${ARGS:-} --out "$OUT/${name}_${m}.json"
   done
 done
 python3 scripts/quality_table.py "$OUT"
