@@ -319,8 +319,8 @@ pub fn agreement_prior_logits(
     aggregation: Aggregation,
 ) -> Tensor<4> {
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if !aggregation.is_active() && crate::gpu::gpu_kernels(&per_view[0].device()) {
-        return crate::gpu::prior(per_view, temperature);
+    if crate::gpu::gpu_kernels(&per_view[0].device()) {
+        return crate::gpu::prior(per_view, temperature, aggregation);
     }
     agreement_prior_logits_burn(per_view, temperature, aggregation)
 }
@@ -641,15 +641,14 @@ impl DeepViewModel {
         };
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         if crate::gpu::gpu_kernels(&per_view[0].device()) {
-            // The fused prior kernel is per pixel; an aggregated prior takes burn's ops.
-            let with_prior = n == 0 && self.prior_temperature > 0.0;
-            let active = self.prior_aggregation().is_active();
-            let fused =
-                (with_prior && !active).then_some((self.prior_temperature, self.state_channels));
-            let aggregated = (with_prior && active).then(|| prior_state(&per_view));
-            let (x, prior) = crate::gpu::net_input(per_view, state, fused);
+            let prior = (n == 0 && self.prior_temperature > 0.0).then_some((
+                self.prior_temperature,
+                self.state_channels,
+                self.prior_aggregation(),
+            ));
+            let (x, prior) = crate::gpu::net_input(per_view, state, prior);
             let out = self.nets[n].forward(x, k);
-            return match prior.or(aggregated) {
+            return match prior {
                 Some(p) => p + out,
                 None => out,
             };

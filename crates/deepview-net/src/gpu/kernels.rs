@@ -91,6 +91,69 @@ pub(super) fn composite_backward_kernel(
     }
 }
 
+/// One plane's agreement statistics at one pixel (`ib`: the pixel's offset in `psv`, view-major
+/// `[K*D, 4, h, w]`): the mean colour of the valid samples, the masked depth-weight logit (`-variance /
+/// temperature`, `-1e30` where no view sees the point) and whether any view sees it (1 or 0).
+#[cube]
+fn plane_cost(
+    psv: &Tensor<f32>,
+    ib: usize,
+    p: usize,
+    d: usize,
+    temperature: f32,
+    single_view_variance: f32,
+) -> (f32, f32, f32, f32, f32) {
+    let k = psv.shape(0) / d;
+    let (s0, s1) = (psv.stride(0), psv.stride(1));
+    let mut count = 0.0f32;
+    let mut sr = 0.0f32;
+    let mut sg = 0.0f32;
+    let mut sb = 0.0f32;
+    for v in 0..k {
+        let i = ib + (v * d + p) * s0;
+        let m = psv[i + 3 * s1];
+        count += m;
+        sr += psv[i] * m;
+        sg += psv[i + s1] * m;
+        sb += psv[i + 2 * s1] * m;
+    }
+    let denom = if count > 1.0f32 { count } else { 1.0f32 };
+    let (mr, mg, mb) = (sr / denom, sg / denom, sb / denom);
+    let mut vr = 0.0f32;
+    let mut vg = 0.0f32;
+    let mut vb = 0.0f32;
+    for v in 0..k {
+        let i = ib + (v * d + p) * s0;
+        let m = psv[i + 3 * s1];
+        let er = psv[i] * m - mr * m;
+        let eg = psv[i + s1] * m - mg * m;
+        let eb = psv[i + 2 * s1] * m - mb * m;
+        vr += er * er;
+        vg += eg * eg;
+        vb += eb * eb;
+    }
+    let mut q = (vr / denom + vg / denom + vb / denom) / 3.0f32;
+    if count == 1.0f32 {
+        q = single_view_variance;
+    }
+    let seen = if count > 0.5f32 { 1.0f32 } else { 0.0f32 };
+    let l = (-q / temperature) * seen + (1.0f32 - seen) * -1e30f32;
+    (mr, mg, mb, l, seen)
+}
+
+/// Plane `p`'s mean colour as clamped logits into `out` (channels 0-2, zeros in channels `4..S`).
+#[cube]
+fn write_colour(out: &mut Tensor<f32>, o: usize, mr: f32, mg: f32, mb: f32, eps: f32) {
+    let (o1, s) = (out.stride(1), out.shape(1));
+    out[o] = clamped_logit(mr, eps);
+    out[o + o1] = clamped_logit(mg, eps);
+    out[o + 2 * o1] = clamped_logit(mb, eps);
+    // A state's extra channels (the prior fills only RGBA).
+    for c in 4..s {
+        out[o + c * o1] = 0.0f32;
+    }
+}
+
 /// The agreement prior's logits (see [`crate::network::agreement_prior_logits`], the same arithmetic):
 /// `psv` `[K*D, 4, h, w]` (view-major: view `v`'s plane `p` at `v*D + p`; RGB and validity) -> `out`
 /// `[D, S, h, w]` (the mean colour's and the depth weight's clamped logits; zeros in channels `4..S`).
@@ -103,52 +166,18 @@ pub(super) fn prior_kernel(
     eps: f32,
 ) {
     let (d, h, w) = (out.shape(0), out.shape(2), out.shape(3));
-    let k = psv.shape(0) / d;
     let pix = ABSOLUTE_POS;
     if pix >= h * w {
         terminate!();
     }
     let (y, x) = (pix / w, pix % w);
-    let (s0, s1) = (psv.stride(0), psv.stride(1));
     let (o0, o1) = (out.stride(0), out.stride(1));
     let ib = y * psv.stride(2) + x * psv.stride(3);
     let ob = y * out.stride(2) + x * out.stride(3);
     let mut run_m = 0.0f32;
     let mut run_s = 1.0f32;
     for p in 0..d {
-        let mut count = 0.0f32;
-        let mut sr = 0.0f32;
-        let mut sg = 0.0f32;
-        let mut sb = 0.0f32;
-        for v in 0..k {
-            let i = ib + (v * d + p) * s0;
-            let m = psv[i + 3 * s1];
-            count += m;
-            sr += psv[i] * m;
-            sg += psv[i + s1] * m;
-            sb += psv[i + 2 * s1] * m;
-        }
-        let denom = if count > 1.0f32 { count } else { 1.0f32 };
-        let (mr, mg, mb) = (sr / denom, sg / denom, sb / denom);
-        let mut vr = 0.0f32;
-        let mut vg = 0.0f32;
-        let mut vb = 0.0f32;
-        for v in 0..k {
-            let i = ib + (v * d + p) * s0;
-            let m = psv[i + 3 * s1];
-            let er = psv[i] * m - mr * m;
-            let eg = psv[i + s1] * m - mg * m;
-            let eb = psv[i + 2 * s1] * m - mb * m;
-            vr += er * er;
-            vg += eg * eg;
-            vb += eb * eb;
-        }
-        let mut q = (vr / denom + vg / denom + vb / denom) / 3.0f32;
-        if count == 1.0f32 {
-            q = single_view_variance;
-        }
-        let seen = if count > 0.5f32 { 1.0f32 } else { 0.0f32 };
-        let l = (-q / temperature) * seen + (1.0f32 - seen) * -1e30f32;
+        let (mr, mg, mb, l, seen) = plane_cost(psv, ib, p, d, temperature, single_view_variance);
         if p == 0 {
             run_m = l;
             run_s = 1.0f32;
@@ -163,14 +192,109 @@ pub(super) fn prior_kernel(
         }
         alpha *= seen;
         let o = ob + p * o0;
-        out[o] = clamped_logit(mr, eps);
-        out[o + o1] = clamped_logit(mg, eps);
-        out[o + 2 * o1] = clamped_logit(mb, eps);
+        write_colour(out, o, mr, mg, mb, eps);
         out[o + 3 * o1] = clamped_logit(alpha, eps);
-        // A state's extra channels (the prior fills only RGBA).
-        for c in 4..out.shape(1) {
-            out[o + c * o1] = 0.0f32;
+    }
+}
+
+/// The aggregated prior's first pass: [`prior_kernel`]'s colour logits into `out`, and each plane's
+/// masked depth-weight logit into `lg` `[D, 1, h, w]` (for [`aggregate_kernel`]).
+#[cube(launch)]
+pub(super) fn prior_cost_kernel(
+    psv: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    lg: &mut Tensor<f32>,
+    temperature: f32,
+    single_view_variance: f32,
+    eps: f32,
+) {
+    let (d, h, w) = (out.shape(0), out.shape(2), out.shape(3));
+    let pix = ABSOLUTE_POS;
+    if pix >= h * w {
+        terminate!();
+    }
+    let (y, x) = (pix / w, pix % w);
+    let ib = y * psv.stride(2) + x * psv.stride(3);
+    let ob = y * out.stride(2) + x * out.stride(3);
+    let lb = y * lg.stride(2) + x * lg.stride(3);
+    let (o0, l0) = (out.stride(0), lg.stride(0));
+    for p in 0..d {
+        let (mr, mg, mb, l, _seen) = plane_cost(psv, ib, p, d, temperature, single_view_variance);
+        write_colour(out, ob + p * o0, mr, mg, mb, eps);
+        lg[lb + p * l0] = l;
+    }
+}
+
+/// Cost aggregation ([`deepview_mpi::agreement::aggregate_seen`]): every seen logit of `lg` `[D, 1, h,
+/// w]` (above `-1e29`) becomes `weight` times the mean of the seen logits in the `(2r+1)^2` window
+/// around it (clipped at the border) plus `1 - weight` times its own, into `out`; unseen ones are copied.
+/// One thread per texel.
+#[cube(launch)]
+#[allow(clippy::implicit_saturating_sub)] // cubecl expands `if`, not `saturating_sub`
+pub(super) fn aggregate_kernel(lg: &Tensor<f32>, out: &mut Tensor<f32>, radius: u32, weight: f32) {
+    let (d, h, w) = (lg.shape(0), lg.shape(2), lg.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= d * h * w {
+        terminate!();
+    }
+    let (p, y, x) = (pos / (h * w), (pos / w) % h, pos % w);
+    let (l0, l2, l3) = (lg.stride(0), lg.stride(2), lg.stride(3));
+    let v = lg[p * l0 + y * l2 + x * l3];
+    let mut r = v;
+    if v > -1e29f32 {
+        let rad = usize::cast_from(radius);
+        let y0 = if y > rad { y - rad } else { 0usize };
+        let x0 = if x > rad { x - rad } else { 0usize };
+        let y1 = if y + rad + 1 < h { y + rad + 1 } else { h };
+        let x1 = if x + rad + 1 < w { x + rad + 1 } else { w };
+        let mut sum = 0.0f32;
+        let mut count = 0.0f32;
+        for yy in y0..y1 {
+            for xx in x0..x1 {
+                let u = lg[p * l0 + yy * l2 + xx * l3];
+                if u > -1e29f32 {
+                    sum += u;
+                    count += 1.0f32;
+                }
+            }
         }
+        r = weight * (sum / count) + (1.0f32 - weight) * v;
+    }
+    let o = p * out.stride(0) + y * out.stride(2) + x * out.stride(3);
+    out[o] = r;
+}
+
+/// The aggregated prior's last pass: per pixel, the depth weights' alphas from the (aggregated) logits
+/// `lg` `[D, 1, h, w]` as in [`prior_kernel`], into channel 3 of `out`.
+#[cube(launch)]
+pub(super) fn prior_alpha_kernel(lg: &Tensor<f32>, out: &mut Tensor<f32>, eps: f32) {
+    let (d, h, w) = (out.shape(0), out.shape(2), out.shape(3));
+    let pix = ABSOLUTE_POS;
+    if pix >= h * w {
+        terminate!();
+    }
+    let (y, x) = (pix / w, pix % w);
+    let lb = y * lg.stride(2) + x * lg.stride(3);
+    let ob = y * out.stride(2) + x * out.stride(3) + 3 * out.stride(1);
+    let mut run_m = 0.0f32;
+    let mut run_s = 1.0f32;
+    let o0 = out.stride(0);
+    for p in 0..d {
+        let l = lg[lb + p * lg.stride(0)];
+        let seen = if l > -1e29f32 { 1.0f32 } else { 0.0f32 };
+        if p == 0 {
+            run_m = l;
+            run_s = 1.0f32;
+        } else {
+            let m1 = if l > run_m { l } else { run_m };
+            run_s = run_s * (run_m - m1).exp() + (l - m1).exp();
+            run_m = m1;
+        }
+        let mut alpha = (l - (run_m + run_s.ln())).exp();
+        if alpha > 1.0f32 {
+            alpha = 1.0f32;
+        }
+        out[ob + p * o0] = clamped_logit(alpha * seen, eps);
     }
 }
 

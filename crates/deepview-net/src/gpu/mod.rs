@@ -55,16 +55,17 @@ pub trait GpuOps: Backend {
         grad: FloatTensor<Self>,
     ) -> FloatTensor<Self>;
 
-    /// The agreement prior's logits ([`crate::network::agreement_prior_logits`]): `psv` `[K*D, 4, h, w]`
-    /// (the views' plane sweeps, view-major) -> `[D, 4, h, w]`. No gradient (the sweeps are data).
-    fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self>;
-
-    /// [`GpuOps::gpu_prior`] as a state of `channels` channels (zeros beyond the RGBA logits).
+    /// The agreement prior's logits ([`crate::network::agreement_prior_logits`]) as a state of
+    /// `channels` channels (zeros beyond the RGBA logits): `psv` `[K*D, 4, h, w]` (the views' plane
+    /// sweeps, view-major) -> `[D, channels, h, w]`, the depth weights' costs aggregated over `radius`
+    /// at `weight` (one launch without aggregation, three with). No gradient (the sweeps are data).
     fn gpu_prior_state(
         psv: FloatTensor<Self>,
         planes: usize,
         temperature: f64,
         channels: usize,
+        radius: usize,
+        weight: f64,
     ) -> FloatTensor<Self>;
 
     /// An update net's input: `x` `[K*D, Cv, h, w]` (view-major) with the state `[D, S, h, w]` beside
@@ -684,14 +685,22 @@ pub(crate) fn composite(rgba: Tensor<4>) -> Tensor<4> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_composite(rgba.into_dispatch()))
 }
 
-/// [`GpuOps::gpu_prior`] of the views' plane sweeps (each `[D, 4, h, w]`) on a cubecl device.
-pub(crate) fn prior(per_view: &[Tensor<4>], temperature: f64) -> Tensor<4> {
+/// [`GpuOps::gpu_prior_state`] (RGBA only) of the views' plane sweeps (each `[D, 4, h, w]`) on a
+/// cubecl device.
+pub(crate) fn prior(
+    per_view: &[Tensor<4>],
+    temperature: f64,
+    aggregation: deepview_mpi::agreement::Aggregation,
+) -> Tensor<4> {
     let d = per_view[0].dims()[0];
     let psv = Tensor::cat(per_view.to_vec(), 0);
-    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_prior(
+    Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_prior_state(
         psv.into_dispatch(),
         d,
         temperature,
+        4,
+        aggregation.radius,
+        aggregation.weight,
     ))
 }
 
@@ -725,16 +734,18 @@ pub(crate) fn components(table: &WarpTable, image: Tensor<4>, packed: Tensor<4>)
 pub(crate) fn net_input(
     per_view: Vec<Tensor<4>>,
     state: Option<Tensor<4>>,
-    prior: Option<(f64, usize)>,
+    prior: Option<(f64, usize, deepview_mpi::agreement::Aggregation)>,
 ) -> (Tensor<4>, Option<Tensor<4>>) {
     let d = per_view[0].dims()[0];
     let views = Tensor::cat(per_view, 0);
-    let prior = prior.map(|(temperature, channels)| {
+    let prior = prior.map(|(temperature, channels, aggregation)| {
         Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_prior_state(
             views.clone().into_dispatch(),
             d,
             temperature,
             channels,
+            aggregation.radius,
+            aggregation.weight,
         ))
     });
     let x = match state {
@@ -1032,10 +1043,6 @@ impl GpuOps for CubeBackend {
         gin
     }
 
-    fn gpu_prior(psv: CubeTensor, planes: usize, temperature: f64) -> CubeTensor {
-        Self::gpu_prior_state(psv, planes, temperature, 4)
-    }
-
     fn gpu_append_state(x: CubeTensor, state: CubeTensor) -> CubeTensor {
         let [kd, cv, h, w] = x.meta.shape().dims::<4>();
         let sc = state.meta.shape().dims::<4>()[1];
@@ -1077,21 +1084,64 @@ impl GpuOps for CubeBackend {
         planes: usize,
         temperature: f64,
         channels: usize,
+        radius: usize,
+        weight: f64,
     ) -> CubeTensor {
         let [_, c, h, w] = psv.meta.shape().dims::<4>();
         assert_eq!(c, 4, "the prior takes RGB and validity");
         assert!(channels >= 4, "a state has at least RGBA");
         let out = empty_like(&psv, [planes, channels, h, w]);
         let (count, dim) = pixel_grid(&psv);
-        kernels::prior_kernel::launch(
-            &out.client,
-            count,
-            dim,
-            psv.into_tensor_arg(),
-            out.clone().into_tensor_arg(),
+        let (t, single, eps) = (
             temperature as f32,
             deepview_mpi::agreement::SINGLE_VIEW_VARIANCE as f32,
             deepview_mpi::agreement::LOGIT_EPS as f32,
+        );
+        if radius == 0 || weight <= 0.0 {
+            kernels::prior_kernel::launch(
+                &out.client,
+                count,
+                dim,
+                psv.into_tensor_arg(),
+                out.clone().into_tensor_arg(),
+                t,
+                single,
+                eps,
+            );
+            return out;
+        }
+        // Costs, their aggregation (a second plane-sized buffer: the window reads its neighbours'),
+        // then the alphas.
+        let lg = empty_like(&psv, [planes, 1, h, w]);
+        let agg = empty_like(&psv, [planes, 1, h, w]);
+        kernels::prior_cost_kernel::launch(
+            &out.client,
+            count.clone(),
+            dim,
+            psv.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            lg.clone().into_tensor_arg(),
+            t,
+            single,
+            eps,
+        );
+        let (all, all_dim) = grid(&lg, planes * h * w);
+        kernels::aggregate_kernel::launch(
+            &out.client,
+            all,
+            all_dim,
+            lg.into_tensor_arg(),
+            agg.clone().into_tensor_arg(),
+            radius as u32,
+            weight as f32,
+        );
+        kernels::prior_alpha_kernel::launch(
+            &out.client,
+            count,
+            dim,
+            agg.into_tensor_arg(),
+            out.clone().into_tensor_arg(),
+            eps,
         );
         out
     }
@@ -1514,26 +1564,27 @@ impl<B: Backend + GpuOps, C: CheckpointStrategy> GpuOps for Autodiff<B, C> {
         unimplemented!("second-order gradients of composite")
     }
 
-    fn gpu_prior(psv: FloatTensor<Self>, planes: usize, temperature: f64) -> FloatTensor<Self> {
-        // The plane sweeps are data (images warped by fixed homographies): nothing to differentiate.
-        assert!(
-            !psv.is_tracked(),
-            "the agreement prior has no gradient (its plane sweeps must not require one)"
-        );
-        FloatTensor::<Self>::new(B::gpu_prior(psv.into_primitive(), planes, temperature))
-    }
-
     fn gpu_prior_state(
         psv: FloatTensor<Self>,
         planes: usize,
         temperature: f64,
         channels: usize,
+        radius: usize,
+        weight: f64,
     ) -> FloatTensor<Self> {
+        // The plane sweeps are data (images warped by fixed homographies): nothing to differentiate.
         assert!(
             !psv.is_tracked(),
             "the agreement prior has no gradient (its plane sweeps must not require one)"
         );
-        let out = B::gpu_prior_state(psv.into_primitive(), planes, temperature, channels);
+        let out = B::gpu_prior_state(
+            psv.into_primitive(),
+            planes,
+            temperature,
+            channels,
+            radius,
+            weight,
+        );
         FloatTensor::<Self>::new(out)
     }
 

@@ -124,8 +124,14 @@ fn wgpu_prior_kernel_equals_burns_ops() {
             x
         })
         .collect();
-    // Radius 0: the fused kernel; radius 2: burn's ops (the aggregation's pools) on the device.
-    for (temperature, radius, weight) in [(0.05, 0, 1.0), (1e-4, 0, 1.0), (0.05, 2, 0.5)] {
+    // Radius 0: the fused kernel; radius > 0: the cost, aggregation and alpha kernels.
+    for (temperature, radius, weight) in [
+        (0.05, 0, 1.0),
+        (1e-4, 0, 1.0),
+        (0.05, 2, 0.5),
+        (1e-4, 5, 1.0),
+        (0.05, 9, 0.3),
+    ] {
         let aggregation = Aggregation { radius, weight };
         let run = |dev: &Device, gpu: bool| {
             let t: Vec<Tensor<4>> = views
@@ -592,7 +598,11 @@ fn wgpu_net_input_equals_burns_cats() {
         vec![want, Tensor::zeros([d, 4, h, w], &cpu)],
         1,
     ));
-    let (_, prior) = crate::gpu::net_input(on(&gpu), None, Some((0.05, 8)));
+    let (_, prior) = crate::gpu::net_input(
+        on(&gpu),
+        None,
+        Some((0.05, 8, deepview_mpi::agreement::Aggregation::NONE)),
+    );
     let e = max_diff(&want, &to_vec(prior.unwrap()));
     assert!(e < 1e-4, "prior state: {e}");
 }
