@@ -198,7 +198,7 @@ pub(super) fn prior_kernel(
 }
 
 /// The aggregated prior's first pass: [`prior_kernel`]'s colour logits into `out`, and each plane's
-/// masked depth-weight logit into `lg` `[D, 1, h, w]` (for [`aggregate_kernel`]).
+/// masked depth-weight logit into `lg` `[D, 1, h, w]` (for [`aggregate_rows_kernel`] and [`aggregate_cols_kernel`]).
 #[cube(launch)]
 pub(super) fn prior_cost_kernel(
     psv: &Tensor<f32>,
@@ -225,38 +225,71 @@ pub(super) fn prior_cost_kernel(
     }
 }
 
-/// Cost aggregation ([`deepview_mpi::agreement::aggregate_seen`]): every seen logit of `lg` `[D, 1, h,
-/// w]` (above `-1e29`) becomes `weight` times the mean of the seen logits in the `(2r+1)^2` window
-/// around it (clipped at the border) plus `1 - weight` times its own, into `out`; unseen ones are copied.
-/// One thread per texel.
+/// Cost aggregation ([`deepview_mpi::agreement::aggregate_seen`]), its first, horizontal pass: per texel
+/// of `lg` `[D, 1, h, w]`, the sum and the count of the seen logits (above `-1e29`) in the `2r+1` columns
+/// around it (clipped at the border), into channels 0 and 1 of `rows` `[D, 2, h, w]`. One thread per
+/// texel, `2r+1` reads.
 #[cube(launch)]
 #[allow(clippy::implicit_saturating_sub)] // cubecl expands `if`, not `saturating_sub`
-pub(super) fn aggregate_kernel(lg: &Tensor<f32>, out: &mut Tensor<f32>, radius: u32, weight: f32) {
+pub(super) fn aggregate_rows_kernel(lg: &Tensor<f32>, rows: &mut Tensor<f32>, radius: u32) {
     let (d, h, w) = (lg.shape(0), lg.shape(2), lg.shape(3));
     let pos = ABSOLUTE_POS;
     if pos >= d * h * w {
         terminate!();
     }
     let (p, y, x) = (pos / (h * w), (pos / w) % h, pos % w);
-    let (l0, l2, l3) = (lg.stride(0), lg.stride(2), lg.stride(3));
-    let v = lg[p * l0 + y * l2 + x * l3];
+    let base = p * lg.stride(0) + y * lg.stride(2);
+    let l3 = lg.stride(3);
+    let rad = usize::cast_from(radius);
+    let x0 = if x > rad { x - rad } else { 0usize };
+    let x1 = if x + rad + 1 < w { x + rad + 1 } else { w };
+    let mut sum = 0.0f32;
+    let mut count = 0.0f32;
+    for xx in x0..x1 {
+        let u = lg[base + xx * l3];
+        if u > -1e29f32 {
+            sum += u;
+            count += 1.0f32;
+        }
+    }
+    let o = p * rows.stride(0) + y * rows.stride(2) + x * rows.stride(3);
+    let r1 = rows.stride(1);
+    rows[o] = sum;
+    rows[o + r1] = count;
+}
+
+/// Cost aggregation's second, vertical pass: every seen logit of `lg` becomes `weight` times the mean of
+/// the seen logits in its `(2r+1)^2` window (the column sums of [`aggregate_rows_kernel`]'s `rows` over
+/// `2r+1` rows, clipped) plus `1 - weight` times its own, into `out` `[D, 1, h, w]`; unseen ones are
+/// copied. One thread per texel, `2r+1` reads.
+#[cube(launch)]
+#[allow(clippy::implicit_saturating_sub)] // cubecl expands `if`, not `saturating_sub`
+pub(super) fn aggregate_cols_kernel(
+    lg: &Tensor<f32>,
+    rows: &Tensor<f32>,
+    out: &mut Tensor<f32>,
+    radius: u32,
+    weight: f32,
+) {
+    let (d, h, w) = (lg.shape(0), lg.shape(2), lg.shape(3));
+    let pos = ABSOLUTE_POS;
+    if pos >= d * h * w {
+        terminate!();
+    }
+    let (p, y, x) = (pos / (h * w), (pos / w) % h, pos % w);
+    let v = lg[p * lg.stride(0) + y * lg.stride(2) + x * lg.stride(3)];
     let mut r = v;
     if v > -1e29f32 {
         let rad = usize::cast_from(radius);
         let y0 = if y > rad { y - rad } else { 0usize };
-        let x0 = if x > rad { x - rad } else { 0usize };
         let y1 = if y + rad + 1 < h { y + rad + 1 } else { h };
-        let x1 = if x + rad + 1 < w { x + rad + 1 } else { w };
+        let base = p * rows.stride(0) + x * rows.stride(3);
+        let (r1, r2) = (rows.stride(1), rows.stride(2));
         let mut sum = 0.0f32;
         let mut count = 0.0f32;
         for yy in y0..y1 {
-            for xx in x0..x1 {
-                let u = lg[p * l0 + yy * l2 + xx * l3];
-                if u > -1e29f32 {
-                    sum += u;
-                    count += 1.0f32;
-                }
-            }
+            sum += rows[base + yy * r2];
+            count += rows[base + r1 + yy * r2];
         }
         r = weight * (sum / count) + (1.0f32 - weight) * v;
     }

@@ -58,7 +58,7 @@ pub trait GpuOps: Backend {
     /// The agreement prior's logits ([`crate::network::agreement_prior_logits`]) as a state of
     /// `channels` channels (zeros beyond the RGBA logits): `psv` `[K*D, 4, h, w]` (the views' plane
     /// sweeps, view-major) -> `[D, channels, h, w]`, the depth weights' costs aggregated over `radius`
-    /// at `weight` (one launch without aggregation, three with). No gradient (the sweeps are data).
+    /// at `weight` (one launch without aggregation, four with). No gradient (the sweeps are data).
     fn gpu_prior_state(
         psv: FloatTensor<Self>,
         planes: usize,
@@ -1097,7 +1097,8 @@ impl GpuOps for CubeBackend {
             deepview_mpi::agreement::SINGLE_VIEW_VARIANCE as f32,
             deepview_mpi::agreement::LOGIT_EPS as f32,
         );
-        if radius == 0 || weight <= 0.0 {
+        let aggregation = deepview_mpi::agreement::Aggregation { radius, weight };
+        if !aggregation.is_active() {
             kernels::prior_kernel::launch(
                 &out.client,
                 count,
@@ -1110,9 +1111,10 @@ impl GpuOps for CubeBackend {
             );
             return out;
         }
-        // Costs, their aggregation (a second plane-sized buffer: the window reads its neighbours'),
-        // then the alphas.
+        // Costs, their aggregation (separable: the windows' row sums and counts, then their column
+        // sums and the blend into a second cost buffer), then the alphas.
         let lg = empty_like(&psv, [planes, 1, h, w]);
+        let rows = empty_like(&psv, [planes, 2, h, w]);
         let agg = empty_like(&psv, [planes, 1, h, w]);
         kernels::prior_cost_kernel::launch(
             &out.client,
@@ -1126,11 +1128,20 @@ impl GpuOps for CubeBackend {
             eps,
         );
         let (all, all_dim) = grid(&lg, planes * h * w);
-        kernels::aggregate_kernel::launch(
+        kernels::aggregate_rows_kernel::launch(
+            &out.client,
+            all.clone(),
+            all_dim,
+            lg.clone().into_tensor_arg(),
+            rows.clone().into_tensor_arg(),
+            radius as u32,
+        );
+        kernels::aggregate_cols_kernel::launch(
             &out.client,
             all,
             all_dim,
             lg.into_tensor_arg(),
+            rows.into_tensor_arg(),
             agg.clone().into_tensor_arg(),
             radius as u32,
             weight as f32,
