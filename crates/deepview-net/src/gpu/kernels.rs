@@ -178,22 +178,11 @@ pub(super) fn prior_kernel(
     let mut run_s = 1.0f32;
     for p in 0..d {
         let (mr, mg, mb, l, seen) = plane_cost(psv, ib, p, d, temperature, single_view_variance);
-        if p == 0 {
-            run_m = l;
-            run_s = 1.0f32;
-        } else {
-            let m1 = if l > run_m { l } else { run_m };
-            run_s = run_s * (run_m - m1).exp() + (l - m1).exp();
-            run_m = m1;
-        }
-        let mut alpha = (l - (run_m + run_s.ln())).exp();
-        if alpha > 1.0f32 {
-            alpha = 1.0f32;
-        }
-        alpha *= seen;
+        let (alpha, m, s) = alpha_step(l, p, run_m, run_s);
+        (run_m, run_s) = (m, s);
         let o = ob + p * o0;
         write_colour(out, o, mr, mg, mb, eps);
-        out[o + 3 * o1] = clamped_logit(alpha, eps);
+        out[o + 3 * o1] = clamped_logit(alpha * seen, eps);
     }
 }
 
@@ -315,20 +304,28 @@ pub(super) fn prior_alpha_kernel(lg: &Tensor<f32>, out: &mut Tensor<f32>, eps: f
     for p in 0..d {
         let l = lg[lb + p * lg.stride(0)];
         let seen = if l > -1e29f32 { 1.0f32 } else { 0.0f32 };
-        if p == 0 {
-            run_m = l;
-            run_s = 1.0f32;
-        } else {
-            let m1 = if l > run_m { l } else { run_m };
-            run_s = run_s * (run_m - m1).exp() + (l - m1).exp();
-            run_m = m1;
-        }
-        let mut alpha = (l - (run_m + run_s.ln())).exp();
-        if alpha > 1.0f32 {
-            alpha = 1.0f32;
-        }
+        let (alpha, m, s) = alpha_step(l, p, run_m, run_s);
+        (run_m, run_s) = (m, s);
         out[ob + p * o0] = clamped_logit(alpha * seen, eps);
     }
+}
+
+/// One plane of the depth weights' alphas, back to front: with `(run_m, run_s)` the running
+/// log-sum-exp of the planes before `p` (max and sum of exponentials), `alpha_p = min(exp(l_p -
+/// logsumexp_{i<=p} l_i), 1)` and the running pair including `p`.
+#[cube]
+fn alpha_step(l: f32, p: usize, run_m: f32, run_s: f32) -> (f32, f32, f32) {
+    let mut m = l;
+    let mut s = 1.0f32;
+    if p != 0 {
+        m = if l > run_m { l } else { run_m };
+        s = run_s * (run_m - m).exp() + (l - m).exp();
+    }
+    let mut alpha = (l - (m + s.ln())).exp();
+    if alpha > 1.0f32 {
+        alpha = 1.0f32;
+    }
+    (alpha, m, s)
 }
 
 #[cube]
