@@ -116,6 +116,16 @@ impl MpiMethod for LearnedMethod {
             .iter()
             .map(|(img, cam)| (img.to_rgb(), *cam))
             .collect();
+        // The prior's aggregation radius on these images (it grows on images larger than the weights
+        // were trained on: `DeepViewConfig::prior_radius_at`).
+        let size = views
+            .iter()
+            .map(|(img, _)| img.width.max(img.height))
+            .max()
+            .unwrap_or(0);
+        if self.config.init_prior.is_some() {
+            self.model.prior_radius = self.config.prior_radius_at(size);
+        }
         let (model, budget) = (&self.model, self.budget);
         precheck_planes(
             model,

@@ -170,6 +170,64 @@ fn psv_mean_aggregation_finds_the_plane_through_noise() {
     );
 }
 
+/// The learned method runs its prior at the radius of the images' size: an untrained prior model (its
+/// output convolutions zero, so its MPI is the prior's) saved with `prior_radius` 2 over a
+/// `prior_radius_size` of 16 gives, on 48-px images, `psv-mean --aggregate 6`'s MPI (the prior's one
+/// definition) and not `--aggregate 2`'s.
+#[test]
+fn learned_prior_radius_grows_with_the_image_size() {
+    use deepview_net::config::DeepViewConfig;
+    use deepview_net::network::DeepViewModel;
+    use deepview_net::weights::save_model;
+    let inputs: Vec<(ImageF32, Camera)> = quad_inputs(0.1)
+        .into_iter()
+        .map(|(_, c)| (render_plane_scaled(&c, DEPTH, 3.0), c))
+        .collect();
+    let nf = (1.0 / 0.9, 1.0 / 0.1);
+    let cfg = DeepViewConfig {
+        prior_radius: 2,
+        prior_weight: 0.5,
+        prior_radius_size: Some(16),
+        ..DeepViewConfig::preset("cpu").unwrap()
+    };
+    assert_eq!(cfg.prior_radius_at(W.max(H)), 6);
+    let dir = tempfile::tempdir().unwrap();
+    let model = DeepViewModel::new(&cfg, &deepview_net::burn::tensor::Device::flex());
+    save_model(dir.path(), &model, &cfg).unwrap();
+    let make = |kind: MethodKind, aggregate: usize| {
+        let options = MethodOptions {
+            planes: Planes::Count(9),
+            weights: Some(dir.path().to_path_buf()),
+            aggregate,
+            aggregate_weight: 0.5,
+            ..Default::default()
+        };
+        let mut method = make_method(kind, &options, 1 << 30).unwrap();
+        let request = MpiRequest {
+            inputs: &inputs,
+            ids: &[],
+            near_far: nf,
+            toward: None,
+        };
+        method.make_mpi(&request, &mut |_| {}).unwrap().mpi
+    };
+    let learned = make(MethodKind::Deepview, 0);
+    let max_diff = |other: &deepview_mpi::Mpi| {
+        assert_eq!(other.layers.len(), learned.layers.len());
+        learned
+            .layers
+            .iter()
+            .zip(&other.layers)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max)
+    };
+    let at6 = max_diff(&make(MethodKind::PsvMean, 6));
+    let at2 = max_diff(&make(MethodKind::PsvMean, 2));
+    eprintln!("learned vs psv-mean: {at6:e} at radius 6, {at2:e} at radius 2");
+    assert!(at6 < 3e-4, "the prior at radius 6: {at6}");
+    assert!(at2 > 1e-2, "radius 2 should differ clearly: {at2}");
+}
+
 #[test]
 fn psv_mean_finds_the_plane_and_renders_the_target() {
     // A texture 3x finer than the other tests', so colours disagree clearly one plane off.

@@ -72,6 +72,12 @@ pub struct DeepViewConfig {
     /// `0..=1`; default 1.
     #[serde(default = "one", skip_serializing_if = "is_one")]
     pub prior_weight: f64,
+    /// The image size (larger side, pixels) up to which `prior_radius` applies as it is: on larger images
+    /// the radius grows in proportion ([`Self::prior_radius_at`]), so the window covers the same share
+    /// of the scene as on the images the model was trained on. `None` (the default, and every config
+    /// written before it existed): the same radius at every size.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prior_radius_size: Option<u32>,
 }
 
 fn is_zero(r: &usize) -> bool {
@@ -93,6 +99,27 @@ impl DeepViewConfig {
             radius: self.prior_radius,
             weight: self.prior_weight,
         }
+    }
+
+    /// The prior's aggregation radius on images whose larger side is `size` pixels: `prior_radius` up to
+    /// `prior_radius_size`, above it `prior_radius * size / prior_radius_size` rounded to the nearest
+    /// integer (at most [`MAX_PRIOR_RADIUS`]).
+    pub fn prior_radius_at(&self, size: u32) -> usize {
+        match self.prior_radius_size {
+            Some(base) if base > 0 && size > base && self.prior_radius > 0 => {
+                let r = (self.prior_radius as f64 * size as f64 / base as f64).round() as usize;
+                r.clamp(self.prior_radius, MAX_PRIOR_RADIUS)
+            }
+            _ => self.prior_radius,
+        }
+    }
+
+    /// This config with the prior's radius of images whose larger side is `size` pixels
+    /// ([`Self::prior_radius_at`]): what the model runs with on them (its margins included).
+    pub fn at_image_size(&self, size: u32) -> DeepViewConfig {
+        let mut c = self.clone();
+        c.prior_radius = self.prior_radius_at(size);
+        c
     }
 }
 
@@ -124,6 +151,7 @@ impl DeepViewConfig {
             init_prior: None,
             prior_radius: 0,
             prior_weight: 1.0,
+            prior_radius_size: None,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -150,6 +178,7 @@ impl DeepViewConfig {
                 init_prior: Some(CPU_PRIOR_TEMPERATURE),
                 prior_radius: 0,
                 prior_weight: 1.0,
+                prior_radius_size: None,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -169,6 +198,7 @@ impl DeepViewConfig {
                 init_prior: Some(CPU_PRIOR_TEMPERATURE),
                 prior_radius: 0,
                 prior_weight: 1.0,
+                prior_radius_size: None,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -202,6 +232,9 @@ impl DeepViewConfig {
                 "the prior's aggregation weight {} is not within 0..=1",
                 self.prior_weight
             ));
+        }
+        if self.prior_radius_size == Some(0) {
+            return bad("the prior's radius size must be positive");
         }
         if self.prior_radius > 0 && self.init_prior.is_none() {
             return bad("an aggregation radius needs the agreement prior (init_prior)");
@@ -283,6 +316,53 @@ impl DeepViewConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The radius grows in proportion above `prior_radius_size` (rounded to the nearest integer, capped),
+    /// never below `prior_radius`, and configs without the field load as before.
+    #[test]
+    fn prior_radius_grows_with_the_image_size() {
+        let cfg = DeepViewConfig {
+            prior_radius: 5,
+            prior_radius_size: Some(512),
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        // 5 * 996 / 512 = 9.73, 5 * 1008 / 512 = 9.84, 5 * 600 / 512 = 5.86, 5 * 563 / 512 = 5.498.
+        for (size, want) in [
+            (100, 5),
+            (512, 5),
+            (563, 5),
+            (600, 6),
+            (996, 10),
+            (1008, 10),
+            (4096, 40),
+        ] {
+            assert_eq!(cfg.prior_radius_at(size), want, "size {size}");
+        }
+        assert_eq!(cfg.prior_radius_at(100_000), MAX_PRIOR_RADIUS);
+        assert_eq!(cfg.at_image_size(996).prior_radius, 10);
+        assert_eq!(cfg.at_image_size(996).prior_radius_size, Some(512));
+        let fixed = DeepViewConfig {
+            prior_radius_size: None,
+            ..cfg.clone()
+        };
+        assert_eq!(fixed.prior_radius_at(4096), 5);
+        let json = serde_json::to_string(&cfg).unwrap();
+        assert!(json.contains("\"prior_radius_size\":512"), "{json}");
+        assert_eq!(serde_json::from_str::<DeepViewConfig>(&json).unwrap(), cfg);
+        let old = serde_json::to_string(&fixed).unwrap();
+        assert!(!old.contains("prior_radius_size"), "{old}");
+        assert_eq!(serde_json::from_str::<DeepViewConfig>(&old).unwrap(), fixed);
+        let zero = DeepViewConfig {
+            prior_radius_size: Some(0),
+            ..cfg
+        };
+        assert!(
+            zero.validate()
+                .unwrap_err()
+                .to_string()
+                .contains("radius size")
+        );
+    }
 
     #[test]
     fn presets_are_valid_and_serde_round_trips() {

@@ -215,6 +215,9 @@ pub struct Example {
     pub crop_origin: (u32, u32),
     /// The MPI around the window that the input crops' rays cross ([`SampleConfig::window_context`]).
     pub context: Option<ExampleContext>,
+    /// The prior's aggregation radius on this tuple's images (`DeepViewConfig::prior_radius_at` of the
+    /// target's size; its window's margins are the model's at this radius); `None`: the model's own.
+    pub prior_radius: Option<usize>,
 }
 
 impl Example {
@@ -498,6 +501,9 @@ impl TrainData {
         };
         let mut depths = jittered_depths(s.near, s.far, planes, u);
         let tcam = &s.cameras[target];
+        // The model as it runs on this scene's images (the prior's radius grows on large ones).
+        let sized = model.at_image_size(tcam.width.max(tcam.height));
+        let model = &sized;
         let c = cfg.crop as u32;
         if tcam.width < c || tcam.height < c {
             return Err(DataError::Invalid {
@@ -554,6 +560,7 @@ impl TrainData {
             model.margin_from(0),
             cfg.window_context && model.updates > 0,
         )?;
+        ex.prior_radius = Some(model.prior_radius);
         if cfg.colour_jitter {
             let mut log_uniform = |r: f64| ((rng.uniform() * 2.0 - 1.0) * r).exp();
             let e = log_uniform(EXPOSURE_LOG);
@@ -846,6 +853,7 @@ impl TrainData {
             target_crop,
             crop_origin,
             context,
+            prior_radius: None,
         })
     }
 }
@@ -1053,6 +1061,47 @@ mod tests {
         for seed in 0..4 {
             assert!(data.procedural_scene(seed, 4).unwrap().cameras.len() >= 6);
         }
+    }
+
+    /// With `prior_radius_size`, a tuple of images larger than it gets the grown radius
+    /// (`DeepViewConfig::prior_radius_at`) and a window with the margins of the model at that radius; on
+    /// smaller images nothing changes.
+    #[test]
+    fn tuples_of_large_images_get_the_grown_prior_radius() {
+        let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.15)]).unwrap();
+        let cfg = test_sample(3..=3, 6);
+        let fixed = DeepViewConfig {
+            prior_radius: 3,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        let draw = |model: &DeepViewConfig| {
+            let mut rng = Rng::new(7);
+            data.sample(&cfg, model, 3, &mut rng).unwrap()
+        };
+        let a = draw(&fixed);
+        assert_eq!(a.prior_radius, Some(3));
+        // 48-px images over a size of 16: radius 3 * 48 / 16 = 9, net 0's margin 10 instead of 6.
+        let grown = DeepViewConfig {
+            prior_radius_size: Some(16),
+            ..fixed.clone()
+        };
+        assert_eq!(grown.prior_radius_at(48), 9);
+        assert_eq!(
+            (fixed.net_margin(0), grown.at_image_size(48).net_margin(0)),
+            (6, 10)
+        );
+        let b = draw(&grown);
+        assert_eq!(b.prior_radius, Some(9));
+        assert_eq!((b.target, &b.inputs), (a.target, &a.inputs));
+        assert_eq!(b.window.2, a.window.2 + 8, "window width");
+        assert_eq!(b.window.3, a.window.3 + 8, "window height");
+        // A size at or above the images': the radius as it is.
+        let large = DeepViewConfig {
+            prior_radius_size: Some(48),
+            ..fixed.clone()
+        };
+        let c = draw(&large);
+        assert_eq!((c.prior_radius, c.window), (Some(3), a.window));
     }
 
     /// `auto_planes`: each tuple gets the plane count of the inference rule for its own inputs, clamped to

@@ -31,6 +31,12 @@ pub struct TrainOptions {
     /// own (0..1). Default: the preset's or --init's (1). Kept in the weights' config.json.
     #[arg(long, value_name = "A")]
     pub prior_weight: Option<f64>,
+    /// The image size (larger side, pixels) up to which --prior-radius applies as it is; on larger
+    /// images the radius grows in proportion (e.g. 512 with radius 5: radius 10 on 1024-pixel images),
+    /// in training and inference alike. Default: the preset's or --init's (none: one radius at every
+    /// size). Kept in the weights' config.json.
+    #[arg(long, value_name = "PIXELS")]
+    pub prior_radius_size: Option<u32>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -169,6 +175,11 @@ impl TrainOptions {
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-weight {a}: {e}")))?;
         }
+        if let Some(n) = self.prior_radius_size {
+            cfg.prior_radius_size = Some(n);
+            cfg.validate()
+                .map_err(|e| cfg_err(format!("--prior-radius-size {n}: {e}")))?;
+        }
         Ok(cfg)
     }
 
@@ -189,6 +200,7 @@ impl TrainOptions {
                     if to.init_prior.is_some() && from.init_prior.is_some() {
                         to.prior_radius = from.prior_radius;
                         to.prior_weight = from.prior_weight;
+                        to.prior_radius_size = from.prior_radius_size;
                     }
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
@@ -294,6 +306,11 @@ impl TrainOptions {
                 self.prior_weight
                     .is_some_and(|a| a != cfg.model.prior_weight),
                 "--prior-weight",
+            ),
+            (
+                self.prior_radius_size
+                    .is_some_and(|n| Some(n) != cfg.model.prior_radius_size),
+                "--prior-radius-size",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
             (

@@ -33,6 +33,7 @@ fn tiny_model() -> DeepViewConfig {
         init_prior: None,
         prior_radius: 0,
         prior_weight: 1.0,
+        prior_radius_size: None,
     }
 }
 

@@ -41,6 +41,18 @@ fn run_replica(
     let mut acc: Option<GradientsParams> = None;
     let mut losses = Vec::with_capacity(examples.len());
     for ex in examples {
+        // The prior's radius on this tuple's images (the same parameters: a clone shares their ids).
+        let sized;
+        let model = match ex.prior_radius {
+            Some(r) if r != model.prior_radius => {
+                sized = DeepViewModel {
+                    prior_radius: r,
+                    ..model.clone()
+                };
+                &sized
+            }
+            _ => model,
+        };
         let (v, g) = if recompute {
             recompute::loss_and_grads(model, loss, ex, device, batch)
         } else {
