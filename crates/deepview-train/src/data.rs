@@ -501,8 +501,15 @@ impl TrainData {
         };
         let mut depths = jittered_depths(s.near, s.far, planes, u);
         let tcam = &s.cameras[target];
-        // The model as it runs on this scene's images (the prior's radius grows on large ones).
-        let sized = model.at_image_size(tcam.width.max(tcam.height));
+        // The model as it runs on this tuple's images (the prior's radius grows on large ones; the
+        // largest side of any of them, as inference measures its inputs).
+        let size = inputs
+            .iter()
+            .chain(std::iter::once(&target))
+            .map(|&i| s.cameras[i].width.max(s.cameras[i].height))
+            .max()
+            .unwrap_or(0);
+        let sized = model.at_image_size(size);
         let model = &sized;
         let c = cfg.crop as u32;
         if tcam.width < c || tcam.height < c {

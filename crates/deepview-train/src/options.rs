@@ -33,8 +33,8 @@ pub struct TrainOptions {
     pub prior_weight: Option<f64>,
     /// The image size (larger side, pixels) up to which --prior-radius applies as it is; on larger
     /// images the radius grows in proportion (e.g. 512 with radius 5: radius 10 on 1024-pixel images),
-    /// in training and inference alike. Default: the preset's or --init's (none: one radius at every
-    /// size). Kept in the weights' config.json.
+    /// in training and inference alike. 0: one radius at every size. Default: the preset's or --init's
+    /// (none: one radius at every size). Kept in the weights' config.json.
     #[arg(long, value_name = "PIXELS")]
     pub prior_radius_size: Option<u32>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
@@ -176,7 +176,7 @@ impl TrainOptions {
                 .map_err(|e| cfg_err(format!("--prior-weight {a}: {e}")))?;
         }
         if let Some(n) = self.prior_radius_size {
-            cfg.prior_radius_size = Some(n);
+            cfg.prior_radius_size = (n > 0).then_some(n);
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-radius-size {n}: {e}")))?;
         }
@@ -309,7 +309,7 @@ impl TrainOptions {
             ),
             (
                 self.prior_radius_size
-                    .is_some_and(|n| Some(n) != cfg.model.prior_radius_size),
+                    .is_some_and(|n| (n > 0).then_some(n) != cfg.model.prior_radius_size),
                 "--prior-radius-size",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
@@ -575,6 +575,7 @@ mod tests {
         let weights = DeepViewConfig {
             prior_radius: 5,
             prior_weight: 0.5,
+            prior_radius_size: Some(512),
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         std::fs::write(
@@ -589,8 +590,22 @@ mod tests {
             ..Default::default()
         };
         let grown = grow(None).model().unwrap();
-        assert_eq!((grown.prior_radius, grown.prior_weight), (5, 0.5));
+        assert_eq!(
+            (
+                grown.prior_radius,
+                grown.prior_weight,
+                grown.prior_radius_size
+            ),
+            (5, 0.5, Some(512))
+        );
         assert_eq!(grow(Some(2)).model().unwrap().prior_radius, 2);
+        // --prior-radius-size sets the size, 0 clears it (one radius at every size).
+        let sized = |n| TrainOptions {
+            prior_radius_size: Some(n),
+            ..grow(None)
+        };
+        assert_eq!(sized(256).model().unwrap().prior_radius_size, Some(256));
+        assert_eq!(sized(0).model().unwrap().prior_radius_size, None);
     }
 
     #[test]
