@@ -123,8 +123,15 @@ impl MpiMethod for LearnedMethod {
             .map(|(img, _)| img.width.max(img.height))
             .max()
             .unwrap_or(0);
+        let mut note = None;
         if self.config.init_prior.is_some() {
             self.model.prior_radius = self.config.prior_radius_at(size);
+            if self.model.prior_radius != self.config.prior_radius {
+                note = Some(format!(
+                    "prior window radius {}, grown from {} for {size}-px images",
+                    self.model.prior_radius, self.config.prior_radius
+                ));
+            }
         }
         let (model, budget) = (&self.model, self.budget);
         precheck_planes(
@@ -172,7 +179,7 @@ impl MpiMethod for LearnedMethod {
         Ok(MadeMpi {
             mpi,
             planes: Some(choice),
-            note: None,
+            note,
         })
     }
 }

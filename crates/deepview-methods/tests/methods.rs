@@ -209,9 +209,14 @@ fn learned_prior_radius_grows_with_the_image_size() {
             near_far: nf,
             toward: None,
         };
-        method.make_mpi(&request, &mut |_| {}).unwrap().mpi
+        method.make_mpi(&request, &mut |_| {}).unwrap()
     };
-    let learned = make(MethodKind::Deepview, 0);
+    let made = make(MethodKind::Deepview, 0);
+    assert_eq!(
+        made.note.as_deref(),
+        Some("prior window radius 6, grown from 2 for 48-px images")
+    );
+    let learned = made.mpi;
     let max_diff = |other: &deepview_mpi::Mpi| {
         assert_eq!(other.layers.len(), learned.layers.len());
         learned
@@ -221,8 +226,8 @@ fn learned_prior_radius_grows_with_the_image_size() {
             .map(|(a, b)| (a - b).abs())
             .fold(0f32, f32::max)
     };
-    let at6 = max_diff(&make(MethodKind::PsvMean, 6));
-    let at2 = max_diff(&make(MethodKind::PsvMean, 2));
+    let at6 = max_diff(&make(MethodKind::PsvMean, 6).mpi);
+    let at2 = max_diff(&make(MethodKind::PsvMean, 2).mpi);
     eprintln!("learned vs psv-mean: {at6:e} at radius 6, {at2:e} at radius 2");
     assert!(at6 < 3e-4, "the prior at radius 6: {at6}");
     assert!(at2 > 1e-2, "radius 2 should differ clearly: {at2}");
