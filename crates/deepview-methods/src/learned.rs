@@ -123,16 +123,14 @@ impl MpiMethod for LearnedMethod {
             .map(|(img, _)| img.width.max(img.height))
             .max()
             .unwrap_or(0);
-        let mut note = None;
-        if self.config.init_prior.is_some() {
-            self.model.prior_radius = self.config.prior_radius_at(size);
-            if self.model.prior_radius != self.config.prior_radius {
-                note = Some(format!(
-                    "prior window radius {}, grown from {} for {size}-px images",
-                    self.model.prior_radius, self.config.prior_radius
-                ));
-            }
-        }
+        // (0 for a model without the prior, as its config validates to.)
+        self.model.prior_radius = self.config.prior_radius_at(size);
+        let note = (self.model.prior_radius != self.config.prior_radius).then(|| {
+            format!(
+                "prior window radius {}, grown from {} for {size}-px images",
+                self.model.prior_radius, self.config.prior_radius
+            )
+        });
         let (model, budget) = (&self.model, self.budget);
         precheck_planes(
             model,

@@ -216,7 +216,8 @@ pub struct Example {
     /// The MPI around the window that the input crops' rays cross ([`SampleConfig::window_context`]).
     pub context: Option<ExampleContext>,
     /// The prior's aggregation radius on this tuple's images (`DeepViewConfig::prior_radius_at` of the
-    /// target's size; its window's margins are the model's at this radius); `None`: the model's own.
+    /// largest side among them; its window's margins are the model's at this radius); `None`: the
+    /// model's own.
     pub prior_radius: Option<usize>,
 }
 

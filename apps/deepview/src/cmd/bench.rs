@@ -368,10 +368,9 @@ fn bench_net(args: NetArgs) -> anyhow::Result<()> {
     let (model, name) = match &args.weights {
         Some(dir) => {
             let (mut m, c) = deepview_net::weights::load_model(dir, &device)?;
-            // The prior's radius at this size, as inference runs it (`DeepViewConfig::prior_radius_at`).
-            if c.init_prior.is_some() {
-                m.prior_radius = c.prior_radius_at(u32::try_from(w.max(h)).unwrap_or(u32::MAX));
-            }
+            // The prior's radius at this size, as inference runs it (`DeepViewConfig::prior_radius_at`;
+            // 0 for a model without the prior, as its config validates to).
+            m.prior_radius = c.prior_radius_at(u32::try_from(w.max(h)).unwrap_or(u32::MAX));
             (m, c.name)
         }
         None => {
