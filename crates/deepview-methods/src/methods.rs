@@ -95,6 +95,11 @@ fn unit_f64(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `P1,P2` semi-global matching penalties (finite, `0 <= P1 <= P2`).
+pub fn parse_smoothing(s: &str) -> Result<deepview_mpi::agreement::Smoothing, String> {
+    s.parse()
+}
+
 fn positive_f64(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -130,6 +135,11 @@ pub struct MethodOptions {
     /// (psv-mean with --aggregate; 0..1, default 1).
     #[arg(long, default_value_t = 1.0, value_parser = unit_f64)]
     pub aggregate_weight: f64,
+    /// Semi-global matching of the agreement over the planes after the window, as penalties `P1,P2`
+    /// (psv-mean; in units of the agreement's logits, e.g. `2,64`: one plane's step costs 2, a larger
+    /// jump 64). Off by default.
+    #[arg(long, value_name = "P1,P2", value_parser = parse_smoothing)]
+    pub smoothing: Option<deepview_mpi::agreement::Smoothing>,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -152,6 +162,7 @@ impl Default for MethodOptions {
             temperature: PsvMeanOptions::default().temperature,
             aggregate: 0,
             aggregate_weight: 1.0,
+            smoothing: None,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -180,6 +191,7 @@ pub fn make_method(
                 aggregation: deepview_mpi::agreement::Aggregation {
                     radius: options.aggregate,
                     weight: options.aggregate_weight,
+                    smoothing: options.smoothing,
                 },
                 ..Default::default()
             },

@@ -140,10 +140,7 @@ fn psv_mean_aggregation_finds_the_plane_through_noise() {
     let share = |radius: usize| {
         let options = PsvMeanOptions {
             planes: 9,
-            aggregation: deepview_mpi::agreement::Aggregation {
-                radius,
-                weight: 1.0,
-            },
+            aggregation: deepview_mpi::agreement::Aggregation::window(radius, 1.0),
             ..Default::default()
         };
         let mpi = agreement_mpi(&inputs, nf, &options).unwrap();

@@ -9,7 +9,9 @@
 //! each plane's variance is first replaced by `a` times its mean over the seen pixels of the
 //! `(2r+1) x (2r+1)` window around each pixel plus `1 - a` times its own value ([`aggregate_seen`]:
 //! classic stereo cost aggregation, the window clipped at the image border, with extra weight on the
-//! centre). A softmax over planes turns the logits into a depth
+//! centre). With [`Smoothing`] the logits then go through semi-global matching over the planes
+//! ([`smooth_semi_global`]: the classic stereo regulariser that favours depth staying on a plane or one
+//! plane away along 8 image directions). A softmax over planes turns the logits into a depth
 //! distribution `w_d` (sum 1), which becomes alpha so that each plane's visible contribution in the
 //! reference view is exactly `w_d`: `a_d = w_d / sum_{i<=d} w_i` (planes back to front, so the farthest
 //! plane with weight is opaque).
@@ -121,6 +123,11 @@ pub fn sweep_statistics(
             let (w, h) = (reference.width as usize, reference.height as usize);
             aggregate_seen(logit, w, h, aggregation, &mut Vec::new());
         });
+    if let Some(smoothing) = aggregation.smoothing {
+        let (w, h) = (reference.width as usize, reference.height as usize);
+        let cap = (single_view_variance / s) as f32;
+        smooth_semi_global(&mut logits, w, h, mpi.planes(), smoothing, cap);
+    }
     (mpi, logits)
 }
 
@@ -129,11 +136,14 @@ pub fn sweep_statistics(
 pub const UNSEEN_BELOW: f32 = -1e29;
 
 /// Cost aggregation of the agreement: the radius `r` of the window and the weight `a` of its mean (the
-/// rest is the pixel's own cost). `r = 0` or `a = 0`: per pixel.
+/// rest is the pixel's own cost; `r = 0` or `a = 0`: per pixel), then optionally semi-global matching
+/// over the planes ([`Smoothing`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Aggregation {
     pub radius: usize,
     pub weight: f64,
+    /// Semi-global matching after the window ([`smooth_semi_global`]); `None`: none.
+    pub smoothing: Option<Smoothing>,
 }
 
 impl Aggregation {
@@ -141,11 +151,235 @@ impl Aggregation {
     pub const NONE: Aggregation = Aggregation {
         radius: 0,
         weight: 1.0,
+        smoothing: None,
     };
 
-    /// Whether it changes anything.
+    /// A window of radius `radius` weighted `weight`, without smoothing.
+    pub const fn window(radius: usize, weight: f64) -> Aggregation {
+        Aggregation {
+            radius,
+            weight,
+            smoothing: None,
+        }
+    }
+
+    /// Whether the window changes anything.
     pub fn is_active(&self) -> bool {
         self.radius > 0 && self.weight > 0.0
+    }
+}
+
+/// Semi-global matching's penalties, in logit units (the agreement's `variance / temperature`): `p1` for a
+/// change of one plane between neighbouring pixels along a path, `p2` for a larger jump.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Smoothing {
+    pub p1: f32,
+    pub p2: f32,
+}
+
+impl Smoothing {
+    /// Whether the penalties are usable: finite, `0 <= p1 <= p2`.
+    pub fn is_valid(&self) -> bool {
+        self.p1.is_finite() && self.p2.is_finite() && 0.0 <= self.p1 && self.p1 <= self.p2
+    }
+}
+
+impl std::str::FromStr for Smoothing {
+    type Err = String;
+
+    /// `P1,P2` (finite, `0 <= P1 <= P2`), e.g. `2,64`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || format!("{s:?} is not two penalties P1,P2 with 0 <= P1 <= P2 (e.g. 2,64)");
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        let [a, b] = parts[..] else {
+            return Err(bad());
+        };
+        let smoothing = Smoothing {
+            p1: a.parse().map_err(|_| bad())?,
+            p2: b.parse().map_err(|_| bad())?,
+        };
+        if smoothing.is_valid() {
+            Ok(smoothing)
+        } else {
+            Err(bad())
+        }
+    }
+}
+
+/// The 8 path directions `(dx, dy)` of [`smooth_semi_global`].
+pub const SGM_DIRECTIONS: [(i64, i64); 8] = [
+    (1, 0),
+    (-1, 0),
+    (0, 1),
+    (0, -1),
+    (1, 1),
+    (-1, -1),
+    (1, -1),
+    (-1, 1),
+];
+
+/// Semi-global matching (Hirschmüller 2008) over the planes of the agreement logits `[D][w*h]` (`planes`
+/// of them, plane-major; unseen values at or below [`UNSEEN_BELOW`]). The matching cost of plane `d` at
+/// pixel `p` is `C(p, d) = min(-l, cap)` (`cap` where no view sees the plane point; `cap` is the
+/// single-view cost, so no plane is worse than one only a single view sees). Along each of the 8
+/// directions `r` ([`SGM_DIRECTIONS`]), starting at the image border,
+/// `L_r(p, d) = C(p, d) + min(L_r(p-r, d), L_r(p-r, d±1) + p1, min_k L_r(p-r, k) + p2) - min_k L_r(p-r, k)`,
+/// and every seen logit becomes `-(1/8) sum_r L_r(p, d)` (unseen ones stay). Memory: one more `[D][w*h]`
+/// array (the sums) and a row per direction.
+pub fn smooth_semi_global(
+    logits: &mut [f32],
+    w: usize,
+    h: usize,
+    planes: usize,
+    smoothing: Smoothing,
+    cap: f32,
+) {
+    let n = w * h;
+    assert_eq!(logits.len(), planes * n, "smooth_semi_global: volume size");
+    if n == 0 || planes == 0 {
+        return;
+    }
+    let Smoothing { p1, p2 } = smoothing;
+    let cost = |l: f32| if l > UNSEEN_BELOW { (-l).min(cap) } else { cap };
+    let mut sum = vec![0f32; planes * n];
+    let sum_ptr = SyncPtr(sum.as_mut_ptr());
+    let logits_r: &[f32] = logits;
+    // Planes per parallel task of a row's update.
+    let chunk = 8usize;
+    for &(dx, dy) in &SGM_DIRECTIONS {
+        if dy == 0 {
+            // Along rows: each row its own path, rows in parallel (pixel-major within a row).
+            (0..h).into_par_iter().for_each_init(
+                || {
+                    (
+                        vec![0f32; w * planes],
+                        vec![0f32; planes],
+                        vec![0f32; planes],
+                    )
+                },
+                |(c, prev, cur), y| {
+                    for x in 0..w {
+                        for d in 0..planes {
+                            c[x * planes + d] = cost(logits_r[d * n + y * w + x]);
+                        }
+                    }
+                    let xs: Box<dyn Iterator<Item = usize>> = if dx > 0 {
+                        Box::new(0..w)
+                    } else {
+                        Box::new((0..w).rev())
+                    };
+                    for (k, x) in xs.enumerate() {
+                        let cx = &c[x * planes..(x + 1) * planes];
+                        if k == 0 {
+                            cur.copy_from_slice(cx);
+                        } else {
+                            sgm_step(cx, prev, cur, p1, p2);
+                        }
+                        for (d, &l) in cur.iter().enumerate() {
+                            // SAFETY: row y of every plane is this task's only (rows are disjoint).
+                            unsafe { *sum_ptr.get().add(d * n + y * w + x) += l };
+                        }
+                        std::mem::swap(prev, cur);
+                    }
+                },
+            );
+        } else {
+            // Across rows: a wavefront row by row, every pixel of a row at once (planes in parallel).
+            let ys: Vec<usize> = if dy > 0 {
+                (0..h).collect()
+            } else {
+                (0..h).rev().collect()
+            };
+            let mut prev = vec![0f32; planes * w];
+            let mut cur = vec![0f32; planes * w];
+            let mut low = vec![0f32; w];
+            for (k, &y) in ys.iter().enumerate() {
+                if k > 0 {
+                    // min over planes of the previous row, per pixel
+                    low.fill(f32::INFINITY);
+                    for row in prev.chunks_exact(w) {
+                        for (m, &v) in low.iter_mut().zip(row) {
+                            *m = m.min(v);
+                        }
+                    }
+                }
+                let (prev_r, low_r) = (&prev, &low);
+                cur.par_chunks_mut(chunk * w)
+                    .enumerate()
+                    .for_each(|(t, block)| {
+                        for (j, row) in block.chunks_exact_mut(w).enumerate() {
+                            let d = t * chunk + j;
+                            let src = &logits_r[d * n + y * w..d * n + (y + 1) * w];
+                            for x in 0..w {
+                                let c = cost(src[x]);
+                                let px = x as i64 - dx;
+                                row[x] = if k == 0 || px < 0 || px >= w as i64 {
+                                    c
+                                } else {
+                                    let px = px as usize;
+                                    let m = low_r[px];
+                                    let mut best = prev_r[d * w + px];
+                                    if d > 0 {
+                                        best = best.min(prev_r[(d - 1) * w + px] + p1);
+                                    }
+                                    if d + 1 < planes {
+                                        best = best.min(prev_r[(d + 1) * w + px] + p1);
+                                    }
+                                    c + best.min(m + p2) - m
+                                };
+                            }
+                            // SAFETY: row y of plane d is this task's only (planes are disjoint).
+                            let dst = unsafe {
+                                std::slice::from_raw_parts_mut(sum_ptr.get().add(d * n + y * w), w)
+                            };
+                            for (s, &l) in dst.iter_mut().zip(row.iter()) {
+                                *s += l;
+                            }
+                        }
+                    });
+                std::mem::swap(&mut prev, &mut cur);
+            }
+        }
+    }
+    let inv = 1.0 / SGM_DIRECTIONS.len() as f32;
+    logits
+        .par_chunks_mut(n)
+        .zip(sum.par_chunks(n))
+        .for_each(|(l, s)| {
+            for (l, &s) in l.iter_mut().zip(s) {
+                if *l > UNSEEN_BELOW {
+                    *l = -s * inv;
+                }
+            }
+        });
+}
+
+/// One step of a path (pixel-major): `cur[d] = c[d] + min(prev[d], prev[d±1] + p1, min prev + p2) - min prev`.
+#[inline]
+fn sgm_step(c: &[f32], prev: &[f32], cur: &mut [f32], p1: f32, p2: f32) {
+    let planes = c.len();
+    let m = prev.iter().copied().fold(f32::INFINITY, f32::min);
+    for d in 0..planes {
+        let mut best = prev[d];
+        if d > 0 {
+            best = best.min(prev[d - 1] + p1);
+        }
+        if d + 1 < planes {
+            best = best.min(prev[d + 1] + p1);
+        }
+        cur[d] = c[d] + best.min(m + p2) - m;
+    }
+}
+
+/// A raw pointer shared by tasks that write disjoint parts of one buffer.
+#[derive(Clone, Copy)]
+struct SyncPtr(*mut f32);
+// SAFETY: used only for writes that the callers keep disjoint across tasks.
+unsafe impl Send for SyncPtr {}
+unsafe impl Sync for SyncPtr {}
+impl SyncPtr {
+    fn get(self) -> *mut f32 {
+        self.0
     }
 }
 
@@ -166,7 +400,9 @@ pub fn aggregate_seen(
     aggregation: Aggregation,
     scratch: &mut Vec<f64>,
 ) {
-    let Aggregation { radius: r, weight } = aggregation;
+    let Aggregation {
+        radius: r, weight, ..
+    } = aggregation;
     if !aggregation.is_active() || w == 0 || h == 0 {
         return;
     }
@@ -276,7 +512,7 @@ mod tests {
                 &mut got,
                 w,
                 h,
-                Aggregation { radius: r, weight },
+                Aggregation::window(r, weight),
                 &mut Vec::new(),
             );
             for y in 0..h {
@@ -301,6 +537,147 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Semi-global matching by its definition: every path walked pixel by pixel from the border, in f64.
+    fn sgm_reference(
+        l: &[f32],
+        w: usize,
+        h: usize,
+        d: usize,
+        p1: f64,
+        p2: f64,
+        cap: f64,
+    ) -> Vec<f32> {
+        let n = w * h;
+        let cost = |p: usize, k: usize| {
+            let v = l[k * n + p];
+            if v > UNSEEN_BELOW {
+                (-(v as f64)).min(cap)
+            } else {
+                cap
+            }
+        };
+        let mut sum = vec![0f64; d * n];
+        for &(dx, dy) in &SGM_DIRECTIONS {
+            for y in 0..h as i64 {
+                for x in 0..w as i64 {
+                    let (px, py) = (x - dx, y - dy);
+                    if px >= 0 && py >= 0 && px < w as i64 && py < h as i64 {
+                        continue; // not a path start
+                    }
+                    let (mut x, mut y) = (x, y);
+                    let mut prev: Option<Vec<f64>> = None;
+                    while x >= 0 && y >= 0 && x < w as i64 && y < h as i64 {
+                        let p = y as usize * w + x as usize;
+                        let cur: Vec<f64> = (0..d)
+                            .map(|k| match &prev {
+                                None => cost(p, k),
+                                Some(q) => {
+                                    let m = q.iter().cloned().fold(f64::INFINITY, f64::min);
+                                    let mut best = q[k].min(m + p2);
+                                    if k > 0 {
+                                        best = best.min(q[k - 1] + p1);
+                                    }
+                                    if k + 1 < d {
+                                        best = best.min(q[k + 1] + p1);
+                                    }
+                                    cost(p, k) + best - m
+                                }
+                            })
+                            .collect();
+                        for k in 0..d {
+                            sum[k * n + p] += cur[k];
+                        }
+                        prev = Some(cur);
+                        x += dx;
+                        y += dy;
+                    }
+                }
+            }
+        }
+        (0..d * n)
+            .map(|i| {
+                if l[i] > UNSEEN_BELOW {
+                    (-sum[i] / 8.0) as f32
+                } else {
+                    l[i]
+                }
+            })
+            .collect()
+    }
+
+    #[test]
+    fn semi_global_matching_follows_its_definition() {
+        // Ragged sizes (more planes than a task's 8, rows of 1), unseen points, costs above the cap.
+        for (w, h, d) in [(7usize, 5usize, 11usize), (1, 6, 3), (9, 1, 9), (4, 4, 1)] {
+            let n = w * h;
+            let l: Vec<f32> = (0..d * n)
+                .map(|i| {
+                    if i % 13 == 5 {
+                        -1e30
+                    } else {
+                        -(((i * 7919) % 97) as f32) * 0.5
+                    }
+                })
+                .collect();
+            for (p1, p2) in [(2.0f32, 64.0f32), (0.5, 3.0), (1.0, 1.0)] {
+                let mut got = l.clone();
+                smooth_semi_global(&mut got, w, h, d, Smoothing { p1, p2 }, 40.0);
+                let want = sgm_reference(&l, w, h, d, p1 as f64, p2 as f64, 40.0);
+                for i in 0..d * n {
+                    let tol = 1e-4 * want[i].abs().max(1.0);
+                    assert!(
+                        (got[i] - want[i]).abs() <= tol,
+                        "{w}x{h}x{d} ({p1}, {p2}) [{i}]: {} vs {}",
+                        got[i],
+                        want[i]
+                    );
+                }
+            }
+            // No penalties: every path adds exactly its own cost, so the logits are the (capped) costs.
+            let mut got = l.clone();
+            smooth_semi_global(&mut got, w, h, d, Smoothing { p1: 0.0, p2: 0.0 }, 40.0);
+            for i in 0..d * n {
+                let want = if l[i] > UNSEEN_BELOW {
+                    l[i].max(-40.0)
+                } else {
+                    l[i]
+                };
+                assert!((got[i] - want).abs() < 1e-4, "no penalties [{i}]");
+            }
+        }
+    }
+
+    #[test]
+    fn semi_global_matching_fills_a_textureless_pixel_from_its_neighbours() {
+        // A 9x9 image, 6 planes: every pixel agrees best on plane 2, except the centre, whose costs are
+        // flat (no texture) but for a slight, wrong minimum at plane 5. Smoothed, the centre's best plane
+        // is its neighbours'; without penalties it keeps its own.
+        let (w, h, d) = (9usize, 9usize, 6usize);
+        let n = w * h;
+        let centre = 4 * w + 4;
+        let mut l = vec![0f32; d * n];
+        for p in 0..n {
+            for k in 0..d {
+                l[k * n + p] = if p == centre {
+                    if k == 5 { -1.0 } else { -1.5 }
+                } else if k == 2 {
+                    -0.5
+                } else {
+                    -8.0
+                };
+            }
+        }
+        let best = |v: &[f32]| {
+            (0..d)
+                .max_by(|&a, &b| v[a * n + centre].total_cmp(&v[b * n + centre]))
+                .unwrap()
+        };
+        assert_eq!(best(&l), 5);
+        let mut s = l.clone();
+        smooth_semi_global(&mut s, w, h, d, Smoothing { p1: 2.0, p2: 64.0 }, 40.0);
+        assert_eq!(best(&s), 2);
     }
 
     #[test]

@@ -1,5 +1,7 @@
 //! Network configuration and the paper's presets (Table 1 of the paper, DESIGN.md section 4).
 
+/// Semi-global matching penalties of the prior ([`DeepViewConfig::prior_smoothing`]).
+pub use deepview_mpi::agreement::Smoothing;
 use serde::{Deserialize, Serialize};
 
 /// Errors of a configuration.
@@ -78,6 +80,14 @@ pub struct DeepViewConfig {
     /// written before it existed): the same radius at every size.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prior_radius_size: Option<u32>,
+    /// Semi-global matching of the prior's costs after the window (penalties in logit units;
+    /// `deepview_mpi::agreement::smooth_semi_global`): depth that stays on a plane, or one plane away,
+    /// from pixel to pixel along 8 image directions is favoured, which fills textureless surfaces from
+    /// their textured surroundings. It reaches across the whole image, so inference computes the prior on
+    /// the whole image (tiles read it) and training on each window. `None` (the default, and every
+    /// config written before it existed): no smoothing.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prior_smoothing: Option<Smoothing>,
 }
 
 fn is_zero(r: &usize) -> bool {
@@ -98,6 +108,7 @@ impl DeepViewConfig {
         deepview_mpi::agreement::Aggregation {
             radius: self.prior_radius,
             weight: self.prior_weight,
+            smoothing: self.prior_smoothing,
         }
     }
 
@@ -152,6 +163,7 @@ impl DeepViewConfig {
             prior_radius: 0,
             prior_weight: 1.0,
             prior_radius_size: None,
+            prior_smoothing: None,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -179,6 +191,7 @@ impl DeepViewConfig {
                 prior_radius: 0,
                 prior_weight: 1.0,
                 prior_radius_size: None,
+                prior_smoothing: None,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -199,6 +212,7 @@ impl DeepViewConfig {
                 prior_radius: 0,
                 prior_weight: 1.0,
                 prior_radius_size: None,
+                prior_smoothing: None,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -238,6 +252,17 @@ impl DeepViewConfig {
         }
         if self.prior_radius > 0 && self.init_prior.is_none() {
             return bad("an aggregation radius needs the agreement prior (init_prior)");
+        }
+        if let Some(s) = self.prior_smoothing {
+            if !s.is_valid() {
+                return bad(&format!(
+                    "the prior's smoothing penalties ({}, {}) must be finite with 0 <= p1 <= p2",
+                    s.p1, s.p2
+                ));
+            }
+            if self.init_prior.is_none() {
+                return bad("prior smoothing needs the agreement prior (init_prior)");
+            }
         }
         if self.max_pool_stages == 0 {
             return bad("at least one max-pool stage is needed");
@@ -343,6 +368,7 @@ mod tests {
         assert_eq!(cfg.at_image_size(996).prior_radius_size, Some(512));
         let fixed = DeepViewConfig {
             prior_radius_size: None,
+            prior_smoothing: None,
             ..cfg.clone()
         };
         assert_eq!(fixed.prior_radius_at(4096), 5);

@@ -301,7 +301,9 @@ pub fn state_to_rgba_burn(state: Tensor<4>) -> Tensor<4> {
     Tensor::cat(vec![s.narrow(1, 0, 3) * a.clone(), a], 1)
 }
 
-use deepview_mpi::agreement::{Aggregation, LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
+use deepview_mpi::agreement::{
+    Aggregation, LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE, Smoothing,
+};
 
 /// The cross-view agreement MPI of plane sweep volumes as RGBA *logits* `[D, 4, h, w]` (see
 /// `DeepViewConfig::init_prior`), computed exactly like [`deepview_mpi::agreement::agreement_mpi`] (its one definition): per plane and
@@ -318,8 +320,10 @@ pub fn agreement_prior_logits(
     temperature: f64,
     aggregation: Aggregation,
 ) -> Tensor<4> {
+    // Semi-global matching runs on the host (a scan along image paths), so a smoothed prior takes
+    // burn's ops around it.
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if crate::gpu::gpu_kernels(&per_view[0].device()) {
+    if aggregation.smoothing.is_none() && crate::gpu::gpu_kernels(&per_view[0].device()) {
         return crate::gpu::prior(per_view, temperature, aggregation);
     }
     agreement_prior_logits_burn(per_view, temperature, aggregation)
@@ -348,12 +352,39 @@ fn box_mean_seen_burn(x: Tensor<4>, seen: Tensor<4>, r: usize) -> Tensor<4> {
     num / den.clamp_min(1e-12)
 }
 
+/// Semi-global matching ([`deepview_mpi::agreement::smooth_semi_global`]) of masked depth logits
+/// `[D, 1, h, w]` (unseen: -1e30), on the host; `cap` is the single-view cost.
+fn smooth_on_host(masked: Tensor<4>, smoothing: Smoothing, cap: f64) -> Tensor<4> {
+    let [d, c, h, w] = masked.dims();
+    debug_assert_eq!(c, 1);
+    let device = masked.device();
+    let mut v: Vec<f32> = masked
+        .into_data()
+        .convert::<f32>()
+        .try_into_vec::<f32>()
+        .expect("f32 logits");
+    deepview_mpi::agreement::smooth_semi_global(&mut v, w, h, d, smoothing, cap as f32);
+    Tensor::from_data(burn::tensor::TensorData::new(v, [d, c, h, w]), &device)
+}
+
 /// [`agreement_prior_logits`] with burn's ops (a loop over the planes; the reference of the GPU kernel).
 pub fn agreement_prior_logits_burn(
     per_view: &[Tensor<4>],
     temperature: f64,
     aggregation: Aggregation,
 ) -> Tensor<4> {
+    let costs = prior_costs_burn(per_view, temperature, aggregation);
+    prior_from_costs(costs, temperature, aggregation.smoothing)
+}
+
+/// The per-plane half of [`agreement_prior_logits_burn`] (each plane on its own): the mean colour
+/// `[D, 3, h, w]`, the masked depth logits `[D, 1, h, w]` (the window's aggregation applied; unseen:
+/// -1e30) and the seen mask `[D, 1, h, w]`.
+pub fn prior_costs_burn(
+    per_view: &[Tensor<4>],
+    temperature: f64,
+    aggregation: Aggregation,
+) -> PriorCosts {
     let valid: Vec<Tensor<4>> = per_view.iter().map(|v| v.clone().narrow(1, 3, 1)).collect();
     let rgb: Vec<Tensor<4>> = per_view
         .iter()
@@ -387,10 +418,50 @@ pub fn agreement_prior_logits_burn(
     };
     let logit = var.neg() / temperature;
     // Unseen (plane, pixel) pairs get no weight; a ray no view sees at all stays transparent.
+    let masked = logit * seen.clone() + (seen.clone().neg().add_scalar(1.0)) * -1e30;
+    PriorCosts { mean, masked, seen }
+}
+
+/// [`prior_costs_burn`]'s result (concatenate chunks of planes with [`PriorCosts::cat`]).
+#[derive(Clone, Debug)]
+pub struct PriorCosts {
+    pub mean: Tensor<4>,
+    pub masked: Tensor<4>,
+    pub seen: Tensor<4>,
+}
+
+impl PriorCosts {
+    /// Chunks of planes, back to front, as one.
+    pub fn cat(chunks: Vec<PriorCosts>) -> PriorCosts {
+        let (mut mean, mut masked, mut seen) = (Vec::new(), Vec::new(), Vec::new());
+        for c in chunks {
+            mean.push(c.mean);
+            masked.push(c.masked);
+            seen.push(c.seen);
+        }
+        PriorCosts {
+            mean: Tensor::cat(mean, 0),
+            masked: Tensor::cat(masked, 0),
+            seen: Tensor::cat(seen, 0),
+        }
+    }
+}
+
+/// The across-planes half of [`agreement_prior_logits_burn`]: the optional semi-global matching of the
+/// depth logits (on the host), the alphas back to front and the clamped RGBA logits `[D, 4, h, w]`.
+pub fn prior_from_costs(
+    costs: PriorCosts,
+    temperature: f64,
+    smoothing: Option<Smoothing>,
+) -> Tensor<4> {
+    let PriorCosts { mean, masked, seen } = costs;
+    let masked = match smoothing {
+        Some(smoothing) => smooth_on_host(masked, smoothing, SINGLE_VIEW_VARIANCE / temperature),
+        None => masked,
+    };
     // `a_d = w_d / sum_{i<=d} w_i = exp(l_d - logsumexp_{i<=d} l_i)`, accumulated in the log domain (f32
     // `exp` of the raw differences would underflow where the f64 baseline does not).
-    let d = logit.dims()[0];
-    let masked = logit.clone() * seen.clone() + (seen.clone().neg().add_scalar(1.0)) * -1e30;
+    let d = masked.dims()[0];
     let mut alphas = Vec::with_capacity(d);
     let mut run: Option<(Tensor<4>, Tensor<4>)> = None; // running max m and sum of exp(l_i - m)
     for p in 0..d {
@@ -564,6 +635,9 @@ pub struct DeepViewModel {
     pub prior_radius: usize,
     /// The weight of the window's mean in the aggregated variance (`DeepViewConfig::prior_weight`).
     pub prior_weight: f64,
+    /// Semi-global matching of the prior's costs (`DeepViewConfig::prior_smoothing`).
+    #[module(skip)]
+    pub prior_smoothing: Option<deepview_mpi::agreement::Smoothing>,
 }
 
 impl DeepViewModel {
@@ -590,6 +664,11 @@ impl DeepViewModel {
                 0
             },
             prior_weight: config.prior_weight,
+            prior_smoothing: if config.init_prior.is_some() {
+                config.prior_smoothing
+            } else {
+                None
+            },
         }
     }
 
@@ -598,6 +677,7 @@ impl DeepViewModel {
         Aggregation {
             radius: self.prior_radius,
             weight: self.prior_weight,
+            smoothing: self.prior_smoothing,
         }
     }
 
@@ -625,11 +705,22 @@ impl DeepViewModel {
         per_view: Vec<Tensor<4>>,
         state: Option<Tensor<4>>,
     ) -> Tensor<4> {
+        self.run_net_with_prior(n, per_view, state, None)
+    }
+
+    /// [`Self::run_net`] with net 0's agreement prior given (its RGBA logits `[D, 4, h, w]` on the same
+    /// region: the tiled inference cuts a smoothed prior, which reaches across the whole image, out of
+    /// the whole image's) instead of computed from the inputs; `None`: computed.
+    pub fn run_net_with_prior(
+        &self,
+        n: usize,
+        per_view: Vec<Tensor<4>>,
+        state: Option<Tensor<4>>,
+        given: Option<Tensor<4>>,
+    ) -> Tensor<4> {
         let k = per_view.len();
         // The prior as a state: its RGBA logits and zeros for the extra channels.
-        let prior_state = |per_view: &[Tensor<4>]| {
-            let p =
-                agreement_prior_logits(per_view, self.prior_temperature, self.prior_aggregation());
+        let as_state = |p: Tensor<4>| {
             let [d, c, h, w] = p.dims();
             let extra = self.state_channels - c;
             if extra == 0 {
@@ -639,21 +730,41 @@ impl DeepViewModel {
                 Tensor::cat(vec![p, Tensor::zeros([d, extra, h, w], &device)], 1)
             }
         };
+        let with_prior = n == 0 && self.prior_temperature > 0.0;
+        let given = given.filter(|_| with_prior).map(as_state);
+        let prior_state = |per_view: &[Tensor<4>]| {
+            as_state(agreement_prior_logits(
+                per_view,
+                self.prior_temperature,
+                self.prior_aggregation(),
+            ))
+        };
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         if crate::gpu::gpu_kernels(&per_view[0].device()) {
-            let prior = (n == 0 && self.prior_temperature > 0.0).then_some((
+            // A given or smoothed prior is added beside the fused input (see
+            // `agreement_prior_logits`); otherwise the fused kernel computes it.
+            let separate = match given {
+                Some(p) => Some(p),
+                None => {
+                    (with_prior && self.prior_smoothing.is_some()).then(|| prior_state(&per_view))
+                }
+            };
+            let prior = (with_prior && separate.is_none()).then_some((
                 self.prior_temperature,
                 self.state_channels,
                 self.prior_aggregation(),
             ));
             let (x, prior) = crate::gpu::net_input(per_view, state, prior);
             let out = self.nets[n].forward(x, k);
-            return match prior {
+            return match prior.or(separate) {
                 Some(p) => p + out,
                 None => out,
             };
         }
-        let prior = (n == 0 && self.prior_temperature > 0.0).then(|| prior_state(&per_view));
+        let prior = match given {
+            Some(p) => Some(p),
+            None => with_prior.then(|| prior_state(&per_view)),
+        };
         let x = per_view
             .into_iter()
             .map(|v| match &state {

@@ -37,6 +37,11 @@ pub struct TrainOptions {
     /// (none: one radius at every size). Kept in the weights' config.json.
     #[arg(long, value_name = "PIXELS")]
     pub prior_radius_size: Option<u32>,
+    /// Semi-global matching of the prior's costs over the planes, as penalties P1,P2 in the prior's
+    /// logit units (e.g. 2,64: one plane's step between neighbouring pixels costs 2, a larger jump 64),
+    /// or `off`. Default: the preset's or --init's (off). Kept in the weights' config.json.
+    #[arg(long, value_name = "P1,P2|off", value_parser = parse_prior_smoothing)]
+    pub prior_smoothing: Option<PriorSmoothing>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -153,6 +158,18 @@ pub struct TrainOptions {
     pub vgg_weights: Option<PathBuf>,
 }
 
+/// `--prior-smoothing`: penalties, or `off` (`None`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PriorSmoothing(pub Option<deepview_net::config::Smoothing>);
+
+fn parse_prior_smoothing(s: &str) -> Result<PriorSmoothing, String> {
+    if s.trim() == "off" {
+        Ok(PriorSmoothing(None))
+    } else {
+        s.parse().map(|p| PriorSmoothing(Some(p)))
+    }
+}
+
 impl TrainOptions {
     /// The network of a new run: `--init`'s saved configuration, or `--preset` (default `cpu`), which
     /// `--init`'s weights must be able to grow into.
@@ -180,6 +197,11 @@ impl TrainOptions {
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-radius-size {n}: {e}")))?;
         }
+        if let Some(PriorSmoothing(s)) = self.prior_smoothing {
+            cfg.prior_smoothing = s;
+            cfg.validate()
+                .map_err(|e| cfg_err(format!("--prior-smoothing: {e}")))?;
+        }
         Ok(cfg)
     }
 
@@ -201,6 +223,7 @@ impl TrainOptions {
                         to.prior_radius = from.prior_radius;
                         to.prior_weight = from.prior_weight;
                         to.prior_radius_size = from.prior_radius_size;
+                        to.prior_smoothing = from.prior_smoothing;
                     }
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
@@ -311,6 +334,11 @@ impl TrainOptions {
                 self.prior_radius_size
                     .is_some_and(|n| (n > 0).then_some(n) != cfg.model.prior_radius_size),
                 "--prior-radius-size",
+            ),
+            (
+                self.prior_smoothing
+                    .is_some_and(|PriorSmoothing(s)| s != cfg.model.prior_smoothing),
+                "--prior-smoothing",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
             (
@@ -606,6 +634,16 @@ mod tests {
         };
         assert_eq!(sized(256).model().unwrap().prior_radius_size, Some(256));
         assert_eq!(sized(0).model().unwrap().prior_radius_size, None);
+        // --prior-smoothing sets the penalties, `off` clears them, bad ones are refused.
+        let smoothed = |s: &str| TrainOptions {
+            prior_smoothing: Some(parse_prior_smoothing(s).unwrap()),
+            ..grow(None)
+        };
+        let sgm = deepview_net::config::Smoothing { p1: 2.0, p2: 64.0 };
+        assert_eq!(smoothed("2,64").model().unwrap().prior_smoothing, Some(sgm));
+        assert_eq!(smoothed("off").model().unwrap().prior_smoothing, None);
+        assert!(parse_prior_smoothing("64,2").is_err());
+        assert!(parse_prior_smoothing("2").is_err());
     }
 
     #[test]

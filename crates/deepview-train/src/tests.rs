@@ -34,6 +34,7 @@ fn tiny_model() -> DeepViewConfig {
         prior_radius: 0,
         prior_weight: 1.0,
         prior_radius_size: None,
+        prior_smoothing: None,
     }
 }
 

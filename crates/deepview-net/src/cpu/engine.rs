@@ -22,7 +22,7 @@ use deepview_geometry::Camera;
 use deepview_image::ImageF32;
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
-use deepview_mpi::agreement::aggregate_seen;
+use deepview_mpi::agreement::{SINGLE_VIEW_VARIANCE, aggregate_seen, smooth_semi_global};
 use rayon::prelude::*;
 use std::ops::Range;
 
@@ -78,10 +78,19 @@ pub fn engine_bytes(
     } else {
         0
     };
+    // Semi-global matching's sums: one more `D x H x W` array beside the depth weights.
+    let smoothing = if model.prior_smoothing.is_some() && model.prior_temperature > 0.0 {
+        4 * d64 * hw
+    } else {
+        0
+    };
     let first = (!model.nets.is_empty())
         .then(|| scratch(0))
         .map_or(0, |(sc, px)| {
-            (4 * threads * (sc + 4 * px + widened)).max(aggregation) + 4 * d64 * hw
+            (4 * threads * (sc + 4 * px + widened))
+                .max(aggregation)
+                .max(smoothing)
+                + 4 * d64 * hw
         });
     let update = (1..model.nets.len())
         .map(|n| scratch(n).0)
@@ -439,6 +448,10 @@ pub(crate) fn infer_engine_blocks(
                         .for_each_init(Vec::new, |scratch, plane| {
                             aggregate_seen(plane, w, h, model.prior_aggregation(), scratch)
                         });
+                }
+                if let Some(smoothing) = model.prior_smoothing {
+                    let cap = (SINGLE_VIEW_VARIANCE / temperature) as f32;
+                    smooth_semi_global(&mut weights, w, h, d, smoothing, cap);
                 }
                 prior_logits(&mut weights, d, hw);
                 weights

@@ -1097,7 +1097,7 @@ impl GpuOps for CubeBackend {
             deepview_mpi::agreement::SINGLE_VIEW_VARIANCE as f32,
             deepview_mpi::agreement::LOGIT_EPS as f32,
         );
-        let aggregation = deepview_mpi::agreement::Aggregation { radius, weight };
+        let aggregation = deepview_mpi::agreement::Aggregation::window(radius, weight);
         if !aggregation.is_active() {
             kernels::prior_kernel::launch(
                 &out.client,

@@ -132,7 +132,7 @@ fn wgpu_prior_kernel_equals_burns_ops() {
         (1e-4, 5, 1.0),
         (0.05, 9, 0.3),
     ] {
-        let aggregation = Aggregation { radius, weight };
+        let aggregation = Aggregation::window(radius, weight);
         let run = |dev: &Device, gpu: bool| {
             let t: Vec<Tensor<4>> = views
                 .iter()

@@ -9,7 +9,9 @@ use super::tiling::{Geometry, Rect};
 use crate::forward::{
     Crops, Frames, gradient_components_framed, image_tensor, plane_sweep_volume_framed,
 };
-use crate::network::{DeepViewModel, state_to_rgba};
+use crate::network::{
+    DeepViewModel, PriorCosts, prior_costs_burn, prior_from_costs, state_to_rgba,
+};
 use burn::tensor::{Device, Tensor};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
@@ -87,6 +89,10 @@ pub fn infer_mpi_planned(
         .collect();
     let total: usize = tiles.iter().map(Vec::len).sum();
     let mut done = 0;
+    // A smoothed prior reaches across the whole image (semi-global matching along image paths): computed
+    // once on it, then every tile of net 0 reads its region, so tiles equal the whole-image inference.
+    let whole_prior = (model.prior_temperature > 0.0 && model.prior_smoothing.is_some())
+        .then(|| whole_image_prior(model, &images, &geom));
     // Premultiplied RGBA result `[D][H][W][4]`, written by the last net.
     let mut layers = Vec::new();
     let mut state: Option<StateStore> = None;
@@ -153,7 +159,15 @@ pub fn infer_mpi_planned(
                         region_state.as_ref().map(|rs| rs.clone().narrow(0, p0, np)),
                     )
                 };
-                let out = model.run_net(n, inputs, chunk_state.clone());
+                let given = (n == 0).then(|| {
+                    whole_prior.as_ref().map(|p| {
+                        p.clone()
+                            .narrow(0, p0, np)
+                            .narrow(2, ry0, rh)
+                            .narrow(3, rx0, rw)
+                    })
+                });
+                let out = model.run_net_with_prior(n, inputs, chunk_state.clone(), given.flatten());
                 let out = match chunk_state {
                     Some(rs) => rs + out,
                     None => out,
@@ -195,4 +209,40 @@ pub fn infer_mpi_planned(
         depths: depths.to_vec(),
         layers,
     })
+}
+
+/// The agreement prior's RGBA logits `[D, 4, H, W]` on the whole MPI: the planes' sweeps of the whole
+/// views a chunk at a time (about one 4-channel MPI of sweeps at once), their per-plane costs, then
+/// across the planes the smoothing and the alphas ([`prior_from_costs`]).
+fn whole_image_prior(model: &DeepViewModel, images: &[Tensor<3>], geom: &Geometry) -> Tensor<4> {
+    let (w, h, d) = (geom.w, geom.h, geom.d);
+    let chunk = (d / images.len().max(1)).max(1);
+    let costs: Vec<PriorCosts> = (0..d)
+        .step_by(chunk)
+        .map(|p0| {
+            let np = chunk.min(d - p0);
+            let per_view: Vec<Tensor<4>> = images
+                .iter()
+                .enumerate()
+                .map(|(k, img)| {
+                    let frames = Frames {
+                        src_origin: (0, 0),
+                        src_full: geom.view_sizes[k],
+                        out_origin: (0, 0),
+                    };
+                    plane_sweep_volume_framed(img.clone(), &geom.homs[k][p0..p0 + np], frames, h, w)
+                })
+                .collect();
+            prior_costs_burn(
+                &per_view,
+                model.prior_temperature,
+                model.prior_aggregation(),
+            )
+        })
+        .collect();
+    prior_from_costs(
+        PriorCosts::cat(costs),
+        model.prior_temperature,
+        model.prior_smoothing,
+    )
 }

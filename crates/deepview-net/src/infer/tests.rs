@@ -109,13 +109,18 @@ fn untrained_prior_model_equals_agreement_mpi() {
     use deepview_geometry::{ReferenceOptions, reference_camera};
     use deepview_mpi::agreement::{SINGLE_VIEW_VARIANCE, TEMPERATURE, agreement_mpi};
     let dev = Device::flex();
-    // With an aggregation radius the 16-px tiles' margins must reach `radius` further.
-    for (k, planes, smooth, radius, weight) in [
-        (3, 8, true, 0, 1.0),
-        (4, 5, false, 0, 1.0),
-        (2, 6, true, 0, 1.0),
-        (3, 6, true, 3, 0.5),
-        (4, 5, false, 9, 1.0),
+    // With an aggregation radius the 16-px tiles' margins must reach `radius` further; with semi-global
+    // matching the tiles read the whole image's prior, and the CPU engine smooths its whole image.
+    let sgm = Some(deepview_mpi::agreement::Smoothing { p1: 2.0, p2: 64.0 });
+    for (k, planes, smooth, radius, weight, smoothing) in [
+        (3, 8, true, 0, 1.0, None),
+        (4, 5, false, 0, 1.0, None),
+        (2, 6, true, 0, 1.0, None),
+        (3, 6, true, 3, 0.5, None),
+        (4, 5, false, 9, 1.0, None),
+        (3, 8, true, 0, 1.0, sgm),
+        (3, 6, true, 3, 0.5, sgm),
+        (2, 11, false, 2, 1.0, sgm),
     ] {
         let cfg = DeepViewConfig {
             features_large: 4,
@@ -124,6 +129,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             max_pool_stages: 1,
             prior_radius: radius,
             prior_weight: weight,
+            prior_smoothing: smoothing,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         let model = DeepViewModel::new(&cfg, &dev);
@@ -158,23 +164,47 @@ fn untrained_prior_model_equals_agreement_mpi() {
             SINGLE_VIEW_VARIANCE,
             cfg.prior_aggregation(),
         );
-        let mpi = infer_mpi_tiled(&model, &views, &reference, &depths, 16, &mut |_| {}).unwrap();
-        assert_eq!(mpi.layers.len(), expected.layers.len());
-        let (mut max, mut mixed) = (0f32, 0usize);
-        for (a, b) in mpi
-            .layers
-            .chunks_exact(4)
-            .zip(expected.layers.chunks_exact(4))
-        {
-            for c in 0..4 {
-                max = max.max((a[c] - b[c]).abs());
+        let tiled = infer_mpi_tiled(&model, &views, &reference, &depths, 16, &mut |_| {}).unwrap();
+        let engine = infer_mpi(&model, &views, &reference, &depths, 1 << 40, &mut |_| {}).unwrap();
+        let mut mixed = 0usize;
+        for (path, mpi) in [("tiled", &tiled), ("engine", &engine)] {
+            assert_eq!(mpi.layers.len(), expected.layers.len());
+            let mut max = 0f32;
+            for (a, b) in mpi
+                .layers
+                .chunks_exact(4)
+                .zip(expected.layers.chunks_exact(4))
+            {
+                for c in 0..4 {
+                    max = max.max((a[c] - b[c]).abs());
+                }
             }
+            assert!(
+                max < 3e-4,
+                "{path}: k {k}, planes {planes}, radius {radius}, {smoothing:?}: max difference {max}"
+            );
+        }
+        for b in expected.layers.chunks_exact(4) {
             mixed += usize::from(b[3] > 0.05 && b[3] < 0.95);
         }
-        assert!(
-            max < 3e-4,
-            "k {k}, planes {planes}, radius {radius}: max difference {max}"
-        );
+        if smoothing.is_some() {
+            // The smoothing matters here: without it the MPI is another.
+            let plain = agreement_mpi(
+                &views,
+                &reference,
+                depths.clone(),
+                TEMPERATURE,
+                SINGLE_VIEW_VARIANCE,
+                deepview_mpi::agreement::Aggregation::window(radius, weight),
+            );
+            let moved = plain
+                .layers
+                .iter()
+                .zip(&expected.layers)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0f32, f32::max);
+            assert!(moved > 0.05, "smoothing changed the MPI by only {moved}");
+        }
         if smooth {
             assert!(mixed > 100, "only {mixed} partially transparent texels");
         }
