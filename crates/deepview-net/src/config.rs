@@ -342,6 +342,48 @@ impl DeepViewConfig {
 mod tests {
     use super::*;
 
+    /// Smoothing penalties round-trip through config.json, configs without them load without, and bad
+    /// ones (or smoothing without the prior) are refused.
+    #[test]
+    fn prior_smoothing_in_the_config() {
+        let cpu = DeepViewConfig::preset("cpu").unwrap();
+        assert!(cpu.init_prior.is_some() && cpu.prior_smoothing.is_none());
+        let cfg = DeepViewConfig {
+            prior_smoothing: Some(Smoothing { p1: 2.0, p2: 64.0 }),
+            ..cpu.clone()
+        };
+        cfg.validate().unwrap();
+        assert_eq!(cfg.prior_aggregation().smoothing, cfg.prior_smoothing);
+        let json = serde_json::to_string(&cfg).unwrap();
+        assert!(
+            json.contains("\"prior_smoothing\":{\"p1\":2.0,\"p2\":64.0}"),
+            "{json}"
+        );
+        assert_eq!(serde_json::from_str::<DeepViewConfig>(&json).unwrap(), cfg);
+        assert!(
+            !serde_json::to_string(&cpu)
+                .unwrap()
+                .contains("prior_smoothing")
+        );
+        for (p1, p2) in [
+            (64.0, 2.0),
+            (-1.0, 2.0),
+            (1.0, f32::INFINITY),
+            (f32::NAN, 1.0),
+        ] {
+            let bad = DeepViewConfig {
+                prior_smoothing: Some(Smoothing { p1, p2 }),
+                ..cpu.clone()
+            };
+            assert!(bad.validate().is_err(), "({p1}, {p2})");
+        }
+        let without_prior = DeepViewConfig {
+            init_prior: None,
+            ..cfg
+        };
+        assert!(without_prior.validate().is_err());
+    }
+
     /// The radius grows in proportion above `prior_radius_size` (rounded to the nearest integer, capped),
     /// never below `prior_radius`, and configs without the field load as before.
     #[test]
