@@ -39,7 +39,9 @@ pub struct TrainOptions {
     pub prior_radius_size: Option<u32>,
     /// Semi-global matching of the prior's costs over the planes, as penalties P1,P2 in the prior's
     /// logit units (e.g. 2,64: one plane's step between neighbouring pixels costs 2, a larger jump 64),
-    /// or `off`. Default: the preset's or --init's (off). Kept in the weights' config.json.
+    /// or `off`. Default: the preset's (off) or --init's (the shipped weights: 2,64). Kept in the
+    /// weights' config.json. Training smooths each window's prior on its own (inference: the whole
+    /// image's), so paths are shorter in training.
     #[arg(long, value_name = "P1,P2|off", value_parser = parse_prior_smoothing)]
     pub prior_smoothing: Option<PriorSmoothing>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder

@@ -91,8 +91,10 @@ pub fn infer_mpi_planned(
     let mut done = 0;
     // A smoothed prior reaches across the whole image (semi-global matching along image paths): computed
     // once on it, then every tile of net 0 reads its region, so tiles equal the whole-image inference.
-    let whole_prior = (model.prior_temperature > 0.0 && model.prior_smoothing.is_some())
-        .then(|| whole_image_prior(model, &images, &geom));
+    // It is computed and kept on the host (a GPU's largest allocation need not hold it), and freed
+    // after net 0.
+    let mut whole_prior = (model.prior_temperature > 0.0 && model.prior_smoothing.is_some())
+        .then(|| whole_image_prior(model, views, &geom));
     // Premultiplied RGBA result `[D][H][W][4]`, written by the last net.
     let mut layers = Vec::new();
     let mut state: Option<StateStore> = None;
@@ -165,6 +167,7 @@ pub fn infer_mpi_planned(
                             .narrow(0, p0, np)
                             .narrow(2, ry0, rh)
                             .narrow(3, rx0, rw)
+                            .to_device(&device)
                     })
                 });
                 let out = model.run_net_with_prior(n, inputs, chunk_state.clone(), given.flatten());
@@ -203,6 +206,7 @@ pub fn infer_mpi_planned(
             });
         }
         state = next;
+        whole_prior = None;
     }
     Ok(Mpi {
         camera: *reference,
@@ -214,8 +218,25 @@ pub fn infer_mpi_planned(
 /// The agreement prior's RGBA logits `[D, 4, H, W]` on the whole MPI: the planes' sweeps of the whole
 /// views a chunk at a time (about one 4-channel MPI of sweeps at once), their per-plane costs, then
 /// across the planes the smoothing and the alphas ([`prior_from_costs`]).
-fn whole_image_prior(model: &DeepViewModel, images: &[Tensor<3>], geom: &Geometry) -> Tensor<4> {
+fn whole_image_prior(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    geom: &Geometry,
+) -> Tensor<4> {
     let (w, h, d) = (geom.w, geom.h, geom.d);
+    let host = Device::flex();
+    let images: Vec<Tensor<3>> = views
+        .iter()
+        .map(|(img, _)| {
+            image_tensor(
+                &img.data,
+                img.width as usize,
+                img.height as usize,
+                img.channels,
+                &host,
+            )
+        })
+        .collect();
     let chunk = (d / images.len().max(1)).max(1);
     let costs: Vec<PriorCosts> = (0..d)
         .step_by(chunk)
