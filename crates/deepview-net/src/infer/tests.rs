@@ -763,13 +763,21 @@ fn wgpu_inference_equals_the_cpu_engine() {
     });
     let cpu = Device::flex();
     // Without a prior, and with the shipped weights' kind of prior (aggregated: the GPU's cost,
-    // aggregation and alpha kernels against the engine's).
-    for (prior, radius) in [(false, 0), (true, 0), (true, 5)] {
-        let aggregated = (prior, radius);
+    // aggregation and alpha kernels against the engine's; smoothed: the whole image's prior on the
+    // host, each tile's region on the GPU, against the engine's whole-image smoothing).
+    let sgm = Some(deepview_mpi::agreement::Smoothing { p1: 2.0, p2: 64.0 });
+    for (prior, radius, smoothing) in [
+        (false, 0, None),
+        (true, 0, None),
+        (true, 5, None),
+        (true, 5, sgm),
+    ] {
+        let aggregated = (prior, radius, smoothing);
         let mut model = small_model(&cpu, 1);
         if prior {
             model.prior_temperature = crate::config::CPU_PRIOR_TEMPERATURE;
             (model.prior_radius, model.prior_weight) = (radius, 0.5);
+            model.prior_smoothing = smoothing;
         }
         let (views, reference, depths) = scene(3);
         let budget = 1 << 30;
@@ -807,14 +815,14 @@ fn wgpu_inference_equals_the_cpu_engine() {
         let spread = a.layers.iter().fold(0f32, |m, v| m.max(*v))
             - a.layers.iter().fold(1f32, |m, v| m.min(*v));
         eprintln!(
-            "wgpu against the CPU engine (prior, radius: {aggregated:?}): max |difference| {max:e} (values span {spread})"
+            "wgpu against the CPU engine (prior, radius, smoothing: {aggregated:?}): max |difference| {max:e} (values span {spread})"
         );
         assert!(spread > 0.1, "a degenerate MPI ({spread})");
         // With the prior, the engine's fast exp/ln and the GPU's differ in the last bits of the
         // depth weights (as in `gpu::tests::wgpu_prior_kernel_equals_burns_ops`).
         assert!(
             max < if prior { 5e-4 } else { 1e-5 },
-            "wgpu inference differs from the CPU engine by {max} (prior, radius: {aggregated:?})"
+            "wgpu inference differs from the CPU engine by {max} (prior, radius, smoothing: {aggregated:?})"
         );
     }
 }
