@@ -16,6 +16,7 @@
 //! reference view is exactly `w_d`: `a_d = w_d / sum_{i<=d} w_i` (planes back to front, so the farthest
 //! plane with weight is opaque).
 
+use crate::composite::SyncPtr;
 use crate::{Mpi, plane_sweep};
 use deepview_geometry::Camera;
 use deepview_image::ImageF32;
@@ -368,18 +369,6 @@ fn sgm_step(c: &[f32], prev: &[f32], cur: &mut [f32], p1: f32, p2: f32) {
             best = best.min(prev[d + 1] + p1);
         }
         cur[d] = c[d] + best.min(m + p2) - m;
-    }
-}
-
-/// A raw pointer shared by tasks that write disjoint parts of one buffer.
-#[derive(Clone, Copy)]
-struct SyncPtr(*mut f32);
-// SAFETY: used only for writes that the callers keep disjoint across tasks.
-unsafe impl Send for SyncPtr {}
-unsafe impl Sync for SyncPtr {}
-impl SyncPtr {
-    fn get(self) -> *mut f32 {
-        self.0
     }
 }
 

@@ -77,13 +77,15 @@ pub fn composite_warped(
     (t, a, render)
 }
 
+/// A raw pointer shared by tasks that write disjoint parts of one buffer (`composite_warped`,
+/// `agreement::smooth_semi_global`).
 #[derive(Clone, Copy)]
-struct SyncPtr(*mut f32);
-// SAFETY: used only for disjoint writes from parallel tasks (see composite_warped).
+pub(crate) struct SyncPtr(pub(crate) *mut f32);
+// SAFETY: used only for writes that the callers keep disjoint across tasks.
 unsafe impl Send for SyncPtr {}
 unsafe impl Sync for SyncPtr {}
 impl SyncPtr {
-    fn get(self) -> *mut f32 {
+    pub(crate) fn get(self) -> *mut f32 {
         self.0
     }
 }

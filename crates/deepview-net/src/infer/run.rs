@@ -70,18 +70,7 @@ pub fn infer_mpi_planned(
     let (w, h, d) = (geom.w, geom.h, geom.d);
     let s = model.state_channels;
     let nets = model.nets.len();
-    let images: Vec<Tensor<3>> = views
-        .iter()
-        .map(|(img, _)| {
-            image_tensor(
-                &img.data,
-                img.width as usize,
-                img.height as usize,
-                img.channels,
-                &device,
-            )
-        })
-        .collect();
+    let images = view_tensors(views, &device);
     let tiles: Vec<Vec<Rect>> = plan
         .nets
         .iter()
@@ -215,6 +204,22 @@ pub fn infer_mpi_planned(
     })
 }
 
+/// The views' images as tensors `[C, H, W]` on `device`.
+fn view_tensors(views: &[(ImageF32, Camera)], device: &Device) -> Vec<Tensor<3>> {
+    views
+        .iter()
+        .map(|(img, _)| {
+            image_tensor(
+                &img.data,
+                img.width as usize,
+                img.height as usize,
+                img.channels,
+                device,
+            )
+        })
+        .collect()
+}
+
 /// The agreement prior's RGBA logits `[D, 4, H, W]` on the whole MPI: the planes' sweeps of the whole
 /// views a chunk at a time (about one 4-channel MPI of sweeps at once), their per-plane costs, then
 /// across the planes the smoothing and the alphas ([`prior_from_costs`]).
@@ -224,19 +229,7 @@ fn whole_image_prior(
     geom: &Geometry,
 ) -> Tensor<4> {
     let (w, h, d) = (geom.w, geom.h, geom.d);
-    let host = Device::flex();
-    let images: Vec<Tensor<3>> = views
-        .iter()
-        .map(|(img, _)| {
-            image_tensor(
-                &img.data,
-                img.width as usize,
-                img.height as usize,
-                img.channels,
-                &host,
-            )
-        })
-        .collect();
+    let images = view_tensors(views, &Device::flex());
     let chunk = (d / images.len().max(1)).max(1);
     let costs: Vec<PriorCosts> = (0..d)
         .step_by(chunk)
