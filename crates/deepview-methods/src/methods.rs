@@ -100,6 +100,11 @@ pub fn parse_smoothing(s: &str) -> Result<deepview_mpi::agreement::Smoothing, St
     s.parse()
 }
 
+/// `WEIGHT[,RADIUS]`: the census term of the matching cost.
+pub fn parse_census(s: &str) -> Result<deepview_mpi::agreement::Census, String> {
+    s.parse()
+}
+
 fn positive_f64(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -140,6 +145,12 @@ pub struct MethodOptions {
     /// jump 64). Off by default.
     #[arg(long, value_name = "P1,P2", value_parser = parse_smoothing)]
     pub smoothing: Option<deepview_mpi::agreement::Smoothing>,
+    /// A census term in the matching cost, as `WEIGHT[,RADIUS]` (psv-mean; e.g. `0.03`): each view's
+    /// plane sweep is census-transformed over the (2r+1) x (2r+1) window (radius 2 by default), and
+    /// WEIGHT times the fraction of census bits that differ between views is added to the colour
+    /// variance, a cost that ignores differences in exposure. Off by default.
+    #[arg(long, value_name = "WEIGHT[,RADIUS]", value_parser = parse_census)]
+    pub census: Option<deepview_mpi::agreement::Census>,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -163,6 +174,7 @@ impl Default for MethodOptions {
             aggregate: 0,
             aggregate_weight: 1.0,
             smoothing: None,
+            census: None,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -192,6 +204,7 @@ pub fn make_method(
                     radius: options.aggregate,
                     weight: options.aggregate_weight,
                     smoothing: options.smoothing,
+                    census: options.census,
                 },
                 ..Default::default()
             },

@@ -5,7 +5,9 @@
 //! For every plane `d` and reference pixel: colour = mean of the views' valid plane-sweep samples;
 //! agreement logit `l_d = -v_d / s` with `v_d` the variance of the valid samples (mean over RGB;
 //! [`SINGLE_VIEW_VARIANCE`] where one view sees the point, no weight where none does) and `s` the
-//! temperature ([`TEMPERATURE`] by default). With an [`Aggregation`] of radius `r > 0` and weight `a`
+//! temperature ([`TEMPERATURE`] by default); with a [`Census`] term, its weight times the fraction of the
+//! views' census bits that differ ([`census_disagreement`]) is added to `v_d` where two or more views see
+//! the point. With an [`Aggregation`] of radius `r > 0` and weight `a`
 //! each plane's variance is first replaced by `a` times its mean over the seen pixels of the
 //! `(2r+1) x (2r+1)` window around each pixel plus `1 - a` times its own value ([`aggregate_seen`]:
 //! classic stereo cost aggregation, the window clipped at the image border, with extra weight on the
@@ -92,8 +94,12 @@ pub fn sweep_statistics(
         .for_each(|((texels, logit), &depth)| {
             // Running sums per pixel: [sum r, g, b, sum r^2, g^2, b^2, count].
             let mut acc = vec![[0.0f64; 7]; n];
+            let mut greys = Vec::new();
             for (img, cam) in inputs {
                 let psv = plane_sweep(img, cam, reference, &[depth]);
+                if aggregation.census.is_some() {
+                    greys.push(grey_levels(&psv.data));
+                }
                 for (a, s) in acc.iter_mut().zip(psv.data.chunks_exact(4)) {
                     if s[3] > 0.0 {
                         for c in 0..3 {
@@ -104,7 +110,19 @@ pub fn sweep_statistics(
                     }
                 }
             }
-            for ((t, l), a) in texels.chunks_exact_mut(4).zip(logit.iter_mut()).zip(&acc) {
+            let (w, h) = (reference.width as usize, reference.height as usize);
+            let mut census = vec![0f32; n];
+            if let Some(c) = aggregation.census {
+                let views: Vec<&[f32]> = greys.iter().map(Vec::as_slice).collect();
+                census_disagreement(&views, w, h, c.radius, &mut Vec::new(), &mut census);
+            }
+            let census_weight = aggregation.census.map_or(0.0, |c| c.weight as f64);
+            for (((t, l), a), &cc) in texels
+                .chunks_exact_mut(4)
+                .zip(logit.iter_mut())
+                .zip(&acc)
+                .zip(&census)
+            {
                 let k = a[6];
                 if k == 0.0 {
                     continue;
@@ -116,12 +134,11 @@ pub fn sweep_statistics(
                     var += (a[3 + c] / k - m * m).max(0.0);
                 }
                 *l = if k >= 2.0 {
-                    -(var / 3.0 / s) as f32
+                    -((var / 3.0 + census_weight * cc as f64) / s) as f32
                 } else {
                     single
                 };
             }
-            let (w, h) = (reference.width as usize, reference.height as usize);
             aggregate_seen(logit, w, h, aggregation, &mut Vec::new());
         });
     if let Some(smoothing) = aggregation.smoothing {
@@ -130,6 +147,20 @@ pub fn sweep_statistics(
         smooth_semi_global(&mut logits, w, h, mpi.planes(), smoothing, cap);
     }
     (mpi, logits)
+}
+
+/// Grey levels (mean of R, G, B) of pixel-major RGBA samples, NaN where the validity (A) is 0: the
+/// input of [`census_disagreement`].
+pub fn grey_levels(rgba: &[f32]) -> Vec<f32> {
+    rgba.chunks_exact(4)
+        .map(|s| {
+            if s[3] > 0.0 {
+                (s[0] + s[1] + s[2]) / 3.0
+            } else {
+                f32::NAN
+            }
+        })
+        .collect()
 }
 
 /// Values at or below this are "unseen" in [`aggregate_seen`] (the engines mark unseen plane points with
@@ -145,6 +176,9 @@ pub struct Aggregation {
     pub weight: f64,
     /// Semi-global matching after the window ([`smooth_semi_global`]); `None`: none.
     pub smoothing: Option<Smoothing>,
+    /// The census term of the matching cost ([`Census`]), added to each plane's variance before the
+    /// window; `None`: the variance alone.
+    pub census: Option<Census>,
 }
 
 impl Aggregation {
@@ -153,6 +187,7 @@ impl Aggregation {
         radius: 0,
         weight: 1.0,
         smoothing: None,
+        census: None,
     };
 
     /// A window of radius `radius` weighted `weight`, without smoothing.
@@ -161,12 +196,141 @@ impl Aggregation {
             radius,
             weight,
             smoothing: None,
+            census: None,
         }
     }
 
     /// Whether the window changes anything.
     pub fn is_active(&self) -> bool {
         self.radius > 0 && self.weight > 0.0
+    }
+}
+
+/// The census term of the agreement's matching cost: each view's plane sweep (its grey level, the mean of
+/// R, G, B) is census-transformed over the `(2r+1)^2` window around each pixel (a bit per neighbour: darker
+/// than the centre or not; Zabih & Woodfill 1994), and a plane point's census cost is the mean, over the
+/// pairs of views that see it, of the fraction of the window's bits (neighbours both see) that differ
+/// ([`census_disagreement`]). `weight` times that cost (0..1) is added to the colour variance where two
+/// or more views see the point. Unlike the variance it ignores the views' differences in exposure and
+/// colour, and it sees the window's structure: the classic robust cost of stereo matching.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Census {
+    pub weight: f32,
+    pub radius: usize,
+}
+
+impl Census {
+    /// The largest radius (`(2r+1)^2 - 1` bits must fit 64).
+    pub const MAX_RADIUS: usize = 3;
+
+    /// Whether it is usable: a finite `weight >= 0`, `1 <= radius <= MAX_RADIUS`.
+    pub fn is_valid(&self) -> bool {
+        self.weight.is_finite()
+            && self.weight >= 0.0
+            && (1..=Self::MAX_RADIUS).contains(&self.radius)
+    }
+}
+
+impl std::str::FromStr for Census {
+    type Err = String;
+
+    /// `WEIGHT[,RADIUS]` (radius 2 by default), e.g. `0.03` or `0.03,3`.
+    fn from_str(s: &str) -> Result<Self, String> {
+        let bad = || {
+            format!(
+                "{s:?} is not a census weight with an optional radius, WEIGHT[,RADIUS] with WEIGHT >= 0 \
+                 and RADIUS 1..={} (e.g. 0.03 or 0.03,2)",
+                Census::MAX_RADIUS
+            )
+        };
+        let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+        let (weight, radius) = match parts[..] {
+            [w] => (w, "2"),
+            [w, r] => (w, r),
+            _ => return Err(bad()),
+        };
+        let census = Census {
+            weight: weight.parse().map_err(|_| bad())?,
+            radius: radius.parse().map_err(|_| bad())?,
+        };
+        if census.is_valid() {
+            Ok(census)
+        } else {
+            Err(bad())
+        }
+    }
+}
+
+/// The census cost of [`Census`] on one plane: `greys` holds each view's plane sweep as grey levels
+/// `[h][w]` (NaN where the view does not see the plane point); `out` (`[h][w]`) gets the mean over the
+/// pairs of views seeing a pixel (with a neighbour both see) of the fraction of differing census bits
+/// over the window of `radius`, 0 where no pair does. `bits` is scratch (any content). Serial: callers
+/// run planes in parallel.
+pub fn census_disagreement(
+    greys: &[&[f32]],
+    w: usize,
+    h: usize,
+    radius: usize,
+    bits: &mut Vec<(u64, u64)>,
+    out: &mut [f32],
+) {
+    let n = w * h;
+    assert!(radius <= Census::MAX_RADIUS, "census radius {radius}");
+    assert_eq!(out.len(), n, "census_disagreement: output size");
+    let k = greys.len();
+    bits.clear();
+    bits.resize(k * n, (0, 0));
+    let r = radius as i64;
+    for (g, b) in greys.iter().zip(bits.chunks_exact_mut(n.max(1))) {
+        assert_eq!(g.len(), n, "census_disagreement: view size");
+        for y in 0..h as i64 {
+            for x in 0..w as i64 {
+                let p = y as usize * w + x as usize;
+                let c = g[p];
+                if c.is_nan() {
+                    continue;
+                }
+                let (mut code, mut mask, mut bit) = (0u64, 0u64, 0u32);
+                for oy in -r..=r {
+                    let qy = y + oy;
+                    for ox in -r..=r {
+                        if ox == 0 && oy == 0 {
+                            continue;
+                        }
+                        let qx = x + ox;
+                        if qx >= 0 && qy >= 0 && qx < w as i64 && qy < h as i64 {
+                            let q = g[qy as usize * w + qx as usize];
+                            if !q.is_nan() {
+                                mask |= 1 << bit;
+                                if q < c {
+                                    code |= 1 << bit;
+                                }
+                            }
+                        }
+                        bit += 1;
+                    }
+                }
+                b[p] = (code, mask);
+            }
+        }
+    }
+    for (p, o) in out.iter_mut().enumerate() {
+        let (mut total, mut pairs) = (0.0f32, 0u32);
+        for i in 0..k {
+            let (ci, mi) = bits[i * n + p];
+            if mi == 0 {
+                continue;
+            }
+            for j in i + 1..k {
+                let (cj, mj) = bits[j * n + p];
+                let m = mi & mj;
+                if m != 0 {
+                    total += ((ci ^ cj) & m).count_ones() as f32 / m.count_ones() as f32;
+                    pairs += 1;
+                }
+            }
+        }
+        *o = if pairs > 0 { total / pairs as f32 } else { 0.0 };
     }
 }
 
@@ -688,6 +852,145 @@ mod tests {
             depth_distribution_to_alpha(&[f32::NEG_INFINITY; 3], 3, 1)
                 .iter()
                 .all(|&a| a == 0.0)
+        );
+    }
+
+    #[test]
+    fn census_cost_follows_its_definition() {
+        // 3 x 1 pixels, radius 1 (the in-image neighbours: left and right), worked by hand. Pixel 1 of A
+        // (0.5): left darker (bit 1), right not (0); of B: both darker (1, 1): 1 of 2 bits differ. Pixel
+        // 2: the left neighbour is darker in A (0.5 < 0.9), not in B (0.5 > 0.2).
+        let (a, b) = ([0.1f32, 0.5, 0.9], [0.1f32, 0.5, 0.2]);
+        let mut out = vec![-1f32; 3];
+        census_disagreement(&[&a, &b], 3, 1, 1, &mut Vec::new(), &mut out);
+        assert_eq!(out, [0.0, 0.5, 1.0]);
+        // C does not see pixel 0: pixel 1's pairs with C compare the right neighbour only (A-C: 0 of 1
+        // bits differ, B-C: 1 of 1), pixel 0 is A-B's alone, and pixel 2's C-pairs compare the left one.
+        let c = [f32::NAN, 0.5, 0.9];
+        census_disagreement(&[&a, &b, &c], 3, 1, 1, &mut Vec::new(), &mut out);
+        let expected = [0.0, (0.5 + 0.0 + 1.0) / 3.0, (1.0 + 0.0 + 1.0) / 3.0];
+        for (o, e) in out.iter().zip(expected) {
+            assert!((o - e).abs() < 1e-6, "{out:?} against {expected:?}");
+        }
+        // A pixel one view sees, or none: no pair, cost 0.
+        let d = [f32::NAN, f32::NAN, 0.3];
+        census_disagreement(&[&d, &c], 3, 1, 1, &mut Vec::new(), &mut out);
+        assert_eq!(out, [0.0, 0.0, 0.0]);
+    }
+
+    #[test]
+    fn census_cost_ignores_exposure_and_sees_structure() {
+        let (w, h) = (23usize, 17usize);
+        let base: Vec<f32> = (0..w * h)
+            .map(|p| {
+                let (x, y) = ((p % w) as f32, (p / w) as f32);
+                0.5 + 0.2 * (0.9 * x + 0.3 * y).sin() + 0.1 * (0.37 * x - 1.3 * y).cos()
+            })
+            .collect();
+        // Another exposure (gain and offset): every comparison, so every bit, is the same.
+        let exposed: Vec<f32> = base.iter().map(|v| 0.6 * v + 0.25).collect();
+        // The negative: every comparison reverses (the texture has no ties).
+        let negative: Vec<f32> = base.iter().map(|v| 1.0 - v).collect();
+        let mut bits = Vec::new();
+        for radius in 1..=Census::MAX_RADIUS {
+            let mut out = vec![-1f32; w * h];
+            census_disagreement(&[&base, &exposed], w, h, radius, &mut bits, &mut out);
+            assert!(out.iter().all(|&c| c == 0.0), "radius {radius}: exposure");
+            census_disagreement(&[&base, &negative], w, h, radius, &mut bits, &mut out);
+            assert!(out.iter().all(|&c| c == 1.0), "radius {radius}: negative");
+            // Three views: the two pairs with the negative differ entirely, the exposed pair not at all.
+            census_disagreement(
+                &[&base, &exposed, &negative],
+                w,
+                h,
+                radius,
+                &mut bits,
+                &mut out,
+            );
+            assert!(
+                out.iter().all(|&c| (c - 2.0 / 3.0).abs() < 1e-6),
+                "radius {radius}"
+            );
+        }
+    }
+
+    /// Three views of a textured fronto-parallel plane, each with its own exposure: the colour variance
+    /// alone mistakes the depth, the census term finds it.
+    #[test]
+    fn census_term_finds_the_depth_across_exposures() {
+        use deepview_geometry::{DMat3, DVec3, Intrinsics, Pose};
+        let (w, h, f) = (48u32, 32u32, 20.0);
+        // Cameras at x = -0.4, 0, 0.4; the plane at depth 4: 2 px of disparity per view step.
+        // Per-pixel noise (the views' shifts are whole pixels, so every view samples it exactly).
+        let texture = |u: f64, v: f64| {
+            let r = ((u * 12.9898 + v * 78.233).sin() * 43758.5453).rem_euclid(1.0);
+            (0.45 + 0.2 * r) as f32
+        };
+        let inputs: Vec<(ImageF32, Camera)> = [(-0.4, 0.8f32), (0.0, 1.0), (0.4, 1.25)]
+            .iter()
+            .map(|&(x, gain)| {
+                let cam = Camera::new(
+                    w,
+                    h,
+                    Intrinsics::new(f, f, w as f64 / 2.0, h as f64 / 2.0),
+                    Pose::from_center(DMat3::IDENTITY, DVec3::new(x, 0.0, 0.0)),
+                );
+                let mut img = ImageF32::new(w, h, 3);
+                for (p, px) in img.data.chunks_exact_mut(3).enumerate() {
+                    let (u, v) = ((p % w as usize) as f64, (p / w as usize) as f64);
+                    let t = gain * texture(u + f * x / 4.0, v);
+                    px.copy_from_slice(&[t, t * 0.9, t * 0.8]);
+                }
+                (img, cam)
+            })
+            .collect();
+        let reference = inputs[1].1;
+        // Planes 1 px of disparity apart (for the outer views), the plane's depth among them.
+        let depths: Vec<f64> = (1..=8).map(|k| 16.0 / k as f64).collect();
+        let truth = depths.iter().position(|&d| d == 4.0).unwrap();
+        let found = |census| {
+            let aggregation = Aggregation {
+                census,
+                ..Aggregation::NONE
+            };
+            let (mpi, logits) = sweep_statistics(
+                &inputs,
+                &reference,
+                depths.clone(),
+                0.0005,
+                0.02,
+                aggregation,
+            );
+            let n = (w * h) as usize;
+            // The interior, where every view sees every plane.
+            let pixels: Vec<usize> = (0..n)
+                .filter(|p| (10..w as usize - 10).contains(&(p % w as usize)))
+                .collect();
+            let right = pixels
+                .iter()
+                .filter(|&&p| {
+                    let best = (0..mpi.planes())
+                        .max_by(|&a, &b| logits[a * n + p].total_cmp(&logits[b * n + p]))
+                        .unwrap();
+                    mpi.depths[best] == depths[truth]
+                })
+                .count();
+            right as f64 / pixels.len() as f64
+        };
+        let (plain, census) = (
+            found(None),
+            found(Some(Census {
+                weight: 0.03,
+                radius: 2,
+            })),
+        );
+        assert!(
+            census > 0.95,
+            "census: the right depth at {census} of the pixels"
+        );
+        assert!(
+            plain < 0.5,
+            "variance alone: the right depth at {plain} of the pixels"
         );
     }
 }

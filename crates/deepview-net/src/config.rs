@@ -1,5 +1,7 @@
 //! Network configuration and the paper's presets (Table 1 of the paper, DESIGN.md section 4).
 
+/// The census term of the prior's matching cost ([`DeepViewConfig::prior_census`]).
+pub use deepview_mpi::agreement::Census;
 /// Semi-global matching penalties of the prior ([`DeepViewConfig::prior_smoothing`]).
 pub use deepview_mpi::agreement::Smoothing;
 use serde::{Deserialize, Serialize};
@@ -88,6 +90,14 @@ pub struct DeepViewConfig {
     /// config written before it existed): no smoothing.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prior_smoothing: Option<Smoothing>,
+    /// A census term in the prior's matching cost (`deepview_mpi::agreement::Census`): `weight` times
+    /// the fraction of the views' census bits (over the `(2r+1)^2` window of `radius`) that differ is
+    /// added to each plane point's colour variance, a cost that ignores the views' differences in
+    /// exposure. It needs a window's neighbours, so inference computes the prior on the whole image
+    /// (tiles read it). `None` (the default, and every config written before it existed): the
+    /// variance alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prior_census: Option<Census>,
 }
 
 fn is_zero(r: &usize) -> bool {
@@ -109,6 +119,7 @@ impl DeepViewConfig {
             radius: self.prior_radius,
             weight: self.prior_weight,
             smoothing: self.prior_smoothing,
+            census: self.prior_census,
         }
     }
 
@@ -164,6 +175,7 @@ impl DeepViewConfig {
             prior_weight: 1.0,
             prior_radius_size: None,
             prior_smoothing: None,
+            prior_census: None,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -192,6 +204,7 @@ impl DeepViewConfig {
                 prior_weight: 1.0,
                 prior_radius_size: None,
                 prior_smoothing: None,
+                prior_census: None,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -213,6 +226,7 @@ impl DeepViewConfig {
                 prior_weight: 1.0,
                 prior_radius_size: None,
                 prior_smoothing: None,
+                prior_census: None,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -262,6 +276,20 @@ impl DeepViewConfig {
             }
             if self.init_prior.is_none() {
                 return bad("prior smoothing needs the agreement prior (init_prior)");
+            }
+        }
+        if let Some(c) = self.prior_census {
+            if !c.is_valid() {
+                return bad(&format!(
+                    "the prior's census term (weight {}, radius {}) needs a finite weight >= 0 and a \
+                     radius from 1 to {}",
+                    c.weight,
+                    c.radius,
+                    Census::MAX_RADIUS
+                ));
+            }
+            if self.init_prior.is_none() {
+                return bad("a census term needs the agreement prior (init_prior)");
             }
         }
         if self.max_pool_stages == 0 {
@@ -384,6 +412,46 @@ mod tests {
         assert!(without_prior.validate().is_err());
     }
 
+    /// The census term round-trips through config.json (absent when off, so older configs load as
+    /// before), reaches the prior's aggregation, and bad ones (or one without the prior) are refused.
+    #[test]
+    fn prior_census_in_the_config() {
+        let cpu = DeepViewConfig::preset("cpu").unwrap();
+        assert!(cpu.prior_census.is_none());
+        let cfg = DeepViewConfig {
+            prior_census: Some(Census {
+                weight: 0.03,
+                radius: 2,
+            }),
+            ..cpu.clone()
+        };
+        cfg.validate().unwrap();
+        assert_eq!(cfg.prior_aggregation().census, cfg.prior_census);
+        let json = serde_json::to_string(&cfg).unwrap();
+        assert!(
+            json.contains("\"prior_census\":{\"weight\":0.03,\"radius\":2}"),
+            "{json}"
+        );
+        assert_eq!(serde_json::from_str::<DeepViewConfig>(&json).unwrap(), cfg);
+        assert!(
+            !serde_json::to_string(&cpu)
+                .unwrap()
+                .contains("prior_census")
+        );
+        for (weight, radius) in [(-0.1, 2), (f32::NAN, 2), (0.03, 0), (0.03, 4)] {
+            let bad = DeepViewConfig {
+                prior_census: Some(Census { weight, radius }),
+                ..cpu.clone()
+            };
+            assert!(bad.validate().is_err(), "({weight}, {radius})");
+        }
+        let without_prior = DeepViewConfig {
+            init_prior: None,
+            ..cfg
+        };
+        assert!(without_prior.validate().is_err());
+    }
+
     /// The radius grows in proportion above `prior_radius_size` (rounded to the nearest integer, capped),
     /// never below `prior_radius`, and configs without the field load as before.
     #[test]
@@ -411,6 +479,7 @@ mod tests {
         let fixed = DeepViewConfig {
             prior_radius_size: None,
             prior_smoothing: None,
+            prior_census: None,
             ..cfg.clone()
         };
         assert_eq!(fixed.prior_radius_at(4096), 5);

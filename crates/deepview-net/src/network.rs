@@ -302,7 +302,7 @@ pub fn state_to_rgba_burn(state: Tensor<4>) -> Tensor<4> {
 }
 
 use deepview_mpi::agreement::{
-    Aggregation, LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE, Smoothing,
+    Aggregation, Census, LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE, Smoothing,
 };
 
 /// The cross-view agreement MPI of plane sweep volumes as RGBA *logits* `[D, 4, h, w]` (see
@@ -320,10 +320,13 @@ pub fn agreement_prior_logits(
     temperature: f64,
     aggregation: Aggregation,
 ) -> Tensor<4> {
-    // Semi-global matching runs on the host (a scan along image paths), so a smoothed prior takes
-    // burn's ops around it.
+    // Semi-global matching and the census term run on the host (a scan along image paths, bit
+    // strings), so such a prior takes burn's ops around them.
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if aggregation.smoothing.is_none() && crate::gpu::gpu_kernels(&per_view[0].device()) {
+    if aggregation.smoothing.is_none()
+        && aggregation.census.is_none()
+        && crate::gpu::gpu_kernels(&per_view[0].device())
+    {
         return crate::gpu::prior(per_view, temperature, aggregation);
     }
     agreement_prior_logits_burn(per_view, temperature, aggregation)
@@ -367,6 +370,46 @@ fn smooth_on_host(masked: Tensor<4>, smoothing: Smoothing, cap: f64) -> Tensor<4
     Tensor::from_data(burn::tensor::TensorData::new(v, [d, c, h, w]), &device)
 }
 
+/// The census cost ([`deepview_mpi::agreement::census_disagreement`]) of the views' plane sweeps
+/// `[D, 4, h, w]` (RGB, validity) as `[D, 1, h, w]`, on the host (planes in parallel).
+fn census_on_host(per_view: &[Tensor<4>], census: Census) -> Tensor<4> {
+    use rayon::prelude::*;
+    let [d, _, h, w] = per_view[0].dims();
+    let device = per_view[0].device();
+    let hw = h * w;
+    let views: Vec<Vec<f32>> = per_view
+        .iter()
+        .map(|v| {
+            v.clone()
+                .into_data()
+                .convert::<f32>()
+                .try_into_vec::<f32>()
+                .expect("f32 plane sweeps")
+        })
+        .collect();
+    let k = views.len();
+    let mut out = vec![0f32; d * hw];
+    out.par_chunks_mut(hw.max(1)).enumerate().for_each_init(
+        || (Vec::new(), Vec::new()),
+        |(greys, bits), (p, o)| {
+            greys.resize(k * hw, 0f32);
+            for (g, v) in greys.chunks_exact_mut(hw).zip(&views) {
+                let plane = &v[p * 4 * hw..(p + 1) * 4 * hw];
+                for (i, g) in g.iter_mut().enumerate() {
+                    *g = if plane[3 * hw + i] > 0.0 {
+                        (plane[i] + plane[hw + i] + plane[2 * hw + i]) / 3.0
+                    } else {
+                        f32::NAN
+                    };
+                }
+            }
+            let slices: Vec<&[f32]> = greys.chunks_exact(hw).collect();
+            deepview_mpi::agreement::census_disagreement(&slices, w, h, census.radius, bits, o);
+        },
+    );
+    Tensor::from_data(burn::tensor::TensorData::new(out, [d, 1, h, w]), &device)
+}
+
 /// [`agreement_prior_logits`] with burn's ops (a loop over the planes; the reference of the GPU kernel).
 pub fn agreement_prior_logits_burn(
     per_view: &[Tensor<4>],
@@ -407,6 +450,10 @@ pub fn prior_costs_burn(
         .expect("views")
         / denom;
     let var = var.mean_dim(1);
+    let var = match aggregation.census {
+        Some(c) => var + census_on_host(per_view, c) * c.weight as f64,
+        None => var,
+    };
     let single = count.clone().equal_elem(1.0);
     let var = var.mask_fill(single, SINGLE_VIEW_VARIANCE);
     let seen = count.greater_elem(0.5).float();
@@ -638,6 +685,9 @@ pub struct DeepViewModel {
     /// Semi-global matching of the prior's costs (`DeepViewConfig::prior_smoothing`).
     #[module(skip)]
     pub prior_smoothing: Option<deepview_mpi::agreement::Smoothing>,
+    /// The census term of the prior's matching cost (`DeepViewConfig::prior_census`).
+    #[module(skip)]
+    pub prior_census: Option<deepview_mpi::agreement::Census>,
 }
 
 impl DeepViewModel {
@@ -669,7 +719,20 @@ impl DeepViewModel {
             } else {
                 None
             },
+            prior_census: if config.init_prior.is_some() {
+                config.prior_census
+            } else {
+                None
+            },
         }
+    }
+
+    /// Whether the prior's costs need more than a window around each pixel (semi-global matching's
+    /// paths) or a neighbourhood the fused GPU kernel does not compute (the census term): inference
+    /// then computes the prior on the whole image, on the host, and tiles read their regions.
+    pub fn prior_needs_whole_image(&self) -> bool {
+        self.prior_temperature > 0.0
+            && (self.prior_smoothing.is_some() || self.prior_census.is_some())
     }
 
     /// The prior's cost aggregation.
@@ -678,6 +741,7 @@ impl DeepViewModel {
             radius: self.prior_radius,
             weight: self.prior_weight,
             smoothing: self.prior_smoothing,
+            census: self.prior_census,
         }
     }
 
@@ -741,12 +805,13 @@ impl DeepViewModel {
         };
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         if crate::gpu::gpu_kernels(&per_view[0].device()) {
-            // A given or smoothed prior is added beside the fused input (see
-            // `agreement_prior_logits`); otherwise the fused kernel computes it.
+            // A given prior, or one the fused kernel cannot compute (smoothed, with a census term), is
+            // added beside the fused input (see `agreement_prior_logits`); otherwise the fused
+            // kernel computes it.
             let separate = match given {
                 Some(p) => Some(p),
                 None => {
-                    (with_prior && self.prior_smoothing.is_some()).then(|| prior_state(&per_view))
+                    (with_prior && self.prior_needs_whole_image()).then(|| prior_state(&per_view))
                 }
             };
             let prior = (with_prior && separate.is_none()).then_some((

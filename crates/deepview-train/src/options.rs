@@ -44,6 +44,12 @@ pub struct TrainOptions {
     /// image's), so paths are shorter in training.
     #[arg(long, value_name = "P1,P2|off", value_parser = parse_prior_smoothing)]
     pub prior_smoothing: Option<PriorSmoothing>,
+    /// A census term in the prior's matching cost, as WEIGHT[,RADIUS] (e.g. 0.03: 0.03 times the
+    /// fraction of the views' census bits over a 5x5 window that differ is added to each plane point's
+    /// colour variance), or `off`. Default: the preset's (off) or --init's. Kept in the weights'
+    /// config.json.
+    #[arg(long, value_name = "WEIGHT[,RADIUS]|off", value_parser = parse_prior_census)]
+    pub prior_census: Option<PriorCensus>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -172,6 +178,18 @@ fn parse_prior_smoothing(s: &str) -> Result<PriorSmoothing, String> {
     }
 }
 
+/// `--prior-census`: a census term, or `off` (`None`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PriorCensus(pub Option<deepview_net::config::Census>);
+
+fn parse_prior_census(s: &str) -> Result<PriorCensus, String> {
+    if s.trim() == "off" {
+        Ok(PriorCensus(None))
+    } else {
+        s.parse().map(|c| PriorCensus(Some(c)))
+    }
+}
+
 impl TrainOptions {
     /// The network of a new run: `--init`'s saved configuration, or `--preset` (default `cpu`), which
     /// `--init`'s weights must be able to grow into.
@@ -204,6 +222,11 @@ impl TrainOptions {
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-smoothing: {e}")))?;
         }
+        if let Some(PriorCensus(c)) = self.prior_census {
+            cfg.prior_census = c;
+            cfg.validate()
+                .map_err(|e| cfg_err(format!("--prior-census: {e}")))?;
+        }
         Ok(cfg)
     }
 
@@ -226,6 +249,7 @@ impl TrainOptions {
                         to.prior_weight = from.prior_weight;
                         to.prior_radius_size = from.prior_radius_size;
                         to.prior_smoothing = from.prior_smoothing;
+                        to.prior_census = from.prior_census;
                     }
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
@@ -341,6 +365,11 @@ impl TrainOptions {
                 self.prior_smoothing
                     .is_some_and(|PriorSmoothing(s)| s != cfg.model.prior_smoothing),
                 "--prior-smoothing",
+            ),
+            (
+                self.prior_census
+                    .is_some_and(|PriorCensus(c)| c != cfg.model.prior_census),
+                "--prior-census",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
             (
@@ -646,6 +675,18 @@ mod tests {
         assert_eq!(smoothed("off").model().unwrap().prior_smoothing, None);
         assert!(parse_prior_smoothing("64,2").is_err());
         assert!(parse_prior_smoothing("2").is_err());
+        // --prior-census sets the term (radius 2 unless given), `off` clears it, bad ones are refused.
+        let census = |s: &str| TrainOptions {
+            prior_census: Some(parse_prior_census(s).unwrap()),
+            ..grow(None)
+        };
+        let c = |weight, radius| Some(deepview_net::config::Census { weight, radius });
+        assert_eq!(census("0.03").model().unwrap().prior_census, c(0.03, 2));
+        assert_eq!(census("0.05,3").model().unwrap().prior_census, c(0.05, 3));
+        assert_eq!(census("off").model().unwrap().prior_census, None);
+        for bad in ["-1", "0.03,0", "0.03,4", "x", "0.03,2,1"] {
+            assert!(parse_prior_census(bad).is_err(), "{bad}");
+        }
     }
 
     #[test]

@@ -35,6 +35,7 @@ fn tiny_model() -> DeepViewConfig {
         prior_weight: 1.0,
         prior_radius_size: None,
         prior_smoothing: None,
+        prior_census: None,
     }
 }
 

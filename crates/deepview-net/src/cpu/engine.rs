@@ -11,7 +11,7 @@
 
 use crate::cpu::packed::{NetScratch, PackedNet};
 use crate::cpu::planes::{for_each_with, per_thread};
-use crate::cpu::prior::{add_colour_logits, prior_logits, prior_stats};
+use crate::cpu::prior::{add_colour_logits, census_cost, prior_logits, prior_stats};
 use crate::cpu::renders::{ViewRenders, block_size, blocks, stream_bytes};
 use crate::cpu::state::EngineState;
 use crate::cpu::warps::{warp_into, warp_pair_into};
@@ -84,10 +84,19 @@ pub fn engine_bytes(
     } else {
         0
     };
+    // The census term's scratch per thread: the views' grey levels, their bit strings (4 floats'
+    // worth a pixel) and the cost.
+    let census = |px: u64| {
+        if model.prior_census.is_some() && model.prior_temperature > 0.0 {
+            (5 * views.len() as u64 + 1) * px
+        } else {
+            0
+        }
+    };
     let first = (!model.nets.is_empty())
         .then(|| scratch(0))
         .map_or(0, |(sc, px)| {
-            (4 * threads * (sc + 4 * px + widened))
+            (4 * threads * (sc + 4 * px + widened + census(px)))
                 .max(aggregation)
                 .max(smoothing)
                 + 4 * d64 * hw
@@ -338,7 +347,16 @@ pub(crate) fn infer_engine_blocks(
         // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch, on the
         // whole plane; other nets on strips of rows.
         let unet = model.nets[n].unet;
-        let strips = Strips::new(h, if unet { h } else { strip_rows }, model.conv_margin(n));
+        // Net 0's strips also carry the census window's rows (the prior's costs of the kept rows).
+        let census_rows = match model.prior_census {
+            Some(c) if n == 0 && model.prior_temperature > 0.0 => c.radius,
+            _ => 0,
+        };
+        let strips = Strips::new(
+            h,
+            if unet { h } else { strip_rows },
+            model.conv_margin(n).max(census_rows),
+        );
         // The planes of a strip, and the net's (half of them for a U-Net).
         let sp = Plane::new(strips.height, w);
         let np = if unet {
@@ -379,8 +397,17 @@ pub(crate) fn infer_engine_blocks(
             let mut weights =
                 deepview_kernels::zeroed_buffer(if temperature > 0.0 { d * hw } else { 0 });
             let weights_ptr = weights.as_mut_ptr() as usize;
-            let scratch = || (scratch(), Vec::new(), Vec::new(), Vec::new());
-            per_thread(0..d, scratch, |((sc, full), mean, lg, buf), p| {
+            let census = model.prior_census.filter(|_| temperature > 0.0);
+            let scratch = || {
+                (
+                    scratch(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    (Vec::new(), Vec::new(), Vec::new()),
+                )
+            };
+            per_thread(0..d, scratch, |((sc, full), mean, lg, buf, cs), p| {
                 let body = |st: &mut [f32]| {
                     for strip in &strips.strips {
                         for (v, (img, _)) in views.iter().enumerate() {
@@ -411,7 +438,12 @@ pub(crate) fn infer_engine_blocks(
                             let spx = sp.h * sp.w;
                             mean.resize(3 * spx, 0.0);
                             lg.resize(spx, 0.0);
-                            prior_stats(&psv, sp, temperature, mean, lg);
+                            let census = census.map(|c| {
+                                let (greys, bits, cost) = &mut *cs;
+                                census_cost(&psv, sp, c.radius, greys, bits, cost);
+                                (cost.as_slice(), c.weight)
+                            });
+                            prior_stats(&psv, sp, temperature, census, mean, lg);
                             // SAFETY: the strip's kept rows of plane p's depth weights, written by
                             // this task only.
                             let dst = unsafe {
@@ -631,6 +663,11 @@ mod tests {
                 // Odd view counts with an aggregated prior (a radius the strips' heights cross).
                 model.prior_radius = if k % 2 == 1 { 3 } else { 0 };
                 model.prior_weight = if k == 1 { 0.5 } else { 1.0 };
+                // A census term (its window crosses the strips' heights too).
+                model.prior_census = (k >= 2).then_some(deepview_mpi::agreement::Census {
+                    weight: 0.03,
+                    radius: if k == 3 { 2 } else { 3 },
+                });
             }
             let (views, reference, depths) = scene(k, d);
             let inputs = ModelInputs {
@@ -682,8 +719,9 @@ mod tests {
             };
             let max = max_diff(&got);
             let case = format!(
-                "{k} views, {d} planes, {updates} updates, prior {prior} (radius {}, weight {}), {unet_nets} U-Net",
-                model.prior_radius, model.prior_weight
+                "{k} views, {d} planes, {updates} updates, prior {prior} (radius {}, weight {}, census \
+                 {:?}), {unet_nets} U-Net",
+                model.prior_radius, model.prior_weight, model.prior_census
             );
             assert!(max < 2e-5, "{case}: {max}");
             // The renders streamed in blocks of any size and the nets run on strips of any height

@@ -16,11 +16,14 @@ fn logit(p: f32) -> f32 {
 
 /// Pass 1 of the agreement prior (see [`crate::network::agreement_prior_logits`], same arithmetic) on
 /// one plane: from the views' plane sweeps `psv` (per view: R, G, B, validity planes of `plane`), the mean
-/// colour into `mean` (`[3][H*W]`) and the masked logit of the depth weight into `lg` (`[H*W]`).
+/// colour into `mean` (`[3][H*W]`) and the masked logit of the depth weight into `lg` (`[H*W]`). With
+/// `census = (cost, weight)` (`cost`: `[H*W]` from [`census_cost`]) `weight * cost` is added to the
+/// variance where two or more views see a pixel.
 pub(crate) fn prior_stats(
     psv: &[&mut [f32]],
     plane: Plane,
     temperature: f64,
+    census: Option<(&[f32], f32)>,
     mean: &mut [f32],
     lg: &mut [f32],
 ) {
@@ -73,6 +76,9 @@ pub(crate) fn prior_stats(
             let n = count[x];
             let denom = n.max(1.0);
             let mut q = (var[x] / denom + var[w + x] / denom + var[2 * w + x] / denom) / 3.0;
+            if let Some((cost, weight)) = census {
+                q += weight * cost[o0 + x];
+            }
             if n == 1.0 {
                 q = SINGLE_VIEW_VARIANCE as f32;
             }
@@ -80,6 +86,40 @@ pub(crate) fn prior_stats(
             *l = (-q / t) * seen + (1.0 - seen) * -1e30;
         }
     }
+}
+
+/// The census cost ([`deepview_mpi::agreement::census_disagreement`]) of one plane's sweeps `psv`
+/// (per view: R, G, B, validity planes of `plane`) into `out` (`[H*W]`); `greys` and `bits` are
+/// scratch.
+pub(crate) fn census_cost(
+    psv: &[&mut [f32]],
+    plane: Plane,
+    radius: usize,
+    greys: &mut Vec<f32>,
+    bits: &mut Vec<(u64, u64)>,
+    out: &mut Vec<f32>,
+) {
+    let (h, w) = (plane.h, plane.w);
+    let hw = h * w;
+    let k = psv.len() / 4;
+    greys.resize(k * hw, 0.0);
+    out.resize(hw, 0.0);
+    for (v, g) in greys.chunks_exact_mut(hw.max(1)).enumerate() {
+        for y in 0..h {
+            let i0 = plane.index(y, 0);
+            let row = &mut g[y * w..(y + 1) * w];
+            for (x, g) in row.iter_mut().enumerate() {
+                let i = i0 + x;
+                *g = if psv[4 * v + 3][i] > 0.0 {
+                    (psv[4 * v][i] + psv[4 * v + 1][i] + psv[4 * v + 2][i]) / 3.0
+                } else {
+                    f32::NAN
+                };
+            }
+        }
+    }
+    let views: Vec<&[f32]> = greys.chunks_exact(hw.max(1)).take(k).collect();
+    deepview_mpi::agreement::census_disagreement(&views, w, h, radius, bits, out);
 }
 
 /// The clamped logits of a plane's mean colour (`[3][H*W]` from [`prior_stats`]) added onto its state's

@@ -112,10 +112,10 @@ pub(super) fn fixed_bytes(
     let px = (geom.d * geom.w * geom.h) as u64;
     let store = px * model.state_channels as u64 * precision.bytes();
     let old = if n > 0 { store } else { 0 };
-    // Net 0 with a smoothed prior: the whole image's prior (`run::whole_image_prior`, on the host, freed
+    // Net 0 with a smoothed prior (or a census term): the whole image's prior (`run::whole_image_prior`, on the host, freed
     // after net 0) and, while it is computed, its costs, sums and the alphas' temporaries (about 16
     // floats per MPI texel at the peak).
-    let old = if n == 0 && model.prior_temperature > 0.0 && model.prior_smoothing.is_some() {
+    let old = if n == 0 && model.prior_needs_whole_image() {
         px * 4 * 16
     } else {
         old

@@ -78,11 +78,13 @@ pub fn infer_mpi_planned(
         .collect();
     let total: usize = tiles.iter().map(Vec::len).sum();
     let mut done = 0;
-    // A smoothed prior reaches across the whole image (semi-global matching along image paths): computed
-    // once on it, then every tile of net 0 reads its region, so tiles equal the whole-image inference.
+    // A smoothed prior reaches across the whole image (semi-global matching along image paths), and a
+    // census term needs each pixel's neighbours: computed once on the whole image, then every tile of
+    // net 0 reads its region, so tiles equal the whole-image inference.
     // It is computed and kept on the host (a GPU's largest allocation need not hold it), and freed
     // after net 0.
-    let mut whole_prior = (model.prior_temperature > 0.0 && model.prior_smoothing.is_some())
+    let mut whole_prior = model
+        .prior_needs_whole_image()
         .then(|| whole_image_prior(model, views, &geom));
     // Premultiplied RGBA result `[D][H][W][4]`, written by the last net.
     let mut layers = Vec::new();

@@ -110,17 +110,22 @@ fn untrained_prior_model_equals_agreement_mpi() {
     use deepview_mpi::agreement::{SINGLE_VIEW_VARIANCE, TEMPERATURE, agreement_mpi};
     let dev = Device::flex();
     // With an aggregation radius the 16-px tiles' margins must reach `radius` further; with semi-global
-    // matching the tiles read the whole image's prior, and the CPU engine smooths its whole image.
+    // matching or a census term the tiles read the whole image's prior, and the CPU engine smooths its
+    // whole image (and computes the census on strips whose margins hold the census window).
     let sgm = Some(deepview_mpi::agreement::Smoothing { p1: 2.0, p2: 64.0 });
-    for (k, planes, smooth, radius, weight, smoothing) in [
-        (3, 8, true, 0, 1.0, None),
-        (4, 5, false, 0, 1.0, None),
-        (2, 6, true, 0, 1.0, None),
-        (3, 6, true, 3, 0.5, None),
-        (4, 5, false, 9, 1.0, None),
-        (3, 8, true, 0, 1.0, sgm),
-        (3, 6, true, 3, 0.5, sgm),
-        (2, 11, false, 2, 1.0, sgm),
+    let census = |weight, radius| Some(deepview_mpi::agreement::Census { weight, radius });
+    for (k, planes, smooth, radius, weight, smoothing, census) in [
+        (3, 8, true, 0, 1.0, None, None),
+        (4, 5, false, 0, 1.0, None, None),
+        (2, 6, true, 0, 1.0, None, None),
+        (3, 6, true, 3, 0.5, None, None),
+        (4, 5, false, 9, 1.0, None, None),
+        (3, 8, true, 0, 1.0, sgm, None),
+        (3, 6, true, 3, 0.5, sgm, None),
+        (2, 11, false, 2, 1.0, sgm, None),
+        (3, 8, true, 0, 1.0, None, census(0.03, 2)),
+        (4, 6, false, 3, 0.5, sgm, census(0.02, 1)),
+        (3, 7, true, 2, 0.5, sgm, census(0.05, 3)),
     ] {
         let cfg = DeepViewConfig {
             features_large: 4,
@@ -130,6 +135,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             prior_radius: radius,
             prior_weight: weight,
             prior_smoothing: smoothing,
+            prior_census: census,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         let model = DeepViewModel::new(&cfg, &dev);
@@ -181,29 +187,47 @@ fn untrained_prior_model_equals_agreement_mpi() {
             }
             assert!(
                 max < 3e-4,
-                "{path}: k {k}, planes {planes}, radius {radius}, {smoothing:?}: max difference {max}"
+                "{path}: k {k}, planes {planes}, radius {radius}, {smoothing:?}, {census:?}: max \
+                 difference {max}"
             );
         }
         for b in expected.layers.chunks_exact(4) {
             mixed += usize::from(b[3] > 0.05 && b[3] < 0.95);
         }
-        if smoothing.is_some() {
-            // The smoothing matters here: without it the MPI is another.
+        // The smoothing and the census term matter here: without either the MPI is another.
+        let without = |aggregation| {
             let plain = agreement_mpi(
                 &views,
                 &reference,
                 depths.clone(),
                 TEMPERATURE,
                 SINGLE_VIEW_VARIANCE,
-                deepview_mpi::agreement::Aggregation::window(radius, weight),
+                aggregation,
             );
-            let moved = plain
+            plain
                 .layers
                 .iter()
                 .zip(&expected.layers)
                 .map(|(a, b)| (a - b).abs())
-                .fold(0f32, f32::max);
+                .fold(0f32, f32::max)
+        };
+        let aggregation = cfg.prior_aggregation();
+        if smoothing.is_some() {
+            let moved = without(deepview_mpi::agreement::Aggregation {
+                smoothing: None,
+                ..aggregation
+            });
             assert!(moved > 0.05, "smoothing changed the MPI by only {moved}");
+        }
+        if census.is_some() {
+            let moved = without(deepview_mpi::agreement::Aggregation {
+                census: None,
+                ..aggregation
+            });
+            assert!(
+                moved > 0.05,
+                "the census term changed the MPI by only {moved}"
+            );
         }
         if smooth {
             assert!(mixed > 100, "only {mixed} partially transparent texels");
@@ -764,20 +788,27 @@ fn wgpu_inference_equals_the_cpu_engine() {
     let cpu = Device::flex();
     // Without a prior, and with the shipped weights' kind of prior (aggregated: the GPU's cost,
     // aggregation and alpha kernels against the engine's; smoothed: the whole image's prior on the
-    // host, each tile's region on the GPU, against the engine's whole-image smoothing).
+    // host, each tile's region on the GPU, against the engine's whole-image smoothing; with a census
+    // term too: the host's census against the engine's on strips).
     let sgm = Some(deepview_mpi::agreement::Smoothing { p1: 2.0, p2: 64.0 });
-    for (prior, radius, smoothing) in [
-        (false, 0, None),
-        (true, 0, None),
-        (true, 5, None),
-        (true, 5, sgm),
+    let census = Some(deepview_mpi::agreement::Census {
+        weight: 0.03,
+        radius: 2,
+    });
+    for (prior, radius, smoothing, census) in [
+        (false, 0, None, None),
+        (true, 0, None, None),
+        (true, 5, None, None),
+        (true, 5, sgm, None),
+        (true, 5, sgm, census),
     ] {
-        let aggregated = (prior, radius, smoothing);
+        let aggregated = (prior, radius, smoothing, census);
         let mut model = small_model(&cpu, 1);
         if prior {
             model.prior_temperature = crate::config::CPU_PRIOR_TEMPERATURE;
             (model.prior_radius, model.prior_weight) = (radius, 0.5);
             model.prior_smoothing = smoothing;
+            model.prior_census = census;
         }
         let (views, reference, depths) = scene(3);
         let budget = 1 << 30;
@@ -815,7 +846,8 @@ fn wgpu_inference_equals_the_cpu_engine() {
         let spread = a.layers.iter().fold(0f32, |m, v| m.max(*v))
             - a.layers.iter().fold(1f32, |m, v| m.min(*v));
         eprintln!(
-            "wgpu against the CPU engine (prior, radius, smoothing: {aggregated:?}): max |difference| {max:e} (values span {spread})"
+            "wgpu against the CPU engine (prior, radius, smoothing, census: {aggregated:?}): max \
+             |difference| {max:e} (values span {spread})"
         );
         assert!(spread > 0.1, "a degenerate MPI ({spread})");
         // With the prior, the engine's fast exp/ln and the GPU's differ in the last bits of the
