@@ -271,61 +271,76 @@ pub fn census_disagreement(
     w: usize,
     h: usize,
     radius: usize,
-    bits: &mut Vec<(u64, u64)>,
+    bits: &mut Vec<u64>,
     out: &mut [f32],
 ) {
     let n = w * h;
-    assert!(radius <= Census::MAX_RADIUS, "census radius {radius}");
+    assert!(
+        (1..=Census::MAX_RADIUS).contains(&radius),
+        "census radius {radius}"
+    );
     assert_eq!(out.len(), n, "census_disagreement: output size");
     let k = greys.len();
+    // Per view: the census codes `[n]`, then the masks of the neighbours it sees `[n]`.
     bits.clear();
-    bits.resize(k * n, (0, 0));
-    let r = radius as i64;
-    for (g, b) in greys.iter().zip(bits.chunks_exact_mut(n.max(1))) {
+    bits.resize(2 * k * n, 0);
+    let r = radius as isize;
+    for (g, b) in greys.iter().zip(bits.chunks_exact_mut((2 * n).max(1))) {
         assert_eq!(g.len(), n, "census_disagreement: view size");
-        for y in 0..h as i64 {
-            for x in 0..w as i64 {
-                let p = y as usize * w + x as usize;
-                let c = g[p];
-                if c.is_nan() {
+        let (codes, masks) = b.split_at_mut(n);
+        // One neighbour offset at a time over whole rows (vector loops): bit `bit` is set in the code
+        // where the neighbour is darker than the centre, in the mask where the view sees the neighbour
+        // (a comparison with NaN is false).
+        let mut bit = 0u32;
+        for oy in -r..=r {
+            for ox in -r..=r {
+                if ox == 0 && oy == 0 {
                     continue;
                 }
-                let (mut code, mut mask, mut bit) = (0u64, 0u64, 0u32);
-                for oy in -r..=r {
-                    let qy = y + oy;
-                    for ox in -r..=r {
-                        if ox == 0 && oy == 0 {
-                            continue;
+                let xs = (-ox).max(0) as usize..(w as isize - ox.max(0)).max(0) as usize;
+                let ys = (-oy).max(0) as usize..(h as isize - oy.max(0)).max(0) as usize;
+                if !xs.is_empty() {
+                    for y in ys {
+                        let row = y * w;
+                        let q0 = (row as isize + oy * w as isize + ox) as usize;
+                        let centre = &g[row + xs.start..row + xs.end];
+                        let neighbour = &g[q0 + xs.start..q0 + xs.end];
+                        let code = &mut codes[row + xs.start..row + xs.end];
+                        let mask = &mut masks[row + xs.start..row + xs.end];
+                        for (((code, mask), &c), &q) in code
+                            .iter_mut()
+                            .zip(mask.iter_mut())
+                            .zip(centre)
+                            .zip(neighbour)
+                        {
+                            *code |= u64::from(q < c) << bit;
+                            *mask |= u64::from(!q.is_nan()) << bit;
                         }
-                        let qx = x + ox;
-                        if qx >= 0 && qy >= 0 && qx < w as i64 && qy < h as i64 {
-                            let q = g[qy as usize * w + qx as usize];
-                            if !q.is_nan() {
-                                mask |= 1 << bit;
-                                if q < c {
-                                    code |= 1 << bit;
-                                }
-                            }
-                        }
-                        bit += 1;
                     }
                 }
-                b[p] = (code, mask);
+                bit += 1;
+            }
+        }
+        // No bits where the view does not see the centre.
+        for ((code, mask), &c) in codes.iter_mut().zip(masks.iter_mut()).zip(g.iter()) {
+            if c.is_nan() {
+                (*code, *mask) = (0, 0);
             }
         }
     }
     for (p, o) in out.iter_mut().enumerate() {
         let (mut total, mut pairs) = (0.0f32, 0u32);
         for i in 0..k {
-            let (ci, mi) = bits[i * n + p];
+            let mi = bits[2 * i * n + n + p];
             if mi == 0 {
                 continue;
             }
+            let ci = bits[2 * i * n + p];
             for j in i + 1..k {
-                let (cj, mj) = bits[j * n + p];
-                let m = mi & mj;
+                let m = mi & bits[2 * j * n + n + p];
                 if m != 0 {
-                    total += ((ci ^ cj) & m).count_ones() as f32 / m.count_ones() as f32;
+                    let differ = (ci ^ bits[2 * j * n + p]) & m;
+                    total += differ.count_ones() as f32 / m.count_ones() as f32;
                     pairs += 1;
                 }
             }

@@ -96,7 +96,7 @@ pub(crate) fn census_cost(
     plane: Plane,
     radius: usize,
     greys: &mut Vec<f32>,
-    bits: &mut Vec<(u64, u64)>,
+    bits: &mut Vec<u64>,
     out: &mut Vec<f32>,
 ) {
     let (h, w) = (plane.h, plane.w);
