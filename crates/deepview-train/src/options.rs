@@ -39,14 +39,15 @@ pub struct TrainOptions {
     pub prior_radius_size: Option<u32>,
     /// Semi-global matching of the prior's costs over the planes, as penalties P1,P2 in the prior's
     /// logit units (e.g. 2,64: one plane's step between neighbouring pixels costs 2, a larger jump 64),
-    /// or `off`. Default: the preset's (off) or --init's (the shipped weights: 2,64). Kept in the
+    /// or `off`. Default: the preset's (off) or --init's (the shipped weights: 2,128). Kept in the
     /// weights' config.json. Training smooths each window's prior on its own (inference: the whole
     /// image's), so paths are shorter in training.
     #[arg(long, value_name = "P1,P2|off", value_parser = parse_prior_smoothing)]
     pub prior_smoothing: Option<PriorSmoothing>,
     /// A census term in the prior's matching cost, as WEIGHT[,RADIUS] (e.g. 0.03: 0.03 times the
     /// fraction of the views' census bits over a 5x5 window that differ is added to each plane point's
-    /// colour variance), or `off`. Default: the preset's (off) or --init's. Kept in the weights'
+    /// colour variance), or `off`. Default: the preset's (off) or --init's (the shipped weights:
+    /// 0.015). Kept in the weights'
     /// config.json.
     #[arg(long, value_name = "WEIGHT[,RADIUS]|off", value_parser = parse_prior_census)]
     pub prior_census: Option<PriorCensus>,
