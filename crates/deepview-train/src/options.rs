@@ -47,8 +47,7 @@ pub struct TrainOptions {
     /// A census term in the prior's matching cost, as WEIGHT[,RADIUS] (e.g. 0.03: 0.03 times the
     /// fraction of the views' census bits over a 5x5 window that differ is added to each plane point's
     /// colour variance), or `off`. Default: the preset's (off) or --init's (the shipped weights:
-    /// 0.015). Kept in the weights'
-    /// config.json.
+    /// 0.015). Kept in the weights' config.json.
     #[arg(long, value_name = "WEIGHT[,RADIUS]|off", value_parser = parse_prior_census)]
     pub prior_census: Option<PriorCensus>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
