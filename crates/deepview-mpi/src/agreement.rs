@@ -167,9 +167,10 @@ pub fn grey_levels(rgba: &[f32]) -> Vec<f32> {
 /// `-1e30` or `-inf`).
 pub const UNSEEN_BELOW: f32 = -1e29;
 
-/// Cost aggregation of the agreement: the radius `r` of the window and the weight `a` of its mean (the
-/// rest is the pixel's own cost; `r = 0` or `a = 0`: per pixel), then optionally semi-global matching
-/// over the planes ([`Smoothing`]).
+/// The agreement's cost and its aggregation: optionally a census term in each plane point's cost
+/// ([`Census`]), the radius `r` of the window and the weight `a` of its mean (the rest is the pixel's own
+/// cost; `r = 0` or `a = 0`: per pixel), then optionally semi-global matching over the planes
+/// ([`Smoothing`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Aggregation {
     pub radius: usize,
@@ -190,7 +191,7 @@ impl Aggregation {
         census: None,
     };
 
-    /// A window of radius `radius` weighted `weight`, without smoothing.
+    /// A window of radius `radius` weighted `weight`, without smoothing or a census term.
     pub const fn window(radius: usize, weight: f64) -> Aggregation {
         Aggregation {
             radius,
@@ -216,17 +217,23 @@ impl Aggregation {
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Census {
     pub weight: f32,
+    /// The window's radius (2, a 5x5 window, when a config omits it).
+    #[serde(default = "census_radius")]
     pub radius: usize,
+}
+
+fn census_radius() -> usize {
+    2
 }
 
 impl Census {
     /// The largest radius (`(2r+1)^2 - 1` bits must fit 64).
     pub const MAX_RADIUS: usize = 3;
 
-    /// Whether it is usable: a finite `weight >= 0`, `1 <= radius <= MAX_RADIUS`.
+    /// Whether it is usable: a finite `weight > 0` (no term is `None`), `1 <= radius <= MAX_RADIUS`.
     pub fn is_valid(&self) -> bool {
         self.weight.is_finite()
-            && self.weight >= 0.0
+            && self.weight > 0.0
             && (1..=Self::MAX_RADIUS).contains(&self.radius)
     }
 }
@@ -238,7 +245,7 @@ impl std::str::FromStr for Census {
     fn from_str(s: &str) -> Result<Self, String> {
         let bad = || {
             format!(
-                "{s:?} is not a census weight with an optional radius, WEIGHT[,RADIUS] with WEIGHT >= 0 \
+                "{s:?} is not a census weight with an optional radius, WEIGHT[,RADIUS] with WEIGHT > 0 \
                  and RADIUS 1..={} (e.g. 0.03 or 0.03,2)",
                 Census::MAX_RADIUS
             )
@@ -302,9 +309,11 @@ pub fn census_disagreement(
                 if !xs.is_empty() {
                     for y in ys {
                         let row = y * w;
-                        let q0 = (row as isize + oy * w as isize + ox) as usize;
+                        // The neighbour of the row's first centre (never negative: `xs` and the rows
+                        // keep every neighbour in the image).
+                        let q0 = ((y as isize + oy) * w as isize + xs.start as isize + ox) as usize;
                         let centre = &g[row + xs.start..row + xs.end];
-                        let neighbour = &g[q0 + xs.start..q0 + xs.end];
+                        let neighbour = &g[q0..q0 + xs.len()];
                         let code = &mut codes[row + xs.start..row + xs.end];
                         let mask = &mut masks[row + xs.start..row + xs.end];
                         for (((code, mask), &c), &q) in code

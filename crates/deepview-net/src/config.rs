@@ -281,7 +281,7 @@ impl DeepViewConfig {
         if let Some(c) = self.prior_census {
             if !c.is_valid() {
                 return bad(&format!(
-                    "the prior's census term (weight {}, radius {}) needs a finite weight >= 0 and a \
+                    "the prior's census term (weight {}, radius {}) needs a finite weight > 0 and a \
                      radius from 1 to {}",
                     c.weight,
                     c.radius,
@@ -438,7 +438,11 @@ mod tests {
                 .unwrap()
                 .contains("prior_census")
         );
-        for (weight, radius) in [(-0.1, 2), (f32::NAN, 2), (0.03, 0), (0.03, 4)] {
+        // A config that omits the radius gets the 5x5 window.
+        let short = json.replace(",\"radius\":2", "");
+        assert!(!short.contains("radius\":2}"), "{short}");
+        assert_eq!(serde_json::from_str::<DeepViewConfig>(&short).unwrap(), cfg);
+        for (weight, radius) in [(-0.1, 2), (0.0, 2), (f32::NAN, 2), (0.03, 0), (0.03, 4)] {
             let bad = DeepViewConfig {
                 prior_census: Some(Census { weight, radius }),
                 ..cpu.clone()

@@ -313,7 +313,10 @@ use deepview_mpi::agreement::{
 /// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits. With an active
 /// `aggregation` (radius `r`, weight `a`) the variance is first `a` times its mean over the seen pixels of
 /// the `(2r+1) x (2r+1)` window around each pixel (clipped at the tensor's border) plus `1 - a` times its
-/// own ([`deepview_mpi::agreement::aggregate_seen`]).
+/// own ([`deepview_mpi::agreement::aggregate_seen`]). With a census term
+/// ([`deepview_mpi::agreement::Census`]) its cost is added to the variance first (where two or more views
+/// see the point), and with smoothing the masked logits go through semi-global matching before the
+/// softmax; both run on the host.
 /// `per_view`: K tensors `[D, 4, h, w]` (PSV RGB, validity) as built by [`DeepViewModel::init_input`].
 pub fn agreement_prior_logits(
     per_view: &[Tensor<4>],

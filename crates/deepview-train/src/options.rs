@@ -45,8 +45,8 @@ pub struct TrainOptions {
     #[arg(long, value_name = "P1,P2|off", value_parser = parse_prior_smoothing)]
     pub prior_smoothing: Option<PriorSmoothing>,
     /// A census term in the prior's matching cost, as WEIGHT[,RADIUS] (e.g. 0.03: 0.03 times the
-    /// fraction of the views' census bits over a 5x5 window that differ is added to each plane point's
-    /// colour variance), or `off`. Default: the preset's (off) or --init's (the shipped weights:
+    /// fraction of the views' census bits over the (2r+1)x(2r+1) window, 5x5 by default, that differ
+    /// is added to each plane point's colour variance), or `off`. Default: the preset's (off) or --init's (the shipped weights:
     /// 0.015). Kept in the weights' config.json.
     #[arg(long, value_name = "WEIGHT[,RADIUS]|off", value_parser = parse_prior_census)]
     pub prior_census: Option<PriorCensus>,
@@ -684,7 +684,7 @@ mod tests {
         assert_eq!(census("0.03").model().unwrap().prior_census, c(0.03, 2));
         assert_eq!(census("0.05,3").model().unwrap().prior_census, c(0.05, 3));
         assert_eq!(census("off").model().unwrap().prior_census, None);
-        for bad in ["-1", "0.03,0", "0.03,4", "x", "0.03,2,1"] {
+        for bad in ["-1", "0", "0.03,0", "0.03,4", "x", "0.03,2,1"] {
             assert!(parse_prior_census(bad).is_err(), "{bad}");
         }
     }

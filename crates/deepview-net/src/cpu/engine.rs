@@ -54,7 +54,7 @@ pub fn engine_bytes(
         let strip = Strips::new(
             h,
             if net.unet { h } else { STRIP_ROWS },
-            model.conv_margin(n),
+            strip_margin(model, n),
         )
         .height;
         let plane = Plane::new(strip, w).len() as u64;
@@ -305,6 +305,16 @@ pub fn infer_engine(
     )
 }
 
+/// The rows net `n`'s strips carry beyond their kept rows: the net's receptive field, and for net 0 with
+/// a census term the census window's (the prior's costs of the kept rows).
+fn strip_margin(model: &DeepViewModel, n: usize) -> usize {
+    let census_rows = match model.prior_census {
+        Some(c) if n == 0 && model.prior_temperature > 0.0 => c.radius,
+        _ => 0,
+    };
+    model.conv_margin(n).max(census_rows)
+}
+
 /// [`infer_engine`] with update nets' renders streamed `block` planes at a time and the nets run on
 /// strips of `strip_rows` rows (the result depends on neither).
 pub(crate) fn infer_engine_blocks(
@@ -347,16 +357,7 @@ pub(crate) fn infer_engine_blocks(
         // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch, on the
         // whole plane; other nets on strips of rows.
         let unet = model.nets[n].unet;
-        // Net 0's strips also carry the census window's rows (the prior's costs of the kept rows).
-        let census_rows = match model.prior_census {
-            Some(c) if n == 0 && model.prior_temperature > 0.0 => c.radius,
-            _ => 0,
-        };
-        let strips = Strips::new(
-            h,
-            if unet { h } else { strip_rows },
-            model.conv_margin(n).max(census_rows),
-        );
+        let strips = Strips::new(h, if unet { h } else { strip_rows }, strip_margin(model, n));
         // The planes of a strip, and the net's (half of them for a U-Net).
         let sp = Plane::new(strips.height, w);
         let np = if unet {

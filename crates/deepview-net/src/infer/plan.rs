@@ -112,11 +112,12 @@ pub(super) fn fixed_bytes(
     let px = (geom.d * geom.w * geom.h) as u64;
     let store = px * model.state_channels as u64 * precision.bytes();
     let old = if n > 0 { store } else { 0 };
-    // Net 0 with a smoothed prior (or a census term): the whole image's prior (`run::whole_image_prior`, on the host, freed
-    // after net 0) and, while it is computed, its costs, sums and the alphas' temporaries (about 16
-    // floats per MPI texel at the peak).
+    // Net 0 with a smoothed prior (or a census term): the whole image's prior (`run::whole_image_prior`,
+    // on the host, freed after net 0) and, while it is computed, its costs, sums and the alphas'
+    // temporaries (about 16 floats per MPI texel at the peak), and with a census term a chunk's sweeps
+    // copied to the host (about 4 more).
     let old = if n == 0 && model.prior_needs_whole_image() {
-        px * 4 * 16
+        px * 4 * if model.prior_census.is_some() { 20 } else { 16 }
     } else {
         old
     };
