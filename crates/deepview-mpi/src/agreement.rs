@@ -111,17 +111,18 @@ pub fn sweep_statistics(
                 }
             }
             let (w, h) = (reference.width as usize, reference.height as usize);
-            let mut census = vec![0f32; n];
-            if let Some(c) = aggregation.census {
+            // The census term's share of each pixel's cost.
+            let census = aggregation.census.map(|c| {
                 let views: Vec<&[f32]> = greys.iter().map(Vec::as_slice).collect();
-                census_disagreement(&views, w, h, c.radius, &mut Vec::new(), &mut census);
-            }
-            let census_weight = aggregation.census.map_or(0.0, |c| c.weight as f64);
-            for (((t, l), a), &cc) in texels
+                let mut cost = vec![0f32; n];
+                census_disagreement(&views, w, h, c.radius, &mut Vec::new(), &mut cost);
+                (cost, c.weight as f64)
+            });
+            for (p, ((t, l), a)) in texels
                 .chunks_exact_mut(4)
                 .zip(logit.iter_mut())
                 .zip(&acc)
-                .zip(&census)
+                .enumerate()
             {
                 let k = a[6];
                 if k == 0.0 {
@@ -134,7 +135,8 @@ pub fn sweep_statistics(
                     var += (a[3 + c] / k - m * m).max(0.0);
                 }
                 *l = if k >= 2.0 {
-                    -((var / 3.0 + census_weight * cc as f64) / s) as f32
+                    let census = census.as_ref().map_or(0.0, |(c, w)| w * c[p] as f64);
+                    -((var / 3.0 + census) / s) as f32
                 } else {
                     single
                 };
@@ -149,17 +151,21 @@ pub fn sweep_statistics(
     (mpi, logits)
 }
 
-/// Grey levels (mean of R, G, B) of pixel-major RGBA samples, NaN where the validity (A) is 0: the
-/// input of [`census_disagreement`].
+/// The grey level [`census_disagreement`] takes of a plane-sweep sample: the mean of R, G, B where the
+/// view sees the point (`valid > 0`), NaN where it does not.
+#[inline]
+pub fn grey_level(r: f32, g: f32, b: f32, valid: f32) -> f32 {
+    if valid > 0.0 {
+        (r + g + b) / 3.0
+    } else {
+        f32::NAN
+    }
+}
+
+/// [`grey_level`]s of pixel-major RGBA samples (A: validity).
 pub fn grey_levels(rgba: &[f32]) -> Vec<f32> {
     rgba.chunks_exact(4)
-        .map(|s| {
-            if s[3] > 0.0 {
-                (s[0] + s[1] + s[2]) / 3.0
-            } else {
-                f32::NAN
-            }
-        })
+        .map(|s| grey_level(s[0], s[1], s[2], s[3]))
         .collect()
 }
 

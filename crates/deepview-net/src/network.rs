@@ -399,11 +399,12 @@ fn census_on_host(per_view: &[Tensor<4>], census: Census) -> Tensor<4> {
             for (g, v) in greys.chunks_exact_mut(hw).zip(&views) {
                 let plane = &v[p * 4 * hw..(p + 1) * 4 * hw];
                 for (i, g) in g.iter_mut().enumerate() {
-                    *g = if plane[3 * hw + i] > 0.0 {
-                        (plane[i] + plane[hw + i] + plane[2 * hw + i]) / 3.0
-                    } else {
-                        f32::NAN
-                    };
+                    *g = deepview_mpi::agreement::grey_level(
+                        plane[i],
+                        plane[hw + i],
+                        plane[2 * hw + i],
+                        plane[3 * hw + i],
+                    );
                 }
             }
             let slices: Vec<&[f32]> = greys.chunks_exact(hw).collect();
@@ -734,8 +735,13 @@ impl DeepViewModel {
     /// paths) or a neighbourhood the fused GPU kernel does not compute (the census term): inference
     /// then computes the prior on the whole image, on the host, and tiles read their regions.
     pub fn prior_needs_whole_image(&self) -> bool {
-        self.prior_temperature > 0.0
-            && (self.prior_smoothing.is_some() || self.prior_census.is_some())
+        (self.prior_temperature > 0.0 && self.prior_smoothing.is_some())
+            || self.active_census().is_some()
+    }
+
+    /// The census term the prior computes (none without the prior).
+    pub fn active_census(&self) -> Option<deepview_mpi::agreement::Census> {
+        self.prior_census.filter(|_| self.prior_temperature > 0.0)
     }
 
     /// The prior's cost aggregation.

@@ -7,7 +7,7 @@ use crate::config::{RunConfig, TrainConfig};
 use crate::error::TrainError;
 use crate::load::DataSpec;
 use crate::loss::LossKind;
-use deepview_net::config::DeepViewConfig;
+use deepview_net::config::{Census, DeepViewConfig, Smoothing};
 use std::path::PathBuf;
 
 /// Largest plane count of `--planes auto` in training (the cost of a step grows with it).
@@ -42,14 +42,14 @@ pub struct TrainOptions {
     /// or `off`. Default: the preset's (off) or --init's (the shipped weights: 2,128). Kept in the
     /// weights' config.json. Training smooths each window's prior on its own (inference: the whole
     /// image's), so paths are shorter in training.
-    #[arg(long, value_name = "P1,P2|off", value_parser = parse_prior_smoothing)]
-    pub prior_smoothing: Option<PriorSmoothing>,
+    #[arg(long, value_name = "P1,P2|off", value_parser = parse_or_off::<Smoothing>)]
+    pub prior_smoothing: Option<OrOff<Smoothing>>,
     /// A census term in the prior's matching cost, as WEIGHT[,RADIUS] (e.g. 0.03: 0.03 times the
     /// fraction of the views' census bits over the (2r+1)x(2r+1) window, 5x5 by default, that differ
     /// is added to each plane point's colour variance), or `off`. Default: the preset's (off) or --init's (the shipped weights:
     /// 0.015). Kept in the weights' config.json.
-    #[arg(long, value_name = "WEIGHT[,RADIUS]|off", value_parser = parse_prior_census)]
-    pub prior_census: Option<PriorCensus>,
+    #[arg(long, value_name = "WEIGHT[,RADIUS]|off", value_parser = parse_or_off::<Census>)]
+    pub prior_census: Option<OrOff<Census>>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -166,27 +166,16 @@ pub struct TrainOptions {
     pub vgg_weights: Option<PathBuf>,
 }
 
-/// `--prior-smoothing`: penalties, or `off` (`None`).
+/// An option's value, or `off` (`None`): `--prior-smoothing`, `--prior-census`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PriorSmoothing(pub Option<deepview_net::config::Smoothing>);
+pub struct OrOff<T>(pub Option<T>);
 
-fn parse_prior_smoothing(s: &str) -> Result<PriorSmoothing, String> {
+/// `off`, or what `T` parses.
+fn parse_or_off<T: std::str::FromStr<Err = String>>(s: &str) -> Result<OrOff<T>, String> {
     if s.trim() == "off" {
-        Ok(PriorSmoothing(None))
+        Ok(OrOff(None))
     } else {
-        s.parse().map(|p| PriorSmoothing(Some(p)))
-    }
-}
-
-/// `--prior-census`: a census term, or `off` (`None`).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct PriorCensus(pub Option<deepview_net::config::Census>);
-
-fn parse_prior_census(s: &str) -> Result<PriorCensus, String> {
-    if s.trim() == "off" {
-        Ok(PriorCensus(None))
-    } else {
-        s.parse().map(|c| PriorCensus(Some(c)))
+        s.parse().map(|v| OrOff(Some(v)))
     }
 }
 
@@ -217,12 +206,12 @@ impl TrainOptions {
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-radius-size {n}: {e}")))?;
         }
-        if let Some(PriorSmoothing(s)) = self.prior_smoothing {
+        if let Some(OrOff(s)) = self.prior_smoothing {
             cfg.prior_smoothing = s;
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-smoothing: {e}")))?;
         }
-        if let Some(PriorCensus(c)) = self.prior_census {
+        if let Some(OrOff(c)) = self.prior_census {
             cfg.prior_census = c;
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-census: {e}")))?;
@@ -363,12 +352,12 @@ impl TrainOptions {
             ),
             (
                 self.prior_smoothing
-                    .is_some_and(|PriorSmoothing(s)| s != cfg.model.prior_smoothing),
+                    .is_some_and(|OrOff(s)| s != cfg.model.prior_smoothing),
                 "--prior-smoothing",
             ),
             (
                 self.prior_census
-                    .is_some_and(|PriorCensus(c)| c != cfg.model.prior_census),
+                    .is_some_and(|OrOff(c)| c != cfg.model.prior_census),
                 "--prior-census",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
@@ -667,17 +656,17 @@ mod tests {
         assert_eq!(sized(0).model().unwrap().prior_radius_size, None);
         // --prior-smoothing sets the penalties, `off` clears them, bad ones are refused.
         let smoothed = |s: &str| TrainOptions {
-            prior_smoothing: Some(parse_prior_smoothing(s).unwrap()),
+            prior_smoothing: Some(parse_or_off::<Smoothing>(s).unwrap()),
             ..grow(None)
         };
         let sgm = deepview_net::config::Smoothing { p1: 2.0, p2: 64.0 };
         assert_eq!(smoothed("2,64").model().unwrap().prior_smoothing, Some(sgm));
         assert_eq!(smoothed("off").model().unwrap().prior_smoothing, None);
-        assert!(parse_prior_smoothing("64,2").is_err());
-        assert!(parse_prior_smoothing("2").is_err());
+        assert!(parse_or_off::<Smoothing>("64,2").is_err());
+        assert!(parse_or_off::<Smoothing>("2").is_err());
         // --prior-census sets the term (radius 2 unless given), `off` clears it, bad ones are refused.
         let census = |s: &str| TrainOptions {
-            prior_census: Some(parse_prior_census(s).unwrap()),
+            prior_census: Some(parse_or_off::<Census>(s).unwrap()),
             ..grow(None)
         };
         let c = |weight, radius| Some(deepview_net::config::Census { weight, radius });
@@ -685,7 +674,7 @@ mod tests {
         assert_eq!(census("0.05,3").model().unwrap().prior_census, c(0.05, 3));
         assert_eq!(census("off").model().unwrap().prior_census, None);
         for bad in ["-1", "0", "0.03,0", "0.03,4", "x", "0.03,2,1"] {
-            assert!(parse_prior_census(bad).is_err(), "{bad}");
+            assert!(parse_or_off::<Census>(bad).is_err(), "{bad}");
         }
     }
 

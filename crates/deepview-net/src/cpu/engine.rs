@@ -87,7 +87,7 @@ pub fn engine_bytes(
     // The census term's scratch per thread: the views' grey levels, their bit strings (4 floats'
     // worth a pixel) and the cost.
     let census = |px: u64| {
-        if model.prior_census.is_some() && model.prior_temperature > 0.0 {
+        if model.active_census().is_some() {
             (5 * views.len() as u64 + 1) * px
         } else {
             0
@@ -308,8 +308,8 @@ pub fn infer_engine(
 /// The rows net `n`'s strips carry beyond their kept rows: the net's receptive field, and for net 0 with
 /// a census term the census window's (the prior's costs of the kept rows).
 fn strip_margin(model: &DeepViewModel, n: usize) -> usize {
-    let census_rows = match model.prior_census {
-        Some(c) if n == 0 && model.prior_temperature > 0.0 => c.radius,
+    let census_rows = match model.active_census() {
+        Some(c) if n == 0 => c.radius,
         _ => 0,
     };
     model.conv_margin(n).max(census_rows)
@@ -398,7 +398,7 @@ pub(crate) fn infer_engine_blocks(
             let mut weights =
                 deepview_kernels::zeroed_buffer(if temperature > 0.0 { d * hw } else { 0 });
             let weights_ptr = weights.as_mut_ptr() as usize;
-            let census = model.prior_census.filter(|_| temperature > 0.0);
+            let census = model.active_census();
             let scratch = || {
                 (
                     scratch(),

@@ -5,7 +5,7 @@
 
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
-use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE};
+use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE, grey_level};
 use rayon::prelude::*;
 
 #[inline(always)]
@@ -110,11 +110,12 @@ pub(crate) fn census_cost(
             let row = &mut g[y * w..(y + 1) * w];
             for (x, g) in row.iter_mut().enumerate() {
                 let i = i0 + x;
-                *g = if psv[4 * v + 3][i] > 0.0 {
-                    (psv[4 * v][i] + psv[4 * v + 1][i] + psv[4 * v + 2][i]) / 3.0
-                } else {
-                    f32::NAN
-                };
+                *g = grey_level(
+                    psv[4 * v][i],
+                    psv[4 * v + 1][i],
+                    psv[4 * v + 2][i],
+                    psv[4 * v + 3][i],
+                );
             }
         }
     }

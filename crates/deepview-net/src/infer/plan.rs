@@ -117,7 +117,12 @@ pub(super) fn fixed_bytes(
     // temporaries (about 16 floats per MPI texel at the peak), and with a census term a chunk's sweeps
     // copied to the host (about 4 more).
     let old = if n == 0 && model.prior_needs_whole_image() {
-        px * 4 * if model.prior_census.is_some() { 20 } else { 16 }
+        px * 4
+            * if model.active_census().is_some() {
+                20
+            } else {
+                16
+            }
     } else {
         old
     };
