@@ -105,6 +105,15 @@ pub fn parse_census(s: &str) -> Result<deepview_mpi::agreement::Census, String> 
     s.parse()
 }
 
+/// A leave-one-out weight in `(0, 1]`.
+pub fn parse_leave_one_out(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(b) if deepview_mpi::agreement::leave_one_out_weight_is_valid(b) => Ok(b),
+        Ok(_) => Err(format!("{s:?} must be above 0 and at most 1")),
+        Err(_) => Err(format!("{s:?} is not a number")),
+    }
+}
+
 fn positive_f64(s: &str) -> Result<f64, String> {
     match s.trim().parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -151,6 +160,12 @@ pub struct MethodOptions {
     /// variance, a cost that ignores differences in exposure. Off by default.
     #[arg(long, value_name = "WEIGHT[,RADIUS]", value_parser = parse_census)]
     pub census: Option<deepview_mpi::agreement::Census>,
+    /// Occlusion-robust variance, as the weight B of its leave-one-out part (psv-mean; 0 < B <= 1, e.g.
+    /// `0.75`): where three or more views see a plane point, its colour variance becomes (1 - B) times
+    /// itself plus B times the least variance of the samples left when one view is left out, so one
+    /// view that sees an occluder there does not hide the others' agreement. Off by default.
+    #[arg(long, value_name = "B", value_parser = parse_leave_one_out)]
+    pub leave_one_out: Option<f32>,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -175,6 +190,7 @@ impl Default for MethodOptions {
             aggregate_weight: 1.0,
             smoothing: None,
             census: None,
+            leave_one_out: None,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -205,6 +221,7 @@ pub fn make_method(
                     weight: options.aggregate_weight,
                     smoothing: options.smoothing,
                     census: options.census,
+                    leave_one_out: options.leave_one_out,
                 },
                 ..Default::default()
             },

@@ -7,7 +7,11 @@
 //! [`SINGLE_VIEW_VARIANCE`] where one view sees the point, no weight where none does) and `s` the
 //! temperature ([`TEMPERATURE`] by default); with a [`Census`] term, its weight times the fraction of the
 //! views' census bits that differ ([`census_disagreement`]) is added to `v_d` where two or more views see
-//! the point. With an [`Aggregation`] of radius `r > 0` and weight `a`
+//! the point. With a leave-one-out weight `b` ([`Aggregation::leave_one_out`]) and three or more views
+//! seeing the point, `v_d` is first `(1 - b) v_d + b` times the least variance of the samples left when one
+//! view is left out ([`leave_one_out_variance`]): a view occluded at that depth no longer hides the
+//! others' agreement (the occlusion handling of multi-view stereo by view selection).
+//! With an [`Aggregation`] of radius `r > 0` and weight `a`
 //! each plane's variance is first replaced by `a` times its mean over the seen pixels of the
 //! `(2r+1) x (2r+1)` window around each pixel plus `1 - a` times its own value ([`aggregate_seen`]:
 //! classic stereo cost aggregation, the window clipped at the image border, with extra weight on the
@@ -95,6 +99,8 @@ pub fn sweep_statistics(
             // Running sums per pixel: [sum r, g, b, sum r^2, g^2, b^2, count].
             let mut acc = vec![[0.0f64; 7]; n];
             let mut greys = Vec::new();
+            // With the leave-one-out term: the views' samples, for their deviations from the mean.
+            let mut samples = Vec::new();
             for (img, cam) in inputs {
                 let psv = plane_sweep(img, cam, reference, &[depth]);
                 if aggregation.census.is_some() {
@@ -108,6 +114,9 @@ pub fn sweep_statistics(
                         }
                         a[6] += 1.0;
                     }
+                }
+                if aggregation.leave_one_out.is_some() {
+                    samples.push(psv.data);
                 }
             }
             let (w, h) = (reference.width as usize, reference.height as usize);
@@ -134,9 +143,23 @@ pub fn sweep_statistics(
                     t[c] = m as f32;
                     var += (a[3 + c] / k - m * m).max(0.0);
                 }
+                let mut var = var / 3.0;
+                if let Some(b) = aggregation.leave_one_out.filter(|_| k >= 3.0) {
+                    // The largest deviation (summed over RGB) of one view's sample from the mean.
+                    let mut max_dev = 0.0f64;
+                    for v in &samples {
+                        let x = &v[4 * p..4 * p + 4];
+                        if x[3] > 0.0 {
+                            let dev: f64 = (0..3).map(|c| (x[c] as f64 - a[c] / k).powi(2)).sum();
+                            max_dev = max_dev.max(dev);
+                        }
+                    }
+                    let loo = leave_one_out_variance(var * 3.0 * k, max_dev, k);
+                    var = (1.0 - b as f64) * var + b as f64 * loo;
+                }
                 *l = if k >= 2.0 {
                     let census = census.as_ref().map_or(0.0, |(c, w)| w * c[p] as f64);
-                    -((var / 3.0 + census) / s) as f32
+                    -((var + census) / s) as f32
                 } else {
                     single
                 };
@@ -186,6 +209,9 @@ pub struct Aggregation {
     /// The census term of the matching cost ([`Census`]), added to each plane's variance before the
     /// window; `None`: the variance alone.
     pub census: Option<Census>,
+    /// The weight `b` (in `(0, 1]`) of the least leave-one-out variance ([`leave_one_out_variance`]) in
+    /// the variance of a plane point three or more views see: `(1 - b) v + b v_loo`; `None`: `v`.
+    pub leave_one_out: Option<f32>,
 }
 
 impl Aggregation {
@@ -195,6 +221,7 @@ impl Aggregation {
         weight: 1.0,
         smoothing: None,
         census: None,
+        leave_one_out: None,
     };
 
     /// A window of radius `radius` weighted `weight`, without smoothing or a census term.
@@ -204,6 +231,7 @@ impl Aggregation {
             weight,
             smoothing: None,
             census: None,
+            leave_one_out: None,
         }
     }
 
@@ -211,6 +239,21 @@ impl Aggregation {
     pub fn is_active(&self) -> bool {
         self.radius > 0 && self.weight > 0.0
     }
+}
+
+/// Whether `b` is a leave-one-out weight [`Aggregation::leave_one_out`] takes: finite, in `(0, 1]`.
+pub fn leave_one_out_weight_is_valid(b: f32) -> bool {
+    b.is_finite() && b > 0.0 && b <= 1.0
+}
+
+/// The least variance (mean over RGB) of a plane point's samples when one of the `n >= 3` views that see
+/// it is left out: from the sum over the views and RGB of the squared deviations from the mean, `ss`, and
+/// the largest of one view's (summed over RGB), `max_dev`. Leaving out sample `i` takes
+/// `n / (n - 1)` times its squared deviation from the sum of squares, so the least variance leaves out
+/// the farthest sample: `(ss - n / (n - 1) max_dev) / (3 (n - 1))` (at least 0).
+#[inline]
+pub fn leave_one_out_variance(ss: f64, max_dev: f64, n: f64) -> f64 {
+    ((ss - n / (n - 1.0) * max_dev) / (3.0 * (n - 1.0))).max(0.0)
 }
 
 /// The census term of the agreement's matching cost: each view's plane sweep (its grey level, the mean of
@@ -1020,6 +1063,143 @@ mod tests {
         );
         assert!(
             plain < 0.5,
+            "variance alone: the right depth at {plain} of the pixels"
+        );
+    }
+
+    #[test]
+    fn leave_one_out_variance_is_the_least_variance_of_the_others() {
+        // Brute force: every view left out in turn, the variance (mean over RGB) of the rest.
+        let mut seed = 7u64;
+        let mut rnd = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) as f64 / (1u64 << 31) as f64
+        };
+        for n in 3..=6 {
+            let x: Vec<[f64; 3]> = (0..n).map(|_| [rnd(), rnd(), rnd()]).collect();
+            let mean =
+                |s: &[&[f64; 3]], c: usize| s.iter().map(|v| v[c]).sum::<f64>() / s.len() as f64;
+            let var = |s: &[&[f64; 3]]| {
+                (0..3)
+                    .map(|c| {
+                        let m = mean(s, c);
+                        s.iter().map(|v| (v[c] - m).powi(2)).sum::<f64>() / s.len() as f64
+                    })
+                    .sum::<f64>()
+                    / 3.0
+            };
+            let all: Vec<&[f64; 3]> = x.iter().collect();
+            let least = (0..n)
+                .map(|i| {
+                    let rest: Vec<&[f64; 3]> = x
+                        .iter()
+                        .enumerate()
+                        .filter(|&(j, _)| j != i)
+                        .map(|(_, v)| v)
+                        .collect();
+                    var(&rest)
+                })
+                .fold(f64::INFINITY, f64::min);
+            let ss = var(&all) * 3.0 * n as f64;
+            let max_dev = x
+                .iter()
+                .map(|v| (0..3).map(|c| (v[c] - mean(&all, c)).powi(2)).sum::<f64>())
+                .fold(0.0, f64::max);
+            let got = leave_one_out_variance(ss, max_dev, n as f64);
+            assert!((got - least).abs() < 1e-12, "{n} views: {got} vs {least}");
+        }
+        // Three equal samples and an outlier: the others agree exactly.
+        assert!(leave_one_out_variance(3.0 * 0.75 * 4.0 * 0.25, 3.0 * 0.75, 4.0).abs() < 1e-12);
+    }
+
+    /// Four views of a textured fronto-parallel plane; an object right in front of one camera covers
+    /// part of its image. Where it does, that view's sample disagrees at the plane's depth: the
+    /// variance of all four mistakes the depth at some pixels, the leave-one-out term finds it.
+    #[test]
+    fn leave_one_out_term_finds_the_depth_behind_one_views_occluder() {
+        use deepview_geometry::{DMat3, DVec3, Intrinsics, Pose};
+        let (w, h, f) = (64u32, 32u32, 20.0);
+        let noise = |u: f64, v: f64, s: f64| {
+            let r = ((u * 12.9898 + v * 78.233 + s).sin() * 43758.5453).rem_euclid(1.0);
+            (0.4 + 0.3 * r) as f32
+        };
+        // Cameras at x = -1.6, -0.8, 0.8, 1.6; the plane at depth 4: 4 px of disparity per 0.8.
+        let inputs: Vec<(ImageF32, Camera)> = [-1.6, -0.8, 0.8, 1.6]
+            .iter()
+            .map(|&x| {
+                let cam = Camera::new(
+                    w,
+                    h,
+                    Intrinsics::new(f, f, w as f64 / 2.0, h as f64 / 2.0),
+                    Pose::from_center(DMat3::IDENTITY, DVec3::new(x, 0.0, 0.0)),
+                );
+                let mut img = ImageF32::new(w, h, 3);
+                for (p, px) in img.data.chunks_exact_mut(3).enumerate() {
+                    let (u, v) = ((p % w as usize) as f64, (p / w as usize) as f64);
+                    let occluded = x > 1.0 && (24.0..44.0).contains(&u);
+                    let t = if occluded {
+                        [noise(u, v, 1.0), noise(u, v, 2.0), noise(u, v, 3.0)]
+                    } else {
+                        let t = noise(u + f * x / 4.0, v, 0.0);
+                        [t, t * 0.9, t * 0.8]
+                    };
+                    px.copy_from_slice(&t);
+                }
+                (img, cam)
+            })
+            .collect();
+        let reference = Camera::new(
+            w,
+            h,
+            Intrinsics::new(f, f, w as f64 / 2.0, h as f64 / 2.0),
+            Pose::from_center(DMat3::IDENTITY, DVec3::ZERO),
+        );
+        // Planes 1 px of disparity apart for the inner views, the plane's depth among them.
+        let depths: Vec<f64> = (1..=8).map(|k| 16.0 / k as f64).collect();
+        let truth = depths.iter().position(|&d| d == 4.0).unwrap();
+        let found = |leave_one_out| {
+            let aggregation = Aggregation {
+                leave_one_out,
+                ..Aggregation::NONE
+            };
+            let (mpi, logits) = sweep_statistics(
+                &inputs,
+                &reference,
+                depths.clone(),
+                0.0005,
+                0.02,
+                aggregation,
+            );
+            let n = (w * h) as usize;
+            // The reference pixels the occluded part of the last view covers at the plane's depth
+            // (its columns 24..44 are reference columns 32..52), where every view sees every plane.
+            let pixels: Vec<usize> = (0..n)
+                .filter(|p| (33..51).contains(&(p % w as usize)))
+                .collect();
+            let right = pixels
+                .iter()
+                .filter(|&&p| {
+                    let best = (0..mpi.planes())
+                        .max_by(|&a, &b| logits[a * n + p].total_cmp(&logits[b * n + p]))
+                        .unwrap();
+                    mpi.depths[best] == depths[truth]
+                })
+                .count();
+            right as f64 / pixels.len() as f64
+        };
+        let (plain, half, full) = (found(None), found(Some(0.5)), found(Some(1.0)));
+        assert!(
+            full > 0.99,
+            "leave-one-out: the right depth at {full} of the pixels"
+        );
+        assert!(
+            half > plain + 0.1,
+            "weight 0.5 ({half}) against none ({plain})"
+        );
+        assert!(
+            plain < 0.8,
             "variance alone: the right depth at {plain} of the pixels"
         );
     }

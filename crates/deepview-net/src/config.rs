@@ -4,6 +4,8 @@
 pub use deepview_mpi::agreement::Census;
 /// Semi-global matching penalties of the prior ([`DeepViewConfig::prior_smoothing`]).
 pub use deepview_mpi::agreement::Smoothing;
+/// Whether a weight is one [`DeepViewConfig::prior_leave_one_out`] takes.
+pub use deepview_mpi::agreement::leave_one_out_weight_is_valid;
 use serde::{Deserialize, Serialize};
 
 /// Errors of a configuration.
@@ -98,6 +100,13 @@ pub struct DeepViewConfig {
     /// variance alone.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prior_census: Option<Census>,
+    /// Occlusion-robust variance in the prior's matching cost: where three or more views see a plane
+    /// point, its colour variance becomes `(1 - b)` times itself plus `b` times the least variance of
+    /// the samples left when one view is left out (`deepview_mpi::agreement::leave_one_out_variance`;
+    /// `0 < b <= 1`). Per pixel, like the variance. `None` (the default, and every config written
+    /// before it existed): the variance of all the views.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub prior_leave_one_out: Option<f32>,
 }
 
 fn is_zero(r: &usize) -> bool {
@@ -120,6 +129,7 @@ impl DeepViewConfig {
             weight: self.prior_weight,
             smoothing: self.prior_smoothing,
             census: self.prior_census,
+            leave_one_out: self.prior_leave_one_out,
         }
     }
 
@@ -176,6 +186,7 @@ impl DeepViewConfig {
             prior_radius_size: None,
             prior_smoothing: None,
             prior_census: None,
+            prior_leave_one_out: None,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -205,6 +216,7 @@ impl DeepViewConfig {
                 prior_radius_size: None,
                 prior_smoothing: None,
                 prior_census: None,
+                prior_leave_one_out: None,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -227,6 +239,7 @@ impl DeepViewConfig {
                 prior_radius_size: None,
                 prior_smoothing: None,
                 prior_census: None,
+                prior_leave_one_out: None,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -290,6 +303,16 @@ impl DeepViewConfig {
             }
             if self.init_prior.is_none() {
                 return bad("a census term needs the agreement prior (init_prior)");
+            }
+        }
+        if let Some(b) = self.prior_leave_one_out {
+            if !deepview_mpi::agreement::leave_one_out_weight_is_valid(b) {
+                return bad(&format!(
+                    "the prior's leave-one-out weight {b} must be above 0 and at most 1"
+                ));
+            }
+            if self.init_prior.is_none() {
+                return bad("a leave-one-out weight needs the agreement prior (init_prior)");
             }
         }
         if self.max_pool_stages == 0 {
@@ -448,6 +471,40 @@ mod tests {
                 ..cpu.clone()
             };
             assert!(bad.validate().is_err(), "({weight}, {radius})");
+        }
+        let without_prior = DeepViewConfig {
+            init_prior: None,
+            ..cfg
+        };
+        assert!(without_prior.validate().is_err());
+    }
+
+    /// The leave-one-out weight round-trips through config.json (absent when off), reaches the prior's
+    /// aggregation, and bad ones (or one without the prior) are refused.
+    #[test]
+    fn prior_leave_one_out_in_the_config() {
+        let cpu = DeepViewConfig::preset("cpu").unwrap();
+        assert!(cpu.prior_leave_one_out.is_none());
+        let cfg = DeepViewConfig {
+            prior_leave_one_out: Some(0.75),
+            ..cpu.clone()
+        };
+        cfg.validate().unwrap();
+        assert_eq!(cfg.prior_aggregation().leave_one_out, Some(0.75));
+        let json = serde_json::to_string(&cfg).unwrap();
+        assert!(json.contains("\"prior_leave_one_out\":0.75"), "{json}");
+        assert_eq!(serde_json::from_str::<DeepViewConfig>(&json).unwrap(), cfg);
+        assert!(
+            !serde_json::to_string(&cpu)
+                .unwrap()
+                .contains("leave_one_out")
+        );
+        for b in [0.0, -0.5, 1.5, f32::NAN, f32::INFINITY] {
+            let bad = DeepViewConfig {
+                prior_leave_one_out: Some(b),
+                ..cpu.clone()
+            };
+            assert!(bad.validate().is_err(), "{b}");
         }
         let without_prior = DeepViewConfig {
             init_prior: None,

@@ -324,12 +324,10 @@ pub fn agreement_prior_logits(
     aggregation: Aggregation,
 ) -> Tensor<4> {
     // Semi-global matching and the census term run on the host (a scan along image paths, bit
-    // strings), so such a prior takes burn's ops around them.
+    // strings), so such a prior takes burn's ops around them, as does the leave-one-out term (which
+    // the fused kernel does not compute).
     #[cfg(any(feature = "wgpu", feature = "cuda"))]
-    if aggregation.smoothing.is_none()
-        && aggregation.census.is_none()
-        && crate::gpu::gpu_kernels(&per_view[0].device())
-    {
+    if crate::gpu::prior_is_fused(aggregation) && crate::gpu::gpu_kernels(&per_view[0].device()) {
         return crate::gpu::prior(per_view, temperature, aggregation);
     }
     agreement_prior_logits_burn(per_view, temperature, aggregation)
@@ -454,6 +452,24 @@ pub fn prior_costs_burn(
         .expect("views")
         / denom;
     let var = var.mean_dim(1);
+    let var = match aggregation.leave_one_out {
+        Some(b) => {
+            // Each view's squared deviation from the mean (summed over RGB; 0 where it does not see).
+            let dev: Vec<Tensor<4>> = rgb
+                .iter()
+                .zip(&valid)
+                .map(|(c, m)| (c.clone() - mean.clone() * m.clone()).square().sum_dim(1))
+                .collect();
+            let ss = dev.iter().cloned().reduce(|a, b| a + b).expect("views");
+            let max_dev = dev.into_iter().reduce(|a, b| a.max_pair(b)).expect("views");
+            // deepview_mpi::agreement::leave_one_out_variance where three or more views see.
+            let n1 = (count.clone() - 1.0).clamp_min(1.0);
+            let loo = (ss - max_dev * count.clone() / n1.clone()).clamp_min(0.0) / (n1 * 3.0);
+            let blend = var.clone() * (1.0 - b as f64) + loo * b as f64;
+            var.mask_where(count.clone().greater_equal_elem(2.5), blend)
+        }
+        None => var,
+    };
     let var = match aggregation.census {
         Some(c) => var + census_on_host(per_view, c) * c.weight as f64,
         None => var,
@@ -692,6 +708,9 @@ pub struct DeepViewModel {
     /// The census term of the prior's matching cost (`DeepViewConfig::prior_census`).
     #[module(skip)]
     pub prior_census: Option<deepview_mpi::agreement::Census>,
+    /// The leave-one-out weight of the prior's variance (`DeepViewConfig::prior_leave_one_out`).
+    #[module(skip)]
+    pub prior_leave_one_out: Option<f32>,
 }
 
 impl DeepViewModel {
@@ -728,6 +747,11 @@ impl DeepViewModel {
             } else {
                 None
             },
+            prior_leave_one_out: if config.init_prior.is_some() {
+                config.prior_leave_one_out
+            } else {
+                None
+            },
         }
     }
 
@@ -751,6 +775,7 @@ impl DeepViewModel {
             weight: self.prior_weight,
             smoothing: self.prior_smoothing,
             census: self.prior_census,
+            leave_one_out: self.prior_leave_one_out,
         }
     }
 
@@ -814,14 +839,13 @@ impl DeepViewModel {
         };
         #[cfg(any(feature = "wgpu", feature = "cuda"))]
         if crate::gpu::gpu_kernels(&per_view[0].device()) {
-            // A given prior, or one the fused kernel cannot compute (smoothed, with a census term), is
-            // added beside the fused input (see `agreement_prior_logits`); otherwise the fused
-            // kernel computes it.
+            // A given prior, or one the fused kernel cannot compute (smoothed, with a census term or
+            // the leave-one-out variance), is added beside the fused input (see
+            // `agreement_prior_logits`); otherwise the fused kernel computes it.
             let separate = match given {
                 Some(p) => Some(p),
-                None => {
-                    (with_prior && self.prior_needs_whole_image()).then(|| prior_state(&per_view))
-                }
+                None => (with_prior && !crate::gpu::prior_is_fused(self.prior_aggregation()))
+                    .then(|| prior_state(&per_view)),
             };
             let prior = (with_prior && separate.is_none()).then_some((
                 self.prior_temperature,

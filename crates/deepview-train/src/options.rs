@@ -50,6 +50,12 @@ pub struct TrainOptions {
     /// 0.015). Kept in the weights' config.json.
     #[arg(long, value_name = "WEIGHT[,RADIUS]|off", value_parser = parse_or_off::<Census>)]
     pub prior_census: Option<OrOff<Census>>,
+    /// Occlusion-robust variance in the prior's matching cost, as the weight B of its leave-one-out
+    /// part (0 < B <= 1, e.g. 0.75: where three or more views see a plane point, its colour variance
+    /// becomes 1 - B times itself plus B times the least variance of the samples left when one view is
+    /// left out), or `off`. Default: the preset's (off) or --init's. Kept in the weights' config.json.
+    #[arg(long, value_name = "B|off", value_parser = parse_leave_one_out)]
+    pub prior_leave_one_out: Option<OrOff<f32>>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -170,6 +176,18 @@ pub struct TrainOptions {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OrOff<T>(pub Option<T>);
 
+/// `off`, or a leave-one-out weight (`0 < B <= 1`).
+fn parse_leave_one_out(s: &str) -> Result<OrOff<f32>, String> {
+    if s.trim() == "off" {
+        return Ok(OrOff(None));
+    }
+    match s.trim().parse::<f32>() {
+        Ok(b) if deepview_net::config::leave_one_out_weight_is_valid(b) => Ok(OrOff(Some(b))),
+        Ok(_) => Err(format!("{s:?} must be above 0 and at most 1, or `off`")),
+        Err(_) => Err(format!("{s:?} is not a number or `off`")),
+    }
+}
+
 /// `off`, or what `T` parses.
 fn parse_or_off<T: std::str::FromStr<Err = String>>(s: &str) -> Result<OrOff<T>, String> {
     if s.trim() == "off" {
@@ -216,6 +234,11 @@ impl TrainOptions {
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-census: {e}")))?;
         }
+        if let Some(OrOff(b)) = self.prior_leave_one_out {
+            cfg.prior_leave_one_out = b;
+            cfg.validate()
+                .map_err(|e| cfg_err(format!("--prior-leave-one-out: {e}")))?;
+        }
         Ok(cfg)
     }
 
@@ -239,6 +262,7 @@ impl TrainOptions {
                         to.prior_radius_size = from.prior_radius_size;
                         to.prior_smoothing = from.prior_smoothing;
                         to.prior_census = from.prior_census;
+                        to.prior_leave_one_out = from.prior_leave_one_out;
                     }
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
@@ -359,6 +383,11 @@ impl TrainOptions {
                 self.prior_census
                     .is_some_and(|OrOff(c)| c != cfg.model.prior_census),
                 "--prior-census",
+            ),
+            (
+                self.prior_leave_one_out
+                    .is_some_and(|OrOff(b)| b != cfg.model.prior_leave_one_out),
+                "--prior-leave-one-out",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
             (
@@ -675,6 +704,17 @@ mod tests {
         assert_eq!(census("off").model().unwrap().prior_census, None);
         for bad in ["-1", "0", "0.03,0", "0.03,4", "x", "0.03,2,1"] {
             assert!(parse_or_off::<Census>(bad).is_err(), "{bad}");
+        }
+        // --prior-leave-one-out sets the weight, `off` clears it, bad ones are refused.
+        let loo = |s: &str| TrainOptions {
+            prior_leave_one_out: Some(parse_leave_one_out(s).unwrap()),
+            ..grow(None)
+        };
+        assert_eq!(loo("0.75").model().unwrap().prior_leave_one_out, Some(0.75));
+        assert_eq!(loo("1").model().unwrap().prior_leave_one_out, Some(1.0));
+        assert_eq!(loo("off").model().unwrap().prior_leave_one_out, None);
+        for bad in ["0", "-0.5", "1.5", "nan", "x"] {
+            assert!(parse_leave_one_out(bad).is_err(), "{bad}");
         }
     }
 

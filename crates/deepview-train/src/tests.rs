@@ -36,6 +36,7 @@ fn tiny_model() -> DeepViewConfig {
         prior_radius_size: None,
         prior_smoothing: None,
         prior_census: None,
+        prior_leave_one_out: None,
     }
 }
 

@@ -399,6 +399,7 @@ pub(crate) fn infer_engine_blocks(
                 deepview_kernels::zeroed_buffer(if temperature > 0.0 { d * hw } else { 0 });
             let weights_ptr = weights.as_mut_ptr() as usize;
             let census = model.active_census();
+            let loo = model.prior_leave_one_out;
             let scratch = || {
                 (
                     scratch(),
@@ -444,7 +445,7 @@ pub(crate) fn infer_engine_blocks(
                                 census_cost(&psv, sp, c.radius, greys, bits, cost);
                                 (cost.as_slice(), c.weight)
                             });
-                            prior_stats(&psv, sp, temperature, census, mean, lg);
+                            prior_stats(&psv, sp, temperature, census, loo, mean, lg);
                             // SAFETY: the strip's kept rows of plane p's depth weights, written by
                             // this task only.
                             let dst = unsafe {
@@ -669,6 +670,8 @@ mod tests {
                     weight: 0.03,
                     radius: if k == 3 { 2 } else { 3 },
                 });
+                // The leave-one-out variance (three views).
+                model.prior_leave_one_out = (k >= 3).then_some(0.6);
             }
             let (views, reference, depths) = scene(k, d);
             let inputs = ModelInputs {
@@ -721,8 +724,11 @@ mod tests {
             let max = max_diff(&got);
             let case = format!(
                 "{k} views, {d} planes, {updates} updates, prior {prior} (radius {}, weight {}, census \
-                 {:?}), {unet_nets} U-Net",
-                model.prior_radius, model.prior_weight, model.prior_census
+                 {:?}, leave-one-out {:?}), {unet_nets} U-Net",
+                model.prior_radius,
+                model.prior_weight,
+                model.prior_census,
+                model.prior_leave_one_out
             );
             assert!(max < 2e-5, "{case}: {max}");
             // The renders streamed in blocks of any size and the nets run on strips of any height

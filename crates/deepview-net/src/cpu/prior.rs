@@ -5,7 +5,9 @@
 
 use deepview_kernels::Plane;
 use deepview_kernels::fastmath;
-use deepview_mpi::agreement::{LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE, grey_level};
+use deepview_mpi::agreement::{
+    LOGIT_EPS as PRIOR_EPS, SINGLE_VIEW_VARIANCE, grey_level, leave_one_out_variance,
+};
 use rayon::prelude::*;
 
 #[inline(always)]
@@ -18,12 +20,15 @@ fn logit(p: f32) -> f32 {
 /// one plane: from the views' plane sweeps `psv` (per view: R, G, B, validity planes of `plane`), the mean
 /// colour into `mean` (`[3][H*W]`) and the masked logit of the depth weight into `lg` (`[H*W]`). With
 /// `census = (cost, weight)` (`cost`: `[H*W]` from [`census_cost`]) `weight * cost` is added to the
-/// variance where two or more views see a pixel.
+/// variance where two or more views see a pixel. With `leave_one_out = Some(b)` the variance of a pixel
+/// three or more views see is first blended with its least leave-one-out variance
+/// ([`leave_one_out_variance`]), weight `b`.
 pub(crate) fn prior_stats(
     psv: &[&mut [f32]],
     plane: Plane,
     temperature: f64,
     census: Option<(&[f32], f32)>,
+    leave_one_out: Option<f32>,
     mean: &mut [f32],
     lg: &mut [f32],
 ) {
@@ -35,6 +40,10 @@ pub(crate) fn prior_stats(
     let mut count = vec![0f32; w];
     let mut sum = vec![0f32; 3 * w];
     let mut var = vec![0f32; 3 * w];
+    // With the leave-one-out term: per column, one view's squared deviation (summed over RGB) and
+    // the largest of the views'.
+    let loo_len = if leave_one_out.is_some() { w } else { 0 };
+    let (mut dev, mut max_dev) = (vec![0f32; loo_len], vec![0f32; loo_len]);
     for y in 0..plane.h {
         let i0 = plane.index(y, 0);
         let o0 = y * w;
@@ -59,8 +68,10 @@ pub(crate) fn prior_stats(
                 *mu = s / n.max(1.0);
             }
         }
+        max_dev.fill(0.0);
         for v in 0..k {
             let m = &psv[4 * v + 3][i0..i0 + w];
+            dev.fill(0.0);
             for c in 0..3 {
                 let x = &psv[4 * v + c][i0..i0 + w];
                 let mu = &mean[c * hw + o0..c * hw + o0 + w];
@@ -69,6 +80,15 @@ pub(crate) fn prior_stats(
                     let e = x * m - mu * m;
                     *q += e * e;
                 }
+                if leave_one_out.is_some() {
+                    for (((d, &x), &m), &mu) in dev.iter_mut().zip(x).zip(m).zip(mu) {
+                        let e = x * m - mu * m;
+                        *d += e * e;
+                    }
+                }
+            }
+            for (a, &d) in max_dev.iter_mut().zip(&dev) {
+                *a = a.max(d);
             }
         }
         let t = temperature as f32;
@@ -76,6 +96,11 @@ pub(crate) fn prior_stats(
             let n = count[x];
             let denom = n.max(1.0);
             let mut q = (var[x] / denom + var[w + x] / denom + var[2 * w + x] / denom) / 3.0;
+            if let Some(b) = leave_one_out.filter(|_| n >= 2.5) {
+                let ss = var[x] + var[w + x] + var[2 * w + x];
+                let loo = leave_one_out_variance(ss as f64, max_dev[x] as f64, n as f64) as f32;
+                q = (1.0 - b) * q + b * loo;
+            }
             if let Some((cost, weight)) = census {
                 q += weight * cost[o0 + x];
             }

@@ -680,6 +680,16 @@ pub fn gpu_kernels(device: &Device) -> bool {
         )
 }
 
+/// Whether the fused prior kernel computes the prior of `aggregation`: not with semi-global matching,
+/// a census term or the leave-one-out variance (those take burn's ops, [`agreement_prior_logits`]).
+///
+/// [`agreement_prior_logits`]: crate::network::agreement_prior_logits
+pub fn prior_is_fused(aggregation: deepview_mpi::agreement::Aggregation) -> bool {
+    aggregation.smoothing.is_none()
+        && aggregation.census.is_none()
+        && aggregation.leave_one_out.is_none()
+}
+
 /// [`GpuOps::gpu_composite`] on a tensor of a cubecl device.
 pub(crate) fn composite(rgba: Tensor<4>) -> Tensor<4> {
     Tensor::from_dispatch(<Dispatch as GpuOps>::gpu_composite(rgba.into_dispatch()))

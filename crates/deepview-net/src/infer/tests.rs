@@ -114,18 +114,22 @@ fn untrained_prior_model_equals_agreement_mpi() {
     // whole image (and computes the census on strips whose margins hold the census window).
     let sgm = Some(deepview_mpi::agreement::Smoothing { p1: 2.0, p2: 64.0 });
     let census = |weight, radius| Some(deepview_mpi::agreement::Census { weight, radius });
-    for (k, planes, smooth, radius, weight, smoothing, census) in [
-        (3, 8, true, 0, 1.0, None, None),
-        (4, 5, false, 0, 1.0, None, None),
-        (2, 6, true, 0, 1.0, None, None),
-        (3, 6, true, 3, 0.5, None, None),
-        (4, 5, false, 9, 1.0, None, None),
-        (3, 8, true, 0, 1.0, sgm, None),
-        (3, 6, true, 3, 0.5, sgm, None),
-        (2, 11, false, 2, 1.0, sgm, None),
-        (3, 8, true, 0, 1.0, None, census(0.03, 2)),
-        (4, 6, false, 3, 0.5, sgm, census(0.02, 1)),
-        (3, 7, true, 2, 0.5, sgm, census(0.05, 3)),
+    // The leave-one-out variance: per pixel, where three or more views see.
+    for (k, planes, smooth, radius, weight, smoothing, census, loo) in [
+        (3, 8, true, 0, 1.0, None, None, None),
+        (4, 5, false, 0, 1.0, None, None, None),
+        (2, 6, true, 0, 1.0, None, None, None),
+        (3, 6, true, 3, 0.5, None, None, None),
+        (4, 5, false, 9, 1.0, None, None, None),
+        (3, 8, true, 0, 1.0, sgm, None, None),
+        (3, 6, true, 3, 0.5, sgm, None, None),
+        (2, 11, false, 2, 1.0, sgm, None, None),
+        (3, 8, true, 0, 1.0, None, census(0.03, 2), None),
+        (4, 6, false, 3, 0.5, sgm, census(0.02, 1), None),
+        (3, 7, true, 2, 0.5, sgm, census(0.05, 3), None),
+        (4, 6, true, 0, 1.0, None, None, Some(0.75)),
+        (3, 6, true, 3, 0.5, sgm, None, Some(1.0)),
+        (4, 7, false, 2, 0.5, sgm, census(0.03, 2), Some(0.5)),
     ] {
         let cfg = DeepViewConfig {
             features_large: 4,
@@ -136,6 +140,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             prior_weight: weight,
             prior_smoothing: smoothing,
             prior_census: census,
+            prior_leave_one_out: loo,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         let model = DeepViewModel::new(&cfg, &dev);
@@ -187,8 +192,8 @@ fn untrained_prior_model_equals_agreement_mpi() {
             }
             assert!(
                 max < 3e-4,
-                "{path}: k {k}, planes {planes}, radius {radius}, {smoothing:?}, {census:?}: max \
-                 difference {max}"
+                "{path}: k {k}, planes {planes}, radius {radius}, {smoothing:?}, {census:?}, \
+                 leave-one-out {loo:?}: max difference {max}"
             );
         }
         for b in expected.layers.chunks_exact(4) {
@@ -227,6 +232,16 @@ fn untrained_prior_model_equals_agreement_mpi() {
             assert!(
                 moved > 0.05,
                 "the census term changed the MPI by only {moved}"
+            );
+        }
+        if loo.is_some() {
+            let moved = without(deepview_mpi::agreement::Aggregation {
+                leave_one_out: None,
+                ..aggregation
+            });
+            assert!(
+                moved > 0.05,
+                "the leave-one-out term changed the MPI by only {moved}"
             );
         }
         if smooth {
@@ -795,20 +810,24 @@ fn wgpu_inference_equals_the_cpu_engine() {
         weight: 0.03,
         radius: 2,
     });
-    for (prior, radius, smoothing, census) in [
-        (false, 0, None, None),
-        (true, 0, None, None),
-        (true, 5, None, None),
-        (true, 5, sgm, None),
-        (true, 5, sgm, census),
+    // The leave-one-out variance alone (burn's ops on the GPU, not the fused kernel) and with the rest.
+    for (prior, radius, smoothing, census, loo) in [
+        (false, 0, None, None, None),
+        (true, 0, None, None, None),
+        (true, 5, None, None, None),
+        (true, 5, sgm, None, None),
+        (true, 5, sgm, census, None),
+        (true, 5, None, None, Some(0.75)),
+        (true, 5, sgm, census, Some(0.75)),
     ] {
-        let aggregated = (prior, radius, smoothing, census);
+        let aggregated = (prior, radius, smoothing, census, loo);
         let mut model = small_model(&cpu, 1);
         if prior {
             model.prior_temperature = crate::config::CPU_PRIOR_TEMPERATURE;
             (model.prior_radius, model.prior_weight) = (radius, 0.5);
             model.prior_smoothing = smoothing;
             model.prior_census = census;
+            model.prior_leave_one_out = loo;
         }
         let (views, reference, depths) = scene(3);
         let budget = 1 << 30;
@@ -846,7 +865,7 @@ fn wgpu_inference_equals_the_cpu_engine() {
         let spread = a.layers.iter().fold(0f32, |m, v| m.max(*v))
             - a.layers.iter().fold(1f32, |m, v| m.min(*v));
         eprintln!(
-            "wgpu against the CPU engine (prior, radius, smoothing, census: {aggregated:?}): max \
+            "wgpu against the CPU engine (prior, radius, smoothing, census, leave-one-out: {aggregated:?}): max \
              |difference| {max:e} (values span {spread})"
         );
         assert!(spread > 0.1, "a degenerate MPI ({spread})");
