@@ -261,15 +261,7 @@ pub fn classical_planes(
     let reference = mpi_reference(cams, near_far)?;
     let (fixed, per_plane) = match method.kind {
         MethodKind::Optimize => optimize_bytes(&reference, cams, method.optimize.max_width),
-        _ => psv_mean_bytes(
-            &reference,
-            cams,
-            if method.psv.aggregation.is_active() {
-                method.psv.aggregation.radius
-            } else {
-                0
-            },
-        ),
+        _ => psv_mean_bytes(&reference, cams, method.psv.aggregation),
     };
     let mut fits = fits_estimate(fixed, per_plane, budget);
     let mut minimum = |n: usize| fixed.saturating_add(per_plane.saturating_mul(n as u64));
@@ -374,5 +366,19 @@ impl MpiMethod for Classical {
             planes: Some(choice),
             note,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn leave_one_out_weights_parse_in_their_range() {
+        assert_eq!(parse_leave_one_out("0.75"), Ok(0.75));
+        assert_eq!(parse_leave_one_out(" 1 "), Ok(1.0));
+        for bad in ["0", "-0.1", "1.01", "nan", "inf", "x", ""] {
+            assert!(parse_leave_one_out(bad).is_err(), "{bad:?}");
+        }
     }
 }

@@ -188,18 +188,43 @@ pub fn mpi_bytes(w: u32, h: u32, planes: usize, u8: bool) -> u64 {
         .saturating_add(px.saturating_mul(20).saturating_mul(threads))
 }
 
-/// Bytes of a `psv-mean` MPI in `reference`: the fixed part (`inputs` RGB f32 images, per-thread running
-/// sums, and with an aggregation `radius` its f64 window sums) and the part per plane (f32 RGBA texels,
-/// agreement logits, alphas).
-pub fn psv_mean_bytes(reference: &Camera, inputs: &[Camera], radius: usize) -> (u64, u64) {
+/// Bytes of a `psv-mean` MPI in `reference` with `aggregation`: the fixed part (`inputs` RGB f32
+/// images; per thread the running sums, the sweep of the view at hand, with a window its f64 sums, with
+/// the leave-one-out term every view's sweep of the plane, with a census term the views' grey levels,
+/// bit strings and the cost) and the part per plane (f32 RGBA texels, agreement logits, alphas, and with
+/// smoothing the paths' sums).
+pub fn psv_mean_bytes(
+    reference: &Camera,
+    inputs: &[Camera],
+    aggregation: deepview_mpi::agreement::Aggregation,
+) -> (u64, u64) {
     let px = reference.width as u64 * reference.height as u64;
     let input_px: u64 = inputs
         .iter()
         .map(|c| c.width as u64 * c.height as u64)
         .sum();
+    let k = inputs.len() as u64;
     let threads = rayon::current_num_threads() as u64;
-    let aggregation = if radius > 0 { 32 } else { 0 };
-    (12 * input_px + (56 + aggregation) * px * threads, 24 * px)
+    let window = if aggregation.is_active() { 32 } else { 0 };
+    let loo = if aggregation.leave_one_out.is_some() {
+        16 * k
+    } else {
+        0
+    };
+    let census = if aggregation.census.is_some() {
+        20 * k + 4
+    } else {
+        0
+    };
+    let smoothing = if aggregation.smoothing.is_some() {
+        4
+    } else {
+        0
+    };
+    (
+        12 * input_px + (72 + window + loo + census) * px * threads,
+        (24 + smoothing) * px,
+    )
 }
 
 /// Bytes of the `optimize` baseline: the fixed part of [`psv_mean_bytes`], and per plane Adam's logits,
@@ -209,7 +234,11 @@ pub fn optimize_bytes(reference: &Camera, inputs: &[Camera], max_width: u32) -> 
     let f = reference.width.div_ceil(max_width.max(1)).max(1) as u64;
     let px = reference.width as u64 * reference.height as u64;
     let small = px / (f * f);
-    let (fixed, _) = psv_mean_bytes(reference, inputs, 0);
+    let (fixed, _) = psv_mean_bytes(
+        reference,
+        inputs,
+        deepview_mpi::agreement::Aggregation::NONE,
+    );
     (fixed, 64 * small + 16 * px)
 }
 

@@ -313,7 +313,9 @@ use deepview_mpi::agreement::{
 /// Colour and alpha are clamped to `[LOGIT_EPS, 1 - LOGIT_EPS]` and turned into logits. With an active
 /// `aggregation` (radius `r`, weight `a`) the variance is first `a` times its mean over the seen pixels of
 /// the `(2r+1) x (2r+1)` window around each pixel (clipped at the tensor's border) plus `1 - a` times its
-/// own ([`deepview_mpi::agreement::aggregate_seen`]). With a census term
+/// own ([`deepview_mpi::agreement::aggregate_seen`]). With a leave-one-out weight `b` the variance of a
+/// point three or more views see is first blended with its least leave-one-out variance
+/// ([`deepview_mpi::agreement::leave_one_out_variance`]). With a census term
 /// ([`deepview_mpi::agreement::Census`]) its cost is added to the variance first (where two or more views
 /// see the point), and with smoothing the masked logits go through semi-global matching before the
 /// softmax; both run on the host.
@@ -422,7 +424,9 @@ pub fn agreement_prior_logits_burn(
     prior_from_costs(costs, temperature, aggregation.smoothing)
 }
 
-/// The per-plane half of [`agreement_prior_logits_burn`] (each plane on its own): the mean colour
+/// The per-plane half of [`agreement_prior_logits_burn`] (each plane on its own; the leave-one-out
+/// blend, then the census term, then the single-view variance, as in
+/// [`deepview_mpi::agreement::sweep_statistics`]): the mean colour
 /// `[D, 3, h, w]`, the masked depth logits `[D, 1, h, w]` (the window's aggregation applied; unseen:
 /// -1e30) and the seen mask `[D, 1, h, w]`.
 pub fn prior_costs_burn(

@@ -653,6 +653,11 @@ mod tests {
             prior_radius: 5,
             prior_weight: 0.5,
             prior_radius_size: Some(512),
+            prior_census: Some(Census {
+                weight: 0.015,
+                radius: 2,
+            }),
+            prior_leave_one_out: Some(0.75),
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         std::fs::write(
@@ -675,6 +680,8 @@ mod tests {
             ),
             (5, 0.5, Some(512))
         );
+        assert_eq!(grown.prior_census, weights.prior_census);
+        assert_eq!(grown.prior_leave_one_out, Some(0.75));
         assert_eq!(grow(Some(2)).model().unwrap().prior_radius, 2);
         // --prior-radius-size sets the size, 0 clears it (one radius at every size).
         let sized = |n| TrainOptions {
@@ -776,6 +783,16 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(radius.fixed_on_resume(&cfg), ["--prior-radius"]);
+        // The run's leave-one-out weight (none here) given again is no change; another one is.
+        let loo = |b: Option<f32>| TrainOptions {
+            prior_leave_one_out: Some(OrOff(b)),
+            ..Default::default()
+        };
+        assert!(loo(None).fixed_on_resume(&cfg).is_empty());
+        assert_eq!(
+            loo(Some(0.75)).fixed_on_resume(&cfg),
+            ["--prior-leave-one-out"]
+        );
         let mut resumed = cfg.train.clone();
         other.adjust_on_resume(&mut resumed);
         assert_eq!(resumed.steps, 500);

@@ -875,5 +875,22 @@ fn wgpu_inference_equals_the_cpu_engine() {
             max < if prior { 5e-4 } else { 1e-5 },
             "wgpu inference differs from the CPU engine by {max} (prior, radius, smoothing: {aggregated:?})"
         );
+        // The leave-one-out term changes the MPI by far more than that tolerance (so a GPU path that
+        // left it out could not pass).
+        if loo.is_some() {
+            let mut plain = model.clone();
+            plain.prior_leave_one_out = None;
+            let c = run(&plain, &views, &reference, &depths, &on_cpu, &mut |_| {}).unwrap();
+            let moved = a
+                .layers
+                .iter()
+                .zip(&c.layers)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0f32, f32::max);
+            assert!(
+                moved > 0.01,
+                "the leave-one-out term moved the MPI by only {moved}"
+            );
+        }
     }
 }
