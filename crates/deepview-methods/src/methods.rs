@@ -166,6 +166,11 @@ pub struct MethodOptions {
     /// view that sees an occluder there does not hide the others' agreement. Off by default.
     #[arg(long, value_name = "B", value_parser = parse_leave_one_out)]
     pub leave_one_out: Option<f32>,
+    /// The sample variance (psv-mean): the colour variance of a point n >= 2 views see is scaled by
+    /// n / (n - 1), so that a plane where two views happen to agree does not beat one more views see for
+    /// the population variance's bias alone. Off by default.
+    #[arg(long)]
+    pub sample_variance: bool,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -191,6 +196,7 @@ impl Default for MethodOptions {
             smoothing: None,
             census: None,
             leave_one_out: None,
+            sample_variance: false,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -222,6 +228,7 @@ pub fn make_method(
                     smoothing: options.smoothing,
                     census: options.census,
                     leave_one_out: options.leave_one_out,
+                    sample_variance: options.sample_variance,
                 },
                 ..Default::default()
             },

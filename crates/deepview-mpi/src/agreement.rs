@@ -10,7 +10,10 @@
 //! the point. With a leave-one-out weight `b` ([`Aggregation::leave_one_out`]) and three or more views
 //! seeing the point, `v_d` is first `(1 - b) v_d + b` times the least variance of the samples left when one
 //! view is left out ([`leave_one_out_variance`]): a view occluded at that depth no longer hides the
-//! others' agreement (the occlusion handling of multi-view stereo by view selection).
+//! others' agreement (the occlusion handling of multi-view stereo by view selection). With
+//! [`Aggregation::sample_variance`] `v_d` of a point `n >= 2` views see is then scaled by `n / (n - 1)`
+//! (the sample variance: a plane where two views happen to agree no longer beats one that more views
+//! see for the estimator's bias alone).
 //! With an [`Aggregation`] of radius `r > 0` and weight `a`
 //! each plane's variance is first replaced by `a` times its mean over the seen pixels of the
 //! `(2r+1) x (2r+1)` window around each pixel plus `1 - a` times its own value ([`aggregate_seen`]:
@@ -157,6 +160,9 @@ pub fn sweep_statistics(
                     let loo = leave_one_out_variance(var * 3.0 * k, max_dev, k);
                     var = (1.0 - b as f64) * var + b as f64 * loo;
                 }
+                if aggregation.sample_variance && k >= 2.0 {
+                    var *= k / (k - 1.0);
+                }
                 *l = if k >= 2.0 {
                     let census = census.as_ref().map_or(0.0, |(c, w)| w * c[p] as f64);
                     -((var + census) / s) as f32
@@ -212,6 +218,9 @@ pub struct Aggregation {
     /// The weight `b` (in `(0, 1]`) of the least leave-one-out variance ([`leave_one_out_variance`]) in
     /// the variance of a plane point three or more views see: `(1 - b) v + b v_loo`; `None`: `v`.
     pub leave_one_out: Option<f32>,
+    /// Scale the variance (after the leave-one-out blend) of a point `n >= 2` views see by
+    /// `n / (n - 1)`: the sample variance instead of the population variance.
+    pub sample_variance: bool,
 }
 
 impl Aggregation {
@@ -222,6 +231,7 @@ impl Aggregation {
         smoothing: None,
         census: None,
         leave_one_out: None,
+        sample_variance: false,
     };
 
     /// A window of radius `radius` weighted `weight`, without smoothing or a census term.
@@ -232,6 +242,7 @@ impl Aggregation {
             smoothing: None,
             census: None,
             leave_one_out: None,
+            sample_variance: false,
         }
     }
 
@@ -1199,6 +1210,32 @@ mod tests {
                 .count();
             right as f64 / pixels.len() as f64
         };
+        // The sample variance: where all four views see (columns 17..47 at every plane), every logit is
+        // 4/3 of the population variance's.
+        let logits = |sample_variance| {
+            let aggregation = Aggregation {
+                sample_variance,
+                ..Aggregation::NONE
+            };
+            sweep_statistics(
+                &inputs,
+                &reference,
+                depths.clone(),
+                0.0005,
+                0.02,
+                aggregation,
+            )
+            .1
+        };
+        let (population, sample) = (logits(false), logits(true));
+        for (i, (&p, &s)) in population.iter().zip(&sample).enumerate() {
+            if (17..47).contains(&(i % w as usize)) {
+                assert!(
+                    (s - p * 4.0 / 3.0).abs() <= 1e-4 * p.abs() + 1e-3,
+                    "{i}: {s} vs {p}"
+                );
+            }
+        }
         let (plain, half, full) = (found(None), found(Some(0.5)), found(Some(1.0)));
         assert!(
             full > 0.99,

@@ -107,6 +107,15 @@ pub struct DeepViewConfig {
     /// before it existed): the variance of all the views.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub prior_leave_one_out: Option<f32>,
+    /// The sample variance in the prior's matching cost: the variance (after the leave-one-out blend)
+    /// of a point `n >= 2` views see is scaled by `n / (n - 1)`. `false` (the default, and every config
+    /// written before it existed): the population variance.
+    #[serde(default, skip_serializing_if = "is_false")]
+    pub prior_sample_variance: bool,
+}
+
+fn is_false(b: &bool) -> bool {
+    !*b
 }
 
 fn is_zero(r: &usize) -> bool {
@@ -130,6 +139,7 @@ impl DeepViewConfig {
             smoothing: self.prior_smoothing,
             census: self.prior_census,
             leave_one_out: self.prior_leave_one_out,
+            sample_variance: self.prior_sample_variance,
         }
     }
 
@@ -187,6 +197,7 @@ impl DeepViewConfig {
             prior_smoothing: None,
             prior_census: None,
             prior_leave_one_out: None,
+            prior_sample_variance: false,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -217,6 +228,7 @@ impl DeepViewConfig {
                 prior_smoothing: None,
                 prior_census: None,
                 prior_leave_one_out: None,
+                prior_sample_variance: false,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -240,6 +252,7 @@ impl DeepViewConfig {
                 prior_smoothing: None,
                 prior_census: None,
                 prior_leave_one_out: None,
+                prior_sample_variance: false,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -314,6 +327,9 @@ impl DeepViewConfig {
             if self.init_prior.is_none() {
                 return bad("a leave-one-out weight needs the agreement prior (init_prior)");
             }
+        }
+        if self.prior_sample_variance && self.init_prior.is_none() {
+            return bad("the sample variance needs the agreement prior (init_prior)");
         }
         if self.max_pool_stages == 0 {
             return bad("at least one max-pool stage is needed");
@@ -491,7 +507,28 @@ mod tests {
         };
         cfg.validate().unwrap();
         assert_eq!(cfg.prior_aggregation().leave_one_out, Some(0.75));
+        assert!(!cfg.prior_aggregation().sample_variance);
+        let sampled = DeepViewConfig {
+            prior_sample_variance: true,
+            ..cfg.clone()
+        };
+        assert!(sampled.prior_aggregation().sample_variance);
+        let json = serde_json::to_string(&sampled).unwrap();
+        assert!(json.contains("\"prior_sample_variance\":true"), "{json}");
+        assert_eq!(
+            serde_json::from_str::<DeepViewConfig>(&json).unwrap(),
+            sampled
+        );
+        assert!(
+            DeepViewConfig {
+                init_prior: None,
+                ..sampled
+            }
+            .validate()
+            .is_err()
+        );
         let json = serde_json::to_string(&cfg).unwrap();
+        assert!(!json.contains("sample_variance"), "{json}");
         assert!(json.contains("\"prior_leave_one_out\":0.75"), "{json}");
         assert_eq!(serde_json::from_str::<DeepViewConfig>(&json).unwrap(), cfg);
         assert!(

@@ -315,7 +315,8 @@ use deepview_mpi::agreement::{
 /// the `(2r+1) x (2r+1)` window around each pixel (clipped at the tensor's border) plus `1 - a` times its
 /// own ([`deepview_mpi::agreement::aggregate_seen`]). With a leave-one-out weight `b` the variance of a
 /// point three or more views see is first blended with its least leave-one-out variance
-/// ([`deepview_mpi::agreement::leave_one_out_variance`]). With a census term
+/// ([`deepview_mpi::agreement::leave_one_out_variance`]), and with the sample variance scaled by
+/// `n / (n - 1)` where `n >= 2` views see. With a census term
 /// ([`deepview_mpi::agreement::Census`]) its cost is added to the variance first (where two or more views
 /// see the point), and with smoothing the masked logits go through semi-global matching before the
 /// softmax; both run on the host.
@@ -425,7 +426,7 @@ pub fn agreement_prior_logits_burn(
 }
 
 /// The per-plane half of [`agreement_prior_logits_burn`] (each plane on its own; the leave-one-out
-/// blend, then the census term, then the single-view variance, as in
+/// blend, the sample variance's factor, then the census term, then the single-view variance, as in
 /// [`deepview_mpi::agreement::sweep_statistics`]): the mean colour
 /// `[D, 3, h, w]`, the masked depth logits `[D, 1, h, w]` (the window's aggregation applied; unseen:
 /// -1e30) and the seen mask `[D, 1, h, w]`.
@@ -473,6 +474,14 @@ pub fn prior_costs_burn(
             var.mask_where(count.clone().greater_equal_elem(2.5), blend)
         }
         None => var,
+    };
+    let var = if aggregation.sample_variance {
+        // n / (n - 1) where two or more views see.
+        let n1 = (count.clone() - 1.0).clamp_min(1.0);
+        let scaled = var.clone() * count.clone() / n1;
+        var.mask_where(count.clone().greater_equal_elem(1.5), scaled)
+    } else {
+        var
     };
     let var = match aggregation.census {
         Some(c) => var + census_on_host(per_view, c) * c.weight as f64,
@@ -715,6 +724,9 @@ pub struct DeepViewModel {
     /// The leave-one-out weight of the prior's variance (`DeepViewConfig::prior_leave_one_out`).
     #[module(skip)]
     pub prior_leave_one_out: Option<f32>,
+    /// The sample variance in the prior (`DeepViewConfig::prior_sample_variance`).
+    #[module(skip)]
+    pub prior_sample_variance: bool,
 }
 
 impl DeepViewModel {
@@ -756,6 +768,7 @@ impl DeepViewModel {
             } else {
                 None
             },
+            prior_sample_variance: config.init_prior.is_some() && config.prior_sample_variance,
         }
     }
 
@@ -780,6 +793,7 @@ impl DeepViewModel {
             smoothing: self.prior_smoothing,
             census: self.prior_census,
             leave_one_out: self.prior_leave_one_out,
+            sample_variance: self.prior_sample_variance,
         }
     }
 

@@ -56,6 +56,11 @@ pub struct TrainOptions {
     /// left out), or `off`. Default: the preset's (off) or --init's. Kept in the weights' config.json.
     #[arg(long, value_name = "B|off", value_parser = parse_leave_one_out)]
     pub prior_leave_one_out: Option<OrOff<f32>>,
+    /// The sample variance in the prior's matching cost: `on` (the variance of a point n >= 2 views see
+    /// is scaled by n / (n - 1)) or `off`. Default: the preset's (off) or --init's. Kept in the
+    /// weights' config.json.
+    #[arg(long, value_name = "on|off", value_parser = parse_on_off)]
+    pub prior_sample_variance: Option<bool>,
     /// Start from these weights instead of a random initialisation (fine-tuning): a weights folder
     /// (config.json + model.safetensors), a checkpoint folder, or `builtin` (the weights built into the
     /// program). The network
@@ -176,6 +181,15 @@ pub struct TrainOptions {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct OrOff<T>(pub Option<T>);
 
+/// `on` or `off`.
+fn parse_on_off(s: &str) -> Result<bool, String> {
+    match s.trim() {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("{s:?} is not `on` or `off`")),
+    }
+}
+
 /// `off`, or a leave-one-out weight (`0 < B <= 1`).
 fn parse_leave_one_out(s: &str) -> Result<OrOff<f32>, String> {
     if s.trim() == "off" {
@@ -239,6 +253,11 @@ impl TrainOptions {
             cfg.validate()
                 .map_err(|e| cfg_err(format!("--prior-leave-one-out: {e}")))?;
         }
+        if let Some(on) = self.prior_sample_variance {
+            cfg.prior_sample_variance = on;
+            cfg.validate()
+                .map_err(|e| cfg_err(format!("--prior-sample-variance: {e}")))?;
+        }
         Ok(cfg)
     }
 
@@ -263,6 +282,7 @@ impl TrainOptions {
                         to.prior_smoothing = from.prior_smoothing;
                         to.prior_census = from.prior_census;
                         to.prior_leave_one_out = from.prior_leave_one_out;
+                        to.prior_sample_variance = from.prior_sample_variance;
                     }
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
@@ -388,6 +408,11 @@ impl TrainOptions {
                 self.prior_leave_one_out
                     .is_some_and(|OrOff(b)| b != cfg.model.prior_leave_one_out),
                 "--prior-leave-one-out",
+            ),
+            (
+                self.prior_sample_variance
+                    .is_some_and(|on| on != cfg.model.prior_sample_variance),
+                "--prior-sample-variance",
             ),
             (self.batch.is_some_and(|b| b != t.batch), "--batch"),
             (
@@ -658,6 +683,7 @@ mod tests {
                 radius: 2,
             }),
             prior_leave_one_out: Some(0.75),
+            prior_sample_variance: true,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         std::fs::write(
@@ -682,6 +708,14 @@ mod tests {
         );
         assert_eq!(grown.prior_census, weights.prior_census);
         assert_eq!(grown.prior_leave_one_out, Some(0.75));
+        assert!(grown.prior_sample_variance);
+        let unsampled = TrainOptions {
+            prior_sample_variance: Some(false),
+            ..grow(None)
+        };
+        assert!(!unsampled.model().unwrap().prior_sample_variance);
+        assert_eq!(parse_on_off("on"), Ok(true));
+        assert!(parse_on_off("yes").is_err());
         assert_eq!(grow(Some(2)).model().unwrap().prior_radius, 2);
         // --prior-radius-size sets the size, 0 clears it (one radius at every size).
         let sized = |n| TrainOptions {
@@ -793,6 +827,11 @@ mod tests {
             loo(Some(0.75)).fixed_on_resume(&cfg),
             ["--prior-leave-one-out"]
         );
+        let sampled = TrainOptions {
+            prior_sample_variance: Some(true),
+            ..Default::default()
+        };
+        assert_eq!(sampled.fixed_on_resume(&cfg), ["--prior-sample-variance"]);
         let mut resumed = cfg.train.clone();
         other.adjust_on_resume(&mut resumed);
         assert_eq!(resumed.steps, 500);

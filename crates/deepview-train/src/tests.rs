@@ -37,6 +37,7 @@ fn tiny_model() -> DeepViewConfig {
         prior_smoothing: None,
         prior_census: None,
         prior_leave_one_out: None,
+        prior_sample_variance: false,
     }
 }
 

@@ -400,6 +400,7 @@ pub(crate) fn infer_engine_blocks(
             let weights_ptr = weights.as_mut_ptr() as usize;
             let census = model.active_census();
             let loo = model.prior_leave_one_out;
+            let sampled = model.prior_sample_variance;
             let scratch = || {
                 (
                     scratch(),
@@ -445,7 +446,7 @@ pub(crate) fn infer_engine_blocks(
                                 census_cost(&psv, sp, c.radius, greys, bits, cost);
                                 (cost.as_slice(), c.weight)
                             });
-                            prior_stats(&psv, sp, temperature, census, loo, mean, lg);
+                            prior_stats(&psv, sp, temperature, census, loo, sampled, mean, lg);
                             // SAFETY: the strip's kept rows of plane p's depth weights, written by
                             // this task only.
                             let dst = unsafe {
@@ -672,6 +673,8 @@ mod tests {
                 });
                 // The leave-one-out variance (three views).
                 model.prior_leave_one_out = (k >= 3).then_some(0.6);
+                // The sample variance (two and three views).
+                model.prior_sample_variance = k >= 2;
             }
             let (views, reference, depths) = scene(k, d);
             let inputs = ModelInputs {
@@ -724,11 +727,12 @@ mod tests {
             let max = max_diff(&got);
             let case = format!(
                 "{k} views, {d} planes, {updates} updates, prior {prior} (radius {}, weight {}, census \
-                 {:?}, leave-one-out {:?}), {unet_nets} U-Net",
+                 {:?}, leave-one-out {:?}, sample variance {}), {unet_nets} U-Net",
                 model.prior_radius,
                 model.prior_weight,
                 model.prior_census,
-                model.prior_leave_one_out
+                model.prior_leave_one_out,
+                model.prior_sample_variance
             );
             assert!(max < 2e-5, "{case}: {max}");
             // The renders streamed in blocks of any size and the nets run on strips of any height

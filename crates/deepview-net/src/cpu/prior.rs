@@ -22,13 +22,15 @@ fn logit(p: f32) -> f32 {
 /// `census = (cost, weight)` (`cost`: `[H*W]` from [`census_cost`]) `weight * cost` is added to the
 /// variance where two or more views see a pixel. With `leave_one_out = Some(b)` the variance of a pixel
 /// three or more views see is first blended with its least leave-one-out variance
-/// ([`leave_one_out_variance`]), weight `b`.
+/// ([`leave_one_out_variance`]), weight `b`; with `sample_variance` the variance of a pixel `n >= 2`
+/// views see is then scaled by `n / (n - 1)`.
 pub(crate) fn prior_stats(
     psv: &[&mut [f32]],
     plane: Plane,
     temperature: f64,
     census: Option<(&[f32], f32)>,
     leave_one_out: Option<f32>,
+    sample_variance: bool,
     mean: &mut [f32],
     lg: &mut [f32],
 ) {
@@ -100,6 +102,9 @@ pub(crate) fn prior_stats(
                 let ss = var[x] + var[w + x] + var[2 * w + x];
                 let loo = leave_one_out_variance(ss as f64, max_dev[x] as f64, n as f64) as f32;
                 q = (1.0 - b) * q + b * loo;
+            }
+            if sample_variance && n >= 1.5 {
+                q *= n / (n - 1.0);
             }
             if let Some((cost, weight)) = census {
                 q += weight * cost[o0 + x];

@@ -681,13 +681,15 @@ pub fn gpu_kernels(device: &Device) -> bool {
 }
 
 /// Whether the fused prior kernel computes the prior of `aggregation`: not with semi-global matching,
-/// a census term or the leave-one-out variance (those take burn's ops, [`agreement_prior_logits`]).
+/// a census term, the leave-one-out variance or the sample variance (those take burn's ops,
+/// [`agreement_prior_logits`]).
 ///
 /// [`agreement_prior_logits`]: crate::network::agreement_prior_logits
 pub fn prior_is_fused(aggregation: deepview_mpi::agreement::Aggregation) -> bool {
     aggregation.smoothing.is_none()
         && aggregation.census.is_none()
         && aggregation.leave_one_out.is_none()
+        && !aggregation.sample_variance
 }
 
 /// [`GpuOps::gpu_composite`] on a tensor of a cubecl device.

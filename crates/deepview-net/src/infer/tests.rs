@@ -115,21 +115,24 @@ fn untrained_prior_model_equals_agreement_mpi() {
     let sgm = Some(deepview_mpi::agreement::Smoothing { p1: 2.0, p2: 64.0 });
     let census = |weight, radius| Some(deepview_mpi::agreement::Census { weight, radius });
     // The leave-one-out variance: per pixel, where three or more views see.
-    for (k, planes, smooth, radius, weight, smoothing, census, loo) in [
-        (3, 8, true, 0, 1.0, None, None, None),
-        (4, 5, false, 0, 1.0, None, None, None),
-        (2, 6, true, 0, 1.0, None, None, None),
-        (3, 6, true, 3, 0.5, None, None, None),
-        (4, 5, false, 9, 1.0, None, None, None),
-        (3, 8, true, 0, 1.0, sgm, None, None),
-        (3, 6, true, 3, 0.5, sgm, None, None),
-        (2, 11, false, 2, 1.0, sgm, None, None),
-        (3, 8, true, 0, 1.0, None, census(0.03, 2), None),
-        (4, 6, false, 3, 0.5, sgm, census(0.02, 1), None),
-        (3, 7, true, 2, 0.5, sgm, census(0.05, 3), None),
-        (4, 6, true, 0, 1.0, None, None, Some(0.75)),
-        (3, 6, true, 3, 0.5, sgm, None, Some(1.0)),
-        (4, 7, false, 2, 0.5, sgm, census(0.03, 2), Some(0.5)),
+    for (k, planes, smooth, radius, weight, smoothing, census, loo, sampled) in [
+        (3, 8, true, 0, 1.0, None, None, None, false),
+        (4, 5, false, 0, 1.0, None, None, None, false),
+        (2, 6, true, 0, 1.0, None, None, None, false),
+        (3, 6, true, 3, 0.5, None, None, None, false),
+        (4, 5, false, 9, 1.0, None, None, None, false),
+        (3, 8, true, 0, 1.0, sgm, None, None, false),
+        (3, 6, true, 3, 0.5, sgm, None, None, false),
+        (2, 11, false, 2, 1.0, sgm, None, None, false),
+        (3, 8, true, 0, 1.0, None, census(0.03, 2), None, false),
+        (4, 6, false, 3, 0.5, sgm, census(0.02, 1), None, false),
+        (3, 7, true, 2, 0.5, sgm, census(0.05, 3), None, false),
+        (4, 6, true, 0, 1.0, None, None, Some(0.75), false),
+        (3, 6, true, 3, 0.5, sgm, None, Some(1.0), false),
+        (4, 7, false, 2, 0.5, sgm, census(0.03, 2), Some(0.5), false),
+        // The sample variance, alone and with the rest.
+        (3, 8, true, 0, 1.0, None, None, None, true),
+        (4, 6, true, 3, 0.5, sgm, census(0.02, 2), Some(0.75), true),
     ] {
         let cfg = DeepViewConfig {
             features_large: 4,
@@ -141,6 +144,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             prior_smoothing: smoothing,
             prior_census: census,
             prior_leave_one_out: loo,
+            prior_sample_variance: sampled,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         let model = DeepViewModel::new(&cfg, &dev);
@@ -193,7 +197,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             assert!(
                 max < 3e-4,
                 "{path}: k {k}, planes {planes}, radius {radius}, {smoothing:?}, {census:?}, \
-                 leave-one-out {loo:?}: max difference {max}"
+                 leave-one-out {loo:?}, sample variance {sampled}: max difference {max}"
             );
         }
         for b in expected.layers.chunks_exact(4) {
@@ -232,6 +236,16 @@ fn untrained_prior_model_equals_agreement_mpi() {
             assert!(
                 moved > 0.05,
                 "the census term changed the MPI by only {moved}"
+            );
+        }
+        if sampled {
+            let moved = without(deepview_mpi::agreement::Aggregation {
+                sample_variance: false,
+                ..aggregation
+            });
+            assert!(
+                moved > 0.05,
+                "the sample variance changed the MPI by only {moved}"
             );
         }
         if loo.is_some() {
@@ -820,7 +834,9 @@ fn wgpu_inference_equals_the_cpu_engine() {
         (true, 5, None, None, Some(0.75)),
         (true, 5, sgm, census, Some(0.75)),
     ] {
-        let aggregated = (prior, radius, smoothing, census, loo);
+        // The sample variance with the leave-one-out term (burn's ops on the GPU as well).
+        let sampled = loo.is_some();
+        let aggregated = (prior, radius, smoothing, census, loo, sampled);
         let mut model = small_model(&cpu, 1);
         if prior {
             model.prior_temperature = crate::config::CPU_PRIOR_TEMPERATURE;
@@ -828,6 +844,7 @@ fn wgpu_inference_equals_the_cpu_engine() {
             model.prior_smoothing = smoothing;
             model.prior_census = census;
             model.prior_leave_one_out = loo;
+            model.prior_sample_variance = sampled;
         }
         let (views, reference, depths) = scene(3);
         let budget = 1 << 30;
@@ -865,7 +882,7 @@ fn wgpu_inference_equals_the_cpu_engine() {
         let spread = a.layers.iter().fold(0f32, |m, v| m.max(*v))
             - a.layers.iter().fold(1f32, |m, v| m.min(*v));
         eprintln!(
-            "wgpu against the CPU engine (prior, radius, smoothing, census, leave-one-out: {aggregated:?}): max \
+            "wgpu against the CPU engine (prior, radius, smoothing, census, leave-one-out, sample variance: {aggregated:?}): max \
              |difference| {max:e} (values span {spread})"
         );
         assert!(spread > 0.1, "a degenerate MPI ({spread})");
@@ -880,6 +897,7 @@ fn wgpu_inference_equals_the_cpu_engine() {
         if loo.is_some() {
             let mut plain = model.clone();
             plain.prior_leave_one_out = None;
+            plain.prior_sample_variance = false;
             let c = run(&plain, &views, &reference, &depths, &on_cpu, &mut |_| {}).unwrap();
             let moved = a
                 .layers
