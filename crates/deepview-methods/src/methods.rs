@@ -107,11 +107,7 @@ pub fn parse_census(s: &str) -> Result<deepview_mpi::agreement::Census, String> 
 
 /// A leave-one-out weight in `(0, 1]`.
 pub fn parse_leave_one_out(s: &str) -> Result<f32, String> {
-    match s.trim().parse::<f32>() {
-        Ok(b) if deepview_mpi::agreement::leave_one_out_weight_is_valid(b) => Ok(b),
-        Ok(_) => Err(format!("{s:?} must be above 0 and at most 1")),
-        Err(_) => Err(format!("{s:?} is not a number")),
-    }
+    deepview_mpi::agreement::parse_leave_one_out(s)
 }
 
 fn positive_f64(s: &str) -> Result<f64, String> {

@@ -257,6 +257,15 @@ pub fn leave_one_out_weight_is_valid(b: f32) -> bool {
     b.is_finite() && b > 0.0 && b <= 1.0
 }
 
+/// A leave-one-out weight as the options take it: a number in `(0, 1]`.
+pub fn parse_leave_one_out(s: &str) -> Result<f32, String> {
+    match s.trim().parse::<f32>() {
+        Ok(b) if leave_one_out_weight_is_valid(b) => Ok(b),
+        Ok(_) => Err(format!("{s:?} must be above 0 and at most 1")),
+        Err(_) => Err(format!("{s:?} is not a number")),
+    }
+}
+
 /// The least variance (mean over RGB) of a plane point's samples when one of the `n >= 3` views that see
 /// it is left out: from the sum over the views and RGB of the squared deviations from the mean, `ss`, and
 /// the largest of one view's (summed over RGB), `max_dev`. Leaving out sample `i` takes
@@ -999,11 +1008,56 @@ mod tests {
         }
     }
 
+    /// A `w x h` camera of focal length `f` at `(x, 0, 0)`, looking down +z.
+    fn camera_at(w: u32, h: u32, f: f64, x: f64) -> Camera {
+        use deepview_geometry::{DMat3, DVec3, Intrinsics, Pose};
+        Camera::new(
+            w,
+            h,
+            Intrinsics::new(f, f, w as f64 / 2.0, h as f64 / 2.0),
+            Pose::from_center(DMat3::IDENTITY, DVec3::new(x, 0.0, 0.0)),
+        )
+    }
+
+    /// The fraction of the reference pixels in `columns` whose best plane (the largest logit of
+    /// [`sweep_statistics`] with `aggregation`) is at depth `truth`.
+    fn right_depth_fraction(
+        inputs: &[(ImageF32, Camera)],
+        reference: &Camera,
+        depths: &[f64],
+        truth: f64,
+        aggregation: Aggregation,
+        columns: std::ops::Range<usize>,
+    ) -> f64 {
+        let (mpi, logits) = sweep_statistics(
+            inputs,
+            reference,
+            depths.to_vec(),
+            0.0005,
+            0.02,
+            aggregation,
+        );
+        let (w, n) = (
+            reference.width as usize,
+            reference.width as usize * reference.height as usize,
+        );
+        let pixels: Vec<usize> = (0..n).filter(|p| columns.contains(&(p % w))).collect();
+        let right = pixels
+            .iter()
+            .filter(|&&p| {
+                let best = (0..mpi.planes())
+                    .max_by(|&a, &b| logits[a * n + p].total_cmp(&logits[b * n + p]))
+                    .unwrap();
+                mpi.depths[best] == truth
+            })
+            .count();
+        right as f64 / pixels.len() as f64
+    }
+
     /// Three views of a textured fronto-parallel plane, each with its own exposure: the colour variance
     /// alone mistakes the depth, the census term finds it.
     #[test]
     fn census_term_finds_the_depth_across_exposures() {
-        use deepview_geometry::{DMat3, DVec3, Intrinsics, Pose};
         let (w, h, f) = (48u32, 32u32, 20.0);
         // Cameras at x = -0.4, 0, 0.4; the plane at depth 4: 2 px of disparity per view step.
         // Per-pixel noise (the views' shifts are whole pixels, so every view samples it exactly).
@@ -1014,12 +1068,7 @@ mod tests {
         let inputs: Vec<(ImageF32, Camera)> = [(-0.4, 0.8f32), (0.0, 1.0), (0.4, 1.25)]
             .iter()
             .map(|&(x, gain)| {
-                let cam = Camera::new(
-                    w,
-                    h,
-                    Intrinsics::new(f, f, w as f64 / 2.0, h as f64 / 2.0),
-                    Pose::from_center(DMat3::IDENTITY, DVec3::new(x, 0.0, 0.0)),
-                );
+                let cam = camera_at(w, h, f, x);
                 let mut img = ImageF32::new(w, h, 3);
                 for (p, px) in img.data.chunks_exact_mut(3).enumerate() {
                     let (u, v) = ((p % w as usize) as f64, (p / w as usize) as f64);
@@ -1033,34 +1082,20 @@ mod tests {
         // Planes 1 px of disparity apart (for the outer views), the plane's depth among them.
         let depths: Vec<f64> = (1..=8).map(|k| 16.0 / k as f64).collect();
         let truth = depths.iter().position(|&d| d == 4.0).unwrap();
+        // The interior, where every view sees every plane.
         let found = |census| {
             let aggregation = Aggregation {
                 census,
                 ..Aggregation::NONE
             };
-            let (mpi, logits) = sweep_statistics(
+            right_depth_fraction(
                 &inputs,
                 &reference,
-                depths.clone(),
-                0.0005,
-                0.02,
+                &depths,
+                depths[truth],
                 aggregation,
-            );
-            let n = (w * h) as usize;
-            // The interior, where every view sees every plane.
-            let pixels: Vec<usize> = (0..n)
-                .filter(|p| (10..w as usize - 10).contains(&(p % w as usize)))
-                .collect();
-            let right = pixels
-                .iter()
-                .filter(|&&p| {
-                    let best = (0..mpi.planes())
-                        .max_by(|&a, &b| logits[a * n + p].total_cmp(&logits[b * n + p]))
-                        .unwrap();
-                    mpi.depths[best] == depths[truth]
-                })
-                .count();
-            right as f64 / pixels.len() as f64
+                10..w as usize - 10,
+            )
         };
         let (plain, census) = (
             found(None),
@@ -1140,7 +1175,6 @@ mod tests {
     /// variance of all four mistakes the depth at some pixels, the leave-one-out term finds it.
     #[test]
     fn leave_one_out_term_finds_the_depth_behind_one_views_occluder() {
-        use deepview_geometry::{DMat3, DVec3, Intrinsics, Pose};
         let (w, h, f) = (64u32, 32u32, 20.0);
         let noise = |u: f64, v: f64, s: f64| {
             let r = ((u * 12.9898 + v * 78.233 + s).sin() * 43758.5453).rem_euclid(1.0);
@@ -1150,12 +1184,7 @@ mod tests {
         let inputs: Vec<(ImageF32, Camera)> = [-1.6, -0.8, 0.8, 1.6]
             .iter()
             .map(|&x| {
-                let cam = Camera::new(
-                    w,
-                    h,
-                    Intrinsics::new(f, f, w as f64 / 2.0, h as f64 / 2.0),
-                    Pose::from_center(DMat3::IDENTITY, DVec3::new(x, 0.0, 0.0)),
-                );
+                let cam = camera_at(w, h, f, x);
                 let mut img = ImageF32::new(w, h, 3);
                 for (p, px) in img.data.chunks_exact_mut(3).enumerate() {
                     let (u, v) = ((p % w as usize) as f64, (p / w as usize) as f64);
@@ -1171,44 +1200,25 @@ mod tests {
                 (img, cam)
             })
             .collect();
-        let reference = Camera::new(
-            w,
-            h,
-            Intrinsics::new(f, f, w as f64 / 2.0, h as f64 / 2.0),
-            Pose::from_center(DMat3::IDENTITY, DVec3::ZERO),
-        );
+        let reference = camera_at(w, h, f, 0.0);
         // Planes 1 px of disparity apart for the inner views, the plane's depth among them.
         let depths: Vec<f64> = (1..=8).map(|k| 16.0 / k as f64).collect();
         let truth = depths.iter().position(|&d| d == 4.0).unwrap();
+        // The reference pixels the occluded part of the last view covers at the plane's depth (its
+        // columns 24..44 are reference columns 32..52), where every view sees every plane.
         let found = |leave_one_out| {
             let aggregation = Aggregation {
                 leave_one_out,
                 ..Aggregation::NONE
             };
-            let (mpi, logits) = sweep_statistics(
+            right_depth_fraction(
                 &inputs,
                 &reference,
-                depths.clone(),
-                0.0005,
-                0.02,
+                &depths,
+                depths[truth],
                 aggregation,
-            );
-            let n = (w * h) as usize;
-            // The reference pixels the occluded part of the last view covers at the plane's depth
-            // (its columns 24..44 are reference columns 32..52), where every view sees every plane.
-            let pixels: Vec<usize> = (0..n)
-                .filter(|p| (33..51).contains(&(p % w as usize)))
-                .collect();
-            let right = pixels
-                .iter()
-                .filter(|&&p| {
-                    let best = (0..mpi.planes())
-                        .max_by(|&a, &b| logits[a * n + p].total_cmp(&logits[b * n + p]))
-                        .unwrap();
-                    mpi.depths[best] == depths[truth]
-                })
-                .count();
-            right as f64 / pixels.len() as f64
+                33..51,
+            )
         };
         // The sample variance: where all four views see (columns 17..47 at every plane), every logit is
         // 4/3 of the population variance's.

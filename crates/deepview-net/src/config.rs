@@ -4,8 +4,8 @@
 pub use deepview_mpi::agreement::Census;
 /// Semi-global matching penalties of the prior ([`DeepViewConfig::prior_smoothing`]).
 pub use deepview_mpi::agreement::Smoothing;
-/// Whether a weight is one [`DeepViewConfig::prior_leave_one_out`] takes.
-pub use deepview_mpi::agreement::leave_one_out_weight_is_valid;
+/// A weight [`DeepViewConfig::prior_leave_one_out`] takes, parsed.
+pub use deepview_mpi::agreement::parse_leave_one_out;
 use serde::{Deserialize, Serialize};
 
 /// Errors of a configuration.

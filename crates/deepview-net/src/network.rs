@@ -448,23 +448,19 @@ pub fn prior_costs_burn(
         .expect("at least one view");
     let denom = count.clone().clamp_min(1.0);
     let mean = rgb.iter().cloned().reduce(|a, b| a + b).expect("views") / denom.clone();
-    // Two-pass variance of the valid samples (population variance, mean over RGB).
-    let var = rgb
+    // Two-pass variance of the valid samples (population variance, mean over RGB), from each view's
+    // squared deviations from the mean (0 where it does not see).
+    let sq: Vec<Tensor<4>> = rgb
         .iter()
         .zip(&valid)
         .map(|(c, m)| (c.clone() - mean.clone() * m.clone()).square())
-        .reduce(|a, b| a + b)
-        .expect("views")
-        / denom;
+        .collect();
+    let var = sq.iter().cloned().reduce(|a, b| a + b).expect("views") / denom;
     let var = var.mean_dim(1);
     let var = match aggregation.leave_one_out {
         Some(b) => {
-            // Each view's squared deviation from the mean (summed over RGB; 0 where it does not see).
-            let dev: Vec<Tensor<4>> = rgb
-                .iter()
-                .zip(&valid)
-                .map(|(c, m)| (c.clone() - mean.clone() * m.clone()).square().sum_dim(1))
-                .collect();
+            // Each view's squared deviation summed over RGB.
+            let dev: Vec<Tensor<4>> = sq.into_iter().map(|s| s.sum_dim(1)).collect();
             let ss = dev.iter().cloned().reduce(|a, b| a + b).expect("views");
             let max_dev = dev.into_iter().reduce(|a, b| a.max_pair(b)).expect("views");
             // deepview_mpi::agreement::leave_one_out_variance where three or more views see.

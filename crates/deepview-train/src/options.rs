@@ -195,11 +195,7 @@ fn parse_leave_one_out(s: &str) -> Result<OrOff<f32>, String> {
     if s.trim() == "off" {
         return Ok(OrOff(None));
     }
-    match s.trim().parse::<f32>() {
-        Ok(b) if deepview_net::config::leave_one_out_weight_is_valid(b) => Ok(OrOff(Some(b))),
-        Ok(_) => Err(format!("{s:?} must be above 0 and at most 1, or `off`")),
-        Err(_) => Err(format!("{s:?} is not a number or `off`")),
-    }
+    deepview_net::config::parse_leave_one_out(s).map(|b| OrOff(Some(b)))
 }
 
 /// `off`, or what `T` parses.

@@ -42,10 +42,9 @@ pub(crate) fn prior_stats(
     let mut count = vec![0f32; w];
     let mut sum = vec![0f32; 3 * w];
     let mut var = vec![0f32; 3 * w];
-    // With the leave-one-out term: per column, one view's squared deviation (summed over RGB) and
-    // the largest of the views'.
-    let loo_len = if leave_one_out.is_some() { w } else { 0 };
-    let (mut dev, mut max_dev) = (vec![0f32; loo_len], vec![0f32; loo_len]);
+    // Per column, one view's squared deviation (summed over RGB) and the largest of the views' (the
+    // leave-one-out term's).
+    let (mut dev, mut max_dev) = (vec![0f32; w], vec![0f32; w]);
     for y in 0..plane.h {
         let i0 = plane.index(y, 0);
         let o0 = y * w;
@@ -77,16 +76,11 @@ pub(crate) fn prior_stats(
             for c in 0..3 {
                 let x = &psv[4 * v + c][i0..i0 + w];
                 let mu = &mean[c * hw + o0..c * hw + o0 + w];
-                for (((q, &x), &m), &mu) in var[c * w..(c + 1) * w].iter_mut().zip(x).zip(m).zip(mu)
-                {
+                let q = var[c * w..(c + 1) * w].iter_mut().zip(dev.iter_mut());
+                for ((((q, d), &x), &m), &mu) in q.zip(x).zip(m).zip(mu) {
                     let e = x * m - mu * m;
                     *q += e * e;
-                }
-                if leave_one_out.is_some() {
-                    for (((d, &x), &m), &mu) in dev.iter_mut().zip(x).zip(m).zip(mu) {
-                        let e = x * m - mu * m;
-                        *d += e * e;
-                    }
+                    *d += e * e;
                 }
             }
             for (a, &d) in max_dev.iter_mut().zip(&dev) {
