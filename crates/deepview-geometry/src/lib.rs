@@ -19,6 +19,6 @@ pub use planes::{
     AUTO_MAX_SPACING_PX, AUTO_PLANES_MAX, AUTO_PLANES_MIN, AutoPlanes, PlaneSpacing,
     auto_plane_count, auto_planes, disparity_range, plane_depths,
 };
-pub use reference::{ReferenceOptions, mpi_reference, reference_camera};
+pub use reference::{ReferenceOptions, mpi_reference, mpi_reference_scaled, reference_camera};
 
 pub use glam::{DMat3, DMat4, DVec2, DVec3};

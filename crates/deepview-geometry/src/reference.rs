@@ -18,6 +18,9 @@ pub struct ReferenceOptions {
     pub cover: Option<(f64, f64)>,
     /// Upper bound of the enlargement per side, as a fraction of the base size (0.25 = 25% more per side).
     pub max_margin: f64,
+    /// Pixels per base pixel along each axis (1 = the inputs' pixel pitch; 1.5 = a finer grid with
+    /// 1.5 times the width and height over the same field of view), applied after `cover`.
+    pub scale: f64,
     /// Round the final size up to a multiple of this (1 = no rounding).
     pub size_multiple: u32,
 }
@@ -29,6 +32,7 @@ impl Default for ReferenceOptions {
             at_view_center: false,
             cover: None,
             max_margin: 0.25,
+            scale: 1.0,
             size_multiple: 1,
         }
     }
@@ -87,6 +91,9 @@ pub fn reference_camera(
     if let Some((near, far)) = options.cover {
         base = enlarge_to_cover(&base, inputs, near, far, options.max_margin);
     }
+    if options.scale != 1.0 {
+        base = rescaled(&base, options.scale)?;
+    }
     let m = options.size_multiple.max(1);
     if m > 1 {
         let w = base.width.div_ceil(m) * m;
@@ -102,6 +109,26 @@ pub fn reference_camera(
     }
     base.validate()?;
     Ok(base)
+}
+
+/// `base` with `scale` times its pixels along each axis over the same field of view: the size rounded,
+/// and the intrinsics scaled by the rounded size's exact ratio, so a point's continuous pixel coordinates
+/// scale by that ratio (pixel centres at `i + 0.5` in both grids).
+fn rescaled(base: &Camera, scale: f64) -> Result<Camera, GeometryError> {
+    if !(scale.is_finite() && scale > 0.0) {
+        return Err(GeometryError::Invalid(format!(
+            "MPI scale {scale} must be positive"
+        )));
+    }
+    let size = |n: u32| (n as f64 * scale).round().max(1.0);
+    let (w, h) = (size(base.width), size(base.height));
+    let (sx, sy) = (w / base.width as f64, h / base.height as f64);
+    let i = base.intrinsics;
+    let mut out = *base;
+    out.intrinsics = Intrinsics::new(i.fx * sx, i.fy * sy, i.cx * sx, i.cy * sy);
+    out.width = w as u32;
+    out.height = h as u32;
+    Ok(out)
 }
 
 /// Grow the image of `base` (same focal length, shifted principal point) so every input image's
@@ -155,10 +182,21 @@ fn enlarge_to_cover(
 /// inputs' centroid and average orientation ([`reference_camera`]), its field of view enlarged to cover
 /// them between near and far.
 pub fn mpi_reference(cameras: &[Camera], near_far: (f64, f64)) -> Result<Camera, GeometryError> {
+    mpi_reference_scaled(cameras, near_far, 1.0)
+}
+
+/// [`mpi_reference`] with `scale` times its pixels along each axis (`--mpi-scale`; see
+/// [`ReferenceOptions::scale`]).
+pub fn mpi_reference_scaled(
+    cameras: &[Camera],
+    near_far: (f64, f64),
+    scale: f64,
+) -> Result<Camera, GeometryError> {
     reference_camera(
         cameras,
         &ReferenceOptions {
             cover: Some(near_far),
+            scale,
             ..Default::default()
         },
     )
@@ -209,6 +247,44 @@ mod tests {
                 let q = h.apply(p);
                 assert!(q.x >= -1e-9 && q.y >= -1e-9 && q.x <= 76.0 + 1e-9 && q.y <= 60.0 + 1e-9);
             }
+        }
+    }
+
+    #[test]
+    fn scale_refines_the_grid_over_the_same_view() {
+        let cover = Some((1.0, 10.0));
+        let base = reference_camera(
+            &rig(),
+            &ReferenceOptions {
+                cover,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let fine = mpi_reference_scaled(&rig(), (1.0, 10.0), 1.5).unwrap();
+        assert_eq!((fine.width, fine.height), (114, 90));
+        assert_eq!(fine.pose, base.pose);
+        // Any point's continuous pixel coordinates are 1.5 times the base camera's; the image corners map to
+        // the image corners, so both grids cover the same view.
+        for world in [DVec3::new(0.3, -0.2, 2.0), DVec3::new(-1.0, 0.7, 7.5)] {
+            let (p, q) = (base.project(world).unwrap(), fine.project(world).unwrap());
+            assert!((q - p * 1.5).length() < 1e-9, "{p} -> {q}");
+        }
+        let corner = base.unproject(DVec2::new(76.0, 60.0), 3.0);
+        assert!((fine.project(corner).unwrap() - DVec2::new(114.0, 90.0)).length() < 1e-9);
+        // Sizes round; the intrinsics follow the rounded ratio.
+        let odd = mpi_reference_scaled(&rig(), (1.0, 10.0), 1.25).unwrap();
+        assert_eq!((odd.width, odd.height), (95, 75));
+        assert!((odd.intrinsics.fx - base.intrinsics.fx * 95.0 / 76.0).abs() < 1e-9);
+        assert_eq!(
+            mpi_reference_scaled(&rig(), (1.0, 10.0), 1.0).unwrap(),
+            base
+        );
+        for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            assert!(
+                mpi_reference_scaled(&rig(), (1.0, 10.0), bad).is_err(),
+                "{bad}"
+            );
         }
     }
 

@@ -42,6 +42,8 @@ pub struct PsvMeanOptions {
     /// Cost aggregation ([`agreement::aggregate_seen`]); the default, [`agreement::Aggregation::NONE`], is
     /// the per-pixel baseline of the tables.
     pub aggregation: agreement::Aggregation,
+    /// MPI pixels per input pixel along each axis (`--mpi-scale`; 1 by default).
+    pub scale: f64,
 }
 
 impl Default for PsvMeanOptions {
@@ -51,6 +53,7 @@ impl Default for PsvMeanOptions {
             temperature: agreement::TEMPERATURE,
             single_view_variance: agreement::SINGLE_VIEW_VARIANCE,
             aggregation: agreement::Aggregation::NONE,
+            scale: 1.0,
         }
     }
 }
@@ -60,9 +63,10 @@ impl Default for PsvMeanOptions {
 pub(crate) fn baseline_reference(
     inputs: &[(ImageF32, Camera)],
     near_far: (f64, f64),
+    scale: f64,
 ) -> Result<Camera, MethodError> {
     let cams: Vec<Camera> = inputs.iter().map(|(_, c)| *c).collect();
-    mpi_reference(&cams, near_far)
+    mpi_reference(&cams, near_far, scale)
 }
 
 /// An MPI from the plane sweep volume by cross-view colour agreement ([`deepview_mpi::agreement`]) in the
@@ -87,7 +91,7 @@ pub fn agreement_mpi(
             msg: format!("temperature {} must be positive", options.temperature),
         });
     }
-    let reference = baseline_reference(inputs, near_far)?;
+    let reference = baseline_reference(inputs, near_far, options.scale)?;
     let depths = plane_depths(
         near_far.0,
         near_far.1,

@@ -39,6 +39,8 @@ pub struct LearnedMethod {
     source: WeightsSource,
     planes: Planes,
     budget: u64,
+    /// MPI pixels per input pixel along each axis (`--mpi-scale`).
+    scale: f64,
 }
 
 impl LearnedMethod {
@@ -75,7 +77,17 @@ impl LearnedMethod {
             source,
             planes,
             budget,
+            scale: 1.0,
         })
+    }
+
+    /// Make MPIs with `scale` times the reference camera's pixels along each axis (`--mpi-scale`; 1 by
+    /// default): a finer grid over the same view, sharper where the inputs' samples fall between MPI
+    /// pixels, at `scale^2` times the work. The prior's aggregation window grows with it (it covers the
+    /// same part of the scene).
+    pub fn with_scale(mut self, scale: f64) -> Self {
+        self.scale = scale;
+        self
     }
 
     /// The model configuration saved with the weights.
@@ -110,24 +122,31 @@ impl MpiMethod for LearnedMethod {
         let near_far = request.near_far;
         let cams: Vec<Camera> = request.inputs.iter().map(|(_, c)| *c).collect();
         weights::check_views(&self.config, cams.len())?;
-        let reference = mpi_reference(&cams, near_far)?;
+        let reference = mpi_reference(&cams, near_far, self.scale)?;
         let views: Vec<(ImageF32, Camera)> = request
             .inputs
             .iter()
             .map(|(img, cam)| (img.to_rgb(), *cam))
             .collect();
         // The prior's aggregation radius on these images (it grows on images larger than the weights
-        // were trained on: `DeepViewConfig::prior_radius_at`).
+        // were trained on: `DeepViewConfig::prior_radius_at`), in MPI pixels (`scale` of them per input
+        // pixel).
         let size = views
             .iter()
             .map(|(img, _)| img.width.max(img.height))
             .max()
             .unwrap_or(0);
+        let mpi_size = (size as f64 * self.scale).round() as u32;
         // (0 for a model without the prior, as its config validates to.)
-        self.model.prior_radius = self.config.prior_radius_at(size);
+        self.model.prior_radius = self.config.prior_radius_at(mpi_size);
         let note = (self.model.prior_radius != self.config.prior_radius).then(|| {
+            let at = if self.scale != 1.0 {
+                format!(" at MPI scale {}", self.scale)
+            } else {
+                String::new()
+            };
             format!(
-                "prior window radius {}, grown from {} for {size}-px images",
+                "prior window radius {}, grown from {} for {size}-px images{at}",
                 self.model.prior_radius, self.config.prior_radius
             )
         });

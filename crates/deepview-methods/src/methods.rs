@@ -118,6 +118,18 @@ fn positive_f64(s: &str) -> Result<f64, String> {
     }
 }
 
+/// `--mpi-scale`: a number in 0.25..=4.
+pub fn parse_mpi_scale(s: &str) -> Result<f64, String> {
+    let v = positive_f64(s)?;
+    if (0.25..=4.0).contains(&v) {
+        Ok(v)
+    } else {
+        Err(format!(
+            "{s:?} is outside 0.25..4 (MPI pixels per input pixel along each axis)"
+        ))
+    }
+}
+
 /// The settings of every method, as the commands that make or score MPIs take them.
 #[derive(clap::Args, Clone, Debug, PartialEq)]
 pub struct MethodOptions {
@@ -167,6 +179,12 @@ pub struct MethodOptions {
     /// the population variance's bias alone. Off by default.
     #[arg(long)]
     pub sample_variance: bool,
+    /// MPI pixels per input pixel along each axis (deepview and psv-mean; 0.25..4, default 1): e.g. `1.5`
+    /// makes the MPI on a grid 1.5 times finer over the same view, so that the plane sweep's samples of
+    /// the inputs and the render's samples of the MPI blur less. About `S^2` times the time and memory
+    /// (BENCHMARKS.md, "A finer MPI grid").
+    #[arg(long, value_name = "S", default_value_t = 1.0, value_parser = parse_mpi_scale)]
+    pub mpi_scale: f64,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -193,6 +211,7 @@ impl Default for MethodOptions {
             census: None,
             leave_one_out: None,
             sample_variance: false,
+            mpi_scale: 1.0,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -207,13 +226,30 @@ pub fn make_method(
     options: &MethodOptions,
     budget: u64,
 ) -> Result<Box<dyn MpiMethod>, MethodError> {
+    if options.mpi_scale != 1.0 && !matches!(kind, MethodKind::Deepview | MethodKind::PsvMean) {
+        return Err(MethodError::Method {
+            method: kind.name().into(),
+            msg: format!(
+                "--mpi-scale {} applies to deepview and psv-mean only ({})",
+                options.mpi_scale,
+                if kind == MethodKind::Nearest {
+                    "nearest's MPI is the nearest input's own image"
+                } else {
+                    "optimize's grid follows --max-width"
+                }
+            ),
+        });
+    }
     Ok(match kind {
-        MethodKind::Deepview => Box::new(LearnedMethod::load(
-            options.weights.as_deref(),
-            options.planes,
-            budget,
-            &deepview_net::device::parse_device(&options.device)?,
-        )?),
+        MethodKind::Deepview => Box::new(
+            LearnedMethod::load(
+                options.weights.as_deref(),
+                options.planes,
+                budget,
+                &deepview_net::device::parse_device(&options.device)?,
+            )?
+            .with_scale(options.mpi_scale),
+        ),
         _ => Box::new(Classical {
             kind,
             psv: PsvMeanOptions {
@@ -226,6 +262,7 @@ pub fn make_method(
                     leave_one_out: options.leave_one_out,
                     sample_variance: options.sample_variance,
                 },
+                scale: options.mpi_scale,
                 ..Default::default()
             },
             optimize: OptimizeOptions {
@@ -261,7 +298,11 @@ pub fn classical_planes(
     near_far: (f64, f64),
 ) -> Result<PlaneChoice, MethodError> {
     let (planes, budget) = (method.planes, method.budget);
-    let reference = mpi_reference(cams, near_far)?;
+    let scale = match method.kind {
+        MethodKind::PsvMean => method.psv.scale,
+        _ => 1.0,
+    };
+    let reference = mpi_reference(cams, near_far, scale)?;
     let (fixed, per_plane) = match method.kind {
         MethodKind::Optimize => optimize_bytes(&reference, cams, method.optimize.max_width),
         _ => psv_mean_bytes(&reference, cams, method.psv.aggregation),
@@ -356,7 +397,7 @@ impl MpiMethod for Classical {
                 planes: choice.count,
                 ..self.psv
             };
-            let reference = mpi_reference(&cams, near_far)?;
+            let reference = mpi_reference(&cams, near_far, options.scale)?;
             events(MethodEvent::Start {
                 planes: choice.count,
                 width: reference.width,

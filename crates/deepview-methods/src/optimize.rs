@@ -73,7 +73,7 @@ pub fn optimize_mpi_with_history(
         .iter()
         .map(|(img, cam)| working_view(img, cam, options.max_width))
         .collect();
-    let reference = baseline_reference(&views, near_far)?;
+    let reference = baseline_reference(&views, near_far, 1.0)?;
     let depths = plane_depths(
         near_far.0,
         near_far.1,

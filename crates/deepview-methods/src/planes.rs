@@ -57,9 +57,16 @@ pub struct PlaneChoice {
 }
 
 /// The reference camera every method places its MPI in ([`deepview_geometry::mpi_reference`], which
-/// training's plane rule uses too).
-pub fn mpi_reference(cameras: &[Camera], near_far: (f64, f64)) -> Result<Camera, MethodError> {
-    Ok(deepview_geometry::mpi_reference(cameras, near_far)?)
+/// training's plane rule uses too), with `scale` times its pixels along each axis (`--mpi-scale`; 1: the
+/// inputs' pixel pitch).
+pub fn mpi_reference(
+    cameras: &[Camera],
+    near_far: (f64, f64),
+    scale: f64,
+) -> Result<Camera, MethodError> {
+    Ok(deepview_geometry::mpi_reference_scaled(
+        cameras, near_far, scale,
+    )?)
 }
 
 /// Resolve `rule` for an MPI in `reference` from input cameras `views` (dataset indices `view_ids`, for the

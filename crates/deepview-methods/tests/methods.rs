@@ -191,12 +191,13 @@ fn learned_prior_radius_grows_with_the_image_size() {
     let dir = tempfile::tempdir().unwrap();
     let model = DeepViewModel::new(&cfg, &deepview_net::burn::tensor::Device::flex());
     save_model(dir.path(), &model, &cfg).unwrap();
-    let make = |kind: MethodKind, aggregate: usize| {
+    let make_at = |kind: MethodKind, aggregate: usize, mpi_scale: f64| {
         let options = MethodOptions {
             planes: Planes::Count(9),
             weights: Some(dir.path().to_path_buf()),
             aggregate,
             aggregate_weight: 0.5,
+            mpi_scale,
             ..Default::default()
         };
         let mut method = make_method(kind, &options, 1 << 30).unwrap();
@@ -208,6 +209,7 @@ fn learned_prior_radius_grows_with_the_image_size() {
         };
         method.make_mpi(&request, &mut |_| {}).unwrap()
     };
+    let make = |kind: MethodKind, aggregate: usize| make_at(kind, aggregate, 1.0);
     let made = make(MethodKind::Deepview, 0);
     assert_eq!(
         made.note.as_deref(),
@@ -228,6 +230,83 @@ fn learned_prior_radius_grows_with_the_image_size() {
     eprintln!("learned vs psv-mean: {at6:e} at radius 6, {at2:e} at radius 2");
     assert!(at6 < 3e-4, "the prior at radius 6: {at6}");
     assert!(at2 > 1e-2, "radius 2 should differ clearly: {at2}");
+    // On a grid 1.5 times finer (--mpi-scale 1.5) the window grows with it, to radius 9 (72 MPI pixels
+    // across): the learned model's prior is psv-mean's at radius 9 on the same grid.
+    let fine = make_at(MethodKind::Deepview, 0, 1.5);
+    assert_eq!(
+        fine.note.as_deref(),
+        Some("prior window radius 9, grown from 2 for 48-px images at MPI scale 1.5")
+    );
+    let base = &learned.camera;
+    assert_eq!(
+        (fine.mpi.camera.width, fine.mpi.camera.height),
+        (
+            (base.width as f64 * 1.5).round() as u32,
+            (base.height as f64 * 1.5).round() as u32
+        )
+    );
+    let diff = |a: &deepview_mpi::Mpi, b: &deepview_mpi::Mpi| {
+        assert_eq!(a.layers.len(), b.layers.len());
+        a.layers
+            .iter()
+            .zip(&b.layers)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0f32, f32::max)
+    };
+    let at9 = diff(&fine.mpi, &make_at(MethodKind::PsvMean, 9, 1.5).mpi);
+    let at6_fine = diff(&fine.mpi, &make_at(MethodKind::PsvMean, 6, 1.5).mpi);
+    eprintln!("at MPI scale 1.5: {at9:e} at radius 9, {at6_fine:e} at radius 6");
+    assert!(at9 < 3e-4, "the prior at radius 9: {at9}");
+    assert!(
+        at6_fine > 1e-2,
+        "radius 6 should differ clearly: {at6_fine}"
+    );
+}
+
+#[test]
+fn a_finer_mpi_grid_renders_the_target_sharper() {
+    // A texture 3x finer than the other tests' and inputs 1.45 px of disparity from the reference at the
+    // plane's depth: at the inputs' own pitch, bilinear sampling (inputs into the planes, planes into the
+    // target) blurs it at every fractional offset; on a grid twice as fine much less.
+    let freq = 3.0;
+    let inputs: Vec<(ImageF32, Camera)> = quad_inputs(0.0725)
+        .into_iter()
+        .map(|(_, c)| (render_plane_scaled(&c, DEPTH, freq), c))
+        .collect();
+    let target = camera_at(DVec3::new(0.03, -0.02, 0.0), W, H, F);
+    let truth = render_plane_scaled(&target, DEPTH, freq);
+    let nf = (1.0 / 0.9, 1.0 / 0.1);
+    let psnr_at = |mpi_scale: f64| {
+        let options = MethodOptions {
+            planes: Planes::Count(9),
+            mpi_scale,
+            ..Default::default()
+        };
+        let mut method = make_method(MethodKind::PsvMean, &options, 1 << 30).unwrap();
+        let request = MpiRequest {
+            inputs: &inputs,
+            ids: &[],
+            near_far: nf,
+            toward: Some(&target),
+        };
+        let mpi = method.make_mpi(&request, &mut |_| {}).unwrap().mpi;
+        let pred = render(&mpi, &target).to_rgb();
+        (psnr_interior(&pred, &truth, 6), mpi.camera)
+    };
+    let (p1, c1) = psnr_at(1.0);
+    let (p2, c2) = psnr_at(2.0);
+    eprintln!("psv-mean PSNR {p1:.2} dB at MPI scale 1, {p2:.2} dB at 2");
+    assert_eq!((c2.width, c2.height), (2 * c1.width, 2 * c1.height));
+    assert!(p2 > p1 + 1.0, "scale 2: {p2} dB, scale 1: {p1} dB");
+    // The methods that make their MPI in another camera refuse it.
+    for kind in [MethodKind::Nearest, MethodKind::Optimize] {
+        let options = MethodOptions {
+            mpi_scale: 1.5,
+            ..Default::default()
+        };
+        let err = make_method(kind, &options, 1 << 30).err().expect("refused");
+        assert!(err.to_string().contains("--mpi-scale"), "{err}");
+    }
 }
 
 #[test]
