@@ -111,23 +111,22 @@ pub fn reference_camera(
     Ok(base)
 }
 
-/// `base` with `scale` times its pixels along each axis over the same field of view: the size rounded,
-/// and the intrinsics scaled by the rounded size's exact ratio, so a point's continuous pixel coordinates
-/// scale by that ratio (pixel centres at `i + 0.5` in both grids).
+/// `base` with `scale` times its pixels along each axis over the same field of view: the intrinsics
+/// scaled by exactly `scale` (a point's continuous pixel coordinates scale by it, pixel centres at
+/// `i + 0.5` in both grids, square pixels stay square), the size rounded up so that the grid covers the
+/// whole base image (less than one pixel more at the right and bottom edges).
 fn rescaled(base: &Camera, scale: f64) -> Result<Camera, GeometryError> {
     if !(scale.is_finite() && scale > 0.0) {
         return Err(GeometryError::Invalid(format!(
             "MPI scale {scale} must be positive"
         )));
     }
-    let size = |n: u32| (n as f64 * scale).round().max(1.0);
-    let (w, h) = (size(base.width), size(base.height));
-    let (sx, sy) = (w / base.width as f64, h / base.height as f64);
+    let size = |n: u32| (n as f64 * scale - 1e-9).ceil().max(1.0) as u32;
     let i = base.intrinsics;
     let mut out = *base;
-    out.intrinsics = Intrinsics::new(i.fx * sx, i.fy * sy, i.cx * sx, i.cy * sy);
-    out.width = w as u32;
-    out.height = h as u32;
+    out.intrinsics = Intrinsics::new(i.fx * scale, i.fy * scale, i.cx * scale, i.cy * scale);
+    out.width = size(base.width);
+    out.height = size(base.height);
     Ok(out)
 }
 
@@ -272,14 +271,20 @@ mod tests {
         }
         let corner = base.unproject(DVec2::new(76.0, 60.0), 3.0);
         assert!((fine.project(corner).unwrap() - DVec2::new(114.0, 90.0)).length() < 1e-9);
-        // Sizes round; the intrinsics follow the rounded ratio.
-        let odd = mpi_reference_scaled(&rig(), (1.0, 10.0), 1.25).unwrap();
-        assert_eq!((odd.width, odd.height), (95, 75));
-        assert!((odd.intrinsics.fx - base.intrinsics.fx * 95.0 / 76.0).abs() < 1e-9);
-        assert_eq!(
-            mpi_reference_scaled(&rig(), (1.0, 10.0), 1.0).unwrap(),
-            base
-        );
+        // Sizes round up (76 * 1.3 = 98.8 -> 99, 60 * 1.3 = 78); the intrinsics scale by exactly 1.3 on both
+        // axes, so the base image's corner falls inside the last pixel.
+        let odd = mpi_reference_scaled(&rig(), (1.0, 10.0), 1.3).unwrap();
+        assert_eq!((odd.width, odd.height), (99, 78));
+        for (a, b) in [
+            (odd.intrinsics.fx, base.intrinsics.fx),
+            (odd.intrinsics.fy, base.intrinsics.fy),
+            (odd.intrinsics.cx, base.intrinsics.cx),
+            (odd.intrinsics.cy, base.intrinsics.cy),
+        ] {
+            assert!((a - b * 1.3).abs() < 1e-9, "{a} vs {b} * 1.3");
+        }
+        let q = odd.project(corner).unwrap();
+        assert!((q - DVec2::new(98.8, 78.0)).length() < 1e-9, "{q}");
         for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
             assert!(
                 mpi_reference_scaled(&rig(), (1.0, 10.0), bad).is_err(),

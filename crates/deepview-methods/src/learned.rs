@@ -83,8 +83,8 @@ impl LearnedMethod {
 
     /// Make MPIs with `scale` times the reference camera's pixels along each axis (`--mpi-scale`; 1 by
     /// default): a finer grid over the same view, sharper where the inputs' samples fall between MPI
-    /// pixels, at `scale^2` times the work. The prior's aggregation window grows with it (it covers the
-    /// same part of the scene).
+    /// pixels, at about `scale^2` times the work. The prior's aggregation window grows with it
+    /// (`DeepViewConfig::prior_radius_on`: it covers the same part of the scene).
     pub fn with_scale(mut self, scale: f64) -> Self {
         self.scale = scale;
         self
@@ -129,16 +129,14 @@ impl MpiMethod for LearnedMethod {
             .map(|(img, cam)| (img.to_rgb(), *cam))
             .collect();
         // The prior's aggregation radius on these images (it grows on images larger than the weights
-        // were trained on: `DeepViewConfig::prior_radius_at`), in MPI pixels (`scale` of them per input
-        // pixel).
+        // were trained on, and with a finer MPI grid: `DeepViewConfig::prior_radius_on`).
         let size = views
             .iter()
             .map(|(img, _)| img.width.max(img.height))
             .max()
             .unwrap_or(0);
-        let mpi_size = (size as f64 * self.scale).round() as u32;
         // (0 for a model without the prior, as its config validates to.)
-        self.model.prior_radius = self.config.prior_radius_at(mpi_size);
+        self.model.prior_radius = self.config.prior_radius_on(size, self.scale);
         let note = (self.model.prior_radius != self.config.prior_radius).then(|| {
             let at = if self.scale != 1.0 {
                 format!(" at MPI scale {}", self.scale)

@@ -118,14 +118,16 @@ fn positive_f64(s: &str) -> Result<f64, String> {
     }
 }
 
-/// `--mpi-scale`: a number in 0.25..=4.
+/// `--mpi-scale`: a number in 1..=4 (a coarser grid than the inputs' would alias: `--downscale` the
+/// inputs instead).
 pub fn parse_mpi_scale(s: &str) -> Result<f64, String> {
     let v = positive_f64(s)?;
-    if (0.25..=4.0).contains(&v) {
+    if (1.0..=4.0).contains(&v) {
         Ok(v)
     } else {
         Err(format!(
-            "{s:?} is outside 0.25..4 (MPI pixels per input pixel along each axis)"
+            "{s:?} is outside 1..4 (MPI pixels per input pixel along each axis; for a coarser MPI, \
+             --downscale the inputs)"
         ))
     }
 }
@@ -179,10 +181,11 @@ pub struct MethodOptions {
     /// the population variance's bias alone. Off by default.
     #[arg(long)]
     pub sample_variance: bool,
-    /// MPI pixels per input pixel along each axis (deepview and psv-mean; 0.25..4, default 1): e.g. `1.5`
+    /// MPI pixels per input pixel along each axis (deepview and psv-mean; 1..4, default 1): e.g. `1.5`
     /// makes the MPI on a grid 1.5 times finer over the same view, so that the plane sweep's samples of
-    /// the inputs and the render's samples of the MPI blur less. About `S^2` times the time and memory
-    /// (BENCHMARKS.md, "A finer MPI grid").
+    /// the inputs blur less. About `S^2` times the time and the MPI's memory (BENCHMARKS.md, "A finer MPI
+    /// grid"). The learned prior's window grows with the grid; psv-mean's --aggregate radius, the census
+    /// radius and the smoothing penalties are in MPI pixels.
     #[arg(long, value_name = "S", default_value_t = 1.0, value_parser = parse_mpi_scale)]
     pub mpi_scale: f64,
     /// Adam steps (optimize).
@@ -423,6 +426,16 @@ mod tests {
         assert_eq!(parse_leave_one_out(" 1 "), Ok(1.0));
         for bad in ["0", "-0.1", "1.01", "nan", "inf", "x", ""] {
             assert!(parse_leave_one_out(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn mpi_scales_parse_in_their_range() {
+        for (s, v) in [("1", 1.0), ("1.5", 1.5), (" 4 ", 4.0)] {
+            assert_eq!(parse_mpi_scale(s), Ok(v), "{s:?}");
+        }
+        for bad in ["0.99", "0.25", "0", "-1", "4.01", "nan", "inf", "x", ""] {
+            assert!(parse_mpi_scale(bad).is_err(), "{bad:?}");
         }
     }
 }

@@ -7,8 +7,8 @@ use common::*;
 use deepview_geometry::{Camera, DVec3};
 use deepview_image::ImageF32;
 use deepview_methods::{
-    MethodError, MethodKind, MethodOptions, MpiRequest, OptimizeOptions, Planes, PsvMeanOptions,
-    agreement_mpi, make_method, optimize_mpi_with_history,
+    Classical, MethodError, MethodKind, MethodOptions, MpiRequest, OptimizeOptions, Planes,
+    PsvMeanOptions, agreement_mpi, classical_planes, make_method, optimize_mpi_with_history,
 };
 use deepview_mpi::render;
 
@@ -216,17 +216,16 @@ fn learned_prior_radius_grows_with_the_image_size() {
         Some("prior window radius 6, grown from 2 for 48-px images")
     );
     let learned = made.mpi;
-    let max_diff = |other: &deepview_mpi::Mpi| {
-        assert_eq!(other.layers.len(), learned.layers.len());
-        learned
-            .layers
+    let diff = |a: &deepview_mpi::Mpi, b: &deepview_mpi::Mpi| {
+        assert_eq!(a.layers.len(), b.layers.len());
+        a.layers
             .iter()
-            .zip(&other.layers)
+            .zip(&b.layers)
             .map(|(a, b)| (a - b).abs())
             .fold(0f32, f32::max)
     };
-    let at6 = max_diff(&make(MethodKind::PsvMean, 6).mpi);
-    let at2 = max_diff(&make(MethodKind::PsvMean, 2).mpi);
+    let at6 = diff(&learned, &make(MethodKind::PsvMean, 6).mpi);
+    let at2 = diff(&learned, &make(MethodKind::PsvMean, 2).mpi);
     eprintln!("learned vs psv-mean: {at6:e} at radius 6, {at2:e} at radius 2");
     assert!(at6 < 3e-4, "the prior at radius 6: {at6}");
     assert!(at2 > 1e-2, "radius 2 should differ clearly: {at2}");
@@ -245,14 +244,6 @@ fn learned_prior_radius_grows_with_the_image_size() {
             (base.height as f64 * 1.5).round() as u32
         )
     );
-    let diff = |a: &deepview_mpi::Mpi, b: &deepview_mpi::Mpi| {
-        assert_eq!(a.layers.len(), b.layers.len());
-        a.layers
-            .iter()
-            .zip(&b.layers)
-            .map(|(a, b)| (a - b).abs())
-            .fold(0f32, f32::max)
-    };
     let at9 = diff(&fine.mpi, &make_at(MethodKind::PsvMean, 9, 1.5).mpi);
     let at6_fine = diff(&fine.mpi, &make_at(MethodKind::PsvMean, 6, 1.5).mpi);
     eprintln!("at MPI scale 1.5: {at9:e} at radius 9, {at6_fine:e} at radius 6");
@@ -430,4 +421,44 @@ fn bad_inputs_are_clear_errors() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("input 0") && e.contains("5x5"), "{e}");
+}
+
+#[test]
+fn a_finer_grid_keeps_the_plane_rule_within_the_budget() {
+    // `auto` follows the inputs' disparities, not the grid: the same count at scale 1 and 1.5 with ample
+    // memory. The memory estimate grows with the grid: the least budget that holds scale 1's count holds
+    // fewer planes at scale 1.5 (2.25 times the pixels).
+    let cams: Vec<Camera> = quad_inputs(0.1).into_iter().map(|(_, c)| c).collect();
+    let nf = (0.2, 100.0);
+    let count = |scale: f64, budget: u64| {
+        let method = Classical {
+            kind: MethodKind::PsvMean,
+            psv: PsvMeanOptions {
+                scale,
+                ..Default::default()
+            },
+            optimize: OptimizeOptions::default(),
+            planes: Planes::Auto,
+            budget,
+        };
+        classical_planes(&method, &cams, &[], nf).map_or(0, |c| c.count)
+    };
+    let full = count(1.0, 1 << 40);
+    assert!(full > 20, "auto planes {full}");
+    assert_eq!(count(1.5, 1 << 40), full);
+    let (mut lo, mut hi) = (0u64, 1u64 << 40);
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if count(1.0, mid) == full {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    let fine = count(1.5, hi);
+    eprintln!("auto: {full} planes at scale 1 within {hi} bytes, {fine} at scale 1.5");
+    assert!(
+        (8..full).contains(&fine),
+        "scale 1.5 within scale 1's budget: {fine} of {full} planes"
+    );
 }

@@ -156,6 +156,18 @@ impl DeepViewConfig {
         }
     }
 
+    /// The prior's aggregation radius on images whose larger side is `size` pixels in an MPI with `scale`
+    /// MPI pixels per image pixel along each axis (`--mpi-scale`): [`Self::prior_radius_at`] times `scale`,
+    /// rounded (at most [`MAX_PRIOR_RADIUS`]), so the window covers the same part of the scene on the
+    /// finer grid.
+    pub fn prior_radius_on(&self, size: u32, scale: f64) -> usize {
+        let r = self.prior_radius_at(size);
+        if scale == 1.0 || r == 0 {
+            return r;
+        }
+        ((r as f64 * scale).round() as usize).clamp(1, MAX_PRIOR_RADIUS)
+    }
+
     /// This config with the prior's radius of images whose larger side is `size` pixels
     /// ([`Self::prior_radius_at`]): what the model runs with on them (its margins included).
     pub fn at_image_size(&self, size: u32) -> DeepViewConfig {
@@ -572,6 +584,32 @@ mod tests {
             assert_eq!(cfg.prior_radius_at(size), want, "size {size}");
         }
         assert_eq!(cfg.prior_radius_at(100_000), MAX_PRIOR_RADIUS);
+        // On a finer MPI grid (`--mpi-scale`) the radius scales with it: 5 * 1.5 = 7.5 -> 8 at 504 px,
+        // 10 * 1.5 at 996 px, capped; at scale 1 it is the image size's.
+        for (size, scale, want) in [
+            (504, 1.5, 8),
+            (996, 1.5, 15),
+            (996, 1.0, 10),
+            (4096, 2.0, 64),
+        ] {
+            assert_eq!(
+                cfg.prior_radius_on(size, scale),
+                want,
+                "size {size} scale {scale}"
+            );
+        }
+        let unsized_cfg = DeepViewConfig {
+            prior_radius: 2,
+            prior_radius_size: None,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        assert_eq!(unsized_cfg.prior_radius_on(48, 1.0), 2);
+        assert_eq!(unsized_cfg.prior_radius_on(48, 1.5), 3);
+        let no_prior = DeepViewConfig {
+            prior_radius: 0,
+            ..unsized_cfg
+        };
+        assert_eq!(no_prior.prior_radius_on(48, 2.0), 0);
         assert_eq!(cfg.at_image_size(996).prior_radius, 10);
         assert_eq!(cfg.at_image_size(996).prior_radius_size, Some(512));
         let fixed = DeepViewConfig {
