@@ -50,6 +50,18 @@ fn quad_inputs(offset: f64) -> Vec<(ImageF32, Camera)> {
         .collect()
 }
 
+/// [`quad_inputs`] of the plane textured `freq` times finer, the target camera the psv-mean tests render
+/// into (off the reference, at fractional disparities) and its true image.
+fn textured_quad(offset: f64, freq: f64) -> (Vec<(ImageF32, Camera)>, Camera, ImageF32) {
+    let inputs = quad_inputs(offset)
+        .into_iter()
+        .map(|(_, c)| (render_plane_scaled(&c, DEPTH, freq), c))
+        .collect();
+    let target = camera_at(DVec3::new(0.03, -0.02, 0.0), W, H, F);
+    let truth = render_plane_scaled(&target, DEPTH, freq);
+    (inputs, target, truth)
+}
+
 #[test]
 fn nearest_at_the_right_depth_reproduces_the_target() {
     // Target 0.1 right of the nearest input: disparity f t / d = 40 * 0.1 / 2 = 2 px exactly, so the single plane
@@ -176,10 +188,7 @@ fn learned_prior_radius_grows_with_the_image_size() {
     use deepview_net::config::DeepViewConfig;
     use deepview_net::network::DeepViewModel;
     use deepview_net::weights::save_model;
-    let inputs: Vec<(ImageF32, Camera)> = quad_inputs(0.1)
-        .into_iter()
-        .map(|(_, c)| (render_plane_scaled(&c, DEPTH, 3.0), c))
-        .collect();
+    let (inputs, _, _) = textured_quad(0.1, 3.0);
     let nf = (1.0 / 0.9, 1.0 / 0.1);
     let cfg = DeepViewConfig {
         prior_radius: 2,
@@ -259,13 +268,7 @@ fn a_finer_mpi_grid_renders_the_target_sharper() {
     // A texture 3x finer than the other tests' and inputs 1.45 px of disparity from the reference at the
     // plane's depth: at the inputs' own pitch, bilinear sampling (inputs into the planes, planes into the
     // target) blurs it at every fractional offset; on a grid twice as fine much less.
-    let freq = 3.0;
-    let inputs: Vec<(ImageF32, Camera)> = quad_inputs(0.0725)
-        .into_iter()
-        .map(|(_, c)| (render_plane_scaled(&c, DEPTH, freq), c))
-        .collect();
-    let target = camera_at(DVec3::new(0.03, -0.02, 0.0), W, H, F);
-    let truth = render_plane_scaled(&target, DEPTH, freq);
+    let (inputs, target, truth) = textured_quad(0.0725, 3.0);
     let nf = (1.0 / 0.9, 1.0 / 0.1);
     let psnr_at = |mpi_scale: f64| {
         let options = MethodOptions {
@@ -303,13 +306,7 @@ fn a_finer_mpi_grid_renders_the_target_sharper() {
 #[test]
 fn psv_mean_finds_the_plane_and_renders_the_target() {
     // A texture 3x finer than the other tests', so colours disagree clearly one plane off.
-    let freq = 3.0;
-    let inputs: Vec<(ImageF32, Camera)> = quad_inputs(0.1)
-        .into_iter()
-        .map(|(_, c)| (render_plane_scaled(&c, DEPTH, freq), c))
-        .collect();
-    let target = camera_at(DVec3::new(0.03, -0.02, 0.0), W, H, F);
-    let truth = render_plane_scaled(&target, DEPTH, freq);
+    let (inputs, target, truth) = textured_quad(0.1, 3.0);
     // 9 planes, the middle one on the textured plane; inverse depths 0.1 .. 0.9 in steps of 0.1, i.e. 0.8 px of
     // disparity per plane step across the 0.2 baseline.
     let options = PsvMeanOptions {
