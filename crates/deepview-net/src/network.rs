@@ -394,7 +394,12 @@ fn census_on_host(per_view: &[Tensor<4>], census: Census) -> Tensor<4> {
     let k = views.len();
     let mut out = vec![0f32; d * hw];
     out.par_chunks_mut(hw.max(1)).enumerate().for_each_init(
-        || (Vec::new(), Vec::new()),
+        || {
+            (
+                Vec::new(),
+                deepview_mpi::agreement::CensusScratch::default(),
+            )
+        },
         |(greys, bits), (p, o)| {
             greys.resize(k * hw, 0f32);
             for (g, v) in greys.chunks_exact_mut(hw).zip(&views) {

@@ -407,7 +407,7 @@ pub(crate) fn infer_engine_blocks(
                     Vec::new(),
                     Vec::new(),
                     Vec::new(),
-                    (Vec::new(), Vec::new(), Vec::new()),
+                    (Vec::new(), Default::default(), Vec::new()),
                 )
             };
             per_thread(0..d, scratch, |((sc, full), mean, lg, buf, cs), p| {

@@ -120,7 +120,7 @@ pub(crate) fn census_cost(
     plane: Plane,
     radius: usize,
     greys: &mut Vec<f32>,
-    bits: &mut Vec<u64>,
+    bits: &mut deepview_mpi::agreement::CensusScratch,
     out: &mut Vec<f32>,
 ) {
     let (h, w) = (plane.h, plane.w);
