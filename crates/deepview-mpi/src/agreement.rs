@@ -412,7 +412,7 @@ pub fn census_disagreement(
     );
     assert_eq!(out.len(), w * h, "census_disagreement: output size");
     // The neighbours of the window, (2r+1)^2 - 1, in a code of 32 bits where they fit (8 lanes of a
-    // vector register instead of 4: the codes are built and compared twice as fast).
+    // vector register where 64-bit codes take 4).
     if (2 * radius + 1).pow(2) - 1 <= u32::BITS as usize {
         census_dispatch(greys, w, h, radius, &mut scratch.narrow, out);
     } else {
@@ -1124,7 +1124,8 @@ mod tests {
     }
 
     /// The 32-bit codes (radius 1 and 2) give the 64-bit codes' costs exactly: random grey levels with
-    /// ties and unseen pixels, two to five views.
+    /// ties and unseen pixels, two to five views. (On a machine with AVX2 this also compares that build,
+    /// which `census_disagreement` dispatches to, with the baseline one of `census_with`.)
     #[test]
     fn narrow_census_codes_equal_wide_ones() {
         let (w, h) = (31usize, 19usize);
