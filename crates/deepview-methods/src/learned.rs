@@ -39,7 +39,7 @@ pub struct LearnedMethod {
     source: WeightsSource,
     planes: Planes,
     budget: u64,
-    /// MPI pixels per input pixel along each axis (`--mpi-scale`).
+    /// MPI pixels per input pixel along each axis (`--mpi-scale`, or the weights' `infer_mpi_scale`).
     scale: f64,
 }
 
@@ -73,21 +73,29 @@ impl LearnedMethod {
         };
         Ok(Self {
             model,
+            scale: config.infer_mpi_scale.unwrap_or(1.0),
             config,
             source,
             planes,
             budget,
-            scale: 1.0,
         })
     }
 
-    /// Make MPIs with `scale` times the reference camera's pixels along each axis (`--mpi-scale`; 1 by
-    /// default): a finer grid over the same view, sharper where the inputs' samples fall between MPI
-    /// pixels, at about `scale^2` times the work. The prior's aggregation window grows with it
-    /// (`DeepViewConfig::prior_radius_on`: it covers the same part of the scene).
-    pub fn with_scale(mut self, scale: f64) -> Self {
-        self.scale = scale;
+    /// Make MPIs with `scale` times the reference camera's pixels along each axis (`--mpi-scale`;
+    /// `None`: the weights' own `infer_mpi_scale`, else 1): a finer grid over the same view, sharper
+    /// where the inputs' samples fall between MPI pixels, at about `scale^2` times the work. The prior's
+    /// aggregation window grows with it (`DeepViewConfig::prior_radius_on`: it covers the same part of
+    /// the scene).
+    pub fn with_scale(mut self, scale: Option<f64>) -> Self {
+        if let Some(scale) = scale {
+            self.scale = scale;
+        }
         self
+    }
+
+    /// The MPI grid's scale MPIs are made at (see [`Self::with_scale`]).
+    pub fn scale(&self) -> f64 {
+        self.scale
     }
 
     /// The model configuration saved with the weights.

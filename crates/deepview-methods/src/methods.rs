@@ -181,13 +181,14 @@ pub struct MethodOptions {
     /// the population variance's bias alone. Off by default.
     #[arg(long)]
     pub sample_variance: bool,
-    /// MPI pixels per input pixel along each axis (deepview and psv-mean; 1..4, default 1): e.g. `1.5`
-    /// makes the MPI on a grid 1.5 times finer over the same view, so that the plane sweep's samples of
-    /// the inputs blur less. About `S^2` times the time and the MPI's memory (BENCHMARKS.md, "A finer MPI
-    /// grid"). The learned prior's window grows with the grid; psv-mean's --aggregate radius, the census
-    /// radius and the smoothing penalties are in MPI pixels.
-    #[arg(long, value_name = "S", default_value_t = 1.0, value_parser = parse_mpi_scale)]
-    pub mpi_scale: f64,
+    /// MPI pixels per input pixel along each axis (deepview and psv-mean; 1..4): e.g. `1.5` makes the
+    /// MPI on a grid 1.5 times finer over the same view, so that the plane sweep's samples of the inputs
+    /// blur less. About `S^2` times the time and the MPI's memory (BENCHMARKS.md, "A finer MPI grid").
+    /// Default: the learned model's own (its weights' `infer_mpi_scale`: 1.25 for the built-in
+    /// weights), 1 for psv-mean. The learned prior's window grows with the grid; psv-mean's --aggregate
+    /// radius, the census radius and the smoothing penalties are in MPI pixels.
+    #[arg(long, value_name = "S", value_parser = parse_mpi_scale)]
+    pub mpi_scale: Option<f64>,
     /// Adam steps (optimize).
     #[arg(long, default_value_t = 300, value_parser = positive)]
     pub steps: usize,
@@ -214,7 +215,7 @@ impl Default for MethodOptions {
             census: None,
             leave_one_out: None,
             sample_variance: false,
-            mpi_scale: 1.0,
+            mpi_scale: None,
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
@@ -229,12 +230,14 @@ pub fn make_method(
     options: &MethodOptions,
     budget: u64,
 ) -> Result<Box<dyn MpiMethod>, MethodError> {
-    if options.mpi_scale != 1.0 && !matches!(kind, MethodKind::Deepview | MethodKind::PsvMean) {
+    if let Some(scale) = options.mpi_scale
+        && scale != 1.0
+        && !matches!(kind, MethodKind::Deepview | MethodKind::PsvMean)
+    {
         return Err(MethodError::Method {
             method: kind.name().into(),
             msg: format!(
-                "--mpi-scale {} applies to deepview and psv-mean only ({})",
-                options.mpi_scale,
+                "--mpi-scale {scale} applies to deepview and psv-mean only ({})",
                 if kind == MethodKind::Nearest {
                     "nearest's MPI is the nearest input's own image"
                 } else {
@@ -265,7 +268,7 @@ pub fn make_method(
                     leave_one_out: options.leave_one_out,
                     sample_variance: options.sample_variance,
                 },
-                scale: options.mpi_scale,
+                scale: options.mpi_scale.unwrap_or(1.0),
                 ..Default::default()
             },
             optimize: OptimizeOptions {

@@ -206,7 +206,7 @@ fn learned_prior_radius_grows_with_the_image_size() {
             weights: Some(dir.path().to_path_buf()),
             aggregate,
             aggregate_weight: 0.5,
-            mpi_scale,
+            mpi_scale: Some(mpi_scale),
             ..Default::default()
         };
         let mut method = make_method(kind, &options, 1 << 30).unwrap();
@@ -263,6 +263,73 @@ fn learned_prior_radius_grows_with_the_image_size() {
     );
 }
 
+/// Weights that name their own inference grid (`infer_mpi_scale`) get it without `--mpi-scale`, and
+/// the option overrides it; the model's MPI on that grid is the one `--mpi-scale` asks for, bit for bit;
+/// a scale outside 1..=4 in the weights is refused when they load.
+#[test]
+fn weights_choose_their_mpi_grid_unless_told() {
+    use deepview_net::config::DeepViewConfig;
+    use deepview_net::network::DeepViewModel;
+    use deepview_net::weights::save_model;
+    let (inputs, _, _) = textured_quad(0.1, 3.0);
+    let nf = (1.0 / 0.9, 1.0 / 0.1);
+    let save = |scale: Option<f64>| {
+        let cfg = DeepViewConfig {
+            infer_mpi_scale: scale,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let model = DeepViewModel::new(&cfg, &deepview_net::burn::tensor::Device::flex());
+        save_model(dir.path(), &model, &cfg).unwrap();
+        dir
+    };
+    let make = |dir: &std::path::Path, mpi_scale: Option<f64>| {
+        let options = MethodOptions {
+            planes: Planes::Count(6),
+            weights: Some(dir.to_path_buf()),
+            mpi_scale,
+            ..Default::default()
+        };
+        let mut method = make_method(MethodKind::Deepview, &options, 1 << 30)?;
+        let request = MpiRequest {
+            inputs: &inputs,
+            ids: &[],
+            near_far: nf,
+            toward: None,
+        };
+        Ok::<_, MethodError>(method.make_mpi(&request, &mut |_| {})?.mpi)
+    };
+    let plain = save(None);
+    let fine = save(Some(1.5));
+    let base = make(plain.path(), None).unwrap();
+    let own = make(fine.path(), None).unwrap();
+    let asked = make(plain.path(), Some(1.5)).unwrap();
+    let (bw, bh) = (base.camera.width, base.camera.height);
+    assert_eq!(
+        (own.camera.width, own.camera.height),
+        (
+            (bw as f64 * 1.5).ceil() as u32,
+            (bh as f64 * 1.5).ceil() as u32
+        )
+    );
+    assert_eq!(own.camera, asked.camera);
+    assert!(
+        own.layers == asked.layers,
+        "the weights' grid is --mpi-scale's"
+    );
+    // The option overrides the weights' own grid.
+    let told = make(fine.path(), Some(1.0)).unwrap();
+    assert_eq!((told.camera.width, told.camera.height), (bw, bh));
+    assert!(told.layers == base.layers);
+    // A damaged scale is refused by name.
+    let bad = save(Some(1.5));
+    let path = bad.path().join("config.json");
+    let text = std::fs::read_to_string(&path).unwrap();
+    std::fs::write(&path, text.replace("1.5", "0.5")).unwrap();
+    let err = make(bad.path(), None).unwrap_err().to_string();
+    assert!(err.contains("inference MPI scale 0.5"), "{err}");
+}
+
 #[test]
 fn a_finer_mpi_grid_renders_the_target_sharper() {
     // A texture 3x finer than the other tests' and inputs 1.45 px of disparity from the reference at the
@@ -273,7 +340,7 @@ fn a_finer_mpi_grid_renders_the_target_sharper() {
     let psnr_at = |mpi_scale: f64| {
         let options = MethodOptions {
             planes: Planes::Count(9),
-            mpi_scale,
+            mpi_scale: Some(mpi_scale),
             ..Default::default()
         };
         let mut method = make_method(MethodKind::PsvMean, &options, 1 << 30).unwrap();
@@ -295,7 +362,7 @@ fn a_finer_mpi_grid_renders_the_target_sharper() {
     // The methods that make their MPI in another camera refuse it.
     for kind in [MethodKind::Nearest, MethodKind::Optimize] {
         let options = MethodOptions {
-            mpi_scale: 1.5,
+            mpi_scale: Some(1.5),
             ..Default::default()
         };
         let err = make_method(kind, &options, 1 << 30).err().expect("refused");

@@ -112,6 +112,12 @@ pub struct DeepViewConfig {
     /// written before it existed): the population variance.
     #[serde(default, skip_serializing_if = "is_false")]
     pub prior_sample_variance: bool,
+    /// The MPI grid inference makes by default, in MPI pixels per input pixel along each axis (`infer
+    /// --mpi-scale`, which overrides it; 1..=4): a finer grid blurs the plane sweep's samples less, at
+    /// about its square in time and memory. `None` (the default, and every config written before it
+    /// existed): the inputs' own grid (1).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub infer_mpi_scale: Option<f64>,
 }
 
 fn is_false(b: &bool) -> bool {
@@ -210,6 +216,7 @@ impl DeepViewConfig {
             prior_census: None,
             prior_leave_one_out: None,
             prior_sample_variance: false,
+            infer_mpi_scale: None,
         };
         Ok(match name {
             "paper-kalantari" => paper(name, 4, 28, 28, 0),
@@ -241,6 +248,7 @@ impl DeepViewConfig {
                 prior_census: None,
                 prior_leave_one_out: None,
                 prior_sample_variance: false,
+                infer_mpi_scale: None,
             },
             // The `cpu` preset grown for the fast kernels (issue: generalising model): 12 features and 2
             // update nets (3 nets, the paper has 4), the same prior and plane counts. A training step
@@ -265,6 +273,7 @@ impl DeepViewConfig {
                 prior_census: None,
                 prior_leave_one_out: None,
                 prior_sample_variance: false,
+                infer_mpi_scale: None,
             },
             other => return Err(ConfigError::UnknownPreset(other.to_string())),
         })
@@ -339,6 +348,13 @@ impl DeepViewConfig {
             if self.init_prior.is_none() {
                 return bad("a leave-one-out weight needs the agreement prior (init_prior)");
             }
+        }
+        if let Some(s) = self.infer_mpi_scale
+            && !(1.0..=4.0).contains(&s)
+        {
+            return bad(&format!(
+                "the inference MPI scale {s} is not within 1..=4 (MPI pixels per input pixel)"
+            ));
         }
         if self.prior_sample_variance && self.init_prior.is_none() {
             return bad("the sample variance needs the agreement prior (init_prior)");

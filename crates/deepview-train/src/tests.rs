@@ -38,6 +38,7 @@ fn tiny_model() -> DeepViewConfig {
         prior_census: None,
         prior_leave_one_out: None,
         prior_sample_variance: false,
+        infer_mpi_scale: None,
     }
 }
 

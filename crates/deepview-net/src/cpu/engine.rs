@@ -108,49 +108,69 @@ pub fn engine_bytes(
             let block = block_size(d, threads as usize, view_px, hw);
             4 * threads * (sc + s * hw + widened) + stream_bytes(d, block, view_px, hw)
         });
-    d64 * s * hw * precision.bytes() + first.max(update).max(4 * d64 * 4 * hw)
+    let stored = stored_channels(model) as u64;
+    // The result comes on top of the state, unless it is the state's own buffer.
+    let result = if in_place_result(model, precision) {
+        0
+    } else {
+        4 * d64 * 4 * hw
+    };
+    d64 * stored * hw * precision.bytes() + first.max(update).max(result)
+}
+
+/// The state's channels the engine keeps: all of them where update nets read them, else the four
+/// (RGBA logits) that the result is made of.
+fn stored_channels(model: &DeepViewModel) -> usize {
+    if model.nets.len() > 1 {
+        model.state_channels
+    } else {
+        model.state_channels.min(4)
+    }
+}
+
+/// Whether the result (premultiplied RGBA) is made in the state's own buffer: an f32 state of four
+/// channels a plane has the result's size.
+fn in_place_result(model: &DeepViewModel, precision: StatePrecision) -> bool {
+    stored_channels(model) == 4 && precision == StatePrecision::F32
 }
 
 /// Planes `planes` of the state -> premultiplied RGBA `[plane][H*W][4]` in `rgba` (see
-/// `network::state_to_rgba`), a plane per task: the sigmoids of a run of pixels as vector loops
-/// ([`fastmath::with_simd`]), then interleaved.
+/// `network::state_to_rgba`), a plane per task.
 fn state_to_rgba_into(state: &EngineState, planes: Range<usize>, hw: usize, rgba: &mut [f32]) {
-    const RUN: usize = 256;
     rgba.par_chunks_mut(hw * 4)
         .zip(planes)
         .for_each_init(Vec::new, |buf, (r, p)| {
             // SAFETY: nothing writes the state meanwhile (the engine converts between updates).
-            unsafe {
-                state.with_plane_ref(p, buf, |st| {
-                    fastmath::with_simd(
-                        #[inline(always)]
-                        || {
-                            let mut tmp = [[0f32; RUN]; 4];
-                            for (k, out) in r.chunks_mut(4 * RUN).enumerate() {
-                                let (i0, n) = (k * RUN, out.len() / 4);
-                                for (a, &x) in tmp[3][..n].iter_mut().zip(&st[3 * hw + i0..][..n]) {
-                                    *a = fastmath::sigmoid(x);
-                                }
-                                let (rgb, a) = tmp.split_at_mut(3);
-                                for c in 0..3 {
-                                    let src = &st[c * hw + i0..][..n];
-                                    for ((t, &x), &a) in
-                                        rgb[c][..n].iter_mut().zip(src).zip(&a[0][..n])
-                                    {
-                                        *t = fastmath::sigmoid(x) * a;
-                                    }
-                                }
-                                for (i, t) in out.chunks_exact_mut(4).enumerate() {
-                                    t.copy_from_slice(&[
-                                        tmp[0][i], tmp[1][i], tmp[2][i], tmp[3][i],
-                                    ]);
-                                }
-                            }
-                        },
-                    )
-                })
-            }
+            unsafe { state.with_plane_ref(p, buf, |st| plane_to_rgba(st, hw, r)) }
         });
+}
+
+/// One plane's RGBA logits `st` (`[4 or more][H*W]`) -> premultiplied RGBA `[H*W][4]` in `out`: the
+/// sigmoids of a run of pixels as vector loops ([`fastmath::with_simd`]), then interleaved.
+pub(crate) fn plane_to_rgba(st: &[f32], hw: usize, out: &mut [f32]) {
+    const RUN: usize = 256;
+    fastmath::with_simd(
+        #[inline(always)]
+        || {
+            let mut tmp = [[0f32; RUN]; 4];
+            for (k, out) in out.chunks_mut(4 * RUN).enumerate() {
+                let (i0, n) = (k * RUN, out.len() / 4);
+                for (a, &x) in tmp[3][..n].iter_mut().zip(&st[3 * hw + i0..][..n]) {
+                    *a = fastmath::sigmoid(x);
+                }
+                let (rgb, a) = tmp.split_at_mut(3);
+                for c in 0..3 {
+                    let src = &st[c * hw + i0..][..n];
+                    for ((t, &x), &a) in rgb[c][..n].iter_mut().zip(src).zip(&a[0][..n]) {
+                        *t = fastmath::sigmoid(x) * a;
+                    }
+                }
+                for (i, t) in out.chunks_exact_mut(4).enumerate() {
+                    t.copy_from_slice(&[tmp[0][i], tmp[1][i], tmp[2][i], tmp[3][i]]);
+                }
+            }
+        },
+    )
 }
 
 /// Rows of the MPI a net computes at once (besides the margins its receptive field needs): a strip's
@@ -333,6 +353,8 @@ pub(crate) fn infer_engine_blocks(
     let k = views.len();
     let hw = w * h;
     let s = model.state_channels;
+    // The state's channels kept between the nets (and net 0's outputs taken).
+    let kept_channels = stored_channels(model);
     let homs = mpi_to_view_homographies(reference, views.iter().map(|(_, c)| c), depths);
     let nets: Vec<PackedNet> = model
         .nets
@@ -350,8 +372,8 @@ pub(crate) fn infer_engine_blocks(
             )
         })
         .collect();
-    // The state `[D][S][H*W]`.
-    let state = EngineState::new(d, s, hw, precision);
+    // The state `[D][S][H*W]` (`S`: `kept_channels`).
+    let state = EngineState::new(d, kept_channels, hw, precision);
     for (n, net) in nets.iter().enumerate() {
         let cin = net.in_channels();
         // A U-Net net: its inputs at full resolution, pooled into its half-resolution scratch, on the
@@ -461,7 +483,7 @@ pub(crate) fn infer_engine_blocks(
                             f.pool_into(sp, np, sc, 0);
                         }
                         sc.run(net);
-                        for c in 0..s {
+                        for c in 0..kept_channels {
                             take_output(sc, c, off, &mut st[kept(c)], false);
                         }
                         if temperature > 0.0 {
@@ -594,6 +616,9 @@ pub(crate) fn infer_engine_blocks(
         progress(n);
     }
     // Premultiplied RGBA `[D][H][W][4]`.
+    if in_place_result(model, precision) {
+        return state.into_rgba(hw);
+    }
     let mut rgba = deepview_kernels::zeroed_buffer(d * 4 * hw);
     state_to_rgba_into(&state, 0..d, hw, &mut rgba);
     rgba
@@ -646,6 +671,9 @@ mod tests {
             (3, 5, 1, true, 0),
             (4, 4, 2, false, 0),
             (1, 3, 0, true, 0),
+            // The initialisation net alone (four state channels kept, the result made in their
+            // buffer) with the whole prior.
+            (3, 5, 0, true, 0),
             (5, 6, 1, false, 0),
             // U-Net nets (the paper-spaces presets' first two) on odd sizes (29 x 37).
             (3, 4, 2, false, 2),

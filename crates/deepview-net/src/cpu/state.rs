@@ -104,6 +104,30 @@ impl EngineState {
     }
 }
 
+impl EngineState {
+    /// The premultiplied RGBA `[D][H*W][4]` of an f32 state of four channels, made in the state's own
+    /// buffer (the same size: no second buffer of the whole MPI), a plane per task through a copy of
+    /// its logits.
+    pub(crate) fn into_rgba(self, hw: usize) -> Vec<f32> {
+        use rayon::prelude::*;
+        assert_eq!(self.len, 4 * hw, "an RGBA-sized state");
+        let Values::F32(mut values) = self.values else {
+            panic!("an f32 state");
+        };
+        if hw > 0 {
+            values.par_chunks_mut(4 * hw).for_each_init(
+                Vec::new,
+                |logits: &mut Vec<f32>, plane| {
+                    logits.clear();
+                    logits.extend_from_slice(plane);
+                    crate::cpu::engine::plane_to_rgba(logits, hw, plane);
+                },
+            );
+        }
+        values
+    }
+}
+
 // SAFETY: the raw pointer is the buffer's own; planes are accessed by one task at a time (the methods'
 // contracts).
 unsafe impl Sync for EngineState {}
