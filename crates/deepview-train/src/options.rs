@@ -270,8 +270,10 @@ impl TrainOptions {
                 if let Some(dir) = init {
                     // Refuse a preset the weights cannot grow into now, not after loading the data.
                     let from = load(dir)?;
-                    // The grown model keeps the weights' prior radius (--prior-radius sets another).
+                    // The grown model keeps the weights' prior: its temperature, radius (--prior-radius
+                    // sets another) and every other setting.
                     if to.init_prior.is_some() && from.init_prior.is_some() {
+                        to.init_prior = from.init_prior;
                         to.prior_radius = from.prior_radius;
                         to.prior_weight = from.prior_weight;
                         to.prior_radius_size = from.prior_radius_size;
@@ -671,6 +673,7 @@ mod tests {
         // --init weights with a radius grown into a larger preset keep it unless --prior-radius is given.
         let dir = tempfile::tempdir().unwrap();
         let weights = DeepViewConfig {
+            init_prior: Some(0.0007),
             prior_radius: 5,
             prior_weight: 0.5,
             prior_radius_size: Some(512),
@@ -702,6 +705,7 @@ mod tests {
             ),
             (5, 0.5, Some(512))
         );
+        assert_eq!(grown.init_prior, Some(0.0007));
         assert_eq!(grown.prior_census, weights.prior_census);
         assert_eq!(grown.prior_leave_one_out, Some(0.75));
         assert!(grown.prior_sample_variance);
