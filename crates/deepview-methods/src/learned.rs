@@ -93,11 +93,6 @@ impl LearnedMethod {
         self
     }
 
-    /// The MPI grid's scale MPIs are made at (see [`Self::with_scale`]).
-    pub fn scale(&self) -> f64 {
-        self.scale
-    }
-
     /// The model configuration saved with the weights.
     pub fn config(&self) -> &DeepViewConfig {
         &self.config

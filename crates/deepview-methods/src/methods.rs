@@ -122,7 +122,7 @@ fn positive_f64(s: &str) -> Result<f64, String> {
 /// inputs instead).
 pub fn parse_mpi_scale(s: &str) -> Result<f64, String> {
     let v = positive_f64(s)?;
-    if (1.0..=4.0).contains(&v) {
+    if deepview_net::config::MPI_SCALES.contains(&v) {
         Ok(v)
     } else {
         Err(format!(

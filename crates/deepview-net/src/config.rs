@@ -186,6 +186,10 @@ impl DeepViewConfig {
 /// The largest aggregation radius a config may ask for.
 pub const MAX_PRIOR_RADIUS: usize = 64;
 
+/// The MPI grid scales inference takes (`infer_mpi_scale`, `--mpi-scale`): MPI pixels per input pixel
+/// along each axis (a coarser grid would alias: downscale the inputs instead).
+pub const MPI_SCALES: std::ops::RangeInclusive<f64> = 1.0..=4.0;
+
 /// The largest feature count of a net a config may ask for.
 pub const MAX_FEATURES: usize = 1024;
 /// The most update nets a config may ask for.
@@ -350,7 +354,7 @@ impl DeepViewConfig {
             }
         }
         if let Some(s) = self.infer_mpi_scale
-            && !(1.0..=4.0).contains(&s)
+            && !MPI_SCALES.contains(&s)
         {
             return bad(&format!(
                 "the inference MPI scale {s} is not within 1..=4 (MPI pixels per input pixel)"

@@ -102,9 +102,7 @@ impl EngineState {
             }
         }
     }
-}
 
-impl EngineState {
     /// The premultiplied RGBA `[D][H*W][4]` of an f32 state of four channels, made in the state's own
     /// buffer (the same size: no second buffer of the whole MPI), a plane per task through a copy of
     /// its logits.
