@@ -1,6 +1,7 @@
 //! Procedural training scenes made on the fly from a seed: many surfaces in 3D (slanted planes, discs,
 //! thin bars, boxes, spheres, semi-transparent sheets) in front of a background, textured with crops of
-//! real photographs (or band-limited noise), over depth ranges like real captures, seen through random
+//! real photographs (or band-limited noise; 15% plain, smoothly shaded colours, whose depth only their
+//! edges give), over depth ranges like real captures, seen through random
 //! rigs (jittered grids, hand-held paths, sparse wide sets), rendered exactly by ray casting.
 //!
 //! Unlike [`crate::scene`] (fronto-parallel layers with a ground-truth MPI, for evaluation), these scenes
@@ -310,9 +311,28 @@ fn random_unit(rng: &mut Rng) -> DVec3 {
     }
 }
 
+/// The share of surfaces without texture: a plain colour under smooth shading (a wave of 150-600 screen
+/// pixels, amplitude 0.005-0.03), like the painted walls, ceilings and panels of real rooms, whose depth
+/// only their edges and their neighbours give.
+const FLAT_SHARE: f64 = 0.15;
+
 fn texture(rng: &mut Rng, photos: &[&ImageF32], focal: f64, depth: f64) -> Texture {
     // About 0.5-2 texels per screen pixel at the surface's depth.
     let scale = rng.log_range(0.5, 2.0) * focal / depth;
+    if rng.chance(FLAT_SHARE) {
+        let base: [f32; 3] = std::array::from_fn(|_| rng.range(0.1, 0.9) as f32);
+        let angle = rng.range(0.0, std::f64::consts::TAU);
+        let k = std::f64::consts::TAU * scale / rng.log_range(150.0, 600.0);
+        let amp = rng.range(0.005, 0.03) as f32;
+        return Texture::Waves {
+            base,
+            waves: vec![(
+                [k * angle.cos(), k * angle.sin()],
+                rng.range(0.0, 6.3),
+                [amp; 3],
+            )],
+        };
+    }
     if !photos.is_empty() && rng.chance(0.85) {
         let image = rng.below(photos.len());
         let img = photos[image];
@@ -334,7 +354,7 @@ fn texture(rng: &mut Rng, photos: &[&ImageF32], focal: f64, depth: f64) -> Textu
             let angle = rng.range(0.0, std::f64::consts::TAU);
             // Periods of 2-40 screen pixels.
             let k = std::f64::consts::TAU * scale / rng.log_range(2.0, 40.0);
-            let amp = rng.range(0.05, 0.3) as f32;
+            let amp = rng.range(0.005, 0.03) as f32;
             let tint: [f32; 3] = std::array::from_fn(|_| amp * rng.range(0.4, 1.0) as f32);
             (
                 [k * angle.cos(), k * angle.sin()],
@@ -598,6 +618,51 @@ mod tests {
             })
             .collect();
         ImageF32::from_data(w, h, 3, data).unwrap()
+    }
+
+    /// The colour's standard deviation over a 40 x 40 screen-pixel patch of the surface at `depth`.
+    fn patch_contrast(t: &Texture, photos: &[&ImageF32], focal: f64, depth: f64) -> f64 {
+        let unit = depth / focal; // world units per screen pixel
+        let mut v = Vec::new();
+        for j in 0..20 {
+            for i in 0..20 {
+                let c = t.eval(2.0 * i as f64 * unit, 2.0 * j as f64 * unit, photos);
+                v.push(c.iter().map(|&x| x as f64).sum::<f64>() / 3.0);
+            }
+        }
+        let m = v.iter().sum::<f64>() / v.len() as f64;
+        (v.iter().map(|x| (x - m) * (x - m)).sum::<f64>() / v.len() as f64).sqrt()
+    }
+
+    #[test]
+    fn some_surfaces_have_no_texture() {
+        // Over many draws about FLAT_SHARE of the surfaces are a plain colour under smooth shading
+        // (contrast under 0.01 over 40 px: the shading wave's 150+ px period and 0.03 amplitude allow
+        // at most ~0.03 * sin(2 pi 40 / 150) / sqrt(2) ~ 0.02 peak, less in the mean), and the textured
+        // ones (the photo's gradient and stripes, the noise waves) are well above it.
+        let p = photo();
+        let (focal, depth) = (200.0, 10.0);
+        let (mut flat, mut textured, n) = (0, 0, 2000);
+        let mut rng = Rng(12345);
+        for _ in 0..n {
+            let t = texture(&mut rng, &[&p], focal, depth);
+            let c = patch_contrast(&t, &[&p], focal, depth);
+            if c < 0.012 {
+                flat += 1;
+            } else if c > 0.03 {
+                textured += 1;
+            }
+        }
+        let share = flat as f64 / n as f64;
+        assert!(
+            (share - FLAT_SHARE).abs() < 0.03,
+            "{flat} of {n} surfaces without texture (expected about {FLAT_SHARE})"
+        );
+        assert!(
+            flat + textured > n * 97 / 100,
+            "{} of {n} surfaces neither plain nor textured",
+            n - flat - textured
+        );
     }
 
     #[test]

@@ -43,7 +43,8 @@ pub struct Args {
     /// Dataset folders (`--data A B` or `--data A --data B`; any format `deepview info` reads).
     /// `synthetic:two-planes` is a built-in analytic scene; `synthetic:procedural` makes a new 3D scene
     /// for every tuple (slanted planes, boxes, spheres, thin bars, semi-transparent sheets, textured with
-    /// crops of the other scenes' training views; half the tuples when other data is given, reproducible
+    /// crops of the other scenes' training views or plain and smoothly shaded; half the tuples when other
+    /// data is given, reproducible
     /// from the run's seed, nothing stored). With --resume, defaults to the run's own list
     /// (each with the scene options it was loaded with).
     #[arg(long = "data", value_name = "DIR", num_args = 1.., value_parser = parse_data)]
