@@ -7,7 +7,8 @@
 //!    nor as input; Spaces and synthetic scenes hold out nothing by default);
 //! 2. the inputs: the K training views nearest to the target by camera centre (K drawn per batch);
 //! 3. the reference camera: [`deepview_geometry::reference_camera`] of the inputs (centroid, average
-//!    orientation and intrinsics);
+//!    orientation and intrinsics) on the MPI grid inference uses with the model's weights (their
+//!    `infer_mpi_scale` times the inputs' pixels along each axis; the prior's window grows with it);
 //! 4. plane depths: `D` planes equally spaced in inverse depth between the scene's near and far, the whole
 //!    grid shifted by a random offset of up to half a step (plane-depth jitter, paper section 4);
 //! 5. a uniformly random `crop x crop` crop of the target image.
@@ -510,7 +511,11 @@ impl TrainData {
             .map(|&i| s.cameras[i].width.max(s.cameras[i].height))
             .max()
             .unwrap_or(0);
-        let sized = model.at_image_size(size);
+        // On the MPI grid inference uses with these weights (`infer_mpi_scale`: the prior's window
+        // grows with it as at inference), so the nets learn on the samples they will be given.
+        let scale = model.infer_mpi_scale.unwrap_or(1.0);
+        let mut sized = model.at_image_size(size);
+        sized.prior_radius = model.prior_radius_on(size, scale);
         let model = &sized;
         let c = cfg.crop as u32;
         if tcam.width < c || tcam.height < c {
@@ -536,6 +541,7 @@ impl TrainData {
                     (cx0, cy0),
                     cfg.crop,
                     model.margin_from(0),
+                    scale,
                 )?;
                 let need = step_bytes(
                     model,
@@ -567,6 +573,7 @@ impl TrainData {
             cfg.crop,
             model.margin_from(0),
             cfg.window_context && model.updates > 0,
+            scale,
         )?;
         ex.prior_radius = Some(model.prior_radius);
         if cfg.colour_jitter {
@@ -708,7 +715,8 @@ impl TrainData {
         ))
     }
 
-    /// Build the tuple for a given scene, target, input count, plane depths and target crop.
+    /// Build the tuple for a given scene, target, input count, plane depths and target crop, on the
+    /// inputs' grid (MPI scale 1).
     pub fn example(
         &self,
         si: usize,
@@ -720,10 +728,21 @@ impl TrainData {
         margin: usize,
     ) -> Result<Example, DataError> {
         let inputs = self.nearest_inputs(si, target, views);
-        self.example_with_inputs(si, target, inputs, depths, crop_origin, crop, margin, false)
+        self.example_with_inputs(
+            si,
+            target,
+            inputs,
+            depths,
+            crop_origin,
+            crop,
+            margin,
+            false,
+            1.0,
+        )
     }
 
-    /// The reference camera of `inputs`, the homographies from it to the target on each plane, and the
+    /// The reference camera of `inputs` (`scale` times their pixels along each axis: the MPI grid of
+    /// [`ReferenceOptions::scale`]), the homographies from it to the target on each plane, and the
     /// tuple's MPI window (top-left and even size in reference pixels; module docs): what a tuple's
     /// memory depends on, found before its input crops are made.
     #[allow(clippy::too_many_arguments)]
@@ -736,6 +755,7 @@ impl TrainData {
         crop_origin: (u32, u32),
         crop: usize,
         margin: usize,
+        scale: f64,
     ) -> Result<TupleWindow, DataError> {
         let s = &self.scenes[si];
         let geo = |source| DataError::Geometry {
@@ -744,7 +764,14 @@ impl TrainData {
         };
         let tcam = s.cameras[target];
         let in_cams: Vec<Camera> = inputs.iter().map(|&i| s.cameras[i]).collect();
-        let reference = reference_camera(&in_cams, &ReferenceOptions::default()).map_err(geo)?;
+        let reference = reference_camera(
+            &in_cams,
+            &ReferenceOptions {
+                scale,
+                ..Default::default()
+            },
+        )
+        .map_err(geo)?;
 
         // Window: target crop corners through every plane into the reference camera.
         let (cx0, cy0) = (crop_origin.0 as f64, crop_origin.1 as f64);
@@ -793,7 +820,8 @@ impl TrainData {
         })
     }
 
-    /// [`Self::example`] with the input views given.
+    /// [`Self::example`] with the input views given, on an MPI grid `scale` times the inputs' (the
+    /// weights' `infer_mpi_scale` in training; [`ReferenceOptions::scale`]).
     #[allow(clippy::too_many_arguments)]
     pub fn example_with_inputs(
         &self,
@@ -805,9 +833,19 @@ impl TrainData {
         crop: usize,
         margin: usize,
         with_context: bool,
+        scale: f64,
     ) -> Result<Example, DataError> {
         let s = &self.scenes[si];
-        let tw = self.tuple_window(si, target, &inputs, &depths, crop_origin, crop, margin)?;
+        let tw = self.tuple_window(
+            si,
+            target,
+            &inputs,
+            &depths,
+            crop_origin,
+            crop,
+            margin,
+            scale,
+        )?;
         let (reference, ref_to_target) = (tw.reference, tw.ref_to_target);
         let (wx0, wy0, ww, wh) = tw.window;
         let (cx0, cy0) = (crop_origin.0 as f64, crop_origin.1 as f64);
@@ -1001,6 +1039,45 @@ mod tests {
             window_context: false,
             budget: None,
         }
+    }
+
+    /// A model whose weights make their MPIs on a finer grid (`infer_mpi_scale`) trains on that grid: the
+    /// same tuple's window holds about `scale` times the pixels along each axis, and the prior's window
+    /// grows with the grid as at inference.
+    #[test]
+    fn tuples_take_the_weights_mpi_grid() {
+        let data = TrainData::new(vec![two_plane_scene(3, 3, 48, 0.15)]).unwrap();
+        let cfg = test_sample(4..=4, 8);
+        let base = DeepViewConfig {
+            prior_radius: 2,
+            infer_mpi_scale: None,
+            ..DeepViewConfig::preset("cpu").unwrap()
+        };
+        let fine = DeepViewConfig {
+            infer_mpi_scale: Some(1.5),
+            ..base.clone()
+        };
+        let tuple = |model: &DeepViewConfig| {
+            let mut rng = Rng::new(3);
+            let k = data.draw_views(&cfg, &mut rng);
+            data.sample(&cfg, model, k, &mut rng).unwrap()
+        };
+        let (a, b) = (tuple(&base), tuple(&fine));
+        assert_eq!(
+            (a.target, &a.inputs, a.crop_origin),
+            (b.target, &b.inputs, b.crop_origin)
+        );
+        // The window is the crop's footprint plus the nets' margin and a pixel on each side.
+        let m = 2 * (base.margin_from(0) + 1);
+        for (wa, wb) in [(a.window.2, b.window.2), (a.window.3, b.window.3)] {
+            let ratio = (wb - m) as f64 / (wa - m) as f64;
+            assert!(
+                (1.35..=1.65).contains(&ratio),
+                "window {wa} -> {wb}: {ratio}"
+            );
+        }
+        assert_eq!(a.prior_radius, Some(2));
+        assert_eq!(b.prior_radius, Some(3));
     }
 
     #[test]
