@@ -354,7 +354,7 @@ fn texture(rng: &mut Rng, photos: &[&ImageF32], focal: f64, depth: f64) -> Textu
             let angle = rng.range(0.0, std::f64::consts::TAU);
             // Periods of 2-40 screen pixels.
             let k = std::f64::consts::TAU * scale / rng.log_range(2.0, 40.0);
-            let amp = rng.range(0.005, 0.03) as f32;
+            let amp = rng.range(0.05, 0.3) as f32;
             let tint: [f32; 3] = std::array::from_fn(|_| amp * rng.range(0.4, 1.0) as f32);
             (
                 [k * angle.cos(), k * angle.sin()],

@@ -282,6 +282,8 @@ impl TrainOptions {
                         to.prior_leave_one_out = from.prior_leave_one_out;
                         to.prior_sample_variance = from.prior_sample_variance;
                     }
+                    // And the MPI grid the weights run (and train) on.
+                    to.infer_mpi_scale = from.infer_mpi_scale;
                     if from != to {
                         deepview_net::grow::check_growth(&from, &to).map_err(|e| {
                             cfg_err(format!(
@@ -683,6 +685,7 @@ mod tests {
             }),
             prior_leave_one_out: Some(0.75),
             prior_sample_variance: true,
+            infer_mpi_scale: Some(1.25),
             ..DeepViewConfig::preset("cpu").unwrap()
         };
         std::fs::write(
@@ -709,6 +712,7 @@ mod tests {
         assert_eq!(grown.prior_census, weights.prior_census);
         assert_eq!(grown.prior_leave_one_out, Some(0.75));
         assert!(grown.prior_sample_variance);
+        assert_eq!(grown.infer_mpi_scale, Some(1.25));
         let unsampled = TrainOptions {
             prior_sample_variance: Some(false),
             ..grow(None)
