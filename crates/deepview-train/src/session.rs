@@ -126,8 +126,18 @@ pub fn open(
         _ => e,
     })?;
     check_fixed_on_resume(opts, &cfg)?;
+    let on_disk = cfg.clone();
     cfg.train.data = resumed_data(request, &cfg)?;
     opts.adjust_on_resume(&mut cfg.train);
+    // Kept for later resumes: the list given now (relative paths read against this folder from then
+    // on), or the run's own list as it was written.
+    let mut kept = cfg.clone();
+    if request.data.is_empty() {
+        kept.train.data = on_disk.train.data.clone();
+    } else {
+        kept.train.base = std::env::current_dir().ok();
+    }
+    let rank = comm.as_ref().map_or(0, |c| c.rank());
     let data = load_data(&cfg.train.data, cfg.train.holdout_every)?;
     check_views(&data, cfg.train.sample.views_max, cfg.train.sample.crop)?;
     check_vgg(&cfg.train.loss, cfg.train.vgg_weights.as_deref(), opts)?;
@@ -142,6 +152,12 @@ pub fn open(
                 trainer.step,
                 trainer.step + 1000
             )));
+        }
+        // What this session changes (--steps, --data, --devices, --keep-checkpoints, --vgg-weights,
+        // --validate-every) becomes the run's own, so that a later plain --resume goes on with it (a new
+        // total of steps was forgotten before: the next --resume was refused as below the step reached).
+        if rank == 0 {
+            keep_resumed_config(run_dir, &on_disk, &kept)?;
         }
         notices.extend(trainer.take_notices().iter().map(|n| n.to_string()));
         notices.push(format!(
@@ -166,6 +182,20 @@ pub fn open(
             notices,
         })
     }
+}
+
+/// Write `now` over the run's config.json (atomically) where it differs from what was read, `before`.
+fn keep_resumed_config(
+    run_dir: &Path,
+    before: &RunConfig,
+    now: &RunConfig,
+) -> Result<(), TrainError> {
+    let text = |c: &RunConfig| serde_json::to_string_pretty(c).expect("serialisable");
+    let now_text = text(now);
+    if now_text != text(before) {
+        crate::files::write_atomic(&run_dir.join("config.json"), now_text.as_bytes())?;
+    }
+    Ok(())
 }
 
 /// A new run from the options.

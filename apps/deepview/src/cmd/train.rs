@@ -36,7 +36,9 @@ use validate::Validation;
     --views 4 --surround-inputs 1 --name mixed --vgg-weights $VGG\n\n\
     Ctrl-C or SIGTERM saves a checkpoint and exits (130 / 143); --resume continues from it. With --resume only \
     --steps, --devices, --data, --keep-checkpoints, --vgg-weights, --validate-every and --max-memory may be given: the others are the run's own, \
-    and its datasets load with the scene options they were first loaded with (kept in its config.json).\n\n\
+    and its datasets load with the scene options they were first loaded with (kept in its config.json). What \
+    those options change (all but --max-memory) is written into the run's config.json, so the next --resume \
+    goes on with it.\n\n\
     The VGG loss (the default) reads the VGG-16 weights from --vgg-weights FILE (kept in the run's config.json)."
 )]
 pub struct Args {

@@ -239,6 +239,44 @@ fn init_with_a_larger_preset_grows_the_weights() {
     );
 }
 
+/// What a resumed session changes (a new total of steps, another data list) becomes the run's own: a
+/// later `--resume` with nothing but the name goes on with it (it forgot the new total before, and was
+/// refused as below the step reached).
+#[test]
+fn resume_keeps_what_it_changed() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    train(&runs, "r", 2, &start_args(&grid));
+    let more = ["--resume", "--data", s(&grid), "synthetic:two-planes"];
+    train(&runs, "r", 3, &more);
+    let cfg: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(runs.join("r/config.json")).unwrap())
+            .unwrap();
+    assert_eq!(cfg["train"]["steps"], 3);
+    let data = cfg["train"]["data"].as_array().unwrap();
+    assert_eq!(data.len(), 2, "{data:?}");
+    assert_eq!(data[1]["path"], "synthetic:two-planes");
+    let o = deepview(&[
+        "train",
+        "--runs",
+        s(&runs),
+        "--name",
+        "r",
+        "--resume",
+        "--quiet",
+    ]);
+    succeeds(&o);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("at step 3 of 3"), "{err}");
+    // A plain resume writes nothing new.
+    let again: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(runs.join("r/config.json")).unwrap())
+            .unwrap();
+    assert_eq!(again, cfg);
+    assert_eq!(losses(&runs.join("r")).last().unwrap().0, 3);
+}
+
 /// `--resume --steps N` below the run's step, and a run whose every checkpoint is damaged, are refused
 /// with the reason (they used to say "resuming at step 4 of 2" and exit 0, or start over from step 0).
 #[test]
