@@ -202,19 +202,29 @@ fn train(args: Args, comm: Option<Rc<dyn Collective>>) -> anyhow::Result<()> {
     if !writer {
         return Ok(());
     }
-    eprintln!(
-        "{} at step {} ({} steps this session, {skipped} skipped, {:.3} steps/s); mean loss of the last {}: {:.5}",
+    let ran = trainer.step - start_step;
+    let mut summary = format!(
+        "{} at step {} ({ran} steps this session, {skipped} skipped",
         if stop.load(std::sync::atomic::Ordering::SeqCst) {
             "stopped"
         } else {
             "done"
         },
         trainer.step,
-        trainer.step - start_step,
-        trainer.steps_per_second(),
-        last.len(),
-        last.iter().sum::<f64>() / last.len().max(1) as f64
     );
+    // A session that ran no step (a resume of a finished run) has no speed or losses to report.
+    if ran > 0 {
+        summary += &format!(", {:.3} steps/s", trainer.steps_per_second());
+    }
+    summary += ")";
+    if !last.is_empty() {
+        summary += &format!(
+            "; mean loss of the last {}: {:.5}",
+            last.len(),
+            last.iter().sum::<f64>() / last.len() as f64
+        );
+    }
+    eprintln!("{summary}");
     if let Some((_, ck)) = list_checkpoints(&run_dir)?.pop() {
         eprintln!("checkpoint: {}", ck.display());
     }

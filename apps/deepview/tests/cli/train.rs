@@ -269,6 +269,11 @@ fn resume_keeps_what_it_changed() {
     succeeds(&o);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("at step 3 of 3"), "{err}");
+    // Nothing ran: no speed or mean loss of zero steps in its summary.
+    assert!(
+        err.contains("done at step 3 (0 steps this session, 0 skipped)\n"),
+        "{err}"
+    );
     // A plain resume writes nothing new.
     let again: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(runs.join("r/config.json")).unwrap())
