@@ -42,6 +42,12 @@ fn start_args(grid: &Path) -> Vec<&str> {
     ]
 }
 
+/// The run `name`'s config.json.
+fn run_config(runs: &Path, name: &str) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(runs.join(name).join("config.json")).unwrap())
+        .unwrap()
+}
+
 /// The losses of `metrics.jsonl` by step.
 fn losses(run: &Path) -> Vec<(u64, f64)> {
     std::fs::read_to_string(run.join("metrics.jsonl"))
@@ -69,9 +75,7 @@ fn resume_reads_the_data_with_the_options_of_the_run() {
 
     // One step at half size, then resumed with nothing but the name: the same images, so the same step 2.
     train(&runs, "resumed", 1, &half);
-    let cfg: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(runs.join("resumed/config.json")).unwrap())
-            .unwrap();
+    let cfg = run_config(&runs, "resumed");
     let spec = &cfg["train"]["data"][0];
     assert_eq!(spec["path"], s(&grid));
     assert_eq!(spec["downscale"], 2);
@@ -156,9 +160,7 @@ fn max_width_downscales_each_dataset_by_its_own_factor() {
     // `--data` takes several folders at once (what `--data dir/{a,b}` expands to in a shell).
     args.extend(["--data", s(&b), s(&c), "--max-width", "48"]);
     train(&runs, "mixed", 1, &args);
-    let cfg: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(runs.join("mixed/config.json")).unwrap())
-            .unwrap();
+    let cfg = run_config(&runs, "mixed");
     let factors: Vec<u64> = (0..3)
         .map(|i| cfg["train"]["data"][i]["downscale"].as_u64().unwrap())
         .collect();
@@ -211,9 +213,7 @@ fn init_with_a_larger_preset_grows_the_weights() {
     let mut grown_args = common.to_vec();
     grown_args.extend(["--preset", "cpu-large"]);
     train(&runs, "grown", 1, &grown_args);
-    let cfg: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(runs.join("grown/config.json")).unwrap())
-            .unwrap();
+    let cfg = run_config(&runs, "grown");
     assert_eq!(cfg["model"]["name"], "cpu-large");
     assert_eq!(cfg["model"]["updates"], 2);
     let fresh_args: Vec<&str> = common
@@ -250,9 +250,7 @@ fn resume_keeps_what_it_changed() {
     train(&runs, "r", 2, &start_args(&grid));
     let more = ["--resume", "--data", s(&grid), "synthetic:two-planes"];
     train(&runs, "r", 3, &more);
-    let cfg: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(runs.join("r/config.json")).unwrap())
-            .unwrap();
+    let cfg = run_config(&runs, "r");
     assert_eq!(cfg["train"]["steps"], 3);
     let data = cfg["train"]["data"].as_array().unwrap();
     assert_eq!(data.len(), 2, "{data:?}");
@@ -275,9 +273,7 @@ fn resume_keeps_what_it_changed() {
         "{err}"
     );
     // A plain resume writes nothing new.
-    let again: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(runs.join("r/config.json")).unwrap())
-            .unwrap();
+    let again = run_config(&runs, "r");
     assert_eq!(again, cfg);
     assert_eq!(losses(&runs.join("r")).last().unwrap().0, 3);
 }
