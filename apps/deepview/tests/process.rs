@@ -228,6 +228,17 @@ fn unrelated_images_fail_clearly_with_exit_code_2() {
     assert!(err.contains("scene.colmap.log"), "{err}");
     assert!(tmp.path().join("scene.colmap.log").is_file());
     assert!(!tmp.path().join("scene.incomplete").exists());
+    // A file of that name is never replaced (it may be the user's, or an earlier run's log): the next
+    // failure keeps its log under the first free name.
+    let first = tmp.path().join("scene.colmap.log");
+    std::fs::write(&first, b"my own notes").unwrap();
+    let o = deepview(&["process", "--data", s(&photos), "--out", s(&out)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert_eq!(std::fs::read(&first).unwrap(), b"my own notes");
+    assert!(err.contains("scene.colmap.2.log"), "{err}");
+    let second = std::fs::read_to_string(tmp.path().join("scene.colmap.2.log")).unwrap();
+    assert!(second.len() > 100, "COLMAP's log: {second}");
 }
 
 #[test]
@@ -262,6 +273,21 @@ fn missing_colmap_or_photos_give_clear_errors() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");
     assert!(err.contains("apt-get install colmap"), "{err}");
+    assert!(!out.exists());
+    // Photos that are not images are named before COLMAP runs (it aborted with too few left).
+    let bad = tmp.path().join("bad");
+    std::fs::create_dir(&bad).unwrap();
+    std::fs::write(bad.join("x.jpg"), "not a photo").unwrap();
+    std::fs::write(bad.join("y.png"), b"\x89PNG\r\n\x1a\n").unwrap();
+    noise_png(&bad.join("z.png"), 3);
+    let o = deepview(&["process", "--data", s(&bad), "--out", s(&out)]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("only 1 of 3 photos") && err.contains("x.jpg") && err.contains("y.png"),
+        "{err}"
+    );
+    assert!(!err.contains("z.png"), "{err}");
     assert!(!out.exists());
     // A folder without photos, and an existing output folder.
     let empty = tmp.path().join("empty");

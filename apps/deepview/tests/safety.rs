@@ -427,6 +427,22 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
                 std::fs::remove_file(&p).unwrap();
             }
         }
+        // Nor a note inside a subfolder the command writes (the synthetic scene's ground-truth MPI):
+        // the whole subfolder goes when the output is replaced.
+        let sub = std::fs::read_dir(&out)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.is_dir())
+            .min();
+        if let Some(sub) = sub {
+            let note = sub.join("notes.txt");
+            std::fs::write(&note, b"mine").unwrap();
+            let before = snapshot(&out);
+            let shown = format!("{}/notes.txt", sub.file_name().unwrap().to_string_lossy());
+            refused(&deepview(&full), &["--out", &shown, "refusing"]);
+            assert_eq!(snapshot(&out), before, "{name}: the folder changed");
+            std::fs::remove_file(&note).unwrap();
+        }
         // With them moved away, it replaces its output again.
         ok(&deepview(&full));
     }

@@ -264,16 +264,35 @@ pub fn load_checkpoint(
     let path = dir.join(CHECKPOINT_MODEL_FILE);
     let len = std::fs::metadata(&path).map_err(io(&path))?.len();
     check_model_size(&config, &run_config_path(dir), &path, len)?;
+    // The size matched the configuration, so a failure here is most likely a configuration edited since
+    // the checkpoint was saved (tensor shapes that differ at the same total size), else corruption.
     let model = DeepViewModel::new(&config, device)
         .try_load_file(&path)
-        .map_err(|e| WeightsError::Corrupt {
+        .map_err(|e| WeightsError::Mismatch {
             path: path.clone(),
-            msg: format!("{e:?}"),
+            config: run_config_path(dir),
+            msg: format!(
+                "it does not load with that model configuration (edited since it was saved?), or is \
+                 corrupt: {}",
+                clipped(&e.to_string(), 300)
+            ),
         })?;
     if let Some(tensor) = first_non_finite(&model) {
         return Err(WeightsError::NonFinite { path, tensor });
     }
     Ok((crate::device::weights_layout(model), config))
+}
+
+/// `text` cut to at most `max` bytes (at a character boundary), marked with "..." when cut.
+fn clipped(text: &str, max: usize) -> String {
+    if text.len() <= max {
+        return text.to_string();
+    }
+    let mut end = max;
+    while !text.is_char_boundary(end) {
+        end -= 1;
+    }
+    format!("{}...", &text[..end])
 }
 
 /// Convert a training checkpoint into a weights folder (`config.json` + `model.safetensors`).

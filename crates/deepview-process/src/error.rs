@@ -27,6 +27,16 @@ pub enum ProcessError {
     #[error("{dir}: only {count} image, but COLMAP needs at least 2 overlapping photos")]
     TooFewImages { dir: PathBuf, count: usize },
     #[error(
+        "{dir}: only {readable} of {total} photos can be read as images, but COLMAP needs at least 2; \
+         unreadable: {unreadable}"
+    )]
+    UnreadableImages {
+        dir: PathBuf,
+        readable: usize,
+        total: usize,
+        unreadable: String,
+    },
+    #[error(
         "COLMAP registered {registered} of {total} images, but at least 2 are needed; not registered: {missing}. \
          Are these photos of one scene, overlapping, sharp and textured? (COLMAP's log: {log})"
     )]

@@ -30,7 +30,28 @@ pub fn process(
                         count: 1,
                     });
                 }
-                _ => Some(p),
+                n => {
+                    // Photos that are not images (a renamed text file, a truncated download) are left
+                    // out by COLMAP, which aborts when too few are left: name them first.
+                    let bad: Vec<String> = p
+                        .iter()
+                        .filter_map(|f| {
+                            image::image_dimensions(f).err().map(|e| {
+                                let name = f.file_name().unwrap_or_default().to_string_lossy();
+                                format!("{name} ({e})")
+                            })
+                        })
+                        .collect();
+                    if n - bad.len() < 2 {
+                        return Err(ProcessError::UnreadableImages {
+                            dir: dir.clone(),
+                            readable: n - bad.len(),
+                            total: n,
+                            unreadable: bad.join(", "),
+                        });
+                    }
+                    Some(p)
+                }
             }
         }
         Input::Video { path, fps } => {
@@ -61,12 +82,15 @@ pub fn process(
 
 /// After a failure: the working folder removed (a scene is never left half-built), COLMAP's log kept beside
 /// the output as `OUT.colmap.log` and named in the error instead of the log inside the removed folder.
+/// An existing file of that name is never replaced (it may be the user's): the log then takes the first
+/// free `OUT.colmap.N.log`.
 fn discard_work(work: &Path, out: &Path, e: ProcessError) -> ProcessError {
     let log = work.join("colmap.log");
-    let mut kept_name = out.file_name().unwrap_or_default().to_os_string();
-    kept_name.push(".colmap.log");
-    let kept = out.with_file_name(kept_name);
-    let moved = log.is_file() && std::fs::rename(&log, &kept).is_ok();
+    let (moved, kept) = if log.is_file() {
+        keep_log(&log, out)
+    } else {
+        (false, PathBuf::new())
+    };
     let _ = std::fs::remove_dir_all(work);
     let relog = |l: PathBuf| if moved && l == log { kept.clone() } else { l };
     match e {
@@ -94,6 +118,31 @@ fn discard_work(work: &Path, out: &Path, e: ProcessError) -> ProcessError {
         },
         e => e,
     }
+}
+
+/// Move `log` beside `out` under the first name of `OUT.colmap.log`, `OUT.colmap.2.log`, ... that does
+/// not exist, without ever replacing a file (a hard link made only where the name is free, then the
+/// original removed with the working folder). Returns whether it was kept, and where.
+fn keep_log(log: &Path, out: &Path) -> (bool, PathBuf) {
+    let base = out.file_name().unwrap_or_default().to_os_string();
+    for n in 1..1000 {
+        let mut name = base.clone();
+        name.push(if n == 1 {
+            ".colmap.log".to_string()
+        } else {
+            format!(".colmap.{n}.log")
+        });
+        let kept = out.with_file_name(name);
+        match std::fs::hard_link(log, &kept) {
+            Ok(()) => return (true, kept),
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
+            // No hard links here: a rename, still only onto a free name (a race with another
+            // process making the same name in between is the only way to replace one).
+            Err(_) if !kept.exists() => return (std::fs::rename(log, &kept).is_ok(), kept),
+            Err(_) => continue,
+        }
+    }
+    (false, PathBuf::new())
 }
 
 /// The work of [`process`] in its working folder `work`.

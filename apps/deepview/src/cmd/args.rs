@@ -23,7 +23,8 @@ impl DataArg {
 /// `--mpi DIR`: an MPI folder.
 #[derive(clap::Args, Debug, Clone)]
 pub struct MpiArg {
-    /// MPI folder (mpi.json + layer_NNN.png, or a compact export).
+    /// MPI folder (mpi.json + layer_NNN.png; `view` and `export-web` also read a compact export, and
+    /// `deepview import` converts the other formats).
     #[arg(long = "mpi", value_name = "DIR")]
     pub mpi: PathBuf,
 }

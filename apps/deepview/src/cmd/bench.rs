@@ -263,6 +263,7 @@ fn bench_render(args: RenderArgs) -> anyhow::Result<()> {
     };
     let mpi = match (&args.mpi, &args.synthetic) {
         (Some(dir), _) => {
+            super::check_deepview_mpi("--mpi", dir)?;
             let (meta, _) = deepview_mpi::MpiMeta::read(dir)?;
             check(meta.width, meta.height, meta.depths.len())?;
             read_mpi::<u8>(dir)?

@@ -56,6 +56,7 @@ pub struct Args {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (input, out) = (args.mpi.path(), args.out.path());
+    super::check_deepview_mpi("--mpi", input)?;
     check_output("--out", out, Kind::Mpi, &[("--mpi", input)])?;
     let mpi = deepview_mpi::read_mpi::<f32>(input)
         .with_context(|| format!("cannot read the MPI {}", input.display()))?;

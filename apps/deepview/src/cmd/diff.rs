@@ -21,8 +21,20 @@ pub struct Args {
     #[arg(value_name = "MPI_B")]
     pub b: PathBuf,
     /// Exit with status 1 when premultiplied RGBA differs by more than this many 8-bit steps.
-    #[arg(long, value_name = "STEPS")]
+    #[arg(long, value_name = "STEPS", value_parser = parse_steps)]
     pub max: Option<f64>,
+}
+
+/// `--max`: a finite number of 8-bit steps from 0 to 255 (NaN or infinity would switch the check off, a
+/// negative bound fail every comparison).
+fn parse_steps(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(v) if (0.0..=255.0).contains(&v) => Ok(v),
+        Ok(_) => Err(format!(
+            "{s:?} must be a number of 8-bit steps from 0 to 255"
+        )),
+        Err(_) => Err(format!("{s:?} is not a number")),
+    }
 }
 
 /// What [`compare`] found.
@@ -86,6 +98,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         deepview_mpi::read_mpi::<f32>(p)
             .with_context(|| format!("cannot read the MPI {}", p.display()))
     };
+    super::check_deepview_mpi("MPI_A", &args.a)?;
+    super::check_deepview_mpi("MPI_B", &args.b)?;
     let (a, b) = (read(&args.a)?, read(&args.b)?);
     let (na, nb) = (args.a.display().to_string(), args.b.display().to_string());
     let d = compare(&a, &b, (&na, &nb))?;
@@ -120,6 +134,17 @@ mod tests {
             camera,
             depths,
             layers: values.to_vec(),
+        }
+    }
+
+    #[test]
+    fn max_is_a_number_of_steps() {
+        for ok in ["0", "1", "0.5", " 255 "] {
+            assert!(parse_steps(ok).is_ok(), "{ok}");
+        }
+        // NaN and infinity would pass any difference, a negative bound none.
+        for bad in ["nan", "NaN", "inf", "-inf", "-1", "256", "one", ""] {
+            assert!(parse_steps(bad).is_err(), "{bad}");
         }
     }
 

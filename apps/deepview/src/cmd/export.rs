@@ -24,6 +24,7 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let format: ExportFormat = args.format.parse()?;
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
+    super::check_deepview_mpi("--mpi", mpi_dir)?;
     check_output("--out", out, Kind::Export, &[("--mpi", mpi_dir)])?;
     let dir = OutputDir::new(out, Kind::Export)?;
     let report = deepview_mpi::export(mpi_dir, dir.path(), format)

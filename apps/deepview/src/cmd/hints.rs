@@ -81,6 +81,10 @@ fn method(e: &MethodError) -> Option<String> {
             ),
         },
         MethodError::OverBudget { need, .. } => more_memory_hint(*need, total_memory()),
+        // (Not even one plane fits: fewer planes cannot help.)
+        MethodError::StateOverBudget { fewer_than, .. } if *fewer_than <= 2 => {
+            "use smaller images (--downscale) or far more --max-memory".into()
+        }
         MethodError::StateOverBudget { fewer_than, .. } => format!(
             "use fewer than {fewer_than} planes (--planes), smaller images (--downscale) or far more \
              --max-memory"
@@ -153,8 +157,8 @@ fn data(e: &DataError) -> Option<String> {
 fn media(e: &MediaError) -> Option<String> {
     Some(match e {
         MediaError::OddFrameSize { .. } => {
-            "the frames have the size of the MPI or of --camera: pass a --camera \
-            of even width and height, or make --out a .gif or a folder"
+            "a --path video's frames have the MPI's size (a --camera-path's: its render_width and \
+            render_height): make --out a .gif or a folder, or give a --camera-path of even size"
                 .into()
         }
         _ => return None,

@@ -405,9 +405,81 @@ fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::R
 
 /// The entries of the existing folder `dir` (paths relative to it, folders with a trailing `/`) that an
 /// output of `kind` does not write: what replacing the folder would destroy. Leftovers of interrupted
-/// atomic writes of its own files count as its own.
+/// atomic writes of its own files count as its own. The subfolders it writes are checked the same way,
+/// entry by entry (a user's notes inside the demo's `renders/` would go with the folder).
 pub fn foreign_entries(dir: &Path, kind: Kind) -> std::io::Result<Vec<String>> {
     let mut foreign = Vec::new();
+    foreign_within(dir, Part::Of(kind), "", 0, &mut foreign)?;
+    foreign.sort();
+    Ok(foreign)
+}
+
+/// What an output folder, or one of the subfolders it writes, holds of its own.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Part {
+    /// An output of this kind.
+    Of(Kind),
+    /// The demo's `novel_views/`: `view_NN.png` and `view_NN_ground_truth.png`.
+    NovelViews,
+    /// A synthetic scene's image folder (`images/`, `images_N/`): `imageNNN.png`.
+    Images,
+    /// A synthetic scene's `sparse/`: the model folder `0/`.
+    Sparse,
+    /// `sparse/0/`: COLMAP's text model.
+    SparseModel,
+    /// A synthetic Spaces scene's `cam_NN/`: `image_NNN.png`.
+    SpacesCam,
+}
+
+impl Part {
+    fn owns(self, name: &str, is_dir: bool) -> bool {
+        match (self, is_dir) {
+            (Part::Of(kind), _) => kind.owns(name, is_dir),
+            (Part::NovelViews, false) => {
+                numbered(name, "view_", ".png") || numbered(name, "view_", "_ground_truth.png")
+            }
+            (Part::Images, false) => numbered(name, "image", ".png"),
+            (Part::Sparse, true) => name == "0",
+            (Part::SparseModel, false) => {
+                matches!(name, "cameras.txt" | "images.txt" | "points3D.txt")
+            }
+            (Part::SpacesCam, false) => numbered(name, "image_", ".png"),
+            _ => false,
+        }
+    }
+
+    /// What the subfolder `name` (one this part owns) may hold.
+    fn inner(self, name: &str) -> Option<Part> {
+        Some(match self {
+            Part::Of(Kind::Demo) => match name {
+                "scene" => Part::Of(Kind::SynthScene),
+                "mpi" => Part::Of(Kind::Mpi),
+                "novel_views" => Part::NovelViews,
+                "depth" => Part::Of(Kind::DepthMaps),
+                "renders" => Part::Of(Kind::Renders),
+                _ => return None,
+            },
+            Part::Of(Kind::SynthScene) => match name {
+                "ground_truth_mpi" => Part::Of(Kind::Mpi),
+                "sparse" => Part::Sparse,
+                n if n.starts_with("cam_") => Part::SpacesCam,
+                _ => Part::Images,
+            },
+            // Each evaluated view's MPI folder.
+            Part::Of(Kind::Mpis) => Part::Of(Kind::Mpi),
+            Part::Sparse => Part::SparseModel,
+            _ => return None,
+        })
+    }
+}
+
+fn foreign_within(
+    dir: &Path,
+    part: Part,
+    prefix: &str,
+    depth: usize,
+    foreign: &mut Vec<String>,
+) -> std::io::Result<()> {
     for e in std::fs::read_dir(dir)? {
         let e = e?;
         let name = e.file_name().to_string_lossy().into_owned();
@@ -416,15 +488,23 @@ pub fn foreign_entries(dir: &Path, kind: Kind) -> std::io::Result<Vec<String>> {
             // `.NAME.PID.tmp`: an interrupted write of one of its own files.
             Some((rest, "tmp")) => rest
                 .rsplit_once('.')
-                .is_some_and(|(file, _)| !is_dir && kind.owns(file, false)),
-            _ => kind.owns(&name, is_dir),
+                .is_some_and(|(file, _)| !is_dir && part.owns(file, false)),
+            _ => part.owns(&name, is_dir),
         };
+        let shown = format!("{prefix}{name}");
         if !own {
-            foreign.push(if is_dir { format!("{name}/") } else { name });
+            foreign.push(if is_dir { format!("{shown}/") } else { shown });
+        } else if is_dir {
+            // Every folder an output writes is known (`Part::inner`); the depth bound is a guard.
+            match part.inner(&name).filter(|_| depth < 8) {
+                Some(inner) => {
+                    foreign_within(&e.path(), inner, &format!("{shown}/"), depth + 1, foreign)?
+                }
+                None => foreign.push(format!("{shown}/")),
+            }
         }
     }
-    foreign.sort();
-    Ok(foreign)
+    Ok(())
 }
 
 /// `name` is an evaluated view's file or folder: `NNN_NAME` + `suffix`, NAME of `[A-Za-z0-9_]`.
@@ -788,6 +868,94 @@ mod tests {
         assert!(e.to_string().contains("not a MPI folder"), "{e}");
         std::fs::create_dir(dir.path().join("empty")).unwrap();
         check_output("--out", &dir.path().join("empty"), Kind::Mpi, &[]).unwrap();
+    }
+
+    /// A folder an output replaces is checked down through the subfolders it writes: a user's file
+    /// inside the demo's `renders/` or a synthetic scene's `images/` would be deleted with the folder.
+    #[test]
+    fn subfolders_of_an_earlier_output_are_checked_too() {
+        let dir = tempfile::tempdir().unwrap();
+        let put = |rel: &str| {
+            let p = dir.path().join(rel);
+            std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+            std::fs::write(p, b"x").unwrap();
+        };
+        // An earlier demo: every file one that the demo writes.
+        for f in [
+            "demo/eval.md",
+            "demo/eval.json",
+            "demo/spiral.gif",
+            "demo/scene/synth.json",
+            "demo/scene/input_Cam003.png",
+            "demo/scene/parameters.cfg",
+            "demo/scene/ground_truth_mpi/mpi.json",
+            "demo/scene/ground_truth_mpi/layer_007.png",
+            "demo/mpi/mpi.json",
+            "demo/mpi/layer_000.png",
+            "demo/novel_views/view_05.png",
+            "demo/novel_views/view_05_ground_truth.png",
+            "demo/depth/depth_color.png",
+            "demo/renders/005_input_Cam005.png",
+            "scene/synth.json",
+            "scene/images_4/image000.png",
+            "scene/sparse/0/cameras.txt",
+            "scene/sparse/0/points3D.txt",
+            "scene/cam_03/image_000.png",
+            "scene/ground_truth_mpi/mpi.json",
+        ] {
+            put(f);
+        }
+        let demo = dir.path().join("demo");
+        let scene = dir.path().join("scene");
+        assert_eq!(
+            foreign_entries(&demo, Kind::Demo).unwrap(),
+            Vec::<String>::new()
+        );
+        assert_eq!(
+            foreign_entries(&scene, Kind::SynthScene).unwrap(),
+            Vec::<String>::new()
+        );
+        check_output("--out", &demo, Kind::Demo, &[]).unwrap();
+        check_output("--out", &scene, Kind::SynthScene, &[]).unwrap();
+        // The user's files inside them.
+        for f in [
+            "demo/renders/mine.png",
+            "demo/novel_views/holiday.png",
+            "demo/scene/ground_truth_mpi/notes.txt",
+            "demo/mpi/extra/layer_000.png",
+            "scene/images_4/notes.txt",
+            "scene/sparse/0/project.ini",
+            "scene/cam_03/notes.txt",
+        ] {
+            put(f);
+        }
+        assert_eq!(
+            foreign_entries(&demo, Kind::Demo).unwrap(),
+            [
+                "mpi/extra/",
+                "novel_views/holiday.png",
+                "renders/mine.png",
+                "scene/ground_truth_mpi/notes.txt"
+            ]
+        );
+        assert_eq!(
+            foreign_entries(&scene, Kind::SynthScene).unwrap(),
+            [
+                "cam_03/notes.txt",
+                "images_4/notes.txt",
+                "sparse/0/project.ini"
+            ]
+        );
+        for (out, kind) in [(&demo, Kind::Demo), (&scene, Kind::SynthScene)] {
+            let e = check_output("--out", out, kind, &[])
+                .unwrap_err()
+                .to_string();
+            assert!(e.contains("refusing to replace it"), "{e}");
+        }
+        let e = check_output("--out", &demo, Kind::Demo, &[])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("renders/mine.png"), "{e}");
     }
 
     #[test]

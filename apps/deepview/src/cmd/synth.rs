@@ -28,11 +28,12 @@ pub struct Args {
     /// Grid rig: views per side (at least 2).
     #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u64).range(2..=64))]
     pub grid: u64,
-    /// Grid rig: image width.
-    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(1..))]
+    /// Grid rig: image width (at least 3 pixels; a narrower grid's enlarged reference camera is not one
+    /// the scene's own reader accepts).
+    #[arg(long, default_value_t = 256, value_parser = clap::value_parser!(u32).range(3..))]
     pub width: u32,
-    /// Grid rig: image height.
-    #[arg(long, default_value_t = 192, value_parser = clap::value_parser!(u32).range(1..))]
+    /// Grid rig: image height (at least 3 pixels).
+    #[arg(long, default_value_t = 192, value_parser = clap::value_parser!(u32).range(3..))]
     pub height: u32,
     /// Planes of the ground-truth MPI (at least 2).
     #[arg(long, default_value_t = 32, value_parser = parse_planes)]

@@ -214,6 +214,39 @@ fn compact_keeps_the_reference_view_with_fewer_planes() {
         &deepview(&["compact", "--mpi", s(&mpi), "--out", s(&scene)]),
         &["--out"],
     );
+    // A compact *export* (tiles) is another format: the commands that read our MPI folders say how to
+    // convert it, instead of "cannot read mpi.json".
+    let tiles = tmp.path().join("tiles");
+    succeeds(&deepview(&[
+        "export",
+        "--mpi",
+        s(&mpi),
+        "--out",
+        s(&tiles),
+        "--format",
+        "compact",
+    ]));
+    let again = tmp.path().join("again");
+    for args in [
+        vec!["compact", "--mpi", s(&tiles), "--out", s(&again)],
+        vec![
+            "export",
+            "--mpi",
+            s(&tiles),
+            "--out",
+            s(&again),
+            "--format",
+            "llff",
+        ],
+        vec!["diff", s(&tiles), s(&mpi)],
+        vec!["bench", "render", "--mpi", s(&tiles)],
+    ] {
+        fails_with(
+            &deepview(&args),
+            &["Compact format", "deepview import --mpi"],
+        );
+    }
+    assert!(!again.exists());
     let e = succeeds(&deepview(&[
         "eval",
         "--data",
