@@ -114,6 +114,11 @@ pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
         None => (name, None),
     };
     match kind {
+        // One CPU device: `cpu:0` and `cpu:local` (every rank its own process) name it too, another
+        // index none.
+        "cpu" | "flex" if index.is_some_and(|i| i > 0) && !name.ends_with(":local") => Err(err(
+            "there is one CPU device (cpu); several CPU replicas are `--devices cpu,cpu`",
+        )),
         "cpu" | "flex" => Ok(Device::flex()),
         #[cfg(feature = "wgpu")]
         "wgpu" => wgpu_device(name, index.map(WgpuIndex::Discrete)).map_err(|m| err(&m)),
@@ -178,4 +183,21 @@ pub fn weights_layout<M: burn::module::Module>(module: M) -> M {
     return crate::gpu::channels_last_weights(module);
     #[cfg(not(any(feature = "wgpu", feature = "cuda")))]
     module
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One CPU device: `cpu`, `flex`, `cpu:0` and `cpu:local` name it; another index is refused (it was
+    /// accepted as the same device, as if a second CPU existed).
+    #[test]
+    fn cpu_names_and_indices() {
+        for ok in ["cpu", "flex", "cpu:0", "cpu:local"] {
+            assert!(parse_device(ok).is_ok(), "{ok}");
+        }
+        for bad in ["cpu:3", "flex:1", "cpu:x", "gpu", "cpu:"] {
+            assert!(parse_device(bad).is_err(), "{bad}");
+        }
+    }
 }
