@@ -385,6 +385,22 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
                 "synth", "--width", "32", "--height", "24", "--grid", "2", "--planes", "4",
             ],
         ),
+        (
+            "synth-transforms",
+            vec![
+                "synth",
+                "--width",
+                "32",
+                "--height",
+                "24",
+                "--grid",
+                "2",
+                "--planes",
+                "4",
+                "--out-format",
+                "transforms",
+            ],
+        ),
     ];
     for (name, args) in &commands {
         let out = t.join(format!("out-{name}"));
@@ -414,7 +430,7 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
             };
             let r = deepview(&full);
             // A synthetic scene in LLFF's format writes poses_bounds.npy itself: the one file it owns.
-            if *name == "synth" && extra == "poses_bounds.npy" {
+            if name.starts_with("synth") && extra == "poses_bounds.npy" {
                 ok(&r);
                 continue;
             }
@@ -427,14 +443,14 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
                 std::fs::remove_file(&p).unwrap();
             }
         }
-        // Nor a note inside a subfolder the command writes (the synthetic scene's ground-truth MPI):
-        // the whole subfolder goes when the output is replaced.
-        let sub = std::fs::read_dir(&out)
+        // Nor a note inside a subfolder the command writes (the synthetic scene's ground-truth MPI and
+        // images): the whole subfolder goes when the output is replaced.
+        let subs: Vec<PathBuf> = std::fs::read_dir(&out)
             .unwrap()
             .map(|e| e.unwrap().path())
             .filter(|p| p.is_dir())
-            .min();
-        if let Some(sub) = sub {
+            .collect();
+        for sub in subs {
             let note = sub.join("notes.txt");
             std::fs::write(&note, b"mine").unwrap();
             let before = snapshot(&out);

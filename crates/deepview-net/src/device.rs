@@ -117,7 +117,7 @@ pub fn parse_device(name: &str) -> Result<Device, DeviceError> {
         // One CPU device: `cpu:0` and `cpu:local` (every rank its own process) name it too, another
         // index none.
         "cpu" | "flex" if index.is_some_and(|i| i > 0) && !name.ends_with(":local") => Err(err(
-            "there is one CPU device (cpu); several CPU replicas are `--devices cpu,cpu`",
+            "there is one CPU device: `cpu` (`train --devices cpu,cpu` trains two replicas on it)",
         )),
         "cpu" | "flex" => Ok(Device::flex()),
         #[cfg(feature = "wgpu")]

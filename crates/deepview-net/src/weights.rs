@@ -34,6 +34,15 @@ pub enum WeightsError {
         config: PathBuf,
         msg: String,
     },
+    #[error(
+        "{path} does not load with the model configuration in {config} (edited since the checkpoint was \
+         saved?), or is corrupt: {msg}"
+    )]
+    Unloadable {
+        path: PathBuf,
+        config: PathBuf,
+        msg: String,
+    },
     #[error("{path}: tensor {tensor} contains non-finite values (NaN or infinity)")]
     NonFinite { path: PathBuf, tensor: String },
     #[error("{path} is {what}")]
@@ -268,14 +277,10 @@ pub fn load_checkpoint(
     // the checkpoint was saved (tensor shapes that differ at the same total size), else corruption.
     let model = DeepViewModel::new(&config, device)
         .try_load_file(&path)
-        .map_err(|e| WeightsError::Mismatch {
+        .map_err(|e| WeightsError::Unloadable {
             path: path.clone(),
             config: run_config_path(dir),
-            msg: format!(
-                "it does not load with that model configuration (edited since it was saved?), or is \
-                 corrupt: {}",
-                clipped(&e.to_string(), 300)
-            ),
+            msg: clipped(&e.to_string(), 300),
         })?;
     if let Some(tensor) = first_non_finite(&model) {
         return Err(WeightsError::NonFinite { path, tensor });
@@ -460,6 +465,16 @@ pub fn first_non_finite(model: &DeepViewModel) -> Option<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Long loader errors are cut to a bounded message, never inside a character.
+    #[test]
+    fn clipped_cuts_at_a_character_boundary() {
+        assert_eq!(clipped("short", 300), "short");
+        let long = "é".repeat(200); // 400 bytes
+        let c = clipped(&long, 301);
+        assert!(c.ends_with("...") && c.len() <= 303, "{}", c.len());
+        assert_eq!(c.trim_end_matches("...").chars().count(), 150);
+    }
     use burn::tensor::Tensor;
 
     fn cfg() -> DeepViewConfig {

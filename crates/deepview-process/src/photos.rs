@@ -26,6 +26,15 @@ pub fn list_photos(dir: &Path) -> Result<Vec<PathBuf>, ProcessError> {
     Ok(out)
 }
 
+/// A photo's size from its header, its format from its content (as COLMAP reads it), not its extension:
+/// a JPEG saved as `.png` is still a photo.
+pub(crate) fn photo_dimensions(path: &Path) -> image::ImageResult<(u32, u32)> {
+    image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .map_err(image::ImageError::IoError)
+        .and_then(|r| r.into_dimensions())
+}
+
 /// Copy (or downscale into) `dst` the photos of `src`; returns their file names.
 pub(crate) fn copy_photos(
     photos: &[PathBuf],
@@ -42,7 +51,7 @@ pub(crate) fn copy_photos(
         let resize = match max_size {
             None => None,
             Some(m) => {
-                let (w, h) = image::image_dimensions(p).map_err(|e| ProcessError::Image {
+                let (w, h) = photo_dimensions(p).map_err(|e| ProcessError::Image {
                     path: p.clone(),
                     msg: e.to_string(),
                 })?;
@@ -54,10 +63,14 @@ pub(crate) fn copy_photos(
                 std::fs::copy(p, &target).map_err(write_err(&target))?;
             }
             Some(m) => {
-                let img = image::open(p).map_err(|e| ProcessError::Image {
-                    path: p.clone(),
-                    msg: format!("cannot decode: {e}"),
-                })?;
+                let img = image::ImageReader::open(p)
+                    .and_then(|r| r.with_guessed_format())
+                    .map_err(image::ImageError::IoError)
+                    .and_then(|r| r.decode())
+                    .map_err(|e| ProcessError::Image {
+                        path: p.clone(),
+                        msg: format!("cannot decode: {e}"),
+                    })?;
                 let img = img.resize(m, m, image::imageops::FilterType::Lanczos3);
                 let ext = target
                     .extension()

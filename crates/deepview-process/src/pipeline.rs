@@ -3,7 +3,7 @@
 use crate::error::write_err;
 use crate::frames::extract_frames;
 use crate::layout::{MARKER, out_is_free, rename, work_folder};
-use crate::photos::{copy_photos, list_photos};
+use crate::photos::{copy_photos, list_photos, photo_dimensions};
 use crate::runner::Runner;
 use crate::{Event, Input, Matcher, ProcessError, ProcessOptions, ProcessReport, Stage, colmap};
 use deepview_data::{LoadOptions, load_scene, read_colmap};
@@ -31,23 +31,28 @@ pub fn process(
                     });
                 }
                 n => {
-                    // Photos that are not images (a renamed text file, a truncated download) are left
-                    // out by COLMAP, which aborts when too few are left: name them first.
+                    // Files that are not images (a text file named .jpg, a download cut off in its
+                    // header) are left out by COLMAP, which aborts when too few are left: name them
+                    // first. Their headers are read; the format is found from the content.
                     let bad: Vec<String> = p
                         .iter()
                         .filter_map(|f| {
-                            image::image_dimensions(f).err().map(|e| {
+                            photo_dimensions(f).err().map(|e| {
                                 let name = f.file_name().unwrap_or_default().to_string_lossy();
                                 format!("{name} ({e})")
                             })
                         })
                         .collect();
                     if n - bad.len() < 2 {
+                        let more = match bad.len().saturating_sub(4) {
+                            0 => String::new(),
+                            k => format!(" and {k} more"),
+                        };
                         return Err(ProcessError::UnreadableImages {
                             dir: dir.clone(),
                             readable: n - bad.len(),
                             total: n,
-                            unreadable: bad.join(", "),
+                            unreadable: format!("{}{more}", bad[..bad.len().min(4)].join(", ")),
                         });
                     }
                     Some(p)
@@ -138,7 +143,9 @@ fn keep_log(log: &Path, out: &Path) -> (bool, PathBuf) {
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
             // No hard links here: a rename, still only onto a free name (a race with another
             // process making the same name in between is the only way to replace one).
-            Err(_) if !kept.exists() => return (std::fs::rename(log, &kept).is_ok(), kept),
+            Err(_) if std::fs::symlink_metadata(&kept).is_err() => {
+                return (std::fs::rename(log, &kept).is_ok(), kept);
+            }
             Err(_) => continue,
         }
     }
@@ -219,7 +226,7 @@ fn build(
     // of several sizes (two phones, a cropped photo) get one camera each, and the event says so.
     let sizes: std::collections::BTreeSet<(u32, u32)> = names
         .iter()
-        .filter_map(|n| image::image_dimensions(input.join(n)).ok())
+        .filter_map(|n| photo_dimensions(&input.join(n)).ok())
         .collect();
     let shared = sizes.len() <= 1;
     let db = colmap_dir.join("database.db");

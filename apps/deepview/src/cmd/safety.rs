@@ -480,16 +480,19 @@ fn foreign_within(
     depth: usize,
     foreign: &mut Vec<String>,
 ) -> std::io::Result<()> {
-    for e in std::fs::read_dir(dir)? {
-        let e = e?;
+    // Errors name the folder (a subfolder that cannot be read, not only the output).
+    let named =
+        |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
+    for e in std::fs::read_dir(dir).map_err(named)? {
+        let e = e.map_err(named)?;
         let name = e.file_name().to_string_lossy().into_owned();
-        let is_dir = e.file_type()?.is_dir();
+        let is_dir = e.file_type().map_err(named)?.is_dir();
         let own = match name.strip_prefix('.').and_then(|n| n.rsplit_once('.')) {
             // `.NAME.PID.tmp`: an interrupted write of one of its own files.
             Some((rest, "tmp")) => rest
                 .rsplit_once('.')
                 .is_some_and(|(file, _)| !is_dir && part.owns(file, false)),
-            _ => part.owns(&name, is_dir),
+            _ => part.owns(&name, is_dir) || (!is_dir && os_metadata(&name)),
         };
         let shown = format!("{prefix}{name}");
         if !own {
@@ -505,6 +508,12 @@ fn foreign_within(
         }
     }
     Ok(())
+}
+
+/// A file a file browser leaves in every folder it shows (macOS Finder's `.DS_Store`, Windows Explorer's
+/// `Thumbs.db` and `desktop.ini`): not the user's data, and it would otherwise stop every re-run.
+fn os_metadata(name: &str) -> bool {
+    matches!(name, ".DS_Store" | "Thumbs.db" | "desktop.ini")
 }
 
 /// `name` is an evaluated view's file or folder: `NNN_NAME` + `suffix`, NAME of `[A-Za-z0-9_]`.
@@ -896,6 +905,7 @@ mod tests {
             "demo/novel_views/view_05_ground_truth.png",
             "demo/depth/depth_color.png",
             "demo/renders/005_input_Cam005.png",
+            "demo/novel_views/.DS_Store",
             "scene/synth.json",
             "scene/images_4/image000.png",
             "scene/sparse/0/cameras.txt",

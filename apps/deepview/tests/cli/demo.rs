@@ -1,6 +1,6 @@
 //! `deepview demo`: the README's first command.
 
-use crate::common::{deepview, s, succeeds};
+use crate::common::{deepview, fails_with, s, succeeds};
 
 /// The README's first command: the whole pipeline on the built-in scene (the slow `optimize` baseline
 /// skipped). Everything it announces is there, every method is scored, and the shipped model beats both
@@ -56,4 +56,15 @@ fn demo_makes_everything_it_announces() {
     // It says how to look at the MPI in the browser.
     let view_hint = format!("-- view --mpi {}", out.join("mpi").display());
     assert!(stdout.contains(&view_hint), "{view_hint:?} not in {stdout}");
+    // It replaces its own earlier output (every file in every subfolder is one it writes), but not a
+    // user's file inside one of them.
+    let note = out.join("renders").join("notes.txt");
+    std::fs::write(&note, "mine").unwrap();
+    fails_with(
+        &deepview(&["demo", "--out", s(&out), "--no-optimize"]),
+        &["renders/notes.txt", "refusing"],
+    );
+    assert_eq!(std::fs::read_to_string(&note).unwrap(), "mine");
+    std::fs::remove_file(&note).unwrap();
+    succeeds(&deepview(&["demo", "--out", s(&out), "--no-optimize"]));
 }
