@@ -155,7 +155,14 @@ impl Trainer {
                     path: run_dir.to_path_buf(),
                 });
             }
-            std::fs::create_dir_all(run_dir.join("checkpoints")).map_err(io_err(run_dir))?;
+            let checkpoints = run_dir.join("checkpoints");
+            if checkpoints.exists() && !checkpoints.is_dir() {
+                return Err(run_err(
+                    &checkpoints,
+                    "is a file, where the run keeps its checkpoints: move it away",
+                ));
+            }
+            std::fs::create_dir_all(&checkpoints).map_err(io_err(&checkpoints))?;
             lock = Some(lock_run(run_dir)?);
             let cfg_path = run_dir.join("config.json");
             write_atomic(

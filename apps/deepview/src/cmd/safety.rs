@@ -188,6 +188,19 @@ pub type Input<'a> = (&'a str, &'a Path);
 /// Refuse an output (`option`, e.g. `--out`) that would overwrite an input or a folder it must not
 /// replace; see the module documentation. Inputs that are not paths (`synthetic:…`) are skipped.
 pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> anyhow::Result<()> {
+    // A link to nothing: replacing it would fail at the end (or make its target somewhere unexpected).
+    if let Ok(m) = std::fs::symlink_metadata(out)
+        && m.file_type().is_symlink()
+        && std::fs::metadata(out).is_err()
+    {
+        let to = std::fs::read_link(out).unwrap_or_default();
+        bail!(
+            "{option} {} is a symbolic link to {}, which does not exist: remove the link or choose another \
+             {option}",
+            out.display(),
+            to.display()
+        );
+    }
     let o = resolve(out);
     for (what, input) in inputs {
         if input.to_str().is_some_and(|s| s.starts_with("synthetic:")) {
@@ -877,6 +890,13 @@ mod tests {
         assert!(e.to_string().contains("not a MPI folder"), "{e}");
         std::fs::create_dir(dir.path().join("empty")).unwrap();
         check_output("--out", &dir.path().join("empty"), Kind::Mpi, &[]).unwrap();
+        // A link to nothing is named as such (the rename at the end failed with "Not a directory").
+        let link = dir.path().join("link");
+        std::os::unix::fs::symlink(dir.path().join("gone"), &link).unwrap();
+        for kind in [Kind::Mpi, Kind::File] {
+            let e = check_output("--out", &link, kind, &[]).unwrap_err();
+            assert!(e.to_string().contains("does not exist"), "{e}");
+        }
     }
 
     /// A folder an output replaces is checked down through the subfolders it writes: a user's file

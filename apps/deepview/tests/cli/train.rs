@@ -471,3 +471,29 @@ fn resume_elsewhere_reads_the_datasets_the_run_started_with() {
     succeeds(&o);
     assert_eq!(losses(&runs.join("r")).len(), 3);
 }
+
+/// A file standing where a run keeps its checkpoints is named as such (the error was "File exists"
+/// about the run folder), and nothing of the run is changed.
+#[test]
+fn a_file_in_place_of_the_checkpoints_folder_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let g = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    train(&runs, "r", 1, &start_args(&g));
+    let ck = runs.join("r").join("checkpoints");
+    std::fs::remove_dir_all(&ck).unwrap();
+    std::fs::write(&ck, "a file").unwrap();
+    let o = deepview(&[
+        "train",
+        "--runs",
+        s(&runs),
+        "--name",
+        "r",
+        "--resume",
+        "--steps",
+        "2",
+        "--quiet",
+    ]);
+    fails_with(&o, &["checkpoints", "is a file"]);
+    assert_eq!(std::fs::read_to_string(&ck).unwrap(), "a file");
+}
