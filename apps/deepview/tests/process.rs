@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{deepview, s};
+use common::{deepview, fails_with, s};
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 use std::sync::{Mutex, OnceLock};
@@ -293,18 +293,18 @@ fn missing_colmap_or_photos_give_clear_errors() {
     // two photos are left, and the run goes on to look for COLMAP.
     let img = deepview_image::ImageF32::from_data(16, 12, 3, vec![0.5; 16 * 12 * 3]).unwrap();
     deepview_image::write_jpeg(&bad.join("w.png"), &img, 90).unwrap();
-    let o = deepview(&[
-        "process",
-        "--data",
-        s(&bad),
-        "--out",
-        s(&out),
-        "--colmap",
-        "/nonexistent/colmap",
-    ]);
-    let err = String::from_utf8_lossy(&o.stderr);
-    assert_eq!(o.status.code(), Some(2), "{err}");
-    assert!(err.contains("/nonexistent/colmap"), "{err}");
+    fails_with(
+        &deepview(&[
+            "process",
+            "--data",
+            s(&bad),
+            "--out",
+            s(&out),
+            "--colmap",
+            "/nonexistent/colmap",
+        ]),
+        &["/nonexistent/colmap"],
+    );
     // A folder without photos, and an existing output folder.
     let empty = tmp.path().join("empty");
     std::fs::create_dir(&empty).unwrap();

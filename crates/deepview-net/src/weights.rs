@@ -288,8 +288,9 @@ pub fn load_checkpoint(
     Ok((crate::device::weights_layout(model), config))
 }
 
-/// `text` cut to at most `max` bytes (at a character boundary), marked with "..." when cut.
-fn clipped(text: &str, max: usize) -> String {
+/// `text` cut to at most `max` bytes (at a character boundary), marked with "..." when cut: a loader's
+/// error message kept readable.
+pub fn clipped(text: &str, max: usize) -> String {
     if text.len() <= max {
         return text.to_string();
     }

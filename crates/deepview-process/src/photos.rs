@@ -29,10 +29,14 @@ pub fn list_photos(dir: &Path) -> Result<Vec<PathBuf>, ProcessError> {
 /// A photo's size from its header, its format from its content (as COLMAP reads it), not its extension:
 /// a JPEG saved as `.png` is still a photo.
 pub(crate) fn photo_dimensions(path: &Path) -> image::ImageResult<(u32, u32)> {
+    photo_reader(path)?.into_dimensions()
+}
+
+/// A reader of the photo `path` in the format its content has.
+fn photo_reader(path: &Path) -> image::ImageResult<image::ImageReader<std::io::BufReader<File>>> {
     image::ImageReader::open(path)
         .and_then(|r| r.with_guessed_format())
         .map_err(image::ImageError::IoError)
-        .and_then(|r| r.into_dimensions())
 }
 
 /// Copy (or downscale into) `dst` the photos of `src`; returns their file names.
@@ -63,14 +67,13 @@ pub(crate) fn copy_photos(
                 std::fs::copy(p, &target).map_err(write_err(&target))?;
             }
             Some(m) => {
-                let img = image::ImageReader::open(p)
-                    .and_then(|r| r.with_guessed_format())
-                    .map_err(image::ImageError::IoError)
-                    .and_then(|r| r.decode())
-                    .map_err(|e| ProcessError::Image {
-                        path: p.clone(),
-                        msg: format!("cannot decode: {e}"),
-                    })?;
+                let img =
+                    photo_reader(p)
+                        .and_then(|r| r.decode())
+                        .map_err(|e| ProcessError::Image {
+                            path: p.clone(),
+                            msg: format!("cannot decode: {e}"),
+                        })?;
                 let img = img.resize(m, m, image::imageops::FilterType::Lanczos3);
                 let ext = target
                     .extension()

@@ -91,13 +91,16 @@ pub fn process(
 /// free `OUT.colmap.N.log`.
 fn discard_work(work: &Path, out: &Path, e: ProcessError) -> ProcessError {
     let log = work.join("colmap.log");
-    let (moved, kept) = if log.is_file() {
+    let kept = if log.is_file() {
         keep_log(&log, out)
     } else {
-        (false, PathBuf::new())
+        None
     };
     let _ = std::fs::remove_dir_all(work);
-    let relog = |l: PathBuf| if moved && l == log { kept.clone() } else { l };
+    let relog = |l: PathBuf| match &kept {
+        Some(k) if l == log => k.clone(),
+        _ => l,
+    };
     match e {
         ProcessError::StageFailed {
             stage,
@@ -127,8 +130,8 @@ fn discard_work(work: &Path, out: &Path, e: ProcessError) -> ProcessError {
 
 /// Move `log` beside `out` under the first name of `OUT.colmap.log`, `OUT.colmap.2.log`, ... that does
 /// not exist, without ever replacing a file (a hard link made only where the name is free, then the
-/// original removed with the working folder). Returns whether it was kept, and where.
-fn keep_log(log: &Path, out: &Path) -> (bool, PathBuf) {
+/// original removed with the working folder). Returns where it was kept, if it was.
+fn keep_log(log: &Path, out: &Path) -> Option<PathBuf> {
     let base = out.file_name().unwrap_or_default().to_os_string();
     for n in 1..1000 {
         let mut name = base.clone();
@@ -139,17 +142,17 @@ fn keep_log(log: &Path, out: &Path) -> (bool, PathBuf) {
         });
         let kept = out.with_file_name(name);
         match std::fs::hard_link(log, &kept) {
-            Ok(()) => return (true, kept),
+            Ok(()) => return Some(kept),
             Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => continue,
             // No hard links here: a rename, still only onto a free name (a race with another
             // process making the same name in between is the only way to replace one).
             Err(_) if std::fs::symlink_metadata(&kept).is_err() => {
-                return (std::fs::rename(log, &kept).is_ok(), kept);
+                return std::fs::rename(log, &kept).is_ok().then_some(kept);
             }
             Err(_) => continue,
         }
     }
-    (false, PathBuf::new())
+    None
 }
 
 /// The work of [`process`] in its working folder `work`.

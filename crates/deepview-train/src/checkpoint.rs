@@ -138,20 +138,12 @@ pub(crate) fn load_checkpoint(
     let model = DeepViewModel::new(model, device)
         .try_load_file(&model_path)
         .map_err(|e| {
-            let mut msg = e.to_string();
-            if msg.len() > 300 {
-                let mut end = 300;
-                while !msg.is_char_boundary(end) {
-                    end -= 1;
-                }
-                msg.truncate(end);
-                msg.push_str("...");
-            }
             run_err(
                 &model_path,
                 format!(
                     "does not load with the run's model configuration (its config.json edited since \
-                     the checkpoint was saved?), or is corrupt: {msg}"
+                     the checkpoint was saved?), or is corrupt: {}",
+                    deepview_net::weights::clipped(&e.to_string(), 300)
                 ),
             )
         })?;

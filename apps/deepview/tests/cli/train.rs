@@ -23,6 +23,13 @@ fn train(runs: &Path, name: &str, steps: u32, extra: &[&str]) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
 
+/// `train --runs RUNS --name NAME --resume` with `extra`: the output, for the test to judge.
+fn resume(runs: &Path, name: &str, extra: &[&str]) -> std::process::Output {
+    let mut args = vec!["train", "--runs", s(runs), "--name", name, "--resume"];
+    args.extend_from_slice(extra);
+    deepview(&args)
+}
+
 fn start_args(grid: &Path) -> Vec<&str> {
     vec![
         "--data",
@@ -85,18 +92,7 @@ fn resume_reads_the_data_with_the_options_of_the_run() {
 
     // A scene flag that disagrees with the run's is refused; the same value is fine.
     let grid_dir = s(&grid);
-    let refused = deepview(&[
-        "train",
-        "--runs",
-        s(&runs),
-        "--name",
-        "resumed",
-        "--resume",
-        "--steps",
-        "3",
-        "--downscale",
-        "4",
-    ]);
+    let refused = resume(&runs, "resumed", &["--steps", "3", "--downscale", "4"]);
     fails_with(
         &refused,
         &["--downscale", grid_dir, "cannot change on resume"],
@@ -255,15 +251,7 @@ fn resume_keeps_what_it_changed() {
     let data = cfg["train"]["data"].as_array().unwrap();
     assert_eq!(data.len(), 2, "{data:?}");
     assert_eq!(data[1]["path"], "synthetic:two-planes");
-    let o = deepview(&[
-        "train",
-        "--runs",
-        s(&runs),
-        "--name",
-        "r",
-        "--resume",
-        "--quiet",
-    ]);
+    let o = resume(&runs, "r", &["--quiet"]);
     succeeds(&o);
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(err.contains("at step 3 of 3"), "{err}");
@@ -286,16 +274,7 @@ fn resume_refuses_fewer_steps_and_damaged_checkpoints() {
     let grid = synth_grid(tmp.path());
     let runs = tmp.path().join("runs");
     train(&runs, "r", 3, &start_args(&grid));
-    let o = deepview(&[
-        "train",
-        "--runs",
-        s(&runs),
-        "--name",
-        "r",
-        "--resume",
-        "--steps",
-        "2",
-    ]);
+    let o = resume(&runs, "r", &["--steps", "2"]);
     fails_with(&o, &["--steps 2", "(3)"]);
     // Every checkpoint loses its model file: refused, naming them; nothing is removed.
     let cks = runs.join("r/checkpoints");
@@ -311,16 +290,7 @@ fn resume_refuses_fewer_steps_and_damaged_checkpoints() {
         names.push(p.file_name().unwrap().to_string_lossy().into_owned());
     }
     assert!(!names.is_empty());
-    let o = deepview(&[
-        "train",
-        "--runs",
-        s(&runs),
-        "--name",
-        "r",
-        "--resume",
-        "--steps",
-        "5",
-    ]);
+    let o = resume(&runs, "r", &["--steps", "5"]);
     let mut needles = vec!["no checkpoint", "complete"];
     needles.extend(names.iter().map(String::as_str));
     fails_with(&o, &needles);
@@ -483,17 +453,7 @@ fn a_file_in_place_of_the_checkpoints_folder_is_named() {
     let ck = runs.join("r").join("checkpoints");
     std::fs::remove_dir_all(&ck).unwrap();
     std::fs::write(&ck, "a file").unwrap();
-    let o = deepview(&[
-        "train",
-        "--runs",
-        s(&runs),
-        "--name",
-        "r",
-        "--resume",
-        "--steps",
-        "2",
-        "--quiet",
-    ]);
+    let o = resume(&runs, "r", &["--steps", "2", "--quiet"]);
     fails_with(&o, &["checkpoints", "is a file"]);
     assert_eq!(std::fs::read_to_string(&ck).unwrap(), "a file");
 }
