@@ -288,6 +288,23 @@ fn keep_checkpoints_prunes_old_ones() {
     succeeds(&run(&args));
     assert_eq!(folder_names(&runs.join("k/checkpoints")), ["step-0000014"]);
     assert_eq!(metric_steps(&runs.join("k")), (1..=14).collect::<Vec<_>>());
+    // A checkpoint folder holding a file of the user's is kept, and the warning names the file.
+    let note = runs.join("k/checkpoints/step-0000014/notes.txt");
+    std::fs::write(&note, b"mine").unwrap();
+    let mut args = train_args(&runs, "k", 18);
+    args.extend(["--resume".into(), "--keep-checkpoints".into(), "1".into()]);
+    let out = run(&args);
+    succeeds(&out);
+    assert_eq!(std::fs::read(&note).unwrap(), b"mine");
+    assert_eq!(
+        folder_names(&runs.join("k/checkpoints")),
+        ["step-0000014", "step-0000018"]
+    );
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("kept the old checkpoint") && err.contains("notes.txt"),
+        "{err}"
+    );
 }
 
 /// A tmpfs of `size` mounted on `dir` while it lives (root only).

@@ -35,6 +35,21 @@ pub fn checkpoint_is_complete(dir: &Path) -> bool {
         .all(|f| std::fs::metadata(dir.join(f)).is_ok_and(|m| m.is_file() && m.len() > 0))
 }
 
+/// What a checkpoint folder holds besides [`CHECKPOINT_FILES`] (names, sorted): files someone else
+/// put there, which pruning and replacing a checkpoint must not delete.
+pub(crate) fn foreign_entries(dir: &Path) -> Vec<String> {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return Vec::new();
+    };
+    let mut out: Vec<String> = entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| !CHECKPOINT_FILES.contains(&n.as_str()))
+        .collect();
+    out.sort();
+    out
+}
+
 /// The complete checkpoints of a run folder, sorted by step (`checkpoints/step-N` folders holding every
 /// file of [`CHECKPOINT_FILES`]; temporary folders of an interrupted write are not listed).
 pub fn list_checkpoints(run_dir: &Path) -> Result<Vec<(u64, PathBuf)>, TrainError> {
@@ -195,7 +210,19 @@ pub(crate) fn write_checkpoint(
         .map_err(io_err(&state_path))?;
     sync_dir(tmp);
     if done.exists() {
-        // A `step-N` without all its files (damaged by hand or by the disk): replace it.
+        // A `step-N` without all its files (damaged by hand or by the disk): replace it, unless it
+        // holds files training did not write.
+        let foreign = foreign_entries(done);
+        if !foreign.is_empty() {
+            return Err(run_err(
+                done,
+                format!(
+                    "an incomplete checkpoint that also holds {} (not written by training); move \
+                     them out or remove the folder",
+                    foreign.join(", ")
+                ),
+            ));
+        }
         let stale = dir.join(format!(
             ".old-step-{:07}-{}",
             state.step,
@@ -208,13 +235,23 @@ pub(crate) fn write_checkpoint(
 }
 
 /// Remove all but the last `keep` checkpoints (failures are warnings in `notices`: the new checkpoint
-/// is complete either way).
+/// is complete either way). A checkpoint folder holding anything besides its own files is kept, with a
+/// warning: those files are the user's.
 pub(crate) fn prune_checkpoints(run_dir: &Path, keep: usize, notices: &mut Vec<Notice>) {
     let Ok(all) = list_checkpoints(run_dir) else {
         return;
     };
     let keep = keep.max(1);
     for (step, p) in all.iter().take(all.len().saturating_sub(keep)) {
+        let foreign = foreign_entries(p);
+        if !foreign.is_empty() {
+            notices.push(Notice::Warning(format!(
+                "kept the old checkpoint {}: it also holds {}, which training did not write",
+                p.display(),
+                foreign.join(", ")
+            )));
+            continue;
+        }
         let trash = p.with_file_name(format!(".old-step-{step:07}-{}", std::process::id()));
         let r = std::fs::rename(p, &trash).and_then(|_| std::fs::remove_dir_all(&trash));
         if let Err(e) = r {

@@ -4,7 +4,7 @@
 //! data against the run's settings and returns the [`Trainer`] with what is worth saying.
 
 use crate::checkpoint::{CHECKPOINT_FILES, damaged_checkpoints, list_checkpoints};
-use crate::config::RunConfig;
+use crate::config::{RunConfig, TrainConfig};
 use crate::data::TrainData;
 use crate::dist::Collective;
 use crate::error::TrainError;
@@ -139,7 +139,7 @@ pub fn open(
     }
     let rank = comm.as_ref().map_or(0, |c| c.rank());
     let data = load_data(&cfg.train.data, cfg.train.holdout_every)?;
-    check_views(&data, cfg.train.sample.views_max, cfg.train.sample.crop)?;
+    check_views(&data, &cfg.train)?;
     check_vgg(&cfg.train.loss, cfg.train.vgg_weights.as_deref(), opts)?;
     if mode[0] == RESUME {
         let mut trainer = Trainer::resume_from(run_dir, cfg, data, comm)?;
@@ -221,7 +221,7 @@ fn fresh(
         deepview_net::device::parse_device(d)?;
     }
     let data = load_data(&train.data, train.holdout_every)?;
-    check_views(&data, train.sample.views_max, train.sample.crop)?;
+    check_views(&data, &train)?;
     check_vgg(&train.loss, train.vgg_weights.as_deref(), opts)?;
     let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
     notices.push(format!(
@@ -394,7 +394,8 @@ fn resumed_data(request: &Request<'_>, cfg: &RunConfig) -> Result<Vec<DataSpec>,
 
 /// Every view must hold a target crop, and every scene must have more training views than the largest
 /// input count (the target is one of them): checked now, not at the first step.
-pub fn check_views(data: &TrainData, views_max: usize, crop: usize) -> Result<(), TrainError> {
+pub fn check_views(data: &TrainData, train: &TrainConfig) -> Result<(), TrainError> {
+    let (views_max, crop) = (train.sample.views_max, train.sample.crop);
     let mut sizes: Vec<(String, u32, u32)> = data
         .scenes
         .iter()
@@ -419,9 +420,23 @@ pub fn check_views(data: &TrainData, views_max: usize, crop: usize) -> Result<()
     for s in &data.scenes {
         let n = s.train_views.len();
         if views_max + 1 > n {
+            // Held-out views only shrink the count when views are held out (0 and 1: none).
+            let holdout = if train.holdout_every > 1 {
+                format!(
+                    " (one in every {} is held out; --holdout-every 0 keeps them all)",
+                    train.holdout_every
+                )
+            } else {
+                String::new()
+            };
+            let fix = if n >= 2 {
+                format!("pass --views {}", n - 1)
+            } else {
+                "a scene needs at least 2 training views".into()
+            };
             return Err(config_err(format!(
-                "--views {views_max}: the scene {} has {n} training views, so at most {} inputs besides \
-                 the target; use fewer --views (or a smaller --holdout-every)",
+                "up to {views_max} input views per tuple (--views): the scene {} has {n} training \
+                 views{holdout}, so at most {} inputs besides the target; {fix}",
                 s.name,
                 n.saturating_sub(1)
             )));

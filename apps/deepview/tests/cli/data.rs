@@ -201,3 +201,21 @@ fn bad_dataset_files_give_clear_errors_and_exit_code_2() {
         ],
     );
 }
+
+#[test]
+fn info_says_a_light_field_takes_no_images_folder() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let out = deepview(&["info", "--data", s(&grid), "--images", "images_4"]);
+    let text = succeeds(&out);
+    assert!(text.contains("light"), "{text}");
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("--images images_4 is ignored") && err.contains("light field"),
+        "{err}"
+    );
+    // Without --images there is nothing to say.
+    let out = deepview(&["info", "--data", s(&grid)]);
+    succeeds(&out);
+    assert!(!String::from_utf8_lossy(&out.stderr).contains("ignored"));
+}

@@ -68,3 +68,37 @@ fn demo_makes_everything_it_announces() {
     std::fs::remove_file(&note).unwrap();
     succeeds(&deepview(&["demo", "--out", s(&out), "--no-optimize"]));
 }
+
+/// Weights for a fixed number of views other than the demo's four: the error says so in the demo's
+/// terms (no hint to pass `--inputs`, which the demo does not take), and nothing is left behind.
+#[test]
+fn demo_names_weights_for_another_view_count() {
+    let tmp = tempfile::tempdir().unwrap();
+    let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../weights/cpu");
+    let weights = tmp.path().join("five");
+    std::fs::create_dir(&weights).unwrap();
+    std::fs::copy(
+        shipped.join("model.safetensors"),
+        weights.join("model.safetensors"),
+    )
+    .unwrap();
+    let config = std::fs::read_to_string(shipped.join("config.json")).unwrap();
+    assert!(config.contains("\"views\": null"), "{config}");
+    std::fs::write(
+        weights.join("config.json"),
+        config.replace("\"views\": null", "\"views\": 5"),
+    )
+    .unwrap();
+    let out = tmp.path().join("demo");
+    let run = deepview(&[
+        "demo",
+        "--out",
+        s(&out),
+        "--no-optimize",
+        "--weights",
+        s(&weights),
+    ]);
+    fails_with(&run, &["exactly 5 input views", "4 corner views"]);
+    assert!(!String::from_utf8_lossy(&run.stderr).contains("--inputs"));
+    assert!(!out.exists());
+}

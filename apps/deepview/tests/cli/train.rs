@@ -457,3 +457,58 @@ fn a_file_in_place_of_the_checkpoints_folder_is_named() {
     fails_with(&o, &["checkpoints", "is a file"]);
     assert_eq!(std::fs::read_to_string(&ck).unwrap(), "a file");
 }
+
+/// Too many input views for a scene: the error counts its training views, mentions held-out views only
+/// when some are held out, and names a --views that fits.
+#[test]
+fn too_many_views_names_a_count_that_fits() {
+    let tmp = tempfile::tempdir().unwrap();
+    let g = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    let start = |name: &str, extra: &[&str]| {
+        let mut args = vec!["train", "--runs", s(&runs), "--name", name, "--quiet"];
+        args.extend(start_args(&g));
+        args.extend_from_slice(extra);
+        deepview(&args)
+    };
+    // 9 views, views 0 and 8 held out (every 8th): 7 to train on.
+    let o = start("a", &["--views", "7"]);
+    fails_with(
+        &o,
+        &[
+            "has 7 training views",
+            "--holdout-every 0",
+            "pass --views 6",
+        ],
+    );
+    let o = start("b", &["--views", "9", "--holdout-every", "0"]);
+    fails_with(&o, &["has 9 training views,", "pass --views 8"]);
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("held out"));
+    // The count it names fits.
+    train(
+        &runs,
+        "c",
+        1,
+        &[&start_args(&g)[..], &["--views", "6"]].concat(),
+    );
+}
+
+/// A damaged checkpoint is replaced when training reaches its step again, but not when it also holds a
+/// file of the user's: that is refused, naming the file, and the file stays.
+#[test]
+fn a_damaged_checkpoint_holding_a_users_file_is_not_replaced() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    train(&runs, "r", 2, &start_args(&grid));
+    let step2 = runs.join("r/checkpoints/step-0000002");
+    std::fs::write(step2.join("model.bpk"), b"").unwrap();
+    std::fs::write(step2.join("notes.txt"), b"mine").unwrap();
+    let o = resume(&runs, "r", &["--steps", "3", "--quiet"]);
+    fails_with(&o, &["step-0000002", "notes.txt"]);
+    assert_eq!(std::fs::read(step2.join("notes.txt")).unwrap(), b"mine");
+    // Without the user's file it is replaced by a complete one.
+    std::fs::remove_file(step2.join("notes.txt")).unwrap();
+    succeeds(&resume(&runs, "r", &["--steps", "3", "--quiet"]));
+    assert!(std::fs::metadata(step2.join("model.bpk")).unwrap().len() > 0);
+}
