@@ -435,8 +435,8 @@ pub fn check_views(data: &TrainData, train: &TrainConfig) -> Result<(), TrainErr
                 "a scene needs at least 2 training views".into()
             };
             return Err(config_err(format!(
-                "up to {views_max} input views per tuple (--views): the scene {} has {n} training \
-                 views{holdout}, so at most {} inputs besides the target; {fix}",
+                "--views {views_max} (inputs per tuple): the scene {} has {n} training views{holdout}, \
+                 so at most {} inputs besides the target; {fix}",
                 s.name,
                 n.saturating_sub(1)
             )));
