@@ -49,7 +49,14 @@ enum Command {
     /// Depth from an MPI: false-colour image and 16-bit disparity PNG.
     Depth(cmd::depth::Args),
     /// Benchmarks (rendering speed, ...), printing one JSON line.
-    #[command(subcommand)]
+    #[command(
+        subcommand,
+        after_help = "Examples (each subcommand's --help has more):\n  \
+        deepview bench render --synthetic 1008x756x32\n  \
+        deepview bench net --preset cpu --views 4 --planes 32 --size 575x412\n  \
+        deepview bench train --preset cpu --views 4 --planes 32 --crop 16 --vgg-weights VGG16.safetensors\n  \
+        deepview bench scenes --count 20"
+    )]
     Bench(cmd::bench::BenchCommand),
     /// Print what a dataset folder contains (format, views, cameras, depth bounds).
     Info(cmd::info::Args),

@@ -97,7 +97,8 @@ pub struct TrainOptions {
     #[arg(long, value_parser = parse_positive_f64)]
     pub clip: Option<f64>,
     /// Comma-separated devices for data parallelism: cpu, wgpu[:N], wgpu:cpu (the CPU Vulkan
-    /// adapter), cuda[:N] (GPU ones need a build with the features `wgpu` / `cuda`). Example: cpu,cpu.
+    /// adapter), cuda[:N] (GPU ones need a build with the features `wgpu` / `cuda`); under mpirun,
+    /// wgpu:local or cuda:local gives each rank the GPU of its rank on its machine. Example: cpu,cpu.
     #[arg(long, value_parser = parse_devices)]
     pub devices: Option<DeviceList>,
     /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.

@@ -24,9 +24,19 @@ fn every_command_help_shows_examples_in_the_one_scheme() {
         "train",
         "infer",
         "export-weights",
+        "compact",
+        "diff",
+        "process",
+        "bench",
+        "bench render",
+        "bench net",
+        "bench train",
+        "bench scenes",
     ];
     for cmd in commands {
-        let help = succeeds(&deepview(&[cmd, "--help"]));
+        let mut args: Vec<&str> = cmd.split(' ').collect();
+        args.push("--help");
+        let help = succeeds(&deepview(&args));
         let at = help
             .find("Example")
             .unwrap_or_else(|| panic!("{cmd} --help has no example: {help}"));
