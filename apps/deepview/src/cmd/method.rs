@@ -57,7 +57,7 @@ impl Reporter {
                 let bar = indicatif::ProgressBar::new(1);
                 bar.set_style(
                     indicatif::ProgressStyle::with_template(
-                        "{bar:40} {pos}/{len} tiles x nets ({elapsed}, eta {eta})",
+                        "{bar:40} {percent:>3}% ({elapsed}, eta {eta})",
                     )
                     .expect("valid template"),
                 );

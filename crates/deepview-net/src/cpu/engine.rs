@@ -298,7 +298,7 @@ fn upsample_into(half: Plane, src: &[f32], full: Plane, dst: &mut [f32], add: bo
 }
 
 /// Infer the MPI (premultiplied RGBA `[D][H][W][4]`) of `reference` at `depths` from `views` with the
-/// kernels; `progress(net)` after each net. Any model: U-Net nets run their core at half resolution
+/// kernels; `progress(done, total)` as planes are done (`total`: the planes times the nets). Any model: U-Net nets run their core at half resolution
 /// between a 2x2 average pool and a bilinear upsampling, as `CoreNet::forward`.
 pub fn infer_engine(
     model: &DeepViewModel,
@@ -306,7 +306,7 @@ pub fn infer_engine(
     reference: &Camera,
     depths: &[f64],
     precision: StatePrecision,
-    progress: &mut dyn FnMut(usize),
+    progress: &mut dyn FnMut(usize, usize),
 ) -> Vec<f32> {
     let hw = reference.width as u64 * reference.height as u64;
     let view_px = views
@@ -335,6 +335,43 @@ fn strip_margin(model: &DeepViewModel, n: usize) -> usize {
     model.conv_margin(n).max(census_rows)
 }
 
+/// Ticks of work done, sent from the threads doing it to the one that reports them
+/// ([`with_progress`]).
+struct Ticks(std::sync::mpsc::Sender<()>);
+
+impl Ticks {
+    fn tick(&self) {
+        // (The receiver lives until the work ends.)
+        let _ = self.0.send(());
+    }
+}
+
+/// `work` on a thread of its own (its parallel loops on rayon's pool as before) while this thread
+/// hands `progress` each tick it sends, as `(done, total)`: `progress` need not be `Send`, and the
+/// kernels' threads never wait for it.
+fn with_progress<R: Send>(
+    total: usize,
+    progress: &mut dyn FnMut(usize, usize),
+    work: impl FnOnce(&Ticks) -> R + Send,
+) -> R {
+    let (tx, rx) = std::sync::mpsc::channel();
+    std::thread::scope(|scope| {
+        let worker = std::thread::Builder::new()
+            .name("deepview-engine".into())
+            .stack_size(8 << 20)
+            .spawn_scoped(scope, move || work(&Ticks(tx)))
+            .expect("a thread for the engine");
+        let mut done = 0;
+        for () in rx {
+            done += 1;
+            progress(done.min(total), total);
+        }
+        worker
+            .join()
+            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+    })
+}
+
 /// [`infer_engine`] with update nets' renders streamed `block` planes at a time and the nets run on
 /// strips of `strip_rows` rows (the result depends on neither).
 pub(crate) fn infer_engine_blocks(
@@ -342,8 +379,23 @@ pub(crate) fn infer_engine_blocks(
     views: &[(ImageF32, Camera)],
     reference: &Camera,
     depths: &[f64],
+    settings: (usize, usize, StatePrecision),
+    progress: &mut dyn FnMut(usize, usize),
+) -> Vec<f32> {
+    let total = model.nets.len() * depths.len();
+    with_progress(total, progress, |ticks| {
+        engine_planes(model, views, reference, depths, settings, ticks)
+    })
+}
+
+/// [`infer_engine_blocks`]' work: a tick for each plane of each net.
+fn engine_planes(
+    model: &DeepViewModel,
+    views: &[(ImageF32, Camera)],
+    reference: &Camera,
+    depths: &[f64],
     (block, strip_rows, precision): (usize, usize, StatePrecision),
-    progress: &mut dyn FnMut(usize),
+    ticks: &Ticks,
 ) -> Vec<f32> {
     let (w, h, d) = (
         reference.width as usize,
@@ -496,7 +548,8 @@ pub(crate) fn infer_engine_blocks(
                     }
                 };
                 // SAFETY: plane p, this task's only.
-                unsafe { state.with_plane(p, buf, body) }
+                unsafe { state.with_plane(p, buf, body) };
+                ticks.tick();
             });
             if temperature > 0.0 {
                 if model.prior_aggregation().is_active() {
@@ -605,7 +658,8 @@ pub(crate) fn infer_engine_blocks(
                             }
                         };
                         // SAFETY: plane p, this task's only.
-                        unsafe { state.with_plane(p, buf, body) }
+                        unsafe { state.with_plane(p, buf, body) };
+                        ticks.tick();
                     },
                 );
             }
@@ -613,7 +667,6 @@ pub(crate) fn infer_engine_blocks(
         // This net's scratch and renders are freed: return them before the next net's (or the
         // result's) buffers.
         deepview_kernels::release_free_memory();
-        progress(n);
     }
     // Premultiplied RGBA `[D][H][W][4]`.
     if in_place_result(model, precision) {
@@ -728,16 +781,18 @@ mod tests {
                 .into_data()
                 .try_to_vec()
                 .unwrap();
-            let mut calls = 0;
+            // Progress: a tick for every plane of every net, counted up to the total.
+            let mut ticks = Vec::new();
             let got = infer_engine(
                 &model,
                 &views,
                 &reference,
                 &depths,
                 StatePrecision::F32,
-                &mut |_| calls += 1,
+                &mut |done, total| ticks.push((done, total)),
             );
-            assert_eq!(calls, 1 + updates);
+            let total = (1 + updates) * d;
+            assert_eq!(ticks, (1..=total).map(|i| (i, total)).collect::<Vec<_>>());
             let hw = 29 * 37;
             let max_diff = |got: &[f32]| {
                 let mut max = 0f32;
@@ -772,7 +827,7 @@ mod tests {
                     &reference,
                     &depths,
                     (block, rows, StatePrecision::F32),
-                    &mut |_| {},
+                    &mut |_, _| {},
                 );
                 assert!(
                     other == got,
@@ -786,7 +841,7 @@ mod tests {
                 &reference,
                 &depths,
                 StatePrecision::F16,
-                &mut |_| {},
+                &mut |_, _| {},
             );
             let max = max_diff(&half);
             assert!(max < 5e-3 && half != got, "{case}: f16 state {max}");

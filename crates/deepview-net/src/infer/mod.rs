@@ -165,18 +165,18 @@ pub fn run(
     validate(model, views, depths)?;
     match &plan.execution {
         Execution::Engine(precision) => {
-            let total = model.nets.len();
+            let d = depths.len().max(1);
             let layers = crate::cpu::engine::infer_engine(
                 model,
                 views,
                 reference,
                 depths,
                 *precision,
-                &mut |n| {
+                &mut |done, total| {
                     progress(InferProgress {
-                        done: n + 1,
+                        done,
                         total,
-                        net: n,
+                        net: (done.max(1) - 1) / d,
                     })
                 },
             );

@@ -284,13 +284,14 @@ fn budget_and_input_errors() {
         infer_mpi(&model, &[], &reference, &depths, 1 << 30, &mut |_| {}).unwrap_err(),
         InferError::NoViews
     );
-    // A generous budget gives one tile.
-    let mut steps = 0;
+    // A generous budget runs the whole image on the CPU engine: a step per plane of each net.
+    let mut steps = (0, 0);
     let mpi = infer_mpi(&model, &views, &reference, &depths, 1 << 31, &mut |p| {
-        steps = p.total
+        steps = (p.done, p.total)
     })
     .unwrap();
-    assert_eq!(steps, model.nets.len());
+    let total = model.nets.len() * depths.len();
+    assert_eq!(steps, (total, total));
     assert_eq!(mpi.layers.len(), 4 * 38 * 46 * 4);
     let plan = InferPlan::uniform(1, 16, 4, StatePrecision::F32);
     assert_eq!(
