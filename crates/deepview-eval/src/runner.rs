@@ -194,7 +194,8 @@ pub fn evaluate_splits(
     }
     let mut cache: HashMap<usize, (ImageF32, Camera)> = HashMap::new();
     let mut views = Vec::with_capacity(splits.len());
-    for split in splits {
+    let count = splits.len();
+    for (k, split) in splits.iter().enumerate() {
         for &i in split.inputs.iter().chain([&split.target]) {
             if i >= scene.views.len() {
                 return Err(EvalError::ViewOutOfRange {
@@ -250,8 +251,13 @@ pub fn evaluate_splits(
         };
         if options.verbose {
             eprintln!(
-                "view {:>4} {:<24} SSIM {:.4}  PSNR {:.2}  {:.2} s",
-                result.target, result.target_name, result.ssim, result.psnr, seconds
+                "[{}/{count}] view {:>4} {:<24} SSIM {:.4}  PSNR {:.2}  {:.2} s",
+                k + 1,
+                result.target,
+                result.target_name,
+                result.ssim,
+                result.psnr,
+                seconds
             );
         }
         let safe: String = result
