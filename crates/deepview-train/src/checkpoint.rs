@@ -36,19 +36,66 @@ pub fn checkpoint_is_complete(dir: &Path) -> bool {
 }
 
 /// What a checkpoint folder holds besides [`CHECKPOINT_FILES`] (names, sorted): files someone else
-/// put there, which pruning and replacing a checkpoint must not delete.
+/// put there, which pruning and replacing a checkpoint must not delete. File browsers' own files
+/// (`.DS_Store`, `Thumbs.db`, `desktop.ini`) do not count.
 pub(crate) fn foreign_entries(dir: &Path) -> Vec<String> {
+    const CLUTTER: [&str; 3] = [".DS_Store", "Thumbs.db", "desktop.ini"];
     let Ok(entries) = std::fs::read_dir(dir) else {
         return Vec::new();
     };
     let mut out: Vec<String> = entries
         .flatten()
         .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| !CHECKPOINT_FILES.contains(&n.as_str()))
+        .filter(|n| !CHECKPOINT_FILES.contains(&n.as_str()) && !CLUTTER.contains(&n.as_str()))
         .collect();
     out.sort();
     out
 }
+
+/// Before a checkpoint is written to `done`: an incomplete `done` (damaged by hand or by the disk)
+/// that holds files training did not write, or something that is not a folder, is moved aside to the
+/// first free `step-N.damaged[.K]` (never listed as a checkpoint, never removed), and the warning
+/// says so; an incomplete folder of training's own files alone is left for [`write_checkpoint`] to
+/// replace.
+pub(crate) fn set_aside_damaged(done: &Path) -> Result<Option<Notice>, TrainError> {
+    let Ok(meta) = std::fs::symlink_metadata(done) else {
+        return Ok(None);
+    };
+    let foreign = if meta.is_dir() {
+        if checkpoint_is_complete(done) {
+            return Ok(None);
+        }
+        foreign_entries(done)
+    } else {
+        vec![]
+    };
+    if meta.is_dir() && foreign.is_empty() {
+        return Ok(None);
+    }
+    let name = done.file_name().unwrap_or_default().to_string_lossy();
+    let aside = (1..)
+        .map(|k| match k {
+            1 => done.with_file_name(format!("{name}.damaged")),
+            k => done.with_file_name(format!("{name}.damaged.{k}")),
+        })
+        .find(|p| std::fs::symlink_metadata(p).is_err())
+        .expect("a free name");
+    std::fs::rename(done, &aside).map_err(io_err(done))?;
+    let what = if meta.is_dir() {
+        format!("was incomplete and held {}", foreign.join(", "))
+    } else {
+        "was not a folder".to_string()
+    };
+    Ok(Some(Notice::Warning(format!(
+        "{} {what}, which training did not write: moved to {} (the new checkpoint takes its place)",
+        done.display(),
+        aside.display()
+    ))))
+}
+
+/// The old checkpoints already said to be kept by this process (one warning each).
+static KEPT_NOTED: std::sync::Mutex<std::collections::BTreeSet<PathBuf>> =
+    std::sync::Mutex::new(std::collections::BTreeSet::new());
 
 /// The complete checkpoints of a run folder, sorted by step (`checkpoints/step-N` folders holding every
 /// file of [`CHECKPOINT_FILES`]; temporary folders of an interrupted write are not listed).
@@ -210,19 +257,8 @@ pub(crate) fn write_checkpoint(
         .map_err(io_err(&state_path))?;
     sync_dir(tmp);
     if done.exists() {
-        // A `step-N` without all its files (damaged by hand or by the disk): replace it, unless it
-        // holds files training did not write.
-        let foreign = foreign_entries(done);
-        if !foreign.is_empty() {
-            return Err(run_err(
-                done,
-                format!(
-                    "an incomplete checkpoint that also holds {} (not written by training); move \
-                     them out or remove the folder",
-                    foreign.join(", ")
-                ),
-            ));
-        }
+        // A `step-N` of training's own files, some missing (damaged by hand or by the disk): replace
+        // it (one holding anything else was set aside first, [`set_aside_damaged`]).
         let stale = dir.join(format!(
             ".old-step-{:07}-{}",
             state.step,
@@ -245,11 +281,17 @@ pub(crate) fn prune_checkpoints(run_dir: &Path, keep: usize, notices: &mut Vec<N
     for (step, p) in all.iter().take(all.len().saturating_sub(keep)) {
         let foreign = foreign_entries(p);
         if !foreign.is_empty() {
-            notices.push(Notice::Warning(format!(
-                "kept the old checkpoint {}: it also holds {}, which training did not write",
-                p.display(),
-                foreign.join(", ")
-            )));
+            let first = KEPT_NOTED
+                .lock()
+                .map(|mut k| k.insert(p.clone()))
+                .unwrap_or(true);
+            if first {
+                notices.push(Notice::Warning(format!(
+                    "kept the old checkpoint {}: it also holds {}, which training did not write",
+                    p.display(),
+                    foreign.join(", ")
+                )));
+            }
             continue;
         }
         let trash = p.with_file_name(format!(".old-step-{step:07}-{}", std::process::id()));

@@ -139,7 +139,7 @@ pub fn open(
     }
     let rank = comm.as_ref().map_or(0, |c| c.rank());
     let data = load_data(&cfg.train.data, cfg.train.holdout_every)?;
-    check_views(&data, &cfg.train)?;
+    check_views(&data, &cfg.train, mode[0] == RESUME)?;
     check_vgg(&cfg.train.loss, cfg.train.vgg_weights.as_deref(), opts)?;
     if mode[0] == RESUME {
         let mut trainer = Trainer::resume_from(run_dir, cfg, data, comm)?;
@@ -221,7 +221,7 @@ fn fresh(
         deepview_net::device::parse_device(d)?;
     }
     let data = load_data(&train.data, train.holdout_every)?;
-    check_views(&data, &train)?;
+    check_views(&data, &train, false)?;
     check_vgg(&train.loss, train.vgg_weights.as_deref(), opts)?;
     let views: usize = data.scenes.iter().map(|s| s.train_views.len()).sum();
     notices.push(format!(
@@ -394,7 +394,11 @@ fn resumed_data(request: &Request<'_>, cfg: &RunConfig) -> Result<Vec<DataSpec>,
 
 /// Every view must hold a target crop, and every scene must have more training views than the largest
 /// input count (the target is one of them): checked now, not at the first step.
-pub fn check_views(data: &TrainData, train: &TrainConfig) -> Result<(), TrainError> {
+pub fn check_views(
+    data: &TrainData,
+    train: &TrainConfig,
+    resuming: bool,
+) -> Result<(), TrainError> {
     let (views_max, crop) = (train.sample.views_max, train.sample.crop);
     let mut sizes: Vec<(String, u32, u32)> = data
         .scenes
@@ -417,30 +421,46 @@ pub fn check_views(data: &TrainData, train: &TrainConfig) -> Result<(), TrainErr
             "--crop {crop}: the scene {name} has {w}x{h} views, smaller than the crop; use a smaller --crop"
         )));
     }
-    for s in &data.scenes {
-        let n = s.train_views.len();
-        if views_max + 1 > n {
-            // Held-out views only shrink the count when views are held out (0 and 1: none).
-            let holdout = if train.holdout_every > 1 {
-                format!(
-                    " (one in every {} is held out; --holdout-every 0 keeps them all)",
-                    train.holdout_every
-                )
-            } else {
-                String::new()
-            };
-            let fix = if n >= 2 {
-                format!("pass --views {}", n - 1)
-            } else {
-                "a scene needs at least 2 training views".into()
-            };
-            return Err(config_err(format!(
-                "--views {views_max} (inputs per tuple): the scene {} has {n} training views{holdout}, \
-                 so at most {} inputs besides the target; {fix}",
-                s.name,
-                n.saturating_sub(1)
-            )));
-        }
+    // The scene with the fewest training views decides what fits.
+    let Some(s) = data.scenes.iter().min_by_key(|s| s.train_views.len()) else {
+        return Ok(());
+    };
+    let n = s.train_views.len();
+    if views_max + 1 > n {
+        let (lo, total) = (train.sample.views_min, s.cameras.len());
+        let asked = if lo == views_max {
+            format!("--views {views_max}")
+        } else {
+            format!("--views {lo}..{views_max}")
+        };
+        // Held-out views are named only where the scene has some, and --holdout-every 0 only where
+        // keeping them would be enough.
+        let held = match total - n {
+            0 => String::new(),
+            1 => "1 more is held out for validation".to_string(),
+            h => format!("{h} more are held out for validation"),
+        };
+        let holdout = match held.is_empty() {
+            true => String::new(),
+            false if total > views_max && !resuming => {
+                format!(" ({held}; --holdout-every 0 keeps them all)")
+            }
+            false => format!(" ({held})"),
+        };
+        let fix = match (n, resuming) {
+            (0 | 1, _) => "a scene needs at least 2 training views".to_string(),
+            (_, true) => "the run's --views is its own on --resume: resume with --data of scenes \
+                          that have more views, or start a new --name"
+                .to_string(),
+            (_, false) if lo < n - 1 => format!("pass --views {lo}..{}", n - 1),
+            (_, false) => format!("pass --views {}", n - 1),
+        };
+        return Err(config_err(format!(
+            "{asked} (inputs per tuple): the scene {} has {n} training views{holdout}, so at most {} \
+             inputs besides the target; {fix}",
+            s.name,
+            n.saturating_sub(1)
+        )));
     }
     Ok(())
 }

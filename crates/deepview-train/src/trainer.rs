@@ -620,6 +620,10 @@ impl Trainer {
             );
             return Ok(done);
         }
+        match crate::checkpoint::set_aside_damaged(&done) {
+            Ok(notice) => self.notices.extend(notice),
+            Err(e) => return Err(self.write_error(format!("the checkpoint {}", done.display()), e)),
+        }
         let tmp = dir.join(format!(".tmp-step-{:07}-{}", self.step, std::process::id()));
         let state = CheckpointState {
             step: self.step,

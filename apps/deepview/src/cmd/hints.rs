@@ -51,24 +51,6 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
     })
 }
 
-/// The [`WeightsError`] in `e`'s chain, also where an evaluation or method error wraps it transparently
-/// (whose `source` then skips it).
-pub fn weights_error(e: &anyhow::Error) -> Option<&WeightsError> {
-    e.chain().find_map(|cause| {
-        if let Some(w) = cause.downcast_ref::<WeightsError>() {
-            return Some(w);
-        }
-        let method = match cause.downcast_ref::<EvalError>() {
-            Some(EvalError::Method(m)) => Some(m),
-            _ => cause.downcast_ref::<MethodError>(),
-        };
-        match method {
-            Some(MethodError::Weights(w)) => Some(w),
-            _ => None,
-        }
-    })
-}
-
 fn eval(e: &EvalError) -> Option<String> {
     Some(match e {
         EvalError::Method(m) => return method(m),

@@ -34,9 +34,11 @@ impl Progress {
         if !self.writer {
             return;
         }
+        // (indicatif's `println` prints nothing where the bar is hidden: stderr not a terminal, as
+        // in a log file.)
         match &self.bar {
-            Some(pb) => pb.println(line),
-            None => eprintln!("{line}"),
+            Some(pb) if !pb.is_hidden() => pb.println(line),
+            _ => eprintln!("{line}"),
         }
     }
 

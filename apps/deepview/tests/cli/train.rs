@@ -491,24 +491,64 @@ fn too_many_views_names_a_count_that_fits() {
         1,
         &[&start_args(&g)[..], &["--views", "6"]].concat(),
     );
+    // A range is quoted as given and kept a range.
+    let o = start("d", &["--views", "2..7"]);
+    fails_with(&o, &["--views 2..7", "pass --views 2..6"]);
+    // On --resume --views is the run's own: the message says what can change instead. A 2 x 2 grid
+    // has 3 training views (view 0 held out).
+    let small = tmp.path().join("small");
+    succeeds(&deepview(&[
+        "synth",
+        "--out",
+        s(&small),
+        "--grid",
+        "2",
+        "--width",
+        "48",
+        "--height",
+        "32",
+    ]));
+    let o = resume(&runs, "c", &["--steps", "2", "--data", s(&small)]);
+    fails_with(
+        &o,
+        &[
+            "--views 6",
+            "has 3 training views (1 more is held out",
+            "start a new --name",
+        ],
+    );
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("--holdout-every 0"));
 }
 
-/// A damaged checkpoint is replaced when training reaches its step again, but not when it also holds a
-/// file of the user's: that is refused, naming the file, and the file stays.
+/// A damaged checkpoint is replaced when training reaches its step again; one that also holds a file
+/// of the user's is moved aside whole (the file kept, a warning naming it) and training goes on.
 #[test]
-fn a_damaged_checkpoint_holding_a_users_file_is_not_replaced() {
+fn a_damaged_checkpoint_holding_a_users_file_is_set_aside() {
     let tmp = tempfile::tempdir().unwrap();
     let grid = synth_grid(tmp.path());
     let runs = tmp.path().join("runs");
-    train(&runs, "r", 2, &start_args(&grid));
-    let step2 = runs.join("r/checkpoints/step-0000002");
-    std::fs::write(step2.join("model.bpk"), b"").unwrap();
+    train(&runs, "r", 3, &start_args(&grid));
+    let cks = runs.join("r/checkpoints");
+    let (step2, step3) = (cks.join("step-0000002"), cks.join("step-0000003"));
+    for ck in [&step2, &step3] {
+        std::fs::write(ck.join("model.bpk"), b"").unwrap();
+    }
     std::fs::write(step2.join("notes.txt"), b"mine").unwrap();
-    let o = resume(&runs, "r", &["--steps", "3", "--quiet"]);
-    fails_with(&o, &["step-0000002", "notes.txt"]);
-    assert_eq!(std::fs::read(step2.join("notes.txt")).unwrap(), b"mine");
-    // Without the user's file it is replaced by a complete one.
-    std::fs::remove_file(step2.join("notes.txt")).unwrap();
-    succeeds(&resume(&runs, "r", &["--steps", "3", "--quiet"]));
-    assert!(std::fs::metadata(step2.join("model.bpk")).unwrap().len() > 0);
+    let o = resume(&runs, "r", &["--steps", "4"]);
+    let err = crate::common::succeeds_err(&o);
+    assert!(
+        err.contains("notes.txt") && err.contains("step-0000002.damaged"),
+        "{err}"
+    );
+    let aside = cks.join("step-0000002.damaged");
+    assert_eq!(std::fs::read(aside.join("notes.txt")).unwrap(), b"mine");
+    // Both damaged checkpoints were written again, complete; the one of training's own files alone
+    // in place.
+    for ck in [&step2, &step3] {
+        assert!(std::fs::metadata(ck.join("model.bpk")).unwrap().len() > 0);
+    }
+    assert!(!cks.join("step-0000003.damaged").exists());
+    // The folder set aside is no checkpoint: the run resumes from its last one.
+    succeeds(&resume(&runs, "r", &["--steps", "5", "--quiet"]));
+    assert!(aside.join("notes.txt").is_file());
 }

@@ -348,28 +348,43 @@ impl Ticks {
 
 /// `work` on a thread of its own (its parallel loops on rayon's pool as before) while this thread
 /// hands `progress` each tick it sends, as `(done, total)`: `progress` need not be `Send`, and the
-/// kernels' threads never wait for it.
-fn with_progress<R: Send>(
+/// kernels' threads never wait for it. Called on one of rayon's threads (which must not block on a
+/// channel while its pool runs the work), or where no thread can be made, `work` runs here and its
+/// ticks are reported when it ends.
+fn with_progress<R: Send, F: FnOnce(&Ticks) -> R + Send>(
     total: usize,
     progress: &mut dyn FnMut(usize, usize),
-    work: impl FnOnce(&Ticks) -> R + Send,
+    work: F,
 ) -> R {
     let (tx, rx) = std::sync::mpsc::channel();
-    std::thread::scope(|scope| {
-        let worker = std::thread::Builder::new()
-            .name("deepview-engine".into())
-            .stack_size(8 << 20)
-            .spawn_scoped(scope, move || work(&Ticks(tx)))
-            .expect("a thread for the engine");
-        let mut done = 0;
-        for () in rx {
-            done += 1;
-            progress(done.min(total), total);
+    // The work goes with the only sender: the ticks end when the work does (or panics).
+    let slot = std::sync::Mutex::new(Some((work, tx)));
+    let take = || slot.lock().unwrap_or_else(|p| p.into_inner()).take();
+    let run = |(work, tx): (F, std::sync::mpsc::Sender<()>)| work(&Ticks(tx));
+    let tell = |progress: &mut dyn FnMut(usize, usize)| {
+        for (done, ()) in (1..).zip(rx.iter()) {
+            progress(usize::min(done, total), total);
         }
-        worker
-            .join()
-            .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
-    })
+    };
+    if rayon::current_thread_index().is_none() {
+        let threaded = std::thread::scope(|scope| {
+            let worker = std::thread::Builder::new()
+                .name("deepview-engine".into())
+                .stack_size(8 << 20)
+                .spawn_scoped(scope, || take().map(run))
+                .ok()?;
+            tell(progress);
+            worker
+                .join()
+                .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+        });
+        if let Some(result) = threaded {
+            return result;
+        }
+    }
+    let result = run(take().expect("the engine's work is not taken twice"));
+    tell(progress);
+    result
 }
 
 /// [`infer_engine`] with update nets' renders streamed `block` planes at a time and the nets run on
@@ -793,6 +808,25 @@ mod tests {
             );
             let total = (1 + updates) * d;
             assert_eq!(ticks, (1..=total).map(|i| (i, total)).collect::<Vec<_>>());
+            // Called on one of rayon's threads (a pool of one: a worker blocked on the ticks would
+            // deadlock it) the work runs there: the same MPI and ticks.
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(1)
+                .build()
+                .unwrap();
+            let mut inner = Vec::new();
+            let again = pool.install(|| {
+                infer_engine(
+                    &model,
+                    &views,
+                    &reference,
+                    &depths,
+                    StatePrecision::F32,
+                    &mut |done, total| inner.push((done, total)),
+                )
+            });
+            assert_eq!(inner, ticks);
+            assert_eq!(again, got);
             let hw = 29 * 37;
             let max_diff = |got: &[f32]| {
                 let mut max = 0f32;
