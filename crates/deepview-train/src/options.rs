@@ -104,8 +104,9 @@ pub struct TrainOptions {
     /// Write a checkpoint every N steps (and always at the end, on Ctrl-C or SIGTERM). Default 500.
     #[arg(long, value_parser = clap::value_parser!(u64).range(1..))]
     pub checkpoint_every: Option<u64>,
-    /// Keep the last N checkpoints (older ones are removed after each new one). Default: 3, or the
-    /// run's own setting with --resume.
+    /// Keep the last N checkpoints (older ones are removed after each new one; one holding files
+    /// training did not write is kept, with a warning). Default: 3, or the run's own setting with
+    /// --resume.
     #[arg(long, value_name = "N", value_parser = parse_positive)]
     pub keep_checkpoints: Option<usize>,
     /// Score the held-out views of the run's posed real datasets (4 nearest and 3 spread inputs, at most
