@@ -2,6 +2,36 @@
 //!
 //! A thin binary: argument parsing and wiring. The work lives in the library crates.
 
+// Printing never panics. std's `println!` and friends panic when the stream is closed
+// (`deepview ... | head -1`, a log reader gone, `2>&1 | tee log` killed), which lost the command's
+// work: an evaluation's JSON, a training run at its next line. These shadow them in every module of
+// the binary (textual scope: defined before `mod cmd`); a closed stream loses the text, not the work.
+macro_rules! println {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($t)*);
+    }};
+}
+macro_rules! print {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stdout(), $($t)*);
+    }};
+}
+macro_rules! eprintln {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+#[allow(unused_macros)]
+macro_rules! eprint {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = write!(std::io::stderr(), $($t)*);
+    }};
+}
+
 mod cmd;
 
 use clap::{Parser, Subcommand};

@@ -250,7 +250,10 @@ pub fn evaluate_splits(
             planes: method.last_mpi().map(|(m, _)| m.depths.len()),
         };
         if options.verbose {
-            eprintln!(
+            // (A closed stderr loses the line, not the evaluation.)
+            use std::io::Write as _;
+            let _ = writeln!(
+                std::io::stderr(),
                 "[{}/{count}] view {:>4} {:<24} SSIM {:.4}  PSNR {:.2}  {:.2} s",
                 k + 1,
                 result.target,

@@ -156,7 +156,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
     )?;
     let gif = out.join("spiral.gif");
-    super::method::video(&mpi_u8, &path, &gif, 24.0)?;
+    super::method::video(&mpi_u8, &path, (&gif, &shown.join("spiral.gif")), 24.0)?;
 
     // 4. The evaluation table: the learned model against the baselines on the held-out views.
     eprintln!("[4/5] evaluating on the held-out views {TARGETS} against the baselines");

@@ -80,17 +80,19 @@ impl Reporter {
 
     /// Close the progress bar.
     pub fn finish(&mut self) {
+        // Cleared: the command's own "wrote ..." line (on stdout) follows on a line of its own.
         if let Some(bar) = self.bar.take() {
-            bar.finish();
+            bar.finish_and_clear();
         }
     }
 }
 
 /// [`deepview_media::render_video`] with a progress bar on stderr.
+/// `out` is where it is written (maybe a temporary), `shown` the name the bar gives it.
 pub fn video(
     mpi: &deepview_mpi::MpiU8,
     cameras: &[deepview_geometry::Camera],
-    out: &std::path::Path,
+    (out, shown): (&std::path::Path, &std::path::Path),
     fps: f64,
 ) -> anyhow::Result<deepview_media::VideoReport> {
     let bar = indicatif::ProgressBar::new(cameras.len() as u64);
@@ -101,7 +103,7 @@ pub fn video(
         .expect("valid template")
         .progress_chars("=> "),
     );
-    bar.set_message(format!("rendering {}", out.display()));
+    bar.set_message(format!("rendering {}", shown.display()));
     let report = deepview_media::render_video(mpi, cameras, out, fps, &mut |done, _| {
         bar.set_position(done as u64)
     })?;

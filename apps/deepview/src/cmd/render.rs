@@ -148,7 +148,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
     };
     let report = if kind == Kind::Frames {
         let out = OutputDir::new(&args.out, Kind::Frames)?;
-        let r = super::method::video(&mpi, &cameras, out.path(), fps)?;
+        let r = super::method::video(&mpi, &cameras, (out.path(), &args.out), fps)?;
         out.commit()?;
         r
     } else {
@@ -161,7 +161,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
         let mp4_tmp = deepview_image::temp_path(&args.out).with_extension(format!("tmp.{ext}"));
         super::signals::register(&mp4_tmp);
         let r = write_file(&args.out, |out| {
-            super::method::video(&mpi, &cameras, out, fps)
+            super::method::video(&mpi, &cameras, (out, &args.out), fps)
         });
         super::signals::unregister(&mp4_tmp);
         r?

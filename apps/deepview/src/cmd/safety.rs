@@ -201,6 +201,29 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
             to.display()
         );
     }
+    // Outputs are written to a temporary and renamed into place, which would replace a pipe, a device
+    // or `/dev/stdout` itself (as root, a link of the system's).
+    if out.as_os_str() == "-" {
+        bail!("{option} -: deepview writes files, not standard output; give a file name");
+    }
+    let system = |p: &Path| p.starts_with("/dev") || p.starts_with("/proc");
+    if system(out) || std::fs::canonicalize(out).is_ok_and(|p| system(&p)) {
+        bail!(
+            "{option} {} is in /dev or /proc: outputs are written to a temporary and renamed into place, \
+             which would replace a link or device of the system's; give a file name",
+            out.display()
+        );
+    }
+    if let Ok(m) = std::fs::metadata(out)
+        && !m.is_file()
+        && !m.is_dir()
+    {
+        bail!(
+            "{option} {} is not a regular file or folder (a pipe, socket or device): outputs are written \
+             to a temporary file renamed into place, which would replace it; give a file name",
+            out.display()
+        );
+    }
     let o = resolve(out);
     for (what, input) in inputs {
         if input.to_str().is_some_and(|s| s.starts_with("synthetic:")) {
@@ -879,8 +902,13 @@ mod tests {
         }
         check_output("--out", &dir.path().join("new"), Kind::Mpi, &input).unwrap();
         // A folder that cannot be written in, or a file standing where a folder must be made.
-        let e = check_output("--out", Path::new("/proc/deepview/mpi"), Kind::Mpi, &[]).unwrap_err();
-        assert!(e.to_string().contains("cannot write in /proc"), "{e}");
+        let e = check_output("--out", Path::new("/sys/deepview/mpi"), Kind::Mpi, &[]).unwrap_err();
+        assert!(e.to_string().contains("cannot write in /sys"), "{e}");
+        // Nor in /dev or /proc, where the rename would replace the system's links and devices.
+        for out in ["/proc/deepview/mpi", "/dev/stdout", "/dev/null"] {
+            let e = check_output("--out", Path::new(out), Kind::File, &[]).unwrap_err();
+            assert!(e.to_string().contains("is in /dev or /proc"), "{e}");
+        }
         std::fs::write(dir.path().join("f"), b"x").unwrap();
         let e = check_output("--out", &dir.path().join("f/a/mpi"), Kind::Mpi, &[]).unwrap_err();
         assert!(e.to_string().contains("is a file"), "{e}");

@@ -9,7 +9,13 @@ pub struct Progress {
     writer: bool,
     /// Exponential moving average of the loss of the steps not skipped.
     ema: Option<f64>,
+    /// Where the bar is hidden (stderr not a terminal: a log file), a line every [`LOG_EVERY`]
+    /// instead: the total steps, and when the last line was written.
+    log: (u64, std::time::Instant),
 }
+
+/// How often a hidden bar's progress is written as a line of its own.
+const LOG_EVERY: std::time::Duration = std::time::Duration::from_secs(60);
 
 impl Progress {
     pub fn new(bar: bool, writer: bool) -> Self {
@@ -27,6 +33,7 @@ impl Progress {
             bar,
             writer,
             ema: None,
+            log: (0, std::time::Instant::now()),
         }
     }
 
@@ -49,6 +56,7 @@ impl Progress {
                     pb.set_length(total);
                     pb.set_position(step);
                 }
+                self.log = (total, std::time::Instant::now());
             }
             TrainEvent::Step {
                 report,
@@ -62,6 +70,20 @@ impl Progress {
                                 .map_or(report.loss, |e| 0.9 * e + 0.1 * report.loss),
                         )
                     }
+                }
+                if let Some(pb) = &self.bar
+                    && pb.is_hidden()
+                    && report.skipped.is_none()
+                    && self.log.1.elapsed() >= LOG_EVERY
+                {
+                    self.log.1 = std::time::Instant::now();
+                    self.say(format!(
+                        "step {}/{}: loss {:.4} (avg {:.4}), {steps_per_s:.2} steps/s",
+                        report.step,
+                        self.log.0,
+                        report.loss,
+                        self.ema.unwrap_or(f64::NAN),
+                    ));
                 }
                 if let Some(pb) = &self.bar {
                     pb.set_position(report.step);

@@ -10,4 +10,5 @@ mod demo;
 mod help;
 mod psv;
 mod render;
+mod streams;
 mod train;
