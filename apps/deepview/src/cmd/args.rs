@@ -52,6 +52,26 @@ impl OutArg {
 pub use deepview_methods::human;
 
 /// The smallest `--max-memory` value (whole MiB, rounded up) that is at least `bytes`.
+/// A scene the user named (`--data` and the scene options), with a note on stderr where `--images`
+/// does not apply: light fields keep their images as `input_CamNNN.png` (the loader lets it pass for
+/// training runs that list LLFF scenes and grids together).
+pub fn load_scene_noted(
+    data: &Path,
+    load: &deepview_data::LoadOptions,
+) -> Result<deepview_data::Scene, deepview_data::DataError> {
+    let scene = deepview_data::load_scene(data, load)?;
+    if let Some(images) = &load.images
+        && scene.format == deepview_data::SceneFormat::LightField
+    {
+        eprintln!(
+            "note: --images {images} is ignored: {} is a light field, whose images are its \
+             input_CamNNN.png files",
+            data.display()
+        );
+    }
+    Ok(scene)
+}
+
 pub fn min_arg(bytes: u64) -> String {
     format!("{}MiB", bytes.div_ceil(1 << 20).max(1))
 }

@@ -144,7 +144,7 @@ fn bench_scenes(args: ScenesArgs) -> anyhow::Result<()> {
     use deepview_synth::procedural::{ProceduralOptions, generate};
     let photos = match &args.data {
         Some(d) => {
-            let scene = deepview_data::load_scene(d, &args.scene.load_options())?;
+            let scene = args::load_scene_noted(d, &args.scene.load_options())?;
             (0..scene.len())
                 .map(|i| scene.load_image(i))
                 .collect::<Result<Vec<_>, _>>()?

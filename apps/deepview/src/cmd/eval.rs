@@ -105,7 +105,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         downscale: 1,
         ..args.scene.load_options()
     };
-    let scene = deepview_data::load_scene(&args.data, &load)
+    let scene = super::args::load_scene_noted(&args.data, &load)
         .with_context(|| format!("cannot load scene {}", args.data.display()))?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;
     let method = make_method(args.method, &args.options, budget)?;

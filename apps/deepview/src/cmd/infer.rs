@@ -6,7 +6,7 @@ use super::args::{self, DataArg};
 use super::method::{INPUTS_HELP, Reporter};
 use super::safety::{Input, Kind, OutputDir, check_output};
 use anyhow::Context;
-use deepview_data::{SceneArgs, load_scene};
+use deepview_data::SceneArgs;
 use deepview_methods::{InputRule, MethodKind, MethodOptions, MpiRequest, make_method};
 use std::path::PathBuf;
 
@@ -74,7 +74,7 @@ fn make(
     check_output("--out", &args.out, Kind::Mpi, &inputs)?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;
     let mut method = make_method(kind, &args.options, budget)?;
-    let scene = load_scene(data, &args.scene.load_options())
+    let scene = super::args::load_scene_noted(data, &args.scene.load_options())
         .with_context(|| format!("cannot load scene {}", data.display()))?;
     let near_far = scene.near_far()?;
     let rule = args

@@ -2,7 +2,7 @@
 
 use super::args::DataArg;
 use anyhow::Context;
-use deepview_data::{Scene, SceneArgs, SceneFormat, load_scene};
+use deepview_data::{Scene, SceneArgs};
 use std::fmt::Write as _;
 use std::io::Write as _;
 
@@ -48,20 +48,8 @@ fn range_text((lo, hi): (u32, u32)) -> String {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let data = args.data.path();
-    let scene = load_scene(data, &args.scene_args.load_options())
+    let scene = super::args::load_scene_noted(data, &args.scene_args.load_options())
         .with_context(|| format!("cannot load scene {}", data.display()))?;
-    // Light fields take no --images (their images are input_CamNNN.png; the loader lets it pass for
-    // runs that list LLFF scenes and grids together): say so rather than print a summary that looks
-    // like it honoured it.
-    if let Some(images) = &args.scene_args.images
-        && scene.format == SceneFormat::LightField
-    {
-        eprintln!(
-            "note: --images {images} is ignored: {} is a light field, whose images are its \
-             input_CamNNN.png files",
-            data.display()
-        );
-    }
     if let Some(n) = args.camera {
         let Some(view) = scene.views.get(n) else {
             anyhow::bail!(

@@ -86,7 +86,7 @@ impl CameraSource {
             return Ok(Some(read_camera_json(p)?));
         }
         if let Some(dir) = &self.scene_dir {
-            let scene = deepview_data::load_scene(dir, &self.scene.load_options())?;
+            let scene = args::load_scene_noted(dir, &self.scene.load_options())?;
             let v = self.view.unwrap_or(0);
             parse_indices(&v.to_string(), scene.views.len())?;
             return Ok(Some(scene.views[v].camera));

@@ -3,7 +3,7 @@
 use super::args::{self, DataArg};
 use super::safety::{Kind, OutputDir, check_output};
 use anyhow::Context;
-use deepview_data::{SceneArgs, load_scene};
+use deepview_data::SceneArgs;
 use deepview_geometry::{PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
 use deepview_methods::Planes;
 use deepview_mpi::plane_sweep;
@@ -40,7 +40,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let data = args.data.path();
     check_output("--out", &args.out, Kind::Psv, &[("--data", data)])?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;
-    let scene = load_scene(data, &args.scene.load_options())
+    let scene = super::args::load_scene_noted(data, &args.scene.load_options())
         .with_context(|| format!("cannot load scene {}", data.display()))?;
     let n = scene.views.len();
     super::parse_indices(&args.view.to_string(), n)?;

@@ -97,7 +97,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 cams.display()
             );
         }
-        let scene = deepview_data::load_scene(cams, &args.scene.load_options())
+        let scene = super::args::load_scene_noted(cams, &args.scene.load_options())
             .with_context(|| format!("cannot load the rig {}", cams.display()))?;
         // LLFF's poses_bounds.npy holds one focal length and a centred principal point: a --downscale that
         // does not divide the image size moves it off centre, so say so now, not after the rendering.

@@ -203,7 +203,7 @@ fn bad_dataset_files_give_clear_errors_and_exit_code_2() {
 }
 
 #[test]
-fn info_says_a_light_field_takes_no_images_folder() {
+fn a_light_field_takes_no_images_folder_and_says_so() {
     let tmp = tempfile::tempdir().unwrap();
     let grid = synth_grid(tmp.path());
     let out = deepview(&["info", "--data", s(&grid), "--images", "images_4"]);
@@ -214,6 +214,18 @@ fn info_says_a_light_field_takes_no_images_folder() {
         err.contains("--images images_4 is ignored") && err.contains("light field"),
         "{err}"
     );
+    // The same for every command that reads one scene.
+    let out = deepview(&[
+        "eval",
+        "--data",
+        s(&grid),
+        "--images",
+        "images_4",
+        "--method",
+        "nearest",
+    ]);
+    succeeds(&out);
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--images images_4 is ignored"));
     // Without --images there is nothing to say.
     let out = deepview(&["info", "--data", s(&grid)]);
     succeeds(&out);
