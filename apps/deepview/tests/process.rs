@@ -81,8 +81,10 @@ fn process_fern_photos_recovers_llff_relative_rotations() {
     );
     let stdout = String::from_utf8_lossy(&f.output.stdout);
     assert!(stdout.contains("20 of 20 images registered"), "{stdout}");
+    // Each stage's progress goes to stderr, beside any warning or error.
+    let stderr = String::from_utf8_lossy(&f.output.stderr);
     for stage in ["feature extraction", "matching", "mapping", "undistortion"] {
-        assert!(stdout.contains(stage), "{stage} not in {stdout}");
+        assert!(stderr.contains(stage), "{stage} not in {stderr}");
     }
     assert!(f.scene.join("colmap.log").is_file());
     assert!(f.scene.join("sparse/0/cameras.bin").is_file());

@@ -85,12 +85,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     bar.enable_steady_tick(Duration::from_millis(120));
     let result = process(&opts, &mut |e| match e {
         Event::Started(stage, what) => {
-            bar.suspend(|| println!("{stage}: {what}"));
+            bar.suspend(|| eprintln!("{stage}: {what}"));
             bar.reset_elapsed();
             bar.set_message(stage.to_string());
         }
         Event::Finished(stage, took) => {
-            bar.suspend(|| println!("  {stage} done in {}", secs(took)))
+            bar.suspend(|| eprintln!("  {stage} done in {}", secs(took)))
         }
         Event::Warning(w) => bar.suspend(|| eprintln!("warning: {w}")),
     });
