@@ -693,6 +693,68 @@ fn sigterm_leaves_the_old_mpi_folder_intact() {
     );
 }
 
+/// An evaluation saving renders and MPIs, stopped after its first view: the earlier run's renders,
+/// MPIs and report stay as they were (not some views new and some old), nothing is left behind, and
+/// the next run is not blocked. Depth maps: the pair is replaced together.
+#[test]
+fn sigterm_of_eval_leaves_the_earlier_renders_mpis_and_report() {
+    let tmp = tempfile::tempdir().unwrap();
+    let data = deepview_data::data_dir().join("llff/fern");
+    let (renders, mpis, report) = (
+        tmp.path().join("renders"),
+        tmp.path().join("mpis"),
+        tmp.path().join("r.json"),
+    );
+    let args = |planes: &'static str| {
+        vec![
+            "eval",
+            "--data",
+            s(&data),
+            "--images",
+            "images_8",
+            "--method",
+            "psv-mean",
+            "--targets",
+            "every:8",
+            "--planes",
+            planes,
+            "--save-renders",
+            s(&renders),
+            "--save-mpi",
+            s(&mpis),
+            "--out",
+            s(&report),
+        ]
+    };
+    ok(&deepview(&args("8")));
+    let before = (
+        snapshot(&renders),
+        snapshot(&mpis),
+        std::fs::read(&report).unwrap(),
+    );
+    assert_eq!(before.0.len(), 3, "a render per target");
+    // Stopped while the second of three views is made.
+    let code = terminate(&args("16"), Some("[1/3]"), Duration::ZERO);
+    assert_eq!(code, Some(143));
+    let after = (
+        snapshot(&renders),
+        snapshot(&mpis),
+        std::fs::read(&report).unwrap(),
+    );
+    assert!(after == before, "the earlier evaluation's files changed");
+    for dir in [tmp.path(), renders.as_path(), mpis.as_path()] {
+        assert!(leftovers(dir).is_empty(), "{:?}", leftovers(dir));
+        let hidden: Vec<_> = std::fs::read_dir(dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .filter(|n| n.starts_with('.'))
+            .collect();
+        assert!(hidden.is_empty(), "{hidden:?} in {}", dir.display());
+    }
+    ok(&deepview(&args("16")));
+    assert!(snapshot(&mpis) != before.1);
+}
+
 #[test]
 fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
     let tmp = tempfile::tempdir().unwrap();

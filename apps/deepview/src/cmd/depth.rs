@@ -3,6 +3,7 @@
 use super::CameraSource;
 use super::args;
 use super::safety::{CreatedDirs, Input, Kind, check_output, parse_component};
+use anyhow::Context;
 use deepview_mpi::{MpiMeta, depth_maps, read_mpi};
 use std::path::PathBuf;
 
@@ -37,6 +38,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let Some(d) = &args.source.scene_dir {
         inputs.push(("--data", d));
     }
+    // The pair is written into a temporary folder beside the first file, then both are moved into
+    // place together (see below); one a killed run left is removed first.
+    let color = args.out.join(format!("{}_color.png", args.prefix));
+    super::safety::remove_stale(&color);
     check_output("--out", &args.out, Kind::DepthMaps, &inputs)?;
     for suffix in ["color", "disparity16"] {
         let file = args.out.join(format!("{}_{suffix}.png", args.prefix));
@@ -61,7 +66,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mpi = read_mpi::<f32>(&args.mpi)?;
     let maps = depth_maps(&mpi, &camera);
     let dirs = CreatedDirs::create(&args.out)?;
-    maps.write(&args.out, &args.prefix)?;
+    let stage = super::safety::sibling(&color, "tmp");
+    super::signals::register(&stage);
+    let written = (|| -> anyhow::Result<()> {
+        std::fs::create_dir(&stage)
+            .with_context(|| format!("cannot create {}", stage.display()))?;
+        maps.write(&stage, &args.prefix)?;
+        // Both files or neither: a signal waits for the registry (and ends the process after), and one
+        // that came before is not followed by the moves.
+        let mut registry = super::signals::lock();
+        if let Some(sig) = super::signals::ending() {
+            drop(registry);
+            return Err(super::signals::Interrupted(sig).into());
+        }
+        for suffix in ["color", "disparity16"] {
+            let name = format!("{}_{suffix}.png", args.prefix);
+            std::fs::rename(stage.join(&name), args.out.join(&name))
+                .with_context(|| format!("cannot write {}", args.out.join(&name).display()))?;
+        }
+        registry.retain(|p| p != &stage);
+        Ok(())
+    })();
+    let _ = std::fs::remove_dir_all(&stage);
+    super::signals::unregister(&stage);
+    written?;
     dirs.keep();
     println!(
         "wrote {0}/{1}_color.png and {0}/{1}_disparity16.png (disparity 0 = depth {2:.4}, 65535 = depth {3:.4})",

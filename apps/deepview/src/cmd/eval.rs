@@ -3,7 +3,7 @@
 
 use super::args;
 use super::method::{INPUTS_HELP, Reporter};
-use super::safety::{CreatedDirs, Input, Kind, check_output, write_file};
+use super::safety::{Input, Kind, OutputDir, check_output, write_file};
 use anyhow::Context;
 use deepview_eval::{EvalOptions, MpiPredictor, Protocol, TargetRule, evaluate};
 use deepview_methods::{InputRule, MethodKind, MethodOptions, make_method};
@@ -122,33 +122,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if args.compact {
         predictor = predictor.compacted(args.compaction.options());
     }
+    // The renders and MPIs are written into temporary siblings and swapped in once the evaluation is
+    // done: an interrupted or failed run leaves the earlier folders (and report) as they were, never a
+    // mix of two runs' views.
+    let renders = (args.save_renders.as_deref())
+        .map(|d| OutputDir::new(d, Kind::Renders))
+        .transpose()?;
+    let mpis = (args.save_mpi.as_deref())
+        .map(|d| OutputDir::new(d, Kind::Mpis))
+        .transpose()?;
     let options = EvalOptions {
         downscale: args.scene.downscale.max(1),
         near_far: None,
         crop: args.crop,
         quantize: !args.no_quantize,
-        save_renders: args.save_renders.clone(),
-        save_mpis: args.save_mpi.clone(),
+        save_renders: renders.as_ref().map(|d| d.path().to_path_buf()),
+        save_mpis: mpis.as_ref().map(|d| d.path().to_path_buf()),
         // The report names the weights the learned method used (the built-in ones when none was given).
         checkpoint,
         verbose: true,
     };
-    let created = [&args.save_renders, &args.save_mpi]
-        .into_iter()
-        .flatten()
-        .map(|d| CreatedDirs::create(d))
-        .collect::<anyhow::Result<Vec<_>>>()?;
-    // Folders this run made go with a signal too (the outermost holds the rest).
-    let made: Vec<PathBuf> = created
-        .iter()
-        .filter_map(|c| c.paths().first().cloned())
-        .collect();
-    made.iter().for_each(|p| super::signals::register(p));
-    let report = evaluate(&scene, &protocol, &mut predictor, &options);
-    made.iter().for_each(|p| super::signals::unregister(p));
-    let report = report?;
-    for c in created {
-        c.keep();
+    let report = evaluate(&scene, &protocol, &mut predictor, &options)?;
+    for dir in [renders, mpis].into_iter().flatten() {
+        dir.commit()?;
     }
     print!("{}", report.table());
     if let Some(mb) = super::bench::peak_rss_mb() {

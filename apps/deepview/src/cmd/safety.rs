@@ -595,7 +595,7 @@ pub fn parse_component(s: &str) -> Result<String, String> {
     }
 }
 
-fn sibling(out: &Path, tag: &str) -> PathBuf {
+pub(super) fn sibling(out: &Path, tag: &str) -> PathBuf {
     let name = out
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
@@ -634,11 +634,6 @@ impl CreatedDirs {
         for d in self.0.drain(..).rev() {
             let _ = std::fs::remove_dir(&d);
         }
-    }
-
-    /// The folders it made, outermost first.
-    pub fn paths(&self) -> &[PathBuf] {
-        &self.0
     }
 
     /// Keep them (success).
@@ -714,7 +709,13 @@ impl OutputDir {
 
     /// Put the finished folder in place of `out` (the old folder, if any, is removed after the swap).
     pub fn commit(mut self) -> anyhow::Result<()> {
-        let registry = signals::lock();
+        let mut registry = signals::lock();
+        // A signal that came before the swap: the old folder stays (the signal's thread, waiting for
+        // the registry, removes the temporary and ends the process).
+        if let Some(sig) = signals::ending() {
+            drop(registry);
+            return Err(signals::Interrupted(sig).into());
+        }
         let old = if self.out.exists() {
             swap(&self.tmp, &self.out)
                 .with_context(|| format!("cannot replace {}", self.out.display()))?
@@ -729,8 +730,10 @@ impl OutputDir {
             None
         };
         self.done = true;
+        // Committed: a signal from now on finds nothing of this output to remove, and does not say
+        // that earlier outputs are untouched.
+        registry.retain(|p| p != &self.tmp);
         drop(registry);
-        signals::unregister(&self.tmp);
         if let Some(old) = old {
             signals::register(&old);
             let _ = std::fs::remove_dir_all(&old);
@@ -788,7 +791,7 @@ fn swap(new: &Path, out: &Path) -> std::io::Result<Option<PathBuf>> {
 
 /// Remove the temporaries of `out` left by processes that no longer run, and put back an old folder that
 /// a crash left aside.
-fn remove_stale(out: &Path) {
+pub(super) fn remove_stale(out: &Path) {
     let (Some(parent), Some(name)) = (out.parent(), out.file_name()) else {
         return;
     };

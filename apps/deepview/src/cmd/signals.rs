@@ -55,6 +55,15 @@ pub fn received() -> Option<i32> {
     }
 }
 
+/// The signal that is ending the process, if one came (none for a [`graceful`] command, which goes on
+/// to save its work after the first).
+pub fn ending() -> Option<i32> {
+    match GRACEFUL.get() {
+        Some(_) => None,
+        None => received(),
+    }
+}
+
 /// Remove `path` (a temporary folder or file) if a signal ends the process before [`unregister`].
 pub fn register(path: &Path) {
     lock().push(path.to_path_buf());
