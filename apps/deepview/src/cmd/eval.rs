@@ -48,11 +48,13 @@ pub struct Args {
     /// Write the report here (JSON: method, checkpoint, protocol, results, views).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Write prediction | ground truth | error images here.
+    /// Write prediction | ground truth | error images here (the folder is replaced when the evaluation
+    /// is done: an earlier evaluation's images go, a stopped one leaves them as they were).
     #[arg(long)]
     pub save_renders: Option<PathBuf>,
     /// Write the MPI each target was rendered from here (one MPI folder per target, named like the
-    /// renders): the MPI `deepview infer --method M --inputs ...` writes from the same inputs.
+    /// renders, replaced as --save-renders): the MPI `deepview infer --method M --inputs ...` writes from
+    /// the same inputs.
     #[arg(long, value_name = "DIR")]
     pub save_mpi: Option<PathBuf>,
     /// Score each MPI after `deepview compact` (empty planes dropped, near-empty neighbours merged):
