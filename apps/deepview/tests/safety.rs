@@ -1412,3 +1412,35 @@ fn bad_arguments_are_usage_errors() {
     );
     assert!(String::from_utf8_lossy(&out.stdout).contains("images       problem"));
 }
+
+/// A file output's temporaries left by killed processes (SIGKILL leaves no time to clean up) are removed
+/// by the next run writing that file; a running process's, and anything else, are not.
+#[test]
+fn killed_runs_temporary_files_are_removed_by_the_next_run() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = grid(tmp.path(), "scene");
+    let out = tmp.path().join("r.json");
+    let dead = tmp.path().join(".r.json.4000000000.tmp");
+    let live = tmp
+        .path()
+        .join(format!(".r.json.{}.tmp", std::process::id()));
+    let other = tmp.path().join(".x.gif.4000000000.tmp");
+    let note = tmp.path().join(".r.json.notes");
+    for f in [&dead, &live, &other, &note] {
+        std::fs::write(f, b"x").unwrap();
+    }
+    ok(&deepview(&[
+        "eval",
+        "--data",
+        s(&scene),
+        "--method",
+        "nearest",
+        "--out",
+        s(&out),
+    ]));
+    assert!(out.is_file());
+    assert!(!dead.exists());
+    for f in [&live, &other, &note] {
+        assert!(f.exists(), "{}", f.display());
+    }
+}

@@ -654,6 +654,7 @@ pub fn write_file<T>(
     out: &Path,
     write: impl FnOnce(&Path) -> anyhow::Result<T>,
 ) -> anyhow::Result<T> {
+    remove_stale_files(out);
     let dirs = CreatedDirs::parent_of(out)?;
     let tmp = deepview_image::temp_path(out);
     signals::register(&tmp);
@@ -787,6 +788,36 @@ fn swap(new: &Path, out: &Path) -> std::io::Result<Option<PathBuf>> {
         return Err(e);
     }
     Ok(Some(old))
+}
+
+/// Remove the temporary files of `out` (`.NAME.PID.tmp`, and a video sink's `.NAME.PID.tmp.EXT`) left by
+/// processes that no longer run (killed with SIGKILL, which leaves no time to clean up).
+fn remove_stale_files(out: &Path) {
+    let (Some(parent), Some(name)) = (out.parent(), out.file_name()) else {
+        return;
+    };
+    let parent = if parent.as_os_str().is_empty() {
+        Path::new(".")
+    } else {
+        parent
+    };
+    let prefix = format!(".{}.", name.to_string_lossy());
+    let Ok(entries) = std::fs::read_dir(parent) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let file = e.file_name().to_string_lossy().into_owned();
+        let Some((pid, tail)) = file.strip_prefix(&prefix).and_then(|r| r.split_once('.')) else {
+            continue;
+        };
+        let ours = tail == "tmp" || tail.starts_with("tmp.");
+        let gone = pid.parse::<u32>().is_ok_and(|p| {
+            p != std::process::id() && !Path::new("/proc").join(p.to_string()).exists()
+        });
+        if ours && gone && Path::new("/proc/self").exists() && e.path().is_file() {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
 }
 
 /// Remove the temporaries of `out` left by processes that no longer run, and put back an old folder that
