@@ -16,6 +16,12 @@ pub enum Durability {
     Synced,
 }
 
+/// A file a file browser leaves in every folder it shows (macOS Finder's `.DS_Store`, Windows Explorer's
+/// `Thumbs.db` and `desktop.ini`): not the user's data, so it never keeps an output from being replaced.
+pub fn is_file_browser_clutter(name: &str) -> bool {
+    matches!(name, ".DS_Store" | "Thumbs.db" | "desktop.ini")
+}
+
 /// The temporary name used for an atomic write of `path`: `.NAME.PID.tmp` in the same folder.
 pub fn temp_path(path: &Path) -> PathBuf {
     let name = path

@@ -6,7 +6,9 @@
 mod atomic;
 pub mod child;
 
-pub use atomic::{Durability, is_temp_of, temp_path, write_atomic, write_atomic_with};
+pub use atomic::{
+    Durability, is_file_browser_clutter, is_temp_of, temp_path, write_atomic, write_atomic_with,
+};
 
 use std::path::{Path, PathBuf};
 

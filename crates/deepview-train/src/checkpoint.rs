@@ -39,14 +39,15 @@ pub fn checkpoint_is_complete(dir: &Path) -> bool {
 /// put there, which pruning and replacing a checkpoint must not delete. File browsers' own files
 /// (`.DS_Store`, `Thumbs.db`, `desktop.ini`) do not count.
 pub(crate) fn foreign_entries(dir: &Path) -> Vec<String> {
-    const CLUTTER: [&str; 3] = [".DS_Store", "Thumbs.db", "desktop.ini"];
     let Ok(entries) = std::fs::read_dir(dir) else {
         return Vec::new();
     };
     let mut out: Vec<String> = entries
         .flatten()
         .map(|e| e.file_name().to_string_lossy().into_owned())
-        .filter(|n| !CHECKPOINT_FILES.contains(&n.as_str()) && !CLUTTER.contains(&n.as_str()))
+        .filter(|n| {
+            !CHECKPOINT_FILES.contains(&n.as_str()) && !deepview_image::is_file_browser_clutter(n)
+        })
         .collect();
     out.sort();
     out

@@ -72,20 +72,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         std::fs::create_dir(&stage)
             .with_context(|| format!("cannot create {}", stage.display()))?;
         maps.write(&stage, &args.prefix)?;
-        // Both files or neither: a signal waits for the registry (and ends the process after), and one
-        // that came before is not followed by the moves.
-        let mut registry = super::signals::lock();
-        if let Some(sig) = super::signals::ending() {
-            drop(registry);
-            return Err(super::signals::Interrupted(sig).into());
-        }
-        for suffix in ["color", "disparity16"] {
-            let name = format!("{}_{suffix}.png", args.prefix);
-            std::fs::rename(stage.join(&name), args.out.join(&name))
-                .with_context(|| format!("cannot write {}", args.out.join(&name).display()))?;
-        }
-        registry.retain(|p| p != &stage);
-        Ok(())
+        // Both files or neither.
+        super::signals::publish(&stage, || {
+            for suffix in ["color", "disparity16"] {
+                let name = format!("{}_{suffix}.png", args.prefix);
+                std::fs::rename(stage.join(&name), args.out.join(&name))
+                    .with_context(|| format!("cannot write {}", args.out.join(&name).display()))?;
+            }
+            Ok(())
+        })
     })();
     let _ = std::fs::remove_dir_all(&stage);
     super::signals::unregister(&stage);

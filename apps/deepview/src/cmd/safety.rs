@@ -528,7 +528,10 @@ fn foreign_within(
             Some((rest, "tmp")) => rest
                 .rsplit_once('.')
                 .is_some_and(|(file, _)| !is_dir && part.owns(file, false)),
-            _ => part.owns(&name, is_dir) || (!is_dir && os_metadata(&name)),
+            _ => {
+                part.owns(&name, is_dir)
+                    || (!is_dir && deepview_image::is_file_browser_clutter(&name))
+            }
         };
         let shown = format!("{prefix}{name}");
         if !own {
@@ -544,12 +547,6 @@ fn foreign_within(
         }
     }
     Ok(())
-}
-
-/// A file a file browser leaves in every folder it shows (macOS Finder's `.DS_Store`, Windows Explorer's
-/// `Thumbs.db` and `desktop.ini`): not the user's data, and it would otherwise stop every re-run.
-fn os_metadata(name: &str) -> bool {
-    matches!(name, ".DS_Store" | "Thumbs.db" | "desktop.ini")
 }
 
 /// `name` is an evaluated view's file or folder: `NNN_NAME` + `suffix`, NAME of `[A-Za-z0-9_]`.
@@ -710,31 +707,18 @@ impl OutputDir {
 
     /// Put the finished folder in place of `out` (the old folder, if any, is removed after the swap).
     pub fn commit(mut self) -> anyhow::Result<()> {
-        let mut registry = signals::lock();
-        // A signal that came before the swap: the old folder stays (the signal's thread, waiting for
-        // the registry, removes the temporary and ends the process).
-        if let Some(sig) = signals::ending() {
-            drop(registry);
-            return Err(signals::Interrupted(sig).into());
-        }
-        let old = if self.out.exists() {
-            swap(&self.tmp, &self.out)
-                .with_context(|| format!("cannot replace {}", self.out.display()))?
-        } else {
-            std::fs::rename(&self.tmp, &self.out).with_context(|| {
-                format!(
-                    "cannot rename {} to {}",
-                    self.tmp.display(),
-                    self.out.display()
-                )
-            })?;
-            None
-        };
+        let (tmp, out) = (&self.tmp, &self.out);
+        let old = signals::publish(tmp, || {
+            if out.exists() {
+                swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))
+            } else {
+                std::fs::rename(tmp, out).with_context(|| {
+                    format!("cannot rename {} to {}", tmp.display(), out.display())
+                })?;
+                Ok(None)
+            }
+        })?;
         self.done = true;
-        // Committed: a signal from now on finds nothing of this output to remove, and does not say
-        // that earlier outputs are untouched.
-        registry.retain(|p| p != &self.tmp);
-        drop(registry);
         if let Some(old) = old {
             signals::register(&old);
             let _ = std::fs::remove_dir_all(&old);
@@ -790,32 +774,46 @@ fn swap(new: &Path, out: &Path) -> std::io::Result<Option<PathBuf>> {
     Ok(Some(old))
 }
 
-/// Remove the temporary files of `out` (`.NAME.PID.tmp`, and a video sink's `.NAME.PID.tmp.EXT`) left by
-/// processes that no longer run (killed with SIGKILL, which leaves no time to clean up).
-fn remove_stale_files(out: &Path) {
+/// The siblings of `out` named `.NAME.` + `infix` + a rest, as (the rest, the path).
+fn siblings_of(out: &Path, infix: &str) -> Vec<(String, PathBuf)> {
     let (Some(parent), Some(name)) = (out.parent(), out.file_name()) else {
-        return;
+        return Vec::new();
     };
     let parent = if parent.as_os_str().is_empty() {
         Path::new(".")
     } else {
         parent
     };
-    let prefix = format!(".{}.", name.to_string_lossy());
+    let prefix = format!(".{}.{infix}", name.to_string_lossy());
     let Ok(entries) = std::fs::read_dir(parent) else {
-        return;
+        return Vec::new();
     };
-    for e in entries.flatten() {
-        let file = e.file_name().to_string_lossy().into_owned();
-        let Some((pid, tail)) = file.strip_prefix(&prefix).and_then(|r| r.split_once('.')) else {
+    entries
+        .flatten()
+        .filter_map(|e| {
+            let file = e.file_name().to_string_lossy().into_owned();
+            Some((file.strip_prefix(&prefix)?.to_string(), e.path()))
+        })
+        .collect()
+}
+
+/// Whether `pid` names a process that no longer runs (false where `/proc` cannot tell).
+fn died(pid: &str) -> bool {
+    Path::new("/proc/self").exists()
+        && pid.parse::<u32>().is_ok_and(|p| {
+            p != std::process::id() && !Path::new("/proc").join(p.to_string()).exists()
+        })
+}
+
+/// Remove the temporary files of `out` (`.NAME.PID.tmp`, and a video sink's `.NAME.PID.tmp.EXT`) left by
+/// processes that no longer run (killed with SIGKILL, which leaves no time to clean up).
+fn remove_stale_files(out: &Path) {
+    for (rest, path) in siblings_of(out, "") {
+        let Some((pid, tail)) = rest.split_once('.') else {
             continue;
         };
-        let ours = tail == "tmp" || tail.starts_with("tmp.");
-        let gone = pid.parse::<u32>().is_ok_and(|p| {
-            p != std::process::id() && !Path::new("/proc").join(p.to_string()).exists()
-        });
-        if ours && gone && Path::new("/proc/self").exists() && e.path().is_file() {
-            let _ = std::fs::remove_file(e.path());
+        if (tail == "tmp" || tail.starts_with("tmp.")) && died(pid) && path.is_file() {
+            let _ = std::fs::remove_file(path);
         }
     }
 }
@@ -823,33 +821,13 @@ fn remove_stale_files(out: &Path) {
 /// Remove the temporaries of `out` left by processes that no longer run, and put back an old folder that
 /// a crash left aside.
 pub(super) fn remove_stale(out: &Path) {
-    let (Some(parent), Some(name)) = (out.parent(), out.file_name()) else {
-        return;
-    };
-    let parent = if parent.as_os_str().is_empty() {
-        Path::new(".")
-    } else {
-        parent
-    };
-    let prefix = format!(".{}.deepview-", name.to_string_lossy());
-    let Ok(entries) = std::fs::read_dir(parent) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let file = e.file_name().to_string_lossy().into_owned();
-        let Some(rest) = file.strip_prefix(&prefix) else {
-            continue;
-        };
+    for (rest, path) in siblings_of(out, "deepview-") {
         let Some((tag, pid)) = rest.split_once('.') else {
             continue;
         };
-        let alive = pid.parse::<u32>().is_ok_and(|p| {
-            p == std::process::id() || Path::new("/proc").join(p.to_string()).exists()
-        });
-        if alive || !Path::new("/proc/self").exists() {
+        if !died(pid) {
             continue;
         }
-        let path = e.path();
         if tag == "old" && !out.exists() {
             let _ = std::fs::rename(&path, out);
         } else {

@@ -64,6 +64,22 @@ pub fn ending() -> Option<i32> {
     }
 }
 
+/// Run `publish` (the renames that put the finished output written in the registered temporary `tmp`
+/// in place) with the registry held, so that a signal's cleanup waits for it; not once a signal that
+/// ends the process has come (the output stays as it was: an [`Interrupted`] error, while the
+/// signal's thread removes `tmp` and ends the process). Published, `tmp` leaves the registry: a later
+/// signal finds nothing of this output to remove, and does not say earlier outputs are untouched.
+pub fn publish<T>(tmp: &Path, publish: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
+    let mut registry = lock();
+    if let Some(sig) = ending() {
+        drop(registry);
+        return Err(Interrupted(sig).into());
+    }
+    let published = publish()?;
+    registry.retain(|p| p != tmp);
+    Ok(published)
+}
+
 /// Remove `path` (a temporary folder or file) if a signal ends the process before [`unregister`].
 pub fn register(path: &Path) {
     lock().push(path.to_path_buf());
