@@ -756,6 +756,136 @@ fn sigterm_of_eval_leaves_the_earlier_renders_mpis_and_report() {
 }
 
 #[test]
+fn an_eval_report_that_cannot_be_written_keeps_the_earlier_renders() {
+    use std::io::BufRead;
+    let tmp = tempfile::tempdir().unwrap();
+    let data = deepview_data::data_dir().join("llff/fern");
+    let (renders, report) = (tmp.path().join("renders"), tmp.path().join("r.json"));
+    let args = |planes: &'static str| {
+        vec![
+            "eval",
+            "--data",
+            s(&data),
+            "--images",
+            "images_8",
+            "--method",
+            "psv-mean",
+            "--targets",
+            "every:8",
+            "--planes",
+            planes,
+            "--save-renders",
+            s(&renders),
+            "--out",
+            s(&report),
+        ]
+    };
+    ok(&deepview(&args("8")));
+    let before = snapshot(&renders);
+    // While the second run evaluates, its report's name becomes a folder, which no file replaces.
+    let mut child = bin()
+        .args(args("16"))
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    while !seen.contains("[1/3]") {
+        let n = stderr.read_line(&mut seen).unwrap();
+        assert!(n > 0, "[1/3] never printed: {seen}");
+    }
+    std::fs::remove_file(&report).unwrap();
+    std::fs::create_dir(&report).unwrap();
+    std::fs::write(report.join("keep.txt"), "mine").unwrap();
+    std::io::Read::read_to_string(&mut stderr, &mut seen).unwrap();
+    let code = child.wait().unwrap().code();
+    assert_eq!(code, Some(2), "{seen}");
+    assert!(
+        seen.contains("r.json") && !seen.contains("panicked"),
+        "{seen}"
+    );
+    assert!(
+        snapshot(&renders) == before,
+        "the renders changed without their report"
+    );
+    assert_eq!(
+        std::fs::read_to_string(report.join("keep.txt")).unwrap(),
+        "mine"
+    );
+    let hidden: Vec<_> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.starts_with('.'))
+        .collect();
+    assert!(hidden.is_empty(), "{hidden:?}");
+}
+
+#[test]
+fn the_longest_names_are_written_and_impossible_paths_refused_before_the_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let scene = grid(t, "scene");
+    // Names of 255 bytes, the most a file system takes: their temporaries must fit too.
+    let folder = t.join("m".repeat(255));
+    let report = t.join(format!("{}.json", "r".repeat(250)));
+    ok(&deepview(&[
+        "infer",
+        "--data",
+        s(&scene),
+        "--method",
+        "nearest",
+        "--out",
+        s(&folder),
+    ]));
+    assert!(folder.join("mpi.json").is_file());
+    let eval = |out: &Path| {
+        deepview(&[
+            "eval",
+            "--data",
+            s(&scene),
+            "--method",
+            "nearest",
+            "--targets",
+            "4",
+            "--out",
+            s(out),
+        ])
+    };
+    ok(&eval(&report));
+    ok(&eval(&report));
+    assert!(
+        std::fs::read_to_string(&report)
+            .unwrap()
+            .contains("results")
+    );
+    let names: Vec<_> = std::fs::read_dir(t).unwrap().collect();
+    assert_eq!(names.len(), 3, "{names:?}");
+    // A path longer than the system takes, and a folder on the way that is a link to nothing: refused
+    // at once, naming the problem (not after the evaluation, as a failure to write).
+    let deep = t.join(vec!["d".repeat(200); 21].join("/")).join("r.json");
+    refused(&eval(&deep), &["--out", "4096 bytes"]);
+    std::os::unix::fs::symlink(t.join("nowhere"), t.join("gone")).unwrap();
+    refused(
+        &eval(&t.join("gone/r.json")),
+        &["gone", "symbolic link", "nowhere"],
+    );
+    refused(
+        &deepview(&[
+            "infer",
+            "--data",
+            s(&scene),
+            "--method",
+            "nearest",
+            "--out",
+            s(&t.join("gone/m")),
+        ]),
+        &["gone", "symbolic link"],
+    );
+    assert!(!t.join("nowhere").exists());
+}
+
+#[test]
 fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
     let tmp = tempfile::tempdir().unwrap();
     let t = tmp.path();

@@ -34,6 +34,10 @@ pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
             "is not a folder (expected a dataset folder)",
         ));
     }
+    // A folder that cannot be listed (permissions) says so, not that its format is unknown.
+    if let Err(e) = std::fs::read_dir(path) {
+        return Err(DataError::io(path, e));
+    }
     let has = |p: &str| path.join(p).exists();
     if has("poses_bounds.npy") {
         Ok(SceneFormat::Llff)

@@ -22,20 +22,84 @@ pub fn is_file_browser_clutter(name: &str) -> bool {
     matches!(name, ".DS_Store" | "Thumbs.db" | "desktop.ini")
 }
 
-/// The temporary name used for an atomic write of `path`: `.NAME.PID.tmp` in the same folder.
+/// The bytes a temporary sibling's name may add around its output's name (`.`, a tag such as
+/// `.deepview-tmp.`, a process id, `.tmp.mp4`).
+pub const TEMP_NAME_EXTRA: usize = 32;
+
+/// `name` as it appears inside the names of its temporary siblings: itself, or where it is so long that
+/// a temporary's name would pass the file systems' 255 bytes (a legal name of 224 bytes or more), its
+/// first bytes and a hash of the whole (`LONGPREFIX~1a2b3c4d`), so that every legal output name has
+/// temporaries.
+pub fn temp_stem(name: &str) -> String {
+    const MAX: usize = 255 - TEMP_NAME_EXTRA;
+    if name.len() <= MAX {
+        return name.to_string();
+    }
+    // FNV-1a over the bytes: stable across runs and builds, which is what finding a stale one needs.
+    let hash = name.bytes().fold(0x811c_9dc5u32, |h, b| {
+        (h ^ b as u32).wrapping_mul(0x0100_0193)
+    });
+    let mut cut = MAX - 9;
+    while !name.is_char_boundary(cut) {
+        cut -= 1;
+    }
+    format!("{}~{hash:08x}", &name[..cut])
+}
+
+/// The temporary name used for an atomic write of `path`: `.NAME.PID.tmp` in the same folder (NAME as
+/// [`temp_stem`] gives it).
 pub fn temp_path(path: &Path) -> PathBuf {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+    path.with_file_name(format!(".{}.{}.tmp", temp_stem(&name), std::process::id()))
+}
+
+/// An advisory lock (`flock`) a process holds on a temporary file or folder while it writes it, released
+/// when dropped or when the process ends, however it ends. A later run tells a live writer's temporary
+/// from the leftover of a killed one by it ([`is_held`]), also where process ids do not tell: another PID
+/// namespace (a container) or another machine sharing the folder.
+#[derive(Debug)]
+pub struct TempLock(#[allow(dead_code)] std::fs::File);
+
+/// Lock the temporary file or folder `path` ([`TempLock`]); `None` where the file system has no locks.
+pub fn lock_temp(path: &Path) -> Option<TempLock> {
+    let f = std::fs::File::open(path).ok()?;
+    flock_exclusive(&f).then_some(TempLock(f))
+}
+
+/// Whether a running process holds the [`TempLock`] of `path` (false where it cannot be told).
+pub fn is_held(path: &Path) -> bool {
+    #[cfg(unix)]
+    if let Ok(f) = std::fs::File::open(path) {
+        use std::os::fd::AsRawFd;
+        // SAFETY: flock on a descriptor this function owns; a lock it gets goes with the descriptor.
+        let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
+        return r != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::EWOULDBLOCK);
+    }
+    false
+}
+
+fn flock_exclusive(f: &std::fs::File) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsRawFd;
+        // SAFETY: flock on a descriptor `f` owns.
+        unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) == 0 }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = f;
+        false
+    }
 }
 
 /// Whether the file name `name` is a [`temp_path`] of the file named `file` (from any process): the
 /// leftover of an atomic write that was interrupted.
 pub fn is_temp_of(name: &str, file: &str) -> bool {
     name.strip_prefix('.')
-        .and_then(|n| n.strip_prefix(file))
+        .and_then(|n| n.strip_prefix(temp_stem(file).as_str()))
         .and_then(|n| n.strip_prefix('.'))
         .and_then(|n| n.strip_suffix(".tmp"))
         .is_some_and(|pid| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()))
@@ -47,6 +111,8 @@ pub fn write_atomic_with(path: &Path, bytes: &[u8], durability: Durability) -> s
     let tmp = temp_path(path);
     let write = || -> std::io::Result<()> {
         let mut f = std::fs::File::create(&tmp)?;
+        // Held while it is written: a run that finds it meanwhile leaves it alone ([`is_held`]).
+        flock_exclusive(&f);
         f.write_all(bytes)?;
         if durability == Durability::Synced {
             f.sync_all()?;
@@ -111,5 +177,50 @@ mod tests {
         ] {
             assert!(!is_temp_of(other, "config.json"), "{other}");
         }
+    }
+
+    #[test]
+    fn temporaries_are_held_while_their_lock_lives() {
+        let dir = tempfile::tempdir().unwrap();
+        let (file, folder) = (dir.path().join(".a.png.7.tmp"), dir.path().join("t"));
+        std::fs::write(&file, b"x").unwrap();
+        std::fs::create_dir(&folder).unwrap();
+        for p in [&file, &folder] {
+            assert!(!is_held(p));
+            let lock = lock_temp(p).expect("a lock on a local file system");
+            assert!(is_held(p), "{}", p.display());
+            // A second writer cannot take it.
+            assert!(lock_temp(p).is_none());
+            drop(lock);
+            assert!(!is_held(p));
+        }
+        assert!(!is_held(&dir.path().join("missing")));
+    }
+
+    #[test]
+    fn every_legal_name_has_a_temporary_and_writes() {
+        let dir = tempfile::tempdir().unwrap();
+        // The longest names a file system takes (255 bytes), ASCII and with a multi-byte character
+        // across the cut; and two of them that differ only at the end.
+        let long_a = format!("{}a.png", "x".repeat(249));
+        let long_b = format!("{}b.png", "x".repeat(249));
+        let accented = format!("{}.json", "é".repeat(125));
+        for name in [&long_a, &long_b, &accented] {
+            assert!(name.len() <= 255, "{}", name.len());
+            let p = dir.path().join(name);
+            let tmp = temp_path(&p);
+            let t = tmp.file_name().unwrap().to_str().unwrap();
+            assert!(t.len() + ".mp4".len() <= 255, "{} bytes", t.len());
+            assert!(is_temp_of(t, name), "{t}");
+            write_atomic(&p, b"content").unwrap();
+            assert_eq!(std::fs::read(&p).unwrap(), b"content");
+        }
+        assert_ne!(temp_stem(&long_a), temp_stem(&long_b));
+        assert!(!is_temp_of(
+            temp_path(Path::new(&long_a)).to_str().unwrap(),
+            &long_b
+        ));
+        assert_eq!(temp_stem("short.png"), "short.png");
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 3);
     }
 }

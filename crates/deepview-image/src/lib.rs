@@ -7,7 +7,8 @@ mod atomic;
 pub mod child;
 
 pub use atomic::{
-    Durability, is_file_browser_clutter, is_temp_of, temp_path, write_atomic, write_atomic_with,
+    Durability, TEMP_NAME_EXTRA, TempLock, is_file_browser_clutter, is_held, is_temp_of, lock_temp,
+    temp_path, temp_stem, write_atomic, write_atomic_with,
 };
 
 use std::path::{Path, PathBuf};
@@ -166,6 +167,7 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
         path: path.into(),
         source: image::ImageError::IoError(e),
     };
+    refuse_special(path).map_err(read_err)?;
     let bytes = std::fs::read(path).map_err(read_err)?;
     let corrupt = |msg: String| ImageError::Corrupt {
         path: path.into(),
@@ -222,6 +224,18 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
     }
 }
 
+/// An error for a pipe, socket or device where an image file should be: opening a pipe would wait
+/// for a writer for ever.
+fn refuse_special(path: &Path) -> std::io::Result<()> {
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() && !m.is_dir() => Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a pipe, socket or device), expected an image file",
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Whether a PNG file ends with its IEND chunk and that chunk's CRC (trailing bytes after it allowed).
 fn png_complete(bytes: &[u8]) -> bool {
     let tail = bytes.len().saturating_sub(64);
@@ -258,6 +272,10 @@ pub fn read_image(path: &Path, channels: usize) -> Result<ImageF32, ImageError> 
 /// header announcing a huge image is reported with its size (the decoder's memory limit would refuse it
 /// without saying why).
 pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
+    refuse_special(path).map_err(|e| ImageError::Read {
+        path: path.into(),
+        source: image::ImageError::IoError(e),
+    })?;
     let mut head = [0u8; 24];
     if let Ok(mut f) = std::fs::File::open(path)
         && std::io::Read::read_exact(&mut f, &mut head).is_ok()
@@ -356,6 +374,26 @@ pub fn write_png_u16(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(unix)]
+    #[test]
+    fn a_pipe_named_as_an_image_is_an_error_not_a_wait() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("layer_000.png");
+        let c = std::ffi::CString::new(p.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        // Opening the pipe would block this test for ever (no writer).
+        for e in [
+            image_size(&p).unwrap_err().to_string(),
+            read_image(&p, 4).unwrap_err().to_string(),
+        ] {
+            assert!(
+                e.contains("layer_000.png") && e.contains("not a regular file"),
+                "{e}"
+            );
+        }
+    }
 
     #[test]
     fn png_round_trip_8_and_16_bit() {

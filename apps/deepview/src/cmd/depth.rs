@@ -41,7 +41,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The pair is written into a temporary folder beside the first file, then both are moved into
     // place together (see below); one a killed run left is removed first.
     let color = args.out.join(format!("{}_color.png", args.prefix));
-    super::safety::remove_stale(&color);
+    super::safety::remove_stale_inside(&args.out, Kind::DepthMaps);
     check_output("--out", &args.out, Kind::DepthMaps, &inputs)?;
     for suffix in ["color", "disparity16"] {
         let file = args.out.join(format!("{}_{suffix}.png", args.prefix));
@@ -66,11 +66,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mpi = read_mpi::<f32>(&args.mpi)?;
     let maps = depth_maps(&mpi, &camera);
     let dirs = CreatedDirs::create(&args.out)?;
-    let stage = super::safety::sibling(&color, "tmp");
-    super::signals::register(&stage);
+    let (stage, lock) = super::safety::make_temp_dir(&color, "tmp")?;
     let written = (|| -> anyhow::Result<()> {
-        std::fs::create_dir(&stage)
-            .with_context(|| format!("cannot create {}", stage.display()))?;
         maps.write(&stage, &args.prefix)?;
         // Both files or neither.
         super::signals::publish(&stage, || {
@@ -83,6 +80,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         })
     })();
     let _ = std::fs::remove_dir_all(&stage);
+    drop(lock);
     super::signals::unregister(&stage);
     written?;
     dirs.keep();

@@ -145,9 +145,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         verbose: true,
     };
     let report = evaluate(&scene, &protocol, &mut predictor, &options)?;
-    for dir in [renders, mpis].into_iter().flatten() {
-        dir.commit()?;
-    }
     print!("{}", report.table());
     if let Some(mb) = super::bench::peak_rss_mb() {
         println!(
@@ -155,8 +152,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             mb / 1024.0
         );
     }
+    // The report first: where it cannot be written (a full disk, a file that may not be replaced), the
+    // folders stay the earlier run's, beside the earlier report (their swaps hardly fail once the
+    // files are written).
     if let Some(out) = &args.out {
         write_file(out, |out| Ok(report.write_json(out)?))?;
+    }
+    for dir in [renders, mpis].into_iter().flatten() {
+        dir.commit()?;
+    }
+    if let Some(out) = &args.out {
         println!("wrote {}", out.display());
     }
     Ok(())

@@ -345,6 +345,31 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
 /// must be made) now, before the work, rather than after minutes of it: a probe file is made and removed
 /// in the folder the output goes into (or in its nearest existing ancestor, where folders will be made).
 fn check_writable(option: &str, out: &Path, resolved: &Path) -> anyhow::Result<()> {
+    // The system's limit on a path (PATH_MAX, 4096 bytes with its NUL), with room for a temporary's
+    // longer name: past it every write would fail, after the work.
+    let len = out.as_os_str().len().min(resolved.as_os_str().len());
+    if len + deepview_image::TEMP_NAME_EXTRA >= 4096 {
+        bail!(
+            "{option}: the path is {len} bytes long, more than the system takes (4096 bytes, with room \
+             for a temporary beside it); choose a shorter path"
+        );
+    }
+    // A folder on the way that is a link to nothing: creating the folders would fail after the work.
+    for a in resolved.ancestors().skip(1) {
+        if let Ok(m) = std::fs::symlink_metadata(a)
+            && m.file_type().is_symlink()
+            && std::fs::metadata(a).is_err()
+        {
+            let to = std::fs::read_link(a).unwrap_or_default();
+            bail!(
+                "{option} {}: {} is a symbolic link to {}, which does not exist: remove the link or \
+                 create its target",
+                out.display(),
+                a.display(),
+                to.display()
+            );
+        }
+    }
     let Some(existing) = resolved
         .parent()
         .into_iter()
@@ -523,11 +548,20 @@ fn foreign_within(
         let e = e.map_err(named)?;
         let name = e.file_name().to_string_lossy().into_owned();
         let is_dir = e.file_type().map_err(named)?.is_dir();
+        let mut working = false;
         let own = match name.strip_prefix('.').and_then(|n| n.rsplit_once('.')) {
             // `.NAME.PID.tmp`: an interrupted write of one of its own files.
             Some((rest, "tmp")) => rest
                 .rsplit_once('.')
                 .is_some_and(|(file, _)| !is_dir && part.owns(file, false)),
+            // `.NAME.deepview-tmp.PID/`: the folder another run is writing one of its files or folders
+            // in (`depth` stages its pair so), or one a killed run left.
+            Some((rest, pid)) if is_dir && pid.bytes().all(|b| b.is_ascii_digit() || b == b'-') => {
+                working = rest
+                    .strip_suffix(".deepview-tmp")
+                    .is_some_and(|n| part.owns(n, false) || part.owns(n, true));
+                working
+            }
             _ => {
                 part.owns(&name, is_dir)
                     || (!is_dir && deepview_image::is_file_browser_clutter(&name))
@@ -536,7 +570,7 @@ fn foreign_within(
         let shown = format!("{prefix}{name}");
         if !own {
             foreign.push(if is_dir { format!("{shown}/") } else { shown });
-        } else if is_dir {
+        } else if is_dir && !working {
             // Every folder an output writes is known (`Part::inner`); the depth bound is a guard.
             match part.inner(&name).filter(|_| depth < 8) {
                 Some(inner) => {
@@ -597,7 +631,45 @@ pub(super) fn sibling(out: &Path, tag: &str) -> PathBuf {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_else(|| "out".into());
-    out.with_file_name(format!(".{name}.deepview-{tag}.{}", std::process::id()))
+    out.with_file_name(format!(
+        ".{}.deepview-{tag}.{}",
+        deepview_image::temp_stem(&name),
+        std::process::id()
+    ))
+}
+
+/// A temporary sibling folder of `out` to write in (`.NAME.deepview-TAG.PID`), created empty and locked
+/// ([`deepview_image::TempLock`]). One of that name that a running process holds (the same process id
+/// in another PID namespace) is left alone and the name taken with a `-N` suffix; an unheld one is a
+/// leftover of this process id, removed first.
+pub(super) fn make_temp_dir(
+    out: &Path,
+    tag: &str,
+) -> anyhow::Result<(PathBuf, Option<deepview_image::TempLock>)> {
+    let base = sibling(out, tag);
+    for n in 1..100 {
+        let tmp = match n {
+            1 => base.clone(),
+            n => PathBuf::from(format!("{}-{n}", base.display())),
+        };
+        if std::fs::symlink_metadata(&tmp).is_ok() {
+            if deepview_image::is_held(&tmp) {
+                continue;
+            }
+            let _ = std::fs::remove_dir_all(&tmp);
+        }
+        signals::register(&tmp);
+        if let Err(e) = std::fs::create_dir(&tmp) {
+            signals::unregister(&tmp);
+            return Err(e).with_context(|| format!("cannot create {}", tmp.display()));
+        }
+        let lock = deepview_image::lock_temp(&tmp);
+        return Ok((tmp, lock));
+    }
+    bail!(
+        "cannot create a temporary folder beside {}: every name is held",
+        out.display()
+    )
 }
 
 /// Folders created for an output (deepest last), removed again when they stay empty after a failure.
@@ -668,7 +740,10 @@ pub fn write_file<T>(
 /// ([`signals`]); a temporary left by a killed process is removed the next time.
 pub struct OutputDir {
     out: PathBuf,
+    kind: Kind,
     tmp: PathBuf,
+    /// Held until the output is in place or removed.
+    lock: Option<deepview_image::TempLock>,
     dirs: CreatedDirs,
     done: bool,
 }
@@ -686,15 +761,12 @@ impl OutputDir {
         };
         let dirs = CreatedDirs::create(&parent)?;
         remove_stale(out);
-        let tmp = sibling(out, "tmp");
-        if tmp.exists() {
-            let _ = std::fs::remove_dir_all(&tmp);
-        }
-        signals::register(&tmp);
-        std::fs::create_dir(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+        let (tmp, lock) = make_temp_dir(out, "tmp")?;
         Ok(Self {
             out: out.to_path_buf(),
+            kind,
             tmp,
+            lock,
             dirs,
             done: false,
         })
@@ -707,21 +779,36 @@ impl OutputDir {
 
     /// Put the finished folder in place of `out` (the old folder, if any, is removed after the swap).
     pub fn commit(mut self) -> anyhow::Result<()> {
-        let (tmp, out) = (&self.tmp, &self.out);
+        let (tmp, out, kind) = (&self.tmp, &self.out, self.kind);
         let old = signals::publish(tmp, || {
-            if out.exists() {
-                swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))
-            } else {
-                std::fs::rename(tmp, out).with_context(|| {
-                    format!("cannot rename {} to {}", tmp.display(), out.display())
-                })?;
-                Ok(None)
+            if !out.exists() {
+                match std::fs::rename(tmp, out) {
+                    Ok(()) => return Ok(None),
+                    // Another run made `out` meanwhile (two runs of one command at once): replaced
+                    // below like any earlier output of this kind, if it is one.
+                    Err(_) if out.is_dir() => {}
+                    Err(e) => {
+                        return Err(e).with_context(|| {
+                            format!("cannot rename {} to {}", tmp.display(), out.display())
+                        });
+                    }
+                }
             }
+            refuse_foreign("--out", out, out, kind)?;
+            swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))
         })?;
         self.done = true;
+        self.lock = None;
         if let Some(old) = old {
             signals::register(&old);
-            let _ = std::fs::remove_dir_all(&old);
+            if let Err(e) = std::fs::remove_dir_all(&old) {
+                eprintln!(
+                    "warning: {} is in place, but the earlier output could not be removed completely \
+                     ({e}); what is left of it is in {}: remove it by hand",
+                    out.display(),
+                    old.display()
+                );
+            }
             signals::unregister(&old);
         }
         std::mem::take(&mut self.dirs).keep();
@@ -784,7 +871,10 @@ fn siblings_of(out: &Path, infix: &str) -> Vec<(String, PathBuf)> {
     } else {
         parent
     };
-    let prefix = format!(".{}.{infix}", name.to_string_lossy());
+    let prefix = format!(
+        ".{}.{infix}",
+        deepview_image::temp_stem(&name.to_string_lossy())
+    );
     let Ok(entries) = std::fs::read_dir(parent) else {
         return Vec::new();
     };
@@ -812,7 +902,11 @@ fn remove_stale_files(out: &Path) {
         let Some((pid, tail)) = rest.split_once('.') else {
             continue;
         };
-        if (tail == "tmp" || tail.starts_with("tmp.")) && died(pid) && path.is_file() {
+        if (tail == "tmp" || tail.starts_with("tmp."))
+            && died(pid)
+            && path.is_file()
+            && !deepview_image::is_held(&path)
+        {
             let _ = std::fs::remove_file(path);
         }
     }
@@ -825,13 +919,41 @@ pub(super) fn remove_stale(out: &Path) {
         let Some((tag, pid)) = rest.split_once('.') else {
             continue;
         };
-        if !died(pid) {
+        // `PID` or `PID-N` (see [`make_temp_dir`]); a temporary a running process holds stays, whatever
+        // its process id says (another PID namespace's).
+        let pid = pid.split_once('-').map_or(pid, |(p, _)| p);
+        if !died(pid) || deepview_image::is_held(&path) {
             continue;
         }
         if tag == "old" && !out.exists() {
             let _ = std::fs::rename(&path, out);
         } else {
             let _ = std::fs::remove_dir_all(&path);
+        }
+    }
+}
+
+/// Remove the working folders (`.NAME.deepview-tmp.PID/`) that killed runs left inside the folder `dir`
+/// of `kind` for any of its files (`depth` stages each pair of maps so, whatever its `--prefix`).
+pub(super) fn remove_stale_inside(dir: &Path, kind: Kind) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some((file, pid)) = name
+            .strip_prefix('.')
+            .and_then(|n| n.rsplit_once(".deepview-tmp."))
+        else {
+            continue;
+        };
+        let pid = pid.split_once('-').map_or(pid, |(p, _)| p);
+        if kind.owns(file, false)
+            && died(pid)
+            && e.file_type().is_ok_and(|t| t.is_dir())
+            && !deepview_image::is_held(&e.path())
+        {
+            let _ = std::fs::remove_dir_all(e.path());
         }
     }
 }
@@ -1064,6 +1186,116 @@ mod tests {
         o.commit().unwrap();
         assert!(!out.join("layer_000.png").exists() && out.join("mpi.json").is_file());
         let names: Vec<_> = std::fs::read_dir(dir.path().join("sub"))
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["mpi"]);
+    }
+
+    #[test]
+    fn an_output_another_run_made_meanwhile_is_replaced_if_it_is_one() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("mpi");
+        let write = |o: &OutputDir, text: &str| {
+            std::fs::write(o.path().join("mpi.json"), text).unwrap();
+        };
+        // Both runs start before the output exists; the other one finishes first.
+        let ours = OutputDir::new(&out, Kind::Mpi).unwrap();
+        write(&ours, "ours");
+        // (The other run's output is made by hand: in one process both would share a temporary.)
+        std::fs::create_dir(&out).unwrap();
+        std::fs::write(out.join("mpi.json"), "theirs").unwrap();
+        std::fs::write(out.join("layer_000.png"), "theirs").unwrap();
+        ours.commit().unwrap();
+        assert_eq!(
+            std::fs::read_to_string(out.join("mpi.json")).unwrap(),
+            "ours"
+        );
+        assert!(!out.join("layer_000.png").exists());
+        // Not when what appeared holds a user's file: then nothing is replaced.
+        let ours = OutputDir::new(&out, Kind::Mpi).unwrap();
+        write(&ours, "third");
+        std::fs::write(out.join("notes.txt"), "mine").unwrap();
+        let e = ours.commit().unwrap_err();
+        assert!(format!("{e:#}").contains("notes.txt"), "{e:#}");
+        assert_eq!(
+            std::fs::read_to_string(out.join("notes.txt")).unwrap(),
+            "mine"
+        );
+        assert_eq!(
+            std::fs::read_to_string(out.join("mpi.json")).unwrap(),
+            "ours"
+        );
+        let names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
+        assert_eq!(names, ["mpi"]);
+    }
+
+    #[test]
+    fn working_folders_of_a_folders_files_are_its_own_and_stale_ones_go() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        std::fs::write(d.join("depth_color.png"), "png").unwrap();
+        let live = format!(".other_color.png.deepview-tmp.{}", std::process::id());
+        // A process that has ended: its id names no process now (ids are not reused this soon).
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        child.wait().unwrap();
+        let dead = format!(".p1_color.png.deepview-tmp.{}", child.id());
+        for f in [&live, &dead] {
+            std::fs::create_dir(d.join(f)).unwrap();
+            std::fs::write(d.join(f).join("p_color.png"), "png").unwrap();
+        }
+        assert!(foreign_entries(d, Kind::DepthMaps).unwrap().is_empty());
+        // A working folder of a file the kind does not write is not.
+        std::fs::create_dir(d.join(".notes.txt.deepview-tmp.1")).unwrap();
+        assert_eq!(
+            foreign_entries(d, Kind::DepthMaps).unwrap(),
+            [".notes.txt.deepview-tmp.1/"]
+        );
+        remove_stale_inside(d, Kind::DepthMaps);
+        assert!(
+            d.join(&live).is_dir(),
+            "a running process's folder was removed"
+        );
+        assert!(!d.join(&dead).exists(), "a killed run's folder stayed");
+        assert!(d.join(".notes.txt.deepview-tmp.1").is_dir());
+    }
+
+    #[test]
+    fn a_temporary_a_running_process_holds_is_left_alone_whatever_its_process_id() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("mpi");
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        child.wait().unwrap();
+        // Another PID namespace's run: its process id names no process here.
+        let theirs = dir.path().join(format!(".mpi.deepview-tmp.{}", child.id()));
+        std::fs::create_dir(&theirs).unwrap();
+        let lock = deepview_image::lock_temp(&theirs).unwrap();
+        // And one with this process's own id, as a run in another namespace may have.
+        let same = sibling(&out, "tmp");
+        std::fs::create_dir(&same).unwrap();
+        let same_lock = deepview_image::lock_temp(&same).unwrap();
+        std::fs::write(same.join("mpi.json"), "theirs").unwrap();
+        let ours = OutputDir::new(&out, Kind::Mpi).unwrap();
+        assert!(theirs.is_dir() && same.join("mpi.json").is_file());
+        assert_ne!(ours.path(), same.as_path());
+        std::fs::write(ours.path().join("mpi.json"), "ours").unwrap();
+        ours.commit().unwrap();
+        assert_eq!(
+            std::fs::read_to_string(out.join("mpi.json")).unwrap(),
+            "ours"
+        );
+        assert!(theirs.is_dir() && same.join("mpi.json").is_file());
+        // Once their runs end (the locks go with them), the next run clears them.
+        drop((lock, same_lock));
+        let again = OutputDir::new(&out, Kind::Mpi).unwrap();
+        assert!(!theirs.exists());
+        assert_eq!(again.path(), same.as_path());
+        assert!(!same.join("mpi.json").exists());
+        drop(again);
+        let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name())
             .collect();
