@@ -1229,6 +1229,176 @@ fn huge_sizes_are_refused_at_once() {
 // 4. Every image decoded completely or refused.
 
 #[test]
+fn mpis_announcing_more_than_they_hold_are_refused_before_they_are_read() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let scene = grid(t, "scene");
+    let gt = scene.join("ground_truth_mpi");
+    let meta: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(gt.join("mpi.json")).unwrap()).unwrap();
+    // An mpi.json of the same scene edited by hand: `edit` changes its fields.
+    let variant = |name: &str, edit: &dyn Fn(&mut serde_json::Value)| {
+        let dir = copy_dir(&gt, &t.join(name));
+        let mut m = meta.clone();
+        edit(&mut m);
+        std::fs::write(dir.join("mpi.json"), serde_json::to_vec(&m).unwrap()).unwrap();
+        dir
+    };
+    // 40 planes of 8000 x 8000 (10 GB of 8-bit texels), whose layers are links to one small file.
+    let big = variant("big", &|m| {
+        m["width"] = 8000.into();
+        m["height"] = 8000.into();
+        m["intrinsics"] =
+            serde_json::json!({"fx": 8000.0, "fy": 8000.0, "cx": 4000.0, "cy": 4000.0});
+        let depths: Vec<f64> = (0..40).map(|i| 100.0 - 2.0 * i as f64).collect();
+        m["depths"] = depths.into();
+        m["layers"] = (0..40)
+            .map(|i| format!("l{i}.png"))
+            .collect::<Vec<_>>()
+            .into();
+    });
+    for i in 0..40 {
+        std::os::unix::fs::symlink(gt.join("layer_000.png"), big.join(format!("l{i}.png")))
+            .unwrap();
+    }
+    let o = |n: &str| t.join(n).to_string_lossy().into_owned();
+    let commands: Vec<Vec<String>> = vec![
+        vec![
+            "export".into(),
+            "--mpi".into(),
+            s(&big).into(),
+            "--out".into(),
+            o("e"),
+            "--format".into(),
+            "llff".into(),
+        ],
+        vec![
+            "compact".into(),
+            "--mpi".into(),
+            s(&big).into(),
+            "--out".into(),
+            o("c"),
+        ],
+        vec!["diff".into(), s(&big).into(), s(&gt).into()],
+        vec![
+            "export-web".into(),
+            "--mpi".into(),
+            s(&big).into(),
+            "--out".into(),
+            o("w"),
+        ],
+        vec![
+            "view".into(),
+            "--mpi".into(),
+            s(&big).into(),
+            "--port".into(),
+            "0".into(),
+        ],
+        vec![
+            "import".into(),
+            "--mpi".into(),
+            s(&big).into(),
+            "--out".into(),
+            o("i"),
+        ],
+    ];
+    for mut c in commands {
+        c.extend(["--max-memory".into(), "2GiB".into()]);
+        let args: Vec<&str> = c.iter().map(String::as_str).collect();
+        let started = Instant::now();
+        refused(
+            &deepview(&args),
+            &["needs about", "40 planes of 8000x8000", "2.0 GiB"],
+        );
+        assert!(
+            started.elapsed() < Duration::from_secs(20),
+            "{c:?} read the planes first"
+        );
+    }
+    // Metadata whose numbers no capture has: refused by every reader, naming the file.
+    type Edit<'a> = Box<dyn Fn(&mut serde_json::Value) + 'a>;
+    let bad: Vec<(&str, Edit, &str)> = vec![
+        (
+            "tiny",
+            Box::new(|m| {
+                m["depths"] = meta["depths"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .map(|d| d.as_f64().unwrap() * 1e-300)
+                    .collect::<Vec<_>>()
+                    .into()
+            }),
+            "the depths deepview works with",
+        ),
+        (
+            "close",
+            Box::new(|m| {
+                let d = m["depths"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .enumerate()
+                    .map(|(i, _)| 10.0 - i as f64 * 1e-9)
+                    .collect::<Vec<_>>();
+                m["depths"] = d.into();
+            }),
+            "less than a millionth apart",
+        ),
+        (
+            "page",
+            Box::new(|m| m["layers"][0] = "index.html".into()),
+            "index.html",
+        ),
+        (
+            "space",
+            Box::new(|m| m["layers"][0] = "layer 000.png".into()),
+            "layer 000.png",
+        ),
+    ];
+    for (name, edit, needle) in bad {
+        let dir = variant(name, &*edit);
+        let out = deepview(&[
+            "render",
+            "--mpi",
+            s(&dir),
+            "--out",
+            &o(&format!("{name}.png")),
+        ]);
+        refused(&out, &[needle, "mpi.json"]);
+    }
+    // A byte order mark before the JSON is no error.
+    let bom = variant("bom", &|_| {});
+    let mut text = b"\xEF\xBB\xBF".to_vec();
+    text.extend(std::fs::read(bom.join("mpi.json")).unwrap());
+    std::fs::write(bom.join("mpi.json"), text).unwrap();
+    ok(&deepview(&[
+        "render",
+        "--mpi",
+        s(&bom),
+        "--out",
+        &o("bom.png"),
+    ]));
+    // Depth bounds no scene has.
+    refused(
+        &deepview(&[
+            "infer",
+            "--data",
+            s(&scene),
+            "--method",
+            "psv-mean",
+            "--near",
+            "1e-300",
+            "--far",
+            "1e-299",
+            "--out",
+            &o("n"),
+        ]),
+        &["lie outside", "--near/--far"],
+    );
+}
+
+#[test]
 fn truncated_and_corrupt_images_are_refused_with_their_name() {
     let tmp = tempfile::tempdir().unwrap();
     let src = deepview_data::data_dir().join("colmap/room");

@@ -164,6 +164,23 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
             ),
         ));
     }
+    let (lo, hi) = deepview_geometry::DEPTH_LIMITS;
+    if let Some((n, f)) = scene.depth_bounds
+        && (n < lo || f > hi)
+    {
+        let given = if opts.near.is_some() || opts.far.is_some() {
+            " (--near/--far)"
+        } else {
+            ""
+        };
+        return Err(DataError::invalid(
+            path,
+            format!(
+                "depth bounds near {n:e}, far {f:e}{given} lie outside {lo:e}..{hi:e}, the depths deepview \
+                 works with; give bounds that hold the scene, or scale its poses"
+            ),
+        ));
+    }
     Ok(scene)
 }
 

@@ -13,6 +13,14 @@ pub enum PlaneSpacing {
     Linear,
 }
 
+/// The depths deepview works with, in scene units (any unit: millimetres to kilometres fit). Outside them
+/// the f32 arithmetic of sweeps, renders and depth maps loses the values (depths of 1e-300 gave
+/// transparent MPIs and all-zero depth maps without an error).
+pub const DEPTH_LIMITS: (f64, f64) = (1e-6, 1e12);
+
+/// The most planes an MPI may have (`auto` chooses at most 256).
+pub const MAX_PLANES: usize = 4096;
+
 /// `count` plane depths from `far` (index 0) to `near` (last).
 ///
 /// A single plane sits at the inverse-depth midpoint. Errors on zero planes, non-finite or non-positive

@@ -74,7 +74,9 @@ impl MpiMeta {
     pub fn read(dir: &Path) -> Result<(MpiMeta, Camera), MpiError> {
         let path = dir.join("mpi.json");
         let text = std::fs::read_to_string(&path).map_err(read_err(&path))?;
-        let meta: MpiMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json {
+        // A byte order mark (Windows editors write one) is not JSON's.
+        let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
+        let meta: MpiMeta = serde_json::from_str(text).map_err(|source| MpiError::Json {
             path: path.clone(),
             what: "mpi.json",
             source,
@@ -121,10 +123,13 @@ impl MpiMeta {
                     format!("layer name {l:?} is listed twice: every plane has its own file"),
                 ));
             }
-            if l.contains('/') || l.contains('\\') || l.starts_with('.') {
+            if !layer_name_ok(l) {
                 return Err(invalid(
                     path,
-                    format!("layer name {l:?} must be a plain file name in the folder"),
+                    format!(
+                        "layer name {l:?} must be a plain file name in the folder: ASCII letters, digits, \
+                         '.', '_' and '-', not hidden, not mpi.json or index.html"
+                    ),
                 ));
             }
         }
@@ -153,7 +158,52 @@ pub(crate) fn check_depths(path: &Path, depths: &[f64]) -> Result<(), MpiError> 
             format!("depths {far:e}..{near:e}: far is more than 1e7 times near"),
         ));
     }
+    let (lo, hi) = deepview_geometry::DEPTH_LIMITS;
+    if near < lo || far > hi {
+        return Err(invalid(
+            path,
+            format!(
+                "depths {far:e}..{near:e} lie outside {lo:e}..{hi:e}, the depths deepview works with"
+            ),
+        ));
+    }
+    if depths.len() > deepview_geometry::MAX_PLANES {
+        return Err(invalid(
+            path,
+            format!(
+                "{} planes: deepview reads MPIs of at most {}",
+                depths.len(),
+                deepview_geometry::MAX_PLANES
+            ),
+        ));
+    }
+    // Planes closer than f32 tells apart would become one plane in every render and depth map.
+    if let Some(i) = depths.windows(2).position(|w| w[1] > w[0] * (1.0 - 1e-6)) {
+        return Err(invalid(
+            path,
+            format!(
+                "planes {i} and {} (depths {:e}, {:e}) are less than a millionth apart",
+                i + 1,
+                depths[i],
+                depths[i + 1]
+            ),
+        ));
+    }
     Ok(())
+}
+
+/// A layer file name an MPI folder may list: plain ASCII (letters, digits, `.`, `_`, `-`), not hidden,
+/// and none of the folder's other files: names a browser can fetch as they are (the viewer serves them)
+/// and no other tool's file.
+fn layer_name_ok(l: &str) -> bool {
+    !l.is_empty()
+        && l.len() <= 200
+        && !l.starts_with(['.', '-'])
+        && l.bytes()
+            .all(|b| b.is_ascii_alphanumeric() || matches!(b, b'.' | b'_' | b'-'))
+        && !["mpi.json", "index.html", "mpi_compact.json"]
+            .iter()
+            .any(|n| l.eq_ignore_ascii_case(n))
 }
 
 pub fn layer_name(i: usize) -> String {

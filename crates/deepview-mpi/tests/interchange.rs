@@ -87,6 +87,10 @@ fn llff_round_trip_is_exact_on_layers() {
     let lines: Vec<&str> = meta.lines().collect();
     assert_eq!(lines.len(), 6);
     assert_eq!(lines[0], "45 70 5 60");
+    assert_eq!(
+        interchange::describe(&llff).unwrap(),
+        (ImportFormat::Llff, 70, 45, 5)
+    );
     let far_near: Vec<f64> = lines[5].split(' ').map(|v| v.parse().unwrap()).collect();
     assert!((far_near[0] - 20.0).abs() < 1e-9 && (far_near[1] - 2.0).abs() < 1e-12);
     assert_eq!(
@@ -206,6 +210,24 @@ fn stereo_mag_round_trip_is_exact_on_layers() {
     .unwrap_err()
     .to_string();
     assert!(e.contains("mpi_alpha_02.png"), "{e}");
+    // A missing colour layer before others is a gap, not the end of the planes.
+    std::fs::remove_file(sm.join("mpi_rgb_02.png")).unwrap();
+    let e = interchange::import(
+        &sm,
+        &dir.path().join("z"),
+        &ImportOptions {
+            near_far: Some((2.0, 20.0)),
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("mpi_rgb_02.png") && e.contains("mpi_alpha_03.png") && e.contains("gap"),
+        "{e}"
+    );
+    // And what `describe` reports of the folders, before any layer is decoded.
+    let (f, w, h, d) = interchange::describe(&src).unwrap();
+    assert_eq!((f, w, h, d), (ImportFormat::Deepview, 70, 45, 5));
 }
 
 #[test]
@@ -223,6 +245,10 @@ fn compact_round_trip_is_exact() {
     let (kept, total) = rep.tiles.unwrap();
     assert_eq!(total, 5 * 6);
     assert_eq!(kept, 4 * 5 + 2);
+    assert_eq!(
+        interchange::describe(&cp).unwrap(),
+        (ImportFormat::Compact, 70, 45, 5)
+    );
     let (meta, _) = compact::CompactMeta::read(&cp).unwrap();
     assert_eq!(meta.planes[4], vec![1, 4]);
     assert_eq!(meta.planes[0], vec![1, 2, 3, 4, 5]);

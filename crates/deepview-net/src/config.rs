@@ -295,10 +295,12 @@ impl DeepViewConfig {
         if self.views == Some(0) {
             return bad("a fixed view count must be positive");
         }
+        // It divides colour variances (0..1) into logits: below 1e-6 they leave f32's range and the
+        // MPI comes out transparent (1e-308 did, without an error).
         if let Some(s) = self.init_prior
-            && !(s.is_finite() && s > 0.0)
+            && !(s.is_finite() && (1e-6..=1e6).contains(&s))
         {
-            return bad("the init prior's temperature must be positive");
+            return bad("the init prior's temperature must lie in 1e-6..1e6");
         }
         if self.prior_radius > MAX_PRIOR_RADIUS {
             return bad(&format!(
@@ -475,6 +477,21 @@ mod tests {
                 ..cpu.clone()
             };
             assert!(bad.validate().is_err(), "({p1}, {p2})");
+        }
+        // The prior's temperature: where f32 logits still hold the variances it divides.
+        for (t, fine) in [
+            (1e-308, false),
+            (1e-7, false),
+            (0.0, false),
+            (1e-6, true),
+            (0.0007, true),
+            (1e7, false),
+        ] {
+            let c = DeepViewConfig {
+                init_prior: Some(t),
+                ..cpu.clone()
+            };
+            assert_eq!(c.validate().is_ok(), fine, "{t}");
         }
         let without_prior = DeepViewConfig {
             init_prior: None,

@@ -1,7 +1,8 @@
 //! The viewer's HTTP server: GET and HEAD of the page and the MPI's files, nothing else, with every size it
 //! reads from a client bounded, so that no request can stop it.
 //!
-//! - The request line and headers: at most [`MAX_HEAD`] bytes (431 beyond), read within [`TIMEOUT`].
+//! - The request line and headers: at most [`MAX_HEAD`] bytes (431 beyond), read within [`TIMEOUT`] of the
+//!   connection's start, however slowly the bytes come.
 //! - A body: GET and HEAD have none; one announced up to [`MAX_BODY`] is read and dropped, a larger one
 //!   answered 413, `Transfer-Encoding` 411, and the connection closed without reading it.
 //! - Connections: one thread each, at most [`MAX_CONNECTIONS`] at once (503 beyond); every answer closes
@@ -224,12 +225,35 @@ pub fn read_head(r: &mut impl BufRead) -> Result<Option<Head>, Refused> {
     }))
 }
 
+/// A connection read against one deadline for the whole request (its head and body), not per read: a
+/// client sending a byte now and then ("slowloris") is cut off at the deadline like a silent one.
+struct Deadline {
+    stream: TcpStream,
+    until: std::time::Instant,
+}
+
+impl Read for Deadline {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let left = self
+            .until
+            .saturating_duration_since(std::time::Instant::now());
+        if left.is_zero() {
+            return Err(std::io::ErrorKind::TimedOut.into());
+        }
+        self.stream.set_read_timeout(Some(left))?;
+        self.stream.read(buf)
+    }
+}
+
 fn serve(stream: TcpStream, dir: &Path, files: &[String]) {
     let Ok(write) = stream.try_clone() else {
         return;
     };
     let mut write = write;
-    let mut reader = BufReader::new(stream);
+    let mut reader = BufReader::new(Deadline {
+        stream,
+        until: std::time::Instant::now() + TIMEOUT,
+    });
     let head = match read_head(&mut reader) {
         Ok(Some(h)) => h,
         Ok(None) => return close(write),
@@ -356,6 +380,35 @@ mod tests {
 
     fn parse(s: &str) -> Result<Option<Head>, Refused> {
         read_head(&mut std::io::Cursor::new(s.as_bytes().to_vec()))
+    }
+
+    #[test]
+    fn a_client_trickling_its_head_is_cut_off_at_the_deadline() {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        // The client sends a header line every 50 ms, for ever (until the server closes).
+        let client = std::thread::spawn(move || {
+            let mut c = TcpStream::connect(addr).unwrap();
+            let _ = c.write_all(b"GET /mpi.json HTTP/1.1\r\n");
+            for _ in 0..2000 {
+                std::thread::sleep(Duration::from_millis(50));
+                if c.write_all(b"X-A: b\r\n").is_err() {
+                    return;
+                }
+            }
+        });
+        let (stream, _) = listener.accept().unwrap();
+        let start = std::time::Instant::now();
+        let mut reader = BufReader::new(Deadline {
+            stream,
+            until: start + Duration::from_millis(400),
+        });
+        // Each read gets bytes well within any per-read timeout; the whole head does not come in time.
+        assert_eq!(read_head(&mut reader), Err(Refused(408)));
+        let took = start.elapsed();
+        assert!(took < Duration::from_secs(5), "{took:?}");
+        drop(reader);
+        client.join().unwrap();
     }
 
     #[test]

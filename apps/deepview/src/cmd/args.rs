@@ -108,6 +108,26 @@ fn px(w: u32, h: u32) -> u64 {
 
 pub use deepview_methods::planes::mpi_bytes;
 
+/// Refuse, before anything is decoded, MPI folders (any format `import` reads) whose planes would not
+/// fit `budget`: `copies` copies of each, as f32 texels or (`u8`) 8-bit ones. A 1 KB mpi.json or
+/// mpi_compact.json can announce planes of tens of GB.
+pub fn check_mpis_fit(
+    what: &str,
+    dirs: &[&std::path::Path],
+    u8: bool,
+    copies: u64,
+    budget: u64,
+) -> anyhow::Result<()> {
+    let mut need = 0u64;
+    let mut sizes = Vec::new();
+    for dir in dirs {
+        let (_, w, h, d) = deepview_mpi::interchange::describe(dir)?;
+        need = need.saturating_add(mpi_bytes(w, h, d, u8).saturating_mul(copies));
+        sizes.push(format!("{d} planes of {w}x{h}"));
+    }
+    check_memory(&format!("{what} ({})", sizes.join(" and ")), need, budget)
+}
+
 /// Bytes of rendering one `w x h` image from an MPI (f32 accumulation, output conversion, PNG encoding).
 pub fn render_bytes(camera: &Camera) -> u64 {
     px(camera.width, camera.height).saturating_mul(48)

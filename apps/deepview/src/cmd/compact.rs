@@ -52,12 +52,16 @@ pub struct Args {
     pub out: OutArg,
     #[command(flatten)]
     pub compaction: CompactArgs,
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (input, out) = (args.mpi.path(), args.out.path());
     super::check_deepview_mpi("--mpi", input)?;
     check_output("--out", out, Kind::Mpi, &[("--mpi", input)])?;
+    let budget = super::args::memory_budget(args.max_memory.as_deref())?;
+    super::args::check_mpis_fit("compacting", &[input], false, 2, budget)?;
     let mpi = deepview_mpi::read_mpi::<f32>(input)
         .with_context(|| format!("cannot read the MPI {}", input.display()))?;
     let c = deepview_mpi::compact(&mpi, &args.compaction.options());

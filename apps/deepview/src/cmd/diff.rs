@@ -23,6 +23,8 @@ pub struct Args {
     /// Exit with status 1 when premultiplied RGBA differs by more than this many 8-bit steps.
     #[arg(long, value_name = "STEPS", value_parser = parse_steps)]
     pub max: Option<f64>,
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 /// `--max`: a finite number of 8-bit steps from 0 to 255 (NaN or infinity would switch the check off, a
@@ -100,6 +102,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     super::check_deepview_mpi("MPI_A", &args.a)?;
     super::check_deepview_mpi("MPI_B", &args.b)?;
+    let budget = super::args::memory_budget(args.max_memory.as_deref())?;
+    super::args::check_mpis_fit("comparing", &[&args.a, &args.b], false, 1, budget)?;
     let (a, b) = (read(&args.a)?, read(&args.b)?);
     let (na, nb) = (args.a.display().to_string(), args.b.display().to_string());
     let d = compare(&a, &b, (&na, &nb))?;

@@ -19,6 +19,8 @@ pub struct Args {
     /// (32x32 tiles, fully transparent ones dropped; readable by the web viewer and `deepview import`).
     #[arg(long)]
     pub format: String,
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -26,6 +28,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
     super::check_deepview_mpi("--mpi", mpi_dir)?;
     check_output("--out", out, Kind::Export, &[("--mpi", mpi_dir)])?;
+    let budget = super::args::memory_budget(args.max_memory.as_deref())?;
+    super::args::check_mpis_fit("exporting", &[mpi_dir], true, 2, budget)?;
     let dir = OutputDir::new(out, Kind::Export)?;
     let report = deepview_mpi::export(mpi_dir, dir.path(), format)
         .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;

@@ -14,11 +14,15 @@ pub struct Args {
     /// Output folder (created): index.html + the MPI files; upload it to any static web host.
     #[command(flatten)]
     pub out: OutArg,
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (mpi_dir, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Web, &[("--mpi", mpi_dir)])?;
+    let budget = super::args::memory_budget(args.max_memory.as_deref())?;
+    super::args::check_mpis_fit("checking", &[mpi_dir], true, 1, budget)?;
     let dir = OutputDir::new(out, Kind::Web)?;
     let files = deepview_viewer::export_web(mpi_dir, dir.path())
         .with_context(|| format!("cannot export the web viewer for {}", mpi_dir.display()))?;

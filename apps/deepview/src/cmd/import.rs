@@ -23,6 +23,8 @@ pub struct Args {
     /// Far plane depth, for stereo magnification folders.
     #[arg(long, requires = "near")]
     pub far: Option<f64>,
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -31,6 +33,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let (input, out) = (args.mpi.path(), args.out.path());
     check_output("--out", out, Kind::Mpi, &[("--mpi", input)])?;
+    let budget = super::args::memory_budget(args.max_memory.as_deref())?;
+    super::args::check_mpis_fit("importing", &[input], true, 2, budget)?;
     // --near/--far only fill in depths a folder lacks: never silently ignored.
     if opts.near_far.is_some() {
         use deepview_mpi::interchange::{ImportFormat, detect_format, stereo_mag};

@@ -16,10 +16,14 @@ pub struct Args {
     /// Address to listen on; the default serves this machine only (use 0.0.0.0 to share on the network).
     #[arg(long, default_value = "127.0.0.1")]
     pub host: String,
+    #[arg(long, value_name = "SIZE", help = super::args::MEMORY_HELP, value_parser = super::args::parse_memory)]
+    pub max_memory: Option<String>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let mpi_dir = args.mpi.path();
+    let budget = super::args::memory_budget(args.max_memory.as_deref())?;
+    super::args::check_mpis_fit("checking", &[mpi_dir], true, 1, budget)?;
     let server = deepview_viewer::Server::start(mpi_dir, &args.host, args.port)
         .with_context(|| format!("cannot serve the viewer for {}", mpi_dir.display()))?;
     println!(

@@ -79,6 +79,8 @@ impl CompactMeta {
                 "depths must be positive and decrease (far plane first)".into(),
             ));
         }
+        // The limits every MPI's depths keep (size, plane count, spacing), as mpi.json's.
+        crate::io::check_depths(&path, &meta.depths)?;
         if meta.tile == 0 || meta.page_cols == 0 || meta.page_rows == 0 {
             return Err(bad("tile, page_cols and page_rows must be positive".into()));
         }

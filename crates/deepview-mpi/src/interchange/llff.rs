@@ -90,27 +90,30 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
     Ok(report)
 }
 
-/// Read an LLFF MPI folder (`metadata.txt` + `mpi.b`).
-pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
-    let meta_path = dir.join("metadata.txt");
-    let text = std::fs::read_to_string(&meta_path).map_err(read_err(&meta_path))?;
-    let lines: Vec<&str> = text.lines().filter(|l| !l.trim().is_empty()).collect();
+/// `metadata.txt`'s lines and its first one's numbers: height, width, plane count and focal length.
+fn header(meta_path: &Path) -> Result<(Vec<String>, usize, usize, usize, f64), MpiError> {
+    let text = std::fs::read_to_string(meta_path).map_err(read_err(meta_path))?;
+    let lines: Vec<String> = text
+        .lines()
+        .filter(|l| !l.trim().is_empty())
+        .map(str::to_string)
+        .collect();
     if lines.len() < 6 {
         return Err(invalid(
-            &meta_path,
+            meta_path,
             format!(
                 "expected 6 lines (size, 4 pose columns, depth bounds), got {}",
                 lines.len()
             ),
         ));
     }
-    let head = numbers(&meta_path, 0, lines[0], 4)?;
+    let head = numbers(meta_path, 0, &lines[0], 4)?;
     let as_count = |v: f64, what: &str| -> Result<usize, MpiError> {
         if v >= 1.0 && v.fract() == 0.0 && v < 1e6 {
             Ok(v as usize)
         } else {
             Err(invalid(
-                &meta_path,
+                meta_path,
                 format!("line 1: {what} must be a positive integer, got {v}"),
             ))
         }
@@ -120,10 +123,22 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
         as_count(head[1], "width")?,
         as_count(head[2], "plane count")?,
     );
-    let focal = head[3];
+    Ok((lines, h, w, d, head[3]))
+}
+
+/// Width, height and plane count of an LLFF MPI folder, from `metadata.txt` alone.
+pub fn size(dir: &Path) -> Result<(u32, u32, usize), MpiError> {
+    let (_, h, w, d, _) = header(&dir.join("metadata.txt"))?;
+    Ok((w as u32, h as u32, d))
+}
+
+/// Read an LLFF MPI folder (`metadata.txt` + `mpi.b`).
+pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
+    let meta_path = dir.join("metadata.txt");
+    let (lines, h, w, d, focal) = header(&meta_path)?;
     let mut m = [0.0; 16];
     for j in 0..4 {
-        let col = numbers(&meta_path, j + 1, lines[j + 1], 3)?;
+        let col = numbers(&meta_path, j + 1, &lines[j + 1], 3)?;
         m[j] = col[0];
         m[4 + j] = col[1];
         m[8 + j] = col[2];
@@ -131,7 +146,7 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
     m[15] = 1.0;
     let pose =
         opengl_c2w_to_pose(&m).map_err(|e| invalid(&meta_path, format!("camera pose: {e}")))?;
-    let bounds = numbers(&meta_path, 5, lines[5], 2)?;
+    let bounds = numbers(&meta_path, 5, &lines[5], 2)?;
     let (far, near) = (bounds[0], bounds[1]);
     let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth)
         .map_err(|e| invalid(&meta_path, format!("line 6 (far near): {e}")))?;
@@ -147,8 +162,21 @@ pub fn read(dir: &Path) -> Result<StraightMpi, MpiError> {
         .validate()
         .map_err(|e| invalid(&meta_path, e.to_string()))?;
     let bin_path = dir.join("mpi.b");
-    let bytes = std::fs::read(&bin_path).map_err(read_err(&bin_path))?;
     let plane_len = w * h * 4;
+    // The size first: a file that cannot be these planes is not read (a sparse file of terabytes).
+    let len = std::fs::metadata(&bin_path)
+        .map_err(read_err(&bin_path))?
+        .len();
+    if len != (plane_len * d) as u64 {
+        return Err(invalid(
+            &bin_path,
+            format!(
+                "has {len} bytes, metadata.txt says {d} planes of {w}x{h}x4 = {} bytes",
+                plane_len * d
+            ),
+        ));
+    }
+    let bytes = std::fs::read(&bin_path).map_err(read_err(&bin_path))?;
     if bytes.len() != plane_len * d {
         return Err(invalid(
             &bin_path,

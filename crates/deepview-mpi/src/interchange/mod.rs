@@ -93,6 +93,31 @@ pub fn detect_format(dir: &Path) -> Result<ImportFormat, MpiError> {
     }
 }
 
+/// The format, width, height and plane count of the MPI folder `dir`, from its metadata or image headers
+/// alone (nothing decoded): what reading it will take, known before it is read.
+pub fn describe(dir: &Path) -> Result<(ImportFormat, u32, u32, usize), MpiError> {
+    let format = detect_format(dir)?;
+    let (w, h, d) = match format {
+        ImportFormat::Deepview => {
+            let (meta, cam) = MpiMeta::read(dir)?;
+            (cam.width, cam.height, meta.layers.len())
+        }
+        ImportFormat::Compact => {
+            let (meta, cam) = compact::CompactMeta::read(dir)?;
+            (cam.width, cam.height, meta.planes.len())
+        }
+        ImportFormat::Llff => llff::size(dir)?,
+        ImportFormat::StereoMag => {
+            let (w, h) = deepview_image::image_size(&dir.join("mpi_rgb_00.png"))?;
+            let d = (0..)
+                .take_while(|&i| dir.join(format!("mpi_rgb_{i:02}.png")).is_file())
+                .count();
+            (w, h, d)
+        }
+    };
+    Ok((format, w, h, d))
+}
+
 /// Options of [`import`] for formats that do not store everything.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct ImportOptions {

@@ -145,6 +145,28 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Mpi
     let (w, h) =
         size.ok_or_else(|| invalid(dir, "no mpi_rgb_00.png: not a stereo magnification MPI"))?;
     let d = planes.len();
+    // Planes stop at the first missing colour layer: a later one means a gap, not the end.
+    let index = |n: &str| -> Option<usize> {
+        let i = n
+            .strip_prefix("mpi_rgb_")
+            .or_else(|| n.strip_prefix("mpi_alpha_"))?
+            .strip_suffix(".png")?;
+        i.bytes()
+            .all(|b| b.is_ascii_digit())
+            .then(|| i.parse().ok())?
+    };
+    let entries = std::fs::read_dir(dir).map_err(read_err(dir))?;
+    if let Some(later) = entries
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| index(n).is_some_and(|i| i >= d))
+        .min()
+    {
+        return Err(invalid(
+            dir.join(rgb_name(d)),
+            format!("missing, but {later} is there: planes 0..{d} and a gap"),
+        ));
+    }
     let side_path = dir.join(SIDECAR);
     let (camera, depths) = if side_path.is_file() {
         let text = std::fs::read_to_string(&side_path).map_err(read_err(&side_path))?;
