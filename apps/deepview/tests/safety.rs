@@ -771,7 +771,7 @@ fn an_eval_report_that_cannot_be_written_keeps_the_earlier_renders() {
             "--method",
             "psv-mean",
             "--targets",
-            "every:8",
+            "every:2",
             "--planes",
             planes,
             "--save-renders",
@@ -782,7 +782,8 @@ fn an_eval_report_that_cannot_be_written_keeps_the_earlier_renders() {
     };
     ok(&deepview(&args("8")));
     let before = snapshot(&renders);
-    // While the second run evaluates, its report's name becomes a folder, which no file replaces.
+    // While the second run evaluates (nine of its ten views still to come), its report's name becomes
+    // a folder, which no file replaces.
     let mut child = bin()
         .args(args("16"))
         .stdout(Stdio::null())
@@ -791,9 +792,9 @@ fn an_eval_report_that_cannot_be_written_keeps_the_earlier_renders() {
         .unwrap();
     let mut stderr = std::io::BufReader::new(child.stderr.take().unwrap());
     let mut seen = String::new();
-    while !seen.contains("[1/3]") {
+    while !seen.contains("[1/10]") {
         let n = stderr.read_line(&mut seen).unwrap();
-        assert!(n > 0, "[1/3] never printed: {seen}");
+        assert!(n > 0, "[1/10] never printed: {seen}");
     }
     std::fs::remove_file(&report).unwrap();
     std::fs::create_dir(&report).unwrap();
@@ -1308,7 +1309,7 @@ fn mpis_announcing_more_than_they_hold_are_refused_before_they_are_read() {
         let started = Instant::now();
         refused(
             &deepview(&args),
-            &["needs about", "40 planes of 8000x8000", "2.0 GiB"],
+            &["needs about", "big: 40 planes of 8000x8000", "2.0 GiB"],
         );
         assert!(
             started.elapsed() < Duration::from_secs(20),
@@ -1379,6 +1380,38 @@ fn mpis_announcing_more_than_they_hold_are_refused_before_they_are_read() {
         "--out",
         &o("bom.png"),
     ]));
+    // MPIs the readers would refuse are not made either.
+    refused(
+        &deepview(&[
+            "infer",
+            "--data",
+            s(&scene),
+            "--method",
+            "psv-mean",
+            "--planes",
+            "4100",
+            "--out",
+            &o("p4100"),
+        ]),
+        &["at most 4096"],
+    );
+    refused(
+        &deepview(&[
+            "infer",
+            "--data",
+            s(&scene),
+            "--method",
+            "psv-mean",
+            "--near",
+            "4",
+            "--far",
+            "4.00002",
+            "--out",
+            &o("pclose"),
+        ]),
+        &["less than a millionth apart"],
+    );
+    assert!(!t.join("p4100").exists() && !t.join("pclose").exists());
     // Depth bounds no scene has.
     refused(
         &deepview(&[

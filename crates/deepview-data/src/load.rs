@@ -34,10 +34,6 @@ pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
             "is not a folder (expected a dataset folder)",
         ));
     }
-    // A folder that cannot be listed (permissions) says so, not that its format is unknown.
-    if let Err(e) = std::fs::read_dir(path) {
-        return Err(DataError::io(path, e));
-    }
     let has = |p: &str| path.join(p).exists();
     if has("poses_bounds.npy") {
         Ok(SceneFormat::Llff)
@@ -49,6 +45,9 @@ pub fn detect_format(path: &Path) -> Result<SceneFormat, DataError> {
         Ok(SceneFormat::LightField)
     } else if has(TRANSFORMS_JSON) {
         Ok(SceneFormat::Transforms)
+    } else if let Err(e) = std::fs::read_dir(path) {
+        // A folder whose files cannot be seen (permissions) says so, not that its format is unknown.
+        Err(DataError::io(path, e))
     } else {
         Err(DataError::NotDetected {
             path: path.into(),

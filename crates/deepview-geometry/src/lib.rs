@@ -17,7 +17,7 @@ pub use camera::{Camera, CameraJson, GeometryError, Intrinsics, Pose};
 pub use homography::{Homography, plane_homography};
 pub use planes::{
     AUTO_MAX_SPACING_PX, AUTO_PLANES_MAX, AUTO_PLANES_MIN, AutoPlanes, DEPTH_LIMITS, MAX_PLANES,
-    PlaneSpacing, auto_plane_count, auto_planes, disparity_range, plane_depths,
+    PlaneSpacing, auto_plane_count, auto_planes, check_plane_depths, disparity_range, plane_depths,
 };
 pub use reference::{ReferenceOptions, mpi_reference, mpi_reference_scaled, reference_camera};
 

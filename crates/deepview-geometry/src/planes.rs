@@ -21,6 +21,50 @@ pub const DEPTH_LIMITS: (f64, f64) = (1e-6, 1e12);
 /// The most planes an MPI may have (`auto` chooses at most 256).
 pub const MAX_PLANES: usize = 4096;
 
+/// The rules every MPI's plane depths keep, whoever makes or reads them: at least one and at most
+/// [`MAX_PLANES`], finite, decreasing (far plane first), within [`DEPTH_LIMITS`], far at most 1e7 times
+/// near, and neighbours at least a millionth apart (closer planes are one plane in f32).
+pub fn check_plane_depths(depths: &[f64]) -> Result<(), String> {
+    if depths.is_empty() {
+        return Err("the MPI has zero planes".into());
+    }
+    if depths.len() > MAX_PLANES {
+        return Err(format!(
+            "{} planes: deepview makes and reads MPIs of at most {MAX_PLANES}",
+            depths.len()
+        ));
+    }
+    if !depths.iter().all(|d| d.is_finite() && *d > 0.0) {
+        return Err("depths must be finite and positive".into());
+    }
+    if depths.windows(2).any(|w| w[1] >= w[0]) {
+        return Err("depths must decrease (far plane first)".into());
+    }
+    // Beyond this ratio the planes' disparities are no numbers a capture has (1e10..1e-10 printed a
+    // disparity map of depth 0 everywhere).
+    let (far, near) = (depths[0], depths[depths.len() - 1]);
+    if far / near > 1e7 {
+        return Err(format!(
+            "depths {far:e}..{near:e}: far is more than 1e7 times near"
+        ));
+    }
+    let (lo, hi) = DEPTH_LIMITS;
+    if near < lo || far > hi {
+        return Err(format!(
+            "depths {far:e}..{near:e} lie outside {lo:e}..{hi:e}, the depths deepview works with"
+        ));
+    }
+    if let Some(i) = depths.windows(2).position(|w| w[1] > w[0] * (1.0 - 1e-6)) {
+        return Err(format!(
+            "planes {i} and {} (depths {:e}, {:e}) are less than a millionth apart",
+            i + 1,
+            depths[i],
+            depths[i + 1]
+        ));
+    }
+    Ok(())
+}
+
 /// `count` plane depths from `far` (index 0) to `near` (last).
 ///
 /// A single plane sits at the inverse-depth midpoint. Errors on zero planes, non-finite or non-positive
@@ -51,7 +95,7 @@ pub fn plane_depths(
         }]);
     }
     let n = (count - 1) as f64;
-    Ok((0..count)
+    let depths: Vec<f64> = (0..count)
         .map(|i| {
             let s = i as f64 / n;
             match spacing {
@@ -59,7 +103,12 @@ pub fn plane_depths(
                 PlaneSpacing::Linear => far + s * (near - far),
             }
         })
-        .collect())
+        .collect();
+    // What readers refuse is not made (4,100 planes, or 8 planes between 4 and 4.00002).
+    check_plane_depths(&depths).map_err(|e| {
+        GeometryError::Invalid(format!("planes between near {near} and far {far}: {e}"))
+    })?;
+    Ok(depths)
 }
 
 /// The plane rule's default: neighbouring planes at most this many pixels of disparity apart (the LLFF

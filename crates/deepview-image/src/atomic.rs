@@ -23,11 +23,11 @@ pub fn is_file_browser_clutter(name: &str) -> bool {
 }
 
 /// The bytes a temporary sibling's name may add around its output's name (`.`, a tag such as
-/// `.deepview-tmp.`, a process id, `.tmp.mp4`).
-pub const TEMP_NAME_EXTRA: usize = 32;
+/// `.deepview-tmp.`, a [`temp_token`], `.tmp.mp4`).
+pub const TEMP_NAME_EXTRA: usize = 40;
 
 /// `name` as it appears inside the names of its temporary siblings: itself, or where it is so long that
-/// a temporary's name would pass the file systems' 255 bytes (a legal name of 224 bytes or more), its
+/// a temporary's name would pass the file systems' 255 bytes (a legal name of 216 bytes or more), its
 /// first bytes and a hash of the whole (`LONGPREFIX~1a2b3c4d`), so that every legal output name has
 /// temporaries.
 pub fn temp_stem(name: &str) -> String {
@@ -46,27 +46,112 @@ pub fn temp_stem(name: &str) -> String {
     format!("{}~{hash:08x}", &name[..cut])
 }
 
-/// The temporary name used for an atomic write of `path`: `.NAME.PID.tmp` in the same folder (NAME as
-/// [`temp_stem`] gives it).
+/// This process's part of its temporaries' names: `PID-RANDOM`, the process id (which tells a later run
+/// whether the writer still runs) and 8 random hex digits drawn once per process (no other process makes
+/// the same names, even with the same id in another PID namespace: every container's first process is 1).
+pub fn temp_token() -> &'static str {
+    static TOKEN: std::sync::OnceLock<String> = std::sync::OnceLock::new();
+    TOKEN.get_or_init(|| {
+        use std::hash::{BuildHasher, Hasher};
+        // RandomState's keys come from the system's random source, fresh for each process.
+        let mut h = std::collections::hash_map::RandomState::new().build_hasher();
+        h.write_u32(std::process::id());
+        format!("{}-{:08x}", std::process::id(), h.finish() as u32)
+    })
+}
+
+/// What a temporary's name says ([`parse_temp`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TempName<'a> {
+    /// The output's name as [`temp_stem`] gives it.
+    pub stem: &'a str,
+    /// The writer's process id.
+    pub pid: &'a str,
+    /// `None` for a file (`.STEM.TOKEN.tmp[.EXT]`, EXT given), `Some(tag)` for a folder
+    /// (`.STEM.deepview-TAG.TOKEN`).
+    pub folder: Option<&'a str>,
+    /// A file temporary's extension after `.tmp` (a video's `.tmp.mp4`).
+    pub ext: Option<&'a str>,
+}
+
+/// The process id of a [`temp_token`] (or of the bare process id older versions wrote).
+fn token_pid(token: &str) -> Option<&str> {
+    let (pid, random) = token.split_once('-').unwrap_or((token, "0"));
+    (!pid.is_empty()
+        && pid.bytes().all(|b| b.is_ascii_digit())
+        && !random.is_empty()
+        && random.len() <= 16
+        && random.bytes().all(|b| b.is_ascii_hexdigit()))
+    .then_some(pid)
+}
+
+/// Parse the name of any temporary this workspace writes: a file's (`.STEM.TOKEN.tmp`, a video's
+/// `.STEM.TOKEN.tmp.mp4`) or a folder's (`.STEM.deepview-TAG.TOKEN`); `None` for any other name. The one
+/// reader of these names, for the cleanup of stale ones and for telling them from a user's files.
+pub fn parse_temp(name: &str) -> Option<TempName<'_>> {
+    let n = name.strip_prefix('.')?;
+    if let Some((stem, rest)) = n.rsplit_once(".deepview-") {
+        let (tag, token) = rest.split_once('.')?;
+        let pid = token_pid(token)?;
+        return (!stem.is_empty() && !tag.is_empty()).then_some(TempName {
+            stem,
+            pid,
+            folder: Some(tag),
+            ext: None,
+        });
+    }
+    let (before, ext) = match n.rsplit_once(".tmp.") {
+        Some((b, e)) if !e.is_empty() && !e.contains('.') => (b, Some(e)),
+        _ => (n.strip_suffix(".tmp")?, None),
+    };
+    let (stem, token) = before.rsplit_once('.')?;
+    let pid = token_pid(token)?;
+    (!stem.is_empty()).then_some(TempName {
+        stem,
+        pid,
+        folder: None,
+        ext,
+    })
+}
+
+/// The temporary name used for an atomic write of `path`: `.NAME.TOKEN.tmp` in the same folder (NAME as
+/// [`temp_stem`] gives it, TOKEN [`temp_token`]).
 pub fn temp_path(path: &Path) -> PathBuf {
     let name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    path.with_file_name(format!(".{}.{}.tmp", temp_stem(&name), std::process::id()))
+    path.with_file_name(format!(".{}.{}.tmp", temp_stem(&name), temp_token()))
 }
 
 /// An advisory lock (`flock`) a process holds on a temporary file or folder while it writes it, released
 /// when dropped or when the process ends, however it ends. A later run tells a live writer's temporary
-/// from the leftover of a killed one by it ([`is_held`]), also where process ids do not tell: another PID
-/// namespace (a container) or another machine sharing the folder.
+/// from the leftover of a killed one by it ([`is_held`]) where process ids do not tell: another PID
+/// namespace (a container) on the same machine.
 #[derive(Debug)]
 pub struct TempLock(#[allow(dead_code)] std::fs::File);
 
 /// Lock the temporary file or folder `path` ([`TempLock`]); `None` where the file system has no locks.
 pub fn lock_temp(path: &Path) -> Option<TempLock> {
     let f = std::fs::File::open(path).ok()?;
-    flock_exclusive(&f).then_some(TempLock(f))
+    lock_file(&f).then_some(TempLock(f))
+}
+
+/// Lock an open temporary (exclusively, waiting out another run's brief [`is_held`] probe); false where
+/// the file system has no locks. The lock lasts as long as `f` (and its clones) stay open.
+pub fn lock_file(f: &std::fs::File) -> bool {
+    #[cfg(unix)]
+    {
+        use std::os::fd::AsRawFd;
+        // SAFETY: flock on a descriptor `f` owns. Nothing else locks a fresh temporary for longer than
+        // a probe, so waiting cannot hang.
+        unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX) == 0 }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = f;
+        false
+    }
 }
 
 /// Whether a running process holds the [`TempLock`] of `path` (false where it cannot be told).
@@ -81,28 +166,11 @@ pub fn is_held(path: &Path) -> bool {
     false
 }
 
-fn flock_exclusive(f: &std::fs::File) -> bool {
-    #[cfg(unix)]
-    {
-        use std::os::fd::AsRawFd;
-        // SAFETY: flock on a descriptor `f` owns.
-        unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) == 0 }
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = f;
-        false
-    }
-}
-
 /// Whether the file name `name` is a [`temp_path`] of the file named `file` (from any process): the
 /// leftover of an atomic write that was interrupted.
 pub fn is_temp_of(name: &str, file: &str) -> bool {
-    name.strip_prefix('.')
-        .and_then(|n| n.strip_prefix(temp_stem(file).as_str()))
-        .and_then(|n| n.strip_prefix('.'))
-        .and_then(|n| n.strip_suffix(".tmp"))
-        .is_some_and(|pid| !pid.is_empty() && pid.bytes().all(|b| b.is_ascii_digit()))
+    parse_temp(name)
+        .is_some_and(|t| t.folder.is_none() && t.ext.is_none() && t.stem == temp_stem(file))
 }
 
 /// Write `bytes` to `path` atomically ([`temp_path`], then a rename), with the I/O error for the caller
@@ -110,9 +178,25 @@ pub fn is_temp_of(name: &str, file: &str) -> bool {
 pub fn write_atomic_with(path: &Path, bytes: &[u8], durability: Durability) -> std::io::Result<()> {
     let tmp = temp_path(path);
     let write = || -> std::io::Result<()> {
-        let mut f = std::fs::File::create(&tmp)?;
-        // Held while it is written: a run that finds it meanwhile leaves it alone ([`is_held`]).
-        flock_exclusive(&f);
+        // A new file (never another writer's: the name is this process's), held while it is written:
+        // a run that finds it meanwhile leaves it alone ([`is_held`]).
+        let mut f = std::fs::OpenOptions::new()
+            .write(true)
+            .create_new(true)
+            .open(&tmp)
+            .or_else(|e| {
+                // This process's own leftover (an earlier write of this file failed half-way).
+                if e.kind() == std::io::ErrorKind::AlreadyExists {
+                    std::fs::remove_file(&tmp)?;
+                    std::fs::OpenOptions::new()
+                        .write(true)
+                        .create_new(true)
+                        .open(&tmp)
+                } else {
+                    Err(e)
+                }
+            })?;
+        lock_file(&f);
         f.write_all(bytes)?;
         if durability == Durability::Synced {
             f.sync_all()?;
@@ -180,6 +264,51 @@ mod tests {
     }
 
     #[test]
+    fn temporary_names_parse_back() {
+        let token = temp_token();
+        assert_eq!(token, temp_token(), "one token per process");
+        let (pid, random) = token.split_once('-').unwrap();
+        assert_eq!(pid, std::process::id().to_string());
+        assert_eq!(random.len(), 8);
+        let file = temp_path(Path::new("out/view.png"));
+        let file = file.file_name().unwrap().to_str().unwrap();
+        let t = parse_temp(file).unwrap();
+        assert_eq!(
+            (t.stem, t.pid, t.folder, t.ext),
+            ("view.png", pid, None, None)
+        );
+        let video = format!(".a.b.mp4.{token}.tmp.mp4");
+        let t = parse_temp(&video).unwrap();
+        assert_eq!((t.stem, t.folder, t.ext), ("a.b.mp4", None, Some("mp4")));
+        let t = parse_temp(".mpi.deepview-tmp.77-00ff12ab").unwrap();
+        assert_eq!((t.stem, t.pid, t.folder), ("mpi", "77", Some("tmp")));
+        // Older versions' bare process ids.
+        let t = parse_temp(".x_color.png.deepview-old.4242").unwrap();
+        assert_eq!(
+            (t.stem, t.pid, t.folder),
+            ("x_color.png", "4242", Some("old"))
+        );
+        assert_eq!(
+            parse_temp(".config.json.4242.tmp").unwrap().stem,
+            "config.json"
+        );
+        for other in [
+            "view.png",
+            ".view.png",
+            ".view.png.tmp",
+            ".view.png.x1.tmp",
+            ".view.png.12-zz.tmp",
+            ".view.png.12-.tmp",
+            ".mpi.deepview-tmp.",
+            ".mpi.deepview-tmp.abc",
+            ".deepview-tmp.12",
+            ".notes.txt",
+        ] {
+            assert_eq!(parse_temp(other), None, "{other}");
+        }
+    }
+
+    #[test]
     fn temporaries_are_held_while_their_lock_lives() {
         let dir = tempfile::tempdir().unwrap();
         let (file, folder) = (dir.path().join(".a.png.7.tmp"), dir.path().join("t"));
@@ -189,8 +318,7 @@ mod tests {
             assert!(!is_held(p));
             let lock = lock_temp(p).expect("a lock on a local file system");
             assert!(is_held(p), "{}", p.display());
-            // A second writer cannot take it.
-            assert!(lock_temp(p).is_none());
+            assert!(is_held(p), "a probe took the lock away");
             drop(lock);
             assert!(!is_held(p));
         }

@@ -7,8 +7,9 @@ mod atomic;
 pub mod child;
 
 pub use atomic::{
-    Durability, TEMP_NAME_EXTRA, TempLock, is_file_browser_clutter, is_held, is_temp_of, lock_temp,
-    temp_path, temp_stem, write_atomic, write_atomic_with,
+    Durability, TEMP_NAME_EXTRA, TempLock, TempName, is_file_browser_clutter, is_held, is_temp_of,
+    lock_file, lock_temp, parse_temp, temp_path, temp_stem, temp_token, write_atomic,
+    write_atomic_with,
 };
 
 use std::path::{Path, PathBuf};

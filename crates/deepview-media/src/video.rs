@@ -109,6 +109,8 @@ impl GifSink {
         let delay_ms = (1000.0 / fps).round().clamp(10.0, 655_350.0) as u32;
         let tmp = temp_path(path);
         let file = std::fs::File::create(&tmp).map_err(write_err(path))?;
+        // Held while it is written: a run that finds it meanwhile leaves it alone.
+        deepview_image::lock_file(&file);
         let error = std::rc::Rc::new(std::cell::RefCell::new(None));
         let writer = ErrWriter {
             inner: std::io::BufWriter::new(file),
@@ -217,6 +219,9 @@ impl Drop for ErrWriter {
 pub struct Mp4Sink {
     path: PathBuf,
     tmp: PathBuf,
+    /// The temporary, made and locked here before ffmpeg writes it (in place: the lock stays): a run
+    /// that finds it meanwhile leaves it alone.
+    _lock: std::fs::File,
     child: Child,
     /// Renamed into place: nothing left to clean up.
     finished: bool,
@@ -254,6 +259,9 @@ impl Mp4Sink {
         }
         let ext = path.extension().and_then(|e| e.to_str()).unwrap_or("mp4");
         let tmp = temp_path(path).with_extension(format!("tmp.{ext}"));
+        let lock = std::fs::File::create(&tmp)
+            .map_err(|e| MediaError::Ffmpeg(format!("cannot write {}: {e}", tmp.display())))?;
+        deepview_image::lock_file(&lock);
         let child = deepview_image::child::die_with_parent(&mut Command::new(program))
             .args(["-y", "-loglevel", "error", "-f", "rawvideo", "-pix_fmt", "rgb24", "-s"])
             .arg(format!("{width}x{height}"))
@@ -266,6 +274,7 @@ impl Mp4Sink {
             .stderr(Stdio::piped())
             .spawn()
             .map_err(|e| {
+                let _ = std::fs::remove_file(&tmp);
                 if e.kind() == std::io::ErrorKind::NotFound {
                     MediaError::Ffmpeg(format!(
                         "cannot write {}: `{program}` was not found on PATH; install ffmpeg (e.g. apt-get install \
@@ -279,6 +288,7 @@ impl Mp4Sink {
         Ok(Self {
             path: path.into(),
             tmp,
+            _lock: lock,
             child,
             finished: false,
         })

@@ -137,65 +137,16 @@ impl MpiMeta {
     }
 }
 
-/// The plane depths of a valid MPI, whatever file they come from: at least one, finite, positive and
-/// decreasing (far plane first). Errors name `path`.
+/// The plane depths of a valid MPI, whatever file they come from ([`deepview_geometry::check_plane_depths`]).
+/// Errors name `path`.
 pub(crate) fn check_depths(path: &Path, depths: &[f64]) -> Result<(), MpiError> {
-    if depths.is_empty() {
-        return Err(invalid(path, "the MPI has zero planes"));
-    }
-    if !depths.iter().all(|d| d.is_finite() && *d > 0.0) {
-        return Err(invalid(path, "depths must be finite and positive"));
-    }
-    if depths.windows(2).any(|w| w[1] >= w[0]) {
-        return Err(invalid(path, "depths must decrease (far plane first)"));
-    }
-    // Beyond this ratio the planes' disparities are no numbers a capture has (1e10..1e-10 printed a
-    // disparity map of depth 0 everywhere).
-    let (far, near) = (depths[0], depths[depths.len() - 1]);
-    if far / near > 1e7 {
-        return Err(invalid(
-            path,
-            format!("depths {far:e}..{near:e}: far is more than 1e7 times near"),
-        ));
-    }
-    let (lo, hi) = deepview_geometry::DEPTH_LIMITS;
-    if near < lo || far > hi {
-        return Err(invalid(
-            path,
-            format!(
-                "depths {far:e}..{near:e} lie outside {lo:e}..{hi:e}, the depths deepview works with"
-            ),
-        ));
-    }
-    if depths.len() > deepview_geometry::MAX_PLANES {
-        return Err(invalid(
-            path,
-            format!(
-                "{} planes: deepview reads MPIs of at most {}",
-                depths.len(),
-                deepview_geometry::MAX_PLANES
-            ),
-        ));
-    }
-    // Planes closer than f32 tells apart would become one plane in every render and depth map.
-    if let Some(i) = depths.windows(2).position(|w| w[1] > w[0] * (1.0 - 1e-6)) {
-        return Err(invalid(
-            path,
-            format!(
-                "planes {i} and {} (depths {:e}, {:e}) are less than a millionth apart",
-                i + 1,
-                depths[i],
-                depths[i + 1]
-            ),
-        ));
-    }
-    Ok(())
+    deepview_geometry::check_plane_depths(depths).map_err(|e| invalid(path, e))
 }
 
 /// A layer file name an MPI folder may list: plain ASCII (letters, digits, `.`, `_`, `-`), not hidden,
 /// and none of the folder's other files: names a browser can fetch as they are (the viewer serves them)
 /// and no other tool's file.
-fn layer_name_ok(l: &str) -> bool {
+pub(crate) fn layer_name_ok(l: &str) -> bool {
     !l.is_empty()
         && l.len() <= 200
         && !l.starts_with(['.', '-'])

@@ -2,7 +2,7 @@
 //! reads from a client bounded, so that no request can stop it.
 //!
 //! - The request line and headers: at most [`MAX_HEAD`] bytes (431 beyond), read within [`TIMEOUT`] of the
-//!   connection's start, however slowly the bytes come.
+//!   connection's start, however slowly the bytes come; the answer written within [`ANSWER_TIMEOUT`].
 //! - A body: GET and HEAD have none; one announced up to [`MAX_BODY`] is read and dropped, a larger one
 //!   answered 413, `Transfer-Encoding` 411, and the connection closed without reading it.
 //! - Connections: one thread each, at most [`MAX_CONNECTIONS`] at once (503 beyond); every answer closes
@@ -22,8 +22,10 @@ pub const MAX_HEAD: usize = 16 * 1024;
 pub const MAX_BODY: u64 = 64 * 1024;
 /// Connections served at once.
 pub const MAX_CONNECTIONS: usize = 64;
-/// How long a client may take to send its request or receive its answer.
+/// How long a client may take to send its request.
 pub const TIMEOUT: Duration = Duration::from_secs(10);
+/// How long a client may take to receive its answer (a layer of a large MPI over a slow link).
+pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(120);
 
 /// A running viewer server (a thread accepts connections until [`Server::stop`] or drop).
 pub struct Server {
@@ -124,7 +126,7 @@ fn accept(listener: TcpListener, stop: &AtomicBool, dir: &Arc<PathBuf>, files: &
             continue;
         };
         let _ = stream.set_read_timeout(Some(TIMEOUT));
-        let _ = stream.set_write_timeout(Some(TIMEOUT));
+        let _ = stream.set_write_timeout(Some(ANSWER_TIMEOUT));
         if live.fetch_add(1, Ordering::SeqCst) >= MAX_CONNECTIONS {
             live.fetch_sub(1, Ordering::SeqCst);
             let _ = respond(&mut stream, 503, "text/plain", b"busy", false, &[]);
@@ -349,6 +351,28 @@ fn respond(
     head_only: bool,
     extra: &[(&str, &str)],
 ) -> std::io::Result<()> {
+    respond_by(
+        w,
+        code,
+        content_type,
+        body,
+        head_only,
+        extra,
+        std::time::Instant::now() + ANSWER_TIMEOUT,
+    )
+}
+
+/// [`respond`], the whole answer written by `until` (a client that reads slowly or not at all is cut
+/// off then, not after [`TIMEOUT`] per write).
+fn respond_by(
+    w: &mut TcpStream,
+    code: u16,
+    content_type: &str,
+    body: &[u8],
+    head_only: bool,
+    extra: &[(&str, &str)],
+    until: std::time::Instant,
+) -> std::io::Result<()> {
     let mut out = format!(
         "HTTP/1.1 {code} {}\r\nContent-Type: {content_type}\r\nContent-Length: {}\r\n\
          Cache-Control: no-cache\r\nX-Content-Type-Options: nosniff\r\nConnection: close\r\n",
@@ -359,9 +383,14 @@ fn respond(
         out.push_str(&format!("{k}: {v}\r\n"));
     }
     out.push_str("\r\n");
-    w.write_all(out.as_bytes())?;
-    if !head_only {
-        w.write_all(body)?;
+    let body = if head_only { &[][..] } else { body };
+    for chunk in std::iter::once(out.as_bytes()).chain(body.chunks(64 << 10)) {
+        let left = until.saturating_duration_since(std::time::Instant::now());
+        if left.is_zero() {
+            return Err(std::io::ErrorKind::TimedOut.into());
+        }
+        w.set_write_timeout(Some(left))?;
+        w.write_all(chunk)?;
     }
     w.flush()
 }
@@ -409,6 +438,30 @@ mod tests {
         assert!(took < Duration::from_secs(5), "{took:?}");
         drop(reader);
         client.join().unwrap();
+    }
+
+    #[test]
+    fn a_client_that_does_not_read_is_cut_off_at_the_deadline() {
+        let listener = TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        // Connected, and never reading: the socket buffers fill, then every write waits.
+        let client = TcpStream::connect(addr).unwrap();
+        let (mut stream, _) = listener.accept().unwrap();
+        let body = vec![7u8; 256 << 20];
+        let start = std::time::Instant::now();
+        let r = respond_by(
+            &mut stream,
+            200,
+            "image/png",
+            &body,
+            false,
+            &[],
+            start + Duration::from_millis(500),
+        );
+        assert!(r.is_err(), "256 MiB went to a client that reads nothing");
+        let took = start.elapsed();
+        assert!(took < Duration::from_secs(10), "{took:?}");
+        drop(client);
     }
 
     #[test]

@@ -128,10 +128,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // done: an interrupted or failed run leaves the earlier folders (and report) as they were, never a
     // mix of two runs' views.
     let renders = (args.save_renders.as_deref())
-        .map(|d| OutputDir::new(d, Kind::Renders))
+        .map(|d| OutputDir::for_option("--save-renders", d, Kind::Renders))
         .transpose()?;
     let mpis = (args.save_mpi.as_deref())
-        .map(|d| OutputDir::new(d, Kind::Mpis))
+        .map(|d| OutputDir::for_option("--save-mpi", d, Kind::Mpis))
         .transpose()?;
     let options = EvalOptions {
         downscale: args.scene.downscale.max(1),

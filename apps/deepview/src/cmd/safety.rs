@@ -287,7 +287,8 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
             );
         }
     }
-    check_writable(option, out, &o)?;
+    // A folder's own files and subfolders lengthen its paths (the demo's go two levels down).
+    check_writable(option, out, &o, if kind == Kind::File { 0 } else { 64 })?;
     match std::fs::metadata(&o) {
         Err(_) => {}
         Ok(m) if kind == Kind::File => {
@@ -344,11 +345,12 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
 /// Refuse an output that cannot be written (a read-only folder or file system, a file where a folder
 /// must be made) now, before the work, rather than after minutes of it: a probe file is made and removed
 /// in the folder the output goes into (or in its nearest existing ancestor, where folders will be made).
-fn check_writable(option: &str, out: &Path, resolved: &Path) -> anyhow::Result<()> {
+fn check_writable(option: &str, out: &Path, resolved: &Path, inner: usize) -> anyhow::Result<()> {
     // The system's limit on a path (PATH_MAX, 4096 bytes with its NUL), with room for a temporary's
-    // longer name: past it every write would fail, after the work.
+    // longer name and the `inner` bytes of the paths inside a folder: past it every write would fail,
+    // after the work.
     let len = out.as_os_str().len().min(resolved.as_os_str().len());
-    if len + deepview_image::TEMP_NAME_EXTRA >= 4096 {
+    if len + deepview_image::TEMP_NAME_EXTRA + inner >= 4096 {
         bail!(
             "{option}: the path is {len} bytes long, more than the system takes (4096 bytes, with room \
              for a temporary beside it); choose a shorter path"
@@ -385,7 +387,7 @@ fn check_writable(option: &str, out: &Path, resolved: &Path) -> anyhow::Result<(
             existing.display()
         );
     }
-    let probe = existing.join(format!(".deepview-probe.{}", std::process::id()));
+    let probe = existing.join(format!(".deepview-probe.{}", deepview_image::temp_token()));
     match std::fs::OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -549,20 +551,18 @@ fn foreign_within(
         let name = e.file_name().to_string_lossy().into_owned();
         let is_dir = e.file_type().map_err(named)?.is_dir();
         let mut working = false;
-        let own = match name.strip_prefix('.').and_then(|n| n.rsplit_once('.')) {
-            // `.NAME.PID.tmp`: an interrupted write of one of its own files.
-            Some((rest, "tmp")) => rest
-                .rsplit_once('.')
-                .is_some_and(|(file, _)| !is_dir && part.owns(file, false)),
-            // `.NAME.deepview-tmp.PID/`: the folder another run is writing one of its files or folders
-            // in (`depth` stages its pair so), or one a killed run left.
-            Some((rest, pid)) if is_dir && pid.bytes().all(|b| b.is_ascii_digit() || b == b'-') => {
-                working = rest
-                    .strip_suffix(".deepview-tmp")
-                    .is_some_and(|n| part.owns(n, false) || part.owns(n, true));
+        let own = match deepview_image::parse_temp(&name) {
+            // `.NAME.TOKEN.tmp`: an interrupted write of one of its own files.
+            Some(t) if t.folder.is_none() => !is_dir && t.ext.is_none() && part.owns(t.stem, false),
+            // `.NAME.deepview-tmp.TOKEN/`: the folder another run is writing one of its files or
+            // folders in (`depth` stages its pair so), or one a killed run left.
+            Some(t) => {
+                working = is_dir
+                    && t.folder == Some("tmp")
+                    && (part.owns(t.stem, false) || part.owns(t.stem, true));
                 working
             }
-            _ => {
+            None => {
                 part.owns(&name, is_dir)
                     || (!is_dir && deepview_image::is_file_browser_clutter(&name))
             }
@@ -634,42 +634,28 @@ pub(super) fn sibling(out: &Path, tag: &str) -> PathBuf {
     out.with_file_name(format!(
         ".{}.deepview-{tag}.{}",
         deepview_image::temp_stem(&name),
-        std::process::id()
+        deepview_image::temp_token()
     ))
 }
 
-/// A temporary sibling folder of `out` to write in (`.NAME.deepview-TAG.PID`), created empty and locked
-/// ([`deepview_image::TempLock`]). One of that name that a running process holds (the same process id
-/// in another PID namespace) is left alone and the name taken with a `-N` suffix; an unheld one is a
-/// leftover of this process id, removed first.
+/// A temporary sibling folder of `out` to write in (`.NAME.deepview-TAG.TOKEN`, a name no other process
+/// makes: [`deepview_image::temp_token`]), created empty and locked ([`deepview_image::TempLock`]); one
+/// of that name is this process's own leftover, removed first.
 pub(super) fn make_temp_dir(
     out: &Path,
     tag: &str,
 ) -> anyhow::Result<(PathBuf, Option<deepview_image::TempLock>)> {
-    let base = sibling(out, tag);
-    for n in 1..100 {
-        let tmp = match n {
-            1 => base.clone(),
-            n => PathBuf::from(format!("{}-{n}", base.display())),
-        };
-        if std::fs::symlink_metadata(&tmp).is_ok() {
-            if deepview_image::is_held(&tmp) {
-                continue;
-            }
-            let _ = std::fs::remove_dir_all(&tmp);
-        }
-        signals::register(&tmp);
-        if let Err(e) = std::fs::create_dir(&tmp) {
-            signals::unregister(&tmp);
-            return Err(e).with_context(|| format!("cannot create {}", tmp.display()));
-        }
-        let lock = deepview_image::lock_temp(&tmp);
-        return Ok((tmp, lock));
+    let tmp = sibling(out, tag);
+    if std::fs::symlink_metadata(&tmp).is_ok() {
+        let _ = std::fs::remove_dir_all(&tmp);
     }
-    bail!(
-        "cannot create a temporary folder beside {}: every name is held",
-        out.display()
-    )
+    signals::register(&tmp);
+    if let Err(e) = std::fs::create_dir(&tmp) {
+        signals::unregister(&tmp);
+        return Err(e).with_context(|| format!("cannot create {}", tmp.display()));
+    }
+    let lock = deepview_image::lock_temp(&tmp);
+    Ok((tmp, lock))
 }
 
 /// Folders created for an output (deepest last), removed again when they stay empty after a failure.
@@ -739,6 +725,7 @@ pub fn write_file<T>(
 /// was. Dropped without a commit (an error), the temporary is removed; a signal removes it too
 /// ([`signals`]); a temporary left by a killed process is removed the next time.
 pub struct OutputDir {
+    option: &'static str,
     out: PathBuf,
     kind: Kind,
     tmp: PathBuf,
@@ -752,8 +739,13 @@ impl OutputDir {
     /// Start writing the folder `out` of `kind` (checked with [`check_output`] beforehand; checked again
     /// here, just before the work is written, for files that appeared in it since).
     pub fn new(out: &Path, kind: Kind) -> anyhow::Result<Self> {
+        Self::for_option("--out", out, kind)
+    }
+
+    /// [`OutputDir::new`] for an output given by `option` (named in its errors).
+    pub fn for_option(option: &'static str, out: &Path, kind: Kind) -> anyhow::Result<Self> {
         if out.is_dir() {
-            refuse_foreign("--out", out, out, kind)?;
+            refuse_foreign(option, out, out, kind)?;
         }
         let parent = match out.parent().filter(|p| !p.as_os_str().is_empty()) {
             Some(p) => p.to_path_buf(),
@@ -763,6 +755,7 @@ impl OutputDir {
         remove_stale(out);
         let (tmp, lock) = make_temp_dir(out, "tmp")?;
         Ok(Self {
+            option,
             out: out.to_path_buf(),
             kind,
             tmp,
@@ -779,7 +772,7 @@ impl OutputDir {
 
     /// Put the finished folder in place of `out` (the old folder, if any, is removed after the swap).
     pub fn commit(mut self) -> anyhow::Result<()> {
-        let (tmp, out, kind) = (&self.tmp, &self.out, self.kind);
+        let (tmp, out, kind, option) = (&self.tmp, &self.out, self.kind, self.option);
         let old = signals::publish(tmp, || {
             if !out.exists() {
                 match std::fs::rename(tmp, out) {
@@ -794,7 +787,7 @@ impl OutputDir {
                     }
                 }
             }
-            refuse_foreign("--out", out, out, kind)?;
+            refuse_foreign(option, out, out, kind)?;
             swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))
         })?;
         self.done = true;
@@ -861,30 +854,41 @@ fn swap(new: &Path, out: &Path) -> std::io::Result<Option<PathBuf>> {
     Ok(Some(old))
 }
 
-/// The siblings of `out` named `.NAME.` + `infix` + a rest, as (the rest, the path).
-fn siblings_of(out: &Path, infix: &str) -> Vec<(String, PathBuf)> {
-    let (Some(parent), Some(name)) = (out.parent(), out.file_name()) else {
-        return Vec::new();
-    };
-    let parent = if parent.as_os_str().is_empty() {
+/// The temporaries in the folder `dir` ([`deepview_image::parse_temp`]) whose writers no longer run
+/// (killed with SIGKILL, which leaves no time to clean up) and that `pick` chooses (given the parsed
+/// name and whether it is a folder), as (a folder's tag, the path). A temporary a running process holds stays,
+/// whatever its process id says (another PID namespace's).
+fn stale_in(
+    dir: &Path,
+    pick: impl Fn(&deepview_image::TempName, bool) -> bool,
+) -> Vec<(Option<String>, PathBuf)> {
+    let dir = if dir.as_os_str().is_empty() {
         Path::new(".")
     } else {
-        parent
+        dir
     };
-    let prefix = format!(
-        ".{}.{infix}",
-        deepview_image::temp_stem(&name.to_string_lossy())
-    );
-    let Ok(entries) = std::fs::read_dir(parent) else {
+    let Ok(entries) = std::fs::read_dir(dir) else {
         return Vec::new();
     };
-    entries
-        .flatten()
-        .filter_map(|e| {
-            let file = e.file_name().to_string_lossy().into_owned();
-            Some((file.strip_prefix(&prefix)?.to_string(), e.path()))
-        })
-        .collect()
+    let mut stale = Vec::new();
+    for e in entries.flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        let Some(t) = deepview_image::parse_temp(&name) else {
+            continue;
+        };
+        let is_dir = e.file_type().is_ok_and(|t| t.is_dir());
+        if pick(&t, is_dir) && died(t.pid) && !deepview_image::is_held(&e.path()) {
+            stale.push((t.folder.map(str::to_string), e.path()));
+        }
+    }
+    stale
+}
+
+/// `out`'s name as its temporaries carry it.
+fn stem_of(out: &Path) -> Option<String> {
+    Some(deepview_image::temp_stem(
+        &out.file_name()?.to_string_lossy(),
+    ))
 }
 
 /// Whether `pid` names a process that no longer runs (false where `/proc` cannot tell).
@@ -895,37 +899,27 @@ fn died(pid: &str) -> bool {
         })
 }
 
-/// Remove the temporary files of `out` (`.NAME.PID.tmp`, and a video sink's `.NAME.PID.tmp.EXT`) left by
-/// processes that no longer run (killed with SIGKILL, which leaves no time to clean up).
+/// Remove the temporary files of `out` (`.NAME.TOKEN.tmp`, and a video sink's `.NAME.TOKEN.tmp.EXT`)
+/// that killed runs left.
 fn remove_stale_files(out: &Path) {
-    for (rest, path) in siblings_of(out, "") {
-        let Some((pid, tail)) = rest.split_once('.') else {
-            continue;
-        };
-        if (tail == "tmp" || tail.starts_with("tmp."))
-            && died(pid)
-            && path.is_file()
-            && !deepview_image::is_held(&path)
-        {
-            let _ = std::fs::remove_file(path);
-        }
+    let (Some(parent), Some(stem)) = (out.parent(), stem_of(out)) else {
+        return;
+    };
+    for (_, path) in stale_in(parent, |t, is_dir| {
+        !is_dir && t.folder.is_none() && t.stem == stem
+    }) {
+        let _ = std::fs::remove_file(path);
     }
 }
 
-/// Remove the temporaries of `out` left by processes that no longer run, and put back an old folder that
-/// a crash left aside.
+/// Remove the temporary folders of `out` that killed runs left, and put back an old folder that a crash
+/// left aside.
 pub(super) fn remove_stale(out: &Path) {
-    for (rest, path) in siblings_of(out, "deepview-") {
-        let Some((tag, pid)) = rest.split_once('.') else {
-            continue;
-        };
-        // `PID` or `PID-N` (see [`make_temp_dir`]); a temporary a running process holds stays, whatever
-        // its process id says (another PID namespace's).
-        let pid = pid.split_once('-').map_or(pid, |(p, _)| p);
-        if !died(pid) || deepview_image::is_held(&path) {
-            continue;
-        }
-        if tag == "old" && !out.exists() {
+    let (Some(parent), Some(stem)) = (out.parent(), stem_of(out)) else {
+        return;
+    };
+    for (tag, path) in stale_in(parent, |t, _| t.folder.is_some() && t.stem == stem) {
+        if tag.as_deref() == Some("old") && !out.exists() {
             let _ = std::fs::rename(&path, out);
         } else {
             let _ = std::fs::remove_dir_all(&path);
@@ -933,28 +927,13 @@ pub(super) fn remove_stale(out: &Path) {
     }
 }
 
-/// Remove the working folders (`.NAME.deepview-tmp.PID/`) that killed runs left inside the folder `dir`
-/// of `kind` for any of its files (`depth` stages each pair of maps so, whatever its `--prefix`).
+/// Remove the working folders (`.NAME.deepview-tmp.TOKEN/`) that killed runs left inside the folder
+/// `dir` of `kind` for any of its files (`depth` stages each pair of maps so, whatever its `--prefix`).
 pub(super) fn remove_stale_inside(dir: &Path, kind: Kind) {
-    let Ok(entries) = std::fs::read_dir(dir) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let name = e.file_name().to_string_lossy().into_owned();
-        let Some((file, pid)) = name
-            .strip_prefix('.')
-            .and_then(|n| n.rsplit_once(".deepview-tmp."))
-        else {
-            continue;
-        };
-        let pid = pid.split_once('-').map_or(pid, |(p, _)| p);
-        if kind.owns(file, false)
-            && died(pid)
-            && e.file_type().is_ok_and(|t| t.is_dir())
-            && !deepview_image::is_held(&e.path())
-        {
-            let _ = std::fs::remove_dir_all(e.path());
-        }
+    for (_, path) in stale_in(dir, |t, is_dir| {
+        is_dir && t.folder == Some("tmp") && kind.owns(t.stem, false)
+    }) {
+        let _ = std::fs::remove_dir_all(path);
     }
 }
 
@@ -1269,32 +1248,36 @@ mod tests {
         let out = dir.path().join("mpi");
         let mut child = std::process::Command::new("true").spawn().unwrap();
         child.wait().unwrap();
-        // Another PID namespace's run: its process id names no process here.
-        let theirs = dir.path().join(format!(".mpi.deepview-tmp.{}", child.id()));
-        std::fs::create_dir(&theirs).unwrap();
+        // Another PID namespace's run: its process id names no process here. And a killed run's.
+        let theirs = dir
+            .path()
+            .join(format!(".mpi.deepview-tmp.{}-0badcafe", child.id()));
+        let killed = dir
+            .path()
+            .join(format!(".mpi.deepview-tmp.{}-12345678", child.id()));
+        let killed_file = dir.path().join(format!(".mpi.{}-12345678.tmp", child.id()));
+        for d in [&theirs, &killed] {
+            std::fs::create_dir(d).unwrap();
+        }
+        std::fs::write(&killed_file, "x").unwrap();
         let lock = deepview_image::lock_temp(&theirs).unwrap();
-        // And one with this process's own id, as a run in another namespace may have.
-        let same = sibling(&out, "tmp");
-        std::fs::create_dir(&same).unwrap();
-        let same_lock = deepview_image::lock_temp(&same).unwrap();
-        std::fs::write(same.join("mpi.json"), "theirs").unwrap();
         let ours = OutputDir::new(&out, Kind::Mpi).unwrap();
-        assert!(theirs.is_dir() && same.join("mpi.json").is_file());
-        assert_ne!(ours.path(), same.as_path());
+        assert!(theirs.is_dir(), "a running process's temporary was removed");
+        assert!(!killed.exists(), "a killed run's temporary stayed");
+        // (Files are the file outputs' business: `write_file` clears them.)
+        assert!(killed_file.exists());
+        remove_stale_files(&out);
+        assert!(!killed_file.exists());
         std::fs::write(ours.path().join("mpi.json"), "ours").unwrap();
         ours.commit().unwrap();
         assert_eq!(
             std::fs::read_to_string(out.join("mpi.json")).unwrap(),
             "ours"
         );
-        assert!(theirs.is_dir() && same.join("mpi.json").is_file());
-        // Once their runs end (the locks go with them), the next run clears them.
-        drop((lock, same_lock));
-        let again = OutputDir::new(&out, Kind::Mpi).unwrap();
-        assert!(!theirs.exists());
-        assert_eq!(again.path(), same.as_path());
-        assert!(!same.join("mpi.json").exists());
-        drop(again);
+        assert!(theirs.is_dir());
+        // Once their run ends (the lock goes with it), the next run clears it.
+        drop(lock);
+        drop(OutputDir::new(&out, Kind::Mpi).unwrap());
         let names: Vec<_> = std::fs::read_dir(dir.path())
             .unwrap()
             .map(|e| e.unwrap().file_name())

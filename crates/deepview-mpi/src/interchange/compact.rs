@@ -72,14 +72,7 @@ impl CompactMeta {
                 meta.planes.len()
             )));
         }
-        if !meta.depths.iter().all(|d| d.is_finite() && *d > 0.0)
-            || meta.depths.windows(2).any(|w| w[1] >= w[0])
-        {
-            return Err(bad(
-                "depths must be positive and decrease (far plane first)".into(),
-            ));
-        }
-        // The limits every MPI's depths keep (size, plane count, spacing), as mpi.json's.
+        // The rules every MPI's depths keep, as mpi.json's.
         crate::io::check_depths(&path, &meta.depths)?;
         if meta.tile == 0 || meta.page_cols == 0 || meta.page_rows == 0 {
             return Err(bad("tile, page_cols and page_rows must be positive".into()));
@@ -117,9 +110,11 @@ impl CompactMeta {
             )));
         }
         for name in &meta.pages {
-            if name.contains('/') || name.contains('\\') || name.starts_with('.') {
+            // Served by the viewer beside its page: the names mpi.json's layers may have.
+            if !crate::io::layer_name_ok(name) {
                 return Err(bad(format!(
-                    "page name {name:?} must be a plain file name in the folder"
+                    "page name {name:?} must be a plain file name in the folder: ASCII letters, digits, \
+                     '.', '_' and '-', not hidden, not mpi.json or index.html"
                 )));
             }
         }
