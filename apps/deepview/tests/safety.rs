@@ -1411,7 +1411,22 @@ fn mpis_announcing_more_than_they_hold_are_refused_before_they_are_read() {
         ]),
         &["less than a millionth apart"],
     );
-    assert!(!t.join("p4100").exists() && !t.join("pclose").exists());
+    // The learned method says so too (not that the planes are over the memory budget).
+    refused(
+        &deepview(&[
+            "infer",
+            "--data",
+            s(&scene),
+            "--near",
+            "4",
+            "--far",
+            "4.00002",
+            "--out",
+            &o("lclose"),
+        ]),
+        &["less than a millionth apart"],
+    );
+    assert!(!t.join("p4100").exists() && !t.join("pclose").exists() && !t.join("lclose").exists());
     // Depth bounds no scene has.
     refused(
         &deepview(&[

@@ -88,22 +88,23 @@ pub fn plane_depths(
             "depth bounds must satisfy 0 < near < far (near {near}, far {far})"
         )));
     }
-    if count == 1 {
-        return Ok(vec![match spacing {
+    let depths: Vec<f64> = if count == 1 {
+        vec![match spacing {
             PlaneSpacing::InverseDepth => 2.0 / (1.0 / near + 1.0 / far),
             PlaneSpacing::Linear => 0.5 * (near + far),
-        }]);
-    }
-    let n = (count - 1) as f64;
-    let depths: Vec<f64> = (0..count)
-        .map(|i| {
-            let s = i as f64 / n;
-            match spacing {
-                PlaneSpacing::InverseDepth => 1.0 / ((1.0 - s) / far + s / near),
-                PlaneSpacing::Linear => far + s * (near - far),
-            }
-        })
-        .collect();
+        }]
+    } else {
+        let n = (count - 1) as f64;
+        (0..count)
+            .map(|i| {
+                let s = i as f64 / n;
+                match spacing {
+                    PlaneSpacing::InverseDepth => 1.0 / ((1.0 - s) / far + s / near),
+                    PlaneSpacing::Linear => far + s * (near - far),
+                }
+            })
+            .collect()
+    };
     // What readers refuse is not made (4,100 planes, or 8 planes between 4 and 4.00002).
     check_plane_depths(&depths).map_err(|e| {
         GeometryError::Invalid(format!("planes between near {near} and far {far}: {e}"))

@@ -90,22 +90,39 @@ fn token_pid(token: &str) -> Option<&str> {
 /// reader of these names, for the cleanup of stale ones and for telling them from a user's files.
 pub fn parse_temp(name: &str) -> Option<TempName<'_>> {
     let n = name.strip_prefix('.')?;
-    if let Some((stem, rest)) = n.rsplit_once(".deepview-") {
-        let (tag, token) = rest.split_once('.')?;
-        let pid = token_pid(token)?;
-        return (!stem.is_empty() && !tag.is_empty()).then_some(TempName {
+    if let Some((stem, rest)) = n.rsplit_once(".deepview-")
+        && let Some((tag, token)) = rest.split_once('.')
+        && let Some(pid) = token_pid(token)
+        && !stem.is_empty()
+        && !tag.is_empty()
+    {
+        return Some(TempName {
             stem,
             pid,
             folder: Some(tag),
             ext: None,
         });
     }
+    parse_temp_file(n)
+}
+
+/// The file form of [`parse_temp`] (`n` without its leading dot).
+fn parse_temp_file(n: &str) -> Option<TempName<'_>> {
     let (before, ext) = match n.rsplit_once(".tmp.") {
         Some((b, e)) if !e.is_empty() && !e.contains('.') => (b, Some(e)),
         _ => (n.strip_suffix(".tmp")?, None),
     };
     let (stem, token) = before.rsplit_once('.')?;
     let pid = token_pid(token)?;
+    // A video sink's `.NAME.TOKEN.tmp.EXT` repeats its output's extension (`a.mp4` -> `.tmp.mp4`);
+    // any other tail (`.tmp.bak`) is somebody's file.
+    if let Some(e) = ext
+        && !stem
+            .rsplit_once('.')
+            .is_some_and(|(_, own)| own.eq_ignore_ascii_case(e))
+    {
+        return None;
+    }
     (!stem.is_empty()).then_some(TempName {
         stem,
         pid,
@@ -143,9 +160,19 @@ pub fn lock_file(f: &std::fs::File) -> bool {
     #[cfg(unix)]
     {
         use std::os::fd::AsRawFd;
-        // SAFETY: flock on a descriptor `f` owns. Nothing else locks a fresh temporary for longer than
-        // a probe, so waiting cannot hang.
-        unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX) == 0 }
+        // Another run's probe holds it for an instant: tried for about a second, never waited on
+        // (a lock server in its grace period, or a user's `flock`, must not stall a write).
+        for _ in 0..100 {
+            // SAFETY: flock on a descriptor `f` owns.
+            if unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) } == 0 {
+                return true;
+            }
+            if std::io::Error::last_os_error().raw_os_error() != Some(libc::EWOULDBLOCK) {
+                return false;
+            }
+            std::thread::sleep(std::time::Duration::from_millis(10));
+        }
+        false
     }
     #[cfg(not(unix))]
     {
@@ -159,9 +186,11 @@ pub fn is_held(path: &Path) -> bool {
     #[cfg(unix)]
     if let Ok(f) = std::fs::File::open(path) {
         use std::os::fd::AsRawFd;
+        // A shared probe (it works on a read-only descriptor, NFS included) conflicts with the writer's
+        // exclusive lock. A probe that fails for another reason cannot tell: held, to be safe.
         // SAFETY: flock on a descriptor this function owns; a lock it gets goes with the descriptor.
-        let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_EX | libc::LOCK_NB) };
-        return r != 0 && std::io::Error::last_os_error().raw_os_error() == Some(libc::EWOULDBLOCK);
+        let r = unsafe { libc::flock(f.as_raw_fd(), libc::LOCK_SH | libc::LOCK_NB) };
+        return r != 0;
     }
     false
 }
@@ -177,26 +206,26 @@ pub fn is_temp_of(name: &str, file: &str) -> bool {
 /// to wrap in its own error type. The temporary file is removed when any step fails.
 pub fn write_atomic_with(path: &Path, bytes: &[u8], durability: Durability) -> std::io::Result<()> {
     let tmp = temp_path(path);
-    let write = || -> std::io::Result<()> {
-        // A new file (never another writer's: the name is this process's), held while it is written:
-        // a run that finds it meanwhile leaves it alone ([`is_held`]).
-        let mut f = std::fs::OpenOptions::new()
-            .write(true)
-            .create_new(true)
-            .open(&tmp)
-            .or_else(|e| {
-                // This process's own leftover (an earlier write of this file failed half-way).
-                if e.kind() == std::io::ErrorKind::AlreadyExists {
-                    std::fs::remove_file(&tmp)?;
-                    std::fs::OpenOptions::new()
-                        .write(true)
-                        .create_new(true)
-                        .open(&tmp)
-                } else {
-                    Err(e)
-                }
-            })?;
-        lock_file(&f);
+    // A new file (never another process's: the name is this process's), held while it is written: a
+    // run that finds it meanwhile leaves it alone ([`is_held`]).
+    let mut f = std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&tmp)
+        .map_err(|e| {
+            if e.kind() == std::io::ErrorKind::AlreadyExists {
+                // This process is writing the file already (another thread): not two at once, and
+                // that write's temporary is left to it.
+                std::io::Error::new(
+                    e.kind(),
+                    format!("{} is being written already", tmp.display()),
+                )
+            } else {
+                e
+            }
+        })?;
+    lock_file(&f);
+    let mut write = || -> std::io::Result<()> {
         f.write_all(bytes)?;
         if durability == Durability::Synced {
             f.sync_all()?;
@@ -303,9 +332,15 @@ mod tests {
             ".mpi.deepview-tmp.abc",
             ".deepview-tmp.12",
             ".notes.txt",
+            // A tail other than the output's own extension is somebody's backup, not a video's.
+            ".r.png.4000000.tmp.bak",
+            ".r.png.4000001-ab.tmp.orig",
         ] {
             assert_eq!(parse_temp(other), None, "{other}");
         }
+        // An output whose name holds `.deepview-` has file temporaries too.
+        let t = parse_temp(".run.deepview-1.json.77-00ff12ab.tmp").unwrap();
+        assert_eq!((t.stem, t.folder), ("run.deepview-1.json", None));
     }
 
     #[test]

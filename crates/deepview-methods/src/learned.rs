@@ -240,7 +240,9 @@ pub fn learned_minimum(
     }
 }
 
-/// Whether `count` planes fit `budget`: the quick lower bound first, then the planner.
+/// Whether `count` planes fit `budget`: the quick lower bound first, then the planner. Depths that
+/// cannot be made count as fitting: making them then fails with the reason (planes a millionth apart),
+/// not as over the budget.
 pub fn learned_fits(
     model: &DeepViewModel,
     views: &[(ImageF32, Camera)],
@@ -251,7 +253,9 @@ pub fn learned_fits(
 ) -> bool {
     lower_bound_bytes(model, views, reference, count) <= budget
         && plane_depths(near_far.0, near_far.1, count, PlaneSpacing::InverseDepth)
-            .is_ok_and(|d| infer::plan(model, views, reference, &d, budget).is_ok())
+            .map_or(true, |d| {
+                infer::plan(model, views, reference, &d, budget).is_ok()
+            })
 }
 
 /// Refuse at once an explicit plane count (`Count(n)` or `Weights`) whose quick lower bound is far over

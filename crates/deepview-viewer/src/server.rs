@@ -2,7 +2,7 @@
 //! reads from a client bounded, so that no request can stop it.
 //!
 //! - The request line and headers: at most [`MAX_HEAD`] bytes (431 beyond), read within [`TIMEOUT`] of the
-//!   connection's start, however slowly the bytes come; the answer written within [`ANSWER_TIMEOUT`].
+//!   connection's start, however slowly the bytes come; the answer written within [`answer_timeout`].
 //! - A body: GET and HEAD have none; one announced up to [`MAX_BODY`] is read and dropped, a larger one
 //!   answered 413, `Transfer-Encoding` 411, and the connection closed without reading it.
 //! - Connections: one thread each, at most [`MAX_CONNECTIONS`] at once (503 beyond); every answer closes
@@ -24,8 +24,14 @@ pub const MAX_BODY: u64 = 64 * 1024;
 pub const MAX_CONNECTIONS: usize = 64;
 /// How long a client may take to send its request.
 pub const TIMEOUT: Duration = Duration::from_secs(10);
-/// How long a client may take to receive its answer (a layer of a large MPI over a slow link).
-pub const ANSWER_TIMEOUT: Duration = Duration::from_secs(120);
+/// The slowest a client may receive an answer: [`TIMEOUT`] plus its bytes at this rate (a layer of a
+/// large MPI through a slow tunnel still arrives; a client that reads nothing is cut off).
+pub const MIN_RATE: u64 = 64 * 1024;
+
+/// How long a client may take to receive an answer of `bytes`.
+pub fn answer_timeout(bytes: usize) -> Duration {
+    TIMEOUT + Duration::from_secs(bytes as u64 / MIN_RATE)
+}
 
 /// A running viewer server (a thread accepts connections until [`Server::stop`] or drop).
 pub struct Server {
@@ -126,7 +132,7 @@ fn accept(listener: TcpListener, stop: &AtomicBool, dir: &Arc<PathBuf>, files: &
             continue;
         };
         let _ = stream.set_read_timeout(Some(TIMEOUT));
-        let _ = stream.set_write_timeout(Some(ANSWER_TIMEOUT));
+        let _ = stream.set_write_timeout(Some(TIMEOUT));
         if live.fetch_add(1, Ordering::SeqCst) >= MAX_CONNECTIONS {
             live.fetch_sub(1, Ordering::SeqCst);
             let _ = respond(&mut stream, 503, "text/plain", b"busy", false, &[]);
@@ -358,12 +364,12 @@ fn respond(
         body,
         head_only,
         extra,
-        std::time::Instant::now() + ANSWER_TIMEOUT,
+        std::time::Instant::now() + answer_timeout(body.len()),
     )
 }
 
-/// [`respond`], the whole answer written by `until` (a client that reads slowly or not at all is cut
-/// off then, not after [`TIMEOUT`] per write).
+/// [`respond`], the whole answer written by `until` (a client that reads too slowly or not at all is
+/// cut off then, not after [`TIMEOUT`] per write, however long).
 fn respond_by(
     w: &mut TcpStream,
     code: u16,
