@@ -153,7 +153,7 @@ fn outputs_that_are_or_lie_inside_inputs_are_refused() {
             "--out",
             s(&other),
         ]),
-        &["not a MPI folder"],
+        &["not an MPI folder"],
     );
     assert_eq!(snapshot(&other), other_before);
     assert_eq!(snapshot(&scene), before, "an input changed");

@@ -52,8 +52,8 @@ pub enum MediaError {
     #[error("{0}")]
     Ffmpeg(String),
     #[error(
-        "MP4 (H.264, yuv420p) needs an even frame size, got {width}x{height}; write a GIF or a folder of PNG \
-         frames instead"
+        "an MP4 (H.264, yuv420p) needs frames of at least 2x2 pixels, got {width}x{height}; write a GIF or a \
+         folder of PNG frames instead"
     )]
     OddFrameSize { width: u32, height: u32 },
 }

@@ -248,7 +248,10 @@ impl Mp4Sink {
         fps: f64,
         program: &str,
     ) -> Result<Self, MediaError> {
-        if width % 2 == 1 || height % 2 == 1 {
+        // H.264 in yuv420p takes even sizes only: an odd frame (an MPI of 707x505 on the 1.25x grid)
+        // loses its last column or row in the video.
+        let crop = format!("crop={}:{}:0:0", width & !1, height & !1);
+        if width < 2 || height < 2 {
             return Err(MediaError::OddFrameSize { width, height });
         }
         if !(fps.is_finite() && (1e-3..=1000.0).contains(&fps)) {
@@ -267,7 +270,8 @@ impl Mp4Sink {
             .arg(format!("{width}x{height}"))
             .arg("-r")
             .arg(format!("{fps}"))
-            .args(["-i", "-", "-an", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-movflags", "+faststart"])
+            .args(["-i", "-", "-an", "-vf", &crop, "-c:v", "libx264", "-pix_fmt", "yuv420p"])
+            .args(["-movflags", "+faststart"])
             .arg(&tmp)
             .stdin(Stdio::piped())
             .stdout(Stdio::null())

@@ -280,10 +280,12 @@ fn missing_ffmpeg_is_a_clear_error() {
         msg.contains("not found") && msg.contains("v.mp4") && msg.contains(".gif"),
         "{msg}"
     );
-    let e = Mp4Sink::new(&dir.path().join("v.mp4"), 63, 48, 30.0, "ffmpeg")
+    let e = Mp4Sink::new(&dir.path().join("v.mp4"), 1, 48, 30.0, "ffmpeg")
         .err()
         .unwrap();
-    assert!(e.to_string().contains("even"), "{e}");
+    assert!(e.to_string().contains("2x2"), "{e}");
+    // No temporary left by the failed starts.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 
 #[test]
@@ -307,4 +309,26 @@ fn mp4_through_ffmpeg_when_available() {
     }
     sink.finish().unwrap();
     assert!(std::fs::metadata(&out).unwrap().len() > 100);
+    // An odd size (an MPI of 707x505 on the 1.25x grid) is written too, its last column and row cropped.
+    let odd = dir.path().join("odd.mp4");
+    let mut sink: Box<dyn FrameSink> =
+        Box::new(Mp4Sink::new(&odd, 65, 49, 10.0, "ffmpeg").unwrap());
+    for i in 0..3u8 {
+        sink.push(&vec![i * 40; 65 * 49 * 3]).unwrap();
+    }
+    sink.finish().unwrap();
+    let probe = std::process::Command::new("ffprobe")
+        .args([
+            "-v",
+            "error",
+            "-show_entries",
+            "stream=width,height",
+            "-of",
+            "csv=p=0",
+        ])
+        .arg(&odd)
+        .output();
+    if let Some(p) = probe.ok().filter(|p| p.status.success()) {
+        assert_eq!(String::from_utf8_lossy(&p.stdout).trim(), "64,48");
+    }
 }

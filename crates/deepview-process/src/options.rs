@@ -8,7 +8,7 @@ use std::time::Duration;
 /// How images are paired for matching.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum Matcher {
-    /// Exhaustive up to [`ProcessOptions::exhaustive_up_to`] images, else sequential.
+    /// Exhaustive up to 50 images (`ProcessOptions::exhaustive_up_to`), else sequential.
     #[default]
     Auto,
     /// Every pair (best for unordered photos; quadratic in the image count).

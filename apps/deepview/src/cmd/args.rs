@@ -334,7 +334,8 @@ pub fn memory_budget_of(
             // More than the machine has would end in an allocation abort, not in a clear error.
             if let Some(total) = total.filter(|&m| b > m) {
                 bail!(
-                    "--max-memory {t} is more than this machine's {} of memory: pass at most {}",
+                    "--max-memory {t} is more than this machine's {} of memory: pass at most that, e.g. \
+                     {} (half of what is free now)",
                     gib(total),
                     min_arg(available.unwrap_or(total).min(total) / 2)
                 );

@@ -157,8 +157,8 @@ fn data(e: &DataError) -> Option<String> {
 fn media(e: &MediaError) -> Option<String> {
     Some(match e {
         MediaError::OddFrameSize { .. } => {
-            "a --path video's frames have the MPI's size (a --camera-path's: its render_width and \
-            render_height): make --out a .gif or a folder, or give a --camera-path of even size"
+            "an MP4's frames are at least 2x2 pixels: give a larger --camera-path render size, or make \
+            --out a .gif or a folder"
                 .into()
         }
         _ => return None,

@@ -328,8 +328,13 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
             let written_into = kind.written_into();
             if !empty && !written_into && !kind.recognises(&o) {
                 bail!(
-                    "{option} {} exists and is not a {}: refusing to replace it; choose a new or empty folder",
+                    "{option} {} exists and is not {} {}: refusing to replace it; choose a new or empty folder",
                     out.display(),
+                    if kind.name().starts_with(['M', 'a', 'e', 'i', 'o', 'u']) {
+                        "an"
+                    } else {
+                        "a"
+                    },
                     kind.name()
                 );
             }
@@ -1028,7 +1033,7 @@ mod tests {
         // A non-empty folder of another kind is not replaced; an empty one is.
         std::fs::write(d.join("photo.jpg"), b"x").unwrap();
         let e = check_output("--out", &d, Kind::Mpi, &[]).unwrap_err();
-        assert!(e.to_string().contains("not a MPI folder"), "{e}");
+        assert!(e.to_string().contains("not an MPI folder"), "{e}");
         std::fs::create_dir(dir.path().join("empty")).unwrap();
         check_output("--out", &dir.path().join("empty"), Kind::Mpi, &[]).unwrap();
         // A link to nothing is named as such (the rename at the end failed with "Not a directory").
