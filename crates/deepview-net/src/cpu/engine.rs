@@ -735,6 +735,9 @@ mod tests {
     #[test]
     fn engine_equals_model_forward() {
         let dev = Device::flex();
+        // Fixed weights: the random ones of an unseeded run put the largest difference anywhere from
+        // ~1e-5 to 2.04e-5 (f32 sums in another order), which failed a CI run at 2e-5.
+        dev.seed(11);
         for (k, d, updates, prior, unet_nets) in [
             (3, 5, 1, true, 0),
             (4, 4, 2, false, 0),
@@ -851,7 +854,7 @@ mod tests {
                 model.prior_leave_one_out,
                 model.prior_sample_variance
             );
-            assert!(max < 2e-5, "{case}: {max}");
+            assert!(max < 4e-5, "{case}: {max}");
             // The renders streamed in blocks of any size and the nets run on strips of any height
             // (down to 1 row: every strip's margin reaches its neighbours' rows) give the same bits.
             for (block, rows) in [(1, 1), (2, 3), (d, 7), (d + 3, 29), (3, 100)] {
