@@ -146,38 +146,30 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
         ));
     }
     // A plane sweep spaces its planes in inverse depth between them: beyond this ratio its disparities are
-    // not numbers a capture has (near 1e-300, far 1e300 gave infinite disparity and 256 planes).
-    if let Some((n, f)) = scene.depth_bounds
-        && f / n > MAX_DEPTH_RATIO
-    {
+    // not numbers a capture has (near 1e-300, far 1e300 gave infinite disparity and 256 planes); outside
+    // the depth limits f32 loses them.
+    if let Some((n, f)) = scene.depth_bounds {
         let given = if opts.near.is_some() || opts.far.is_some() {
             " (--near/--far)"
         } else {
             ""
         };
-        return Err(DataError::invalid(
-            path,
+        let (lo, hi) = deepview_geometry::DEPTH_LIMITS;
+        let problem = if f / n > MAX_DEPTH_RATIO {
             format!(
-                "depth bounds near {n:e}, far {f:e}{given}: far is more than {MAX_DEPTH_RATIO:e} times near; \
-                 give bounds that hold the scene"
-            ),
-        ));
-    }
-    let (lo, hi) = deepview_geometry::DEPTH_LIMITS;
-    if let Some((n, f)) = scene.depth_bounds
-        && (n < lo || f > hi)
-    {
-        let given = if opts.near.is_some() || opts.far.is_some() {
-            " (--near/--far)"
+                ": far is more than {MAX_DEPTH_RATIO:e} times near; give bounds that hold the scene"
+            )
+        } else if n < lo || f > hi {
+            format!(
+                " lie outside {lo:e}..{hi:e}, the depths deepview works with; give bounds that hold the \
+                 scene, or scale its poses"
+            )
         } else {
-            ""
+            return Ok(scene);
         };
         return Err(DataError::invalid(
             path,
-            format!(
-                "depth bounds near {n:e}, far {f:e}{given} lie outside {lo:e}..{hi:e}, the depths deepview \
-                 works with; give bounds that hold the scene, or scale its poses"
-            ),
+            format!("depth bounds near {n:e}, far {f:e}{given}{problem}"),
         ));
     }
     Ok(scene)
