@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{deepview, fails_with, files, s, succeeds, synth_grid as grid};
+use common::{deepview, fails_with, files, s, succeeds, succeeds_err, synth_grid as grid};
 use std::path::{Path, PathBuf};
 
 /// `infer --method M --inputs 0,2,6,8` and `eval --method M --targets 4 --inputs 0,2,6,8 --save-mpi` write the
@@ -83,6 +83,45 @@ fn infer_writes_the_mpi_eval_scores() {
     );
     assert!(!alias.exists());
     assert!(psv.join("mpi.json").is_file());
+}
+
+/// `infer --method optimize` (minutes on real captures) says what it makes before its progress bar,
+/// as the learned model does; the bar itself is hidden here, where stderr is not a terminal.
+#[test]
+fn optimize_says_what_it_makes() {
+    let tmp = tempfile::tempdir().unwrap();
+    let scene = grid(tmp.path());
+    let out = tmp.path().join("opt");
+    let o = deepview(&[
+        "infer",
+        "--data",
+        s(&scene),
+        "--method",
+        "optimize",
+        "--inputs",
+        "0,2,6,8",
+        "--out",
+        s(&out),
+    ]);
+    let err = succeeds_err(&o);
+    let line = err
+        .lines()
+        .find(|l| l.starts_with("optimizing a "))
+        .unwrap_or_else(|| panic!("no 'optimizing a' line: {err}"));
+    assert!(
+        line.contains("-plane ") && line.ends_with("MPI from views [0, 2, 6, 8]"),
+        "{line}"
+    );
+    let (meta, _) = deepview_mpi::MpiMeta::read(&out).unwrap();
+    assert!(
+        line.contains(&format!(
+            "a {}-plane {}x{} MPI",
+            meta.depths.len(),
+            meta.width,
+            meta.height
+        )),
+        "{line}: {meta:?}"
+    );
 }
 
 /// The default inputs are the same rule everywhere: `nearest:4`, around the target in `eval` and around the

@@ -28,5 +28,7 @@ pub use method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
 pub use methods::{
     Classical, MethodKind, MethodOptions, PLANES_HELP, classical_planes, make_method,
 };
-pub use optimize::{OptimizeOptions, optimize_mpi, optimize_mpi_with_history};
+pub use optimize::{
+    OptimizeOptions, optimize_mpi, optimize_mpi_reporting, optimize_mpi_with_history,
+};
 pub use planes::{PlaneChoice, Planes, PlanesHow, choose_planes, human, mpi_reference};

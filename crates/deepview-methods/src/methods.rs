@@ -6,7 +6,7 @@ use crate::check::check_inputs;
 use crate::error::MethodError;
 use crate::learned::LearnedMethod;
 use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
-use crate::optimize::{OptimizeOptions, optimize_mpi_with_history};
+use crate::optimize::{OptimizeOptions, optimize_mpi_reporting};
 use crate::planes::{
     PlaneChoice, Planes, check_memory, choose_planes, fits_estimate, mpi_bytes, mpi_reference,
     optimize_bytes, psv_mean_bytes,
@@ -391,7 +391,21 @@ impl MpiMethod for Classical {
                 planes: choice.count,
                 ..self.optimize
             };
-            let (mpi, history) = optimize_mpi_with_history(inputs, near_far, &options)?;
+            let (mpi, history) = optimize_mpi_reporting(
+                inputs,
+                near_far,
+                &options,
+                &mut |reference, done, total| {
+                    if done == 0 {
+                        events(MethodEvent::Start {
+                            planes: choice.count,
+                            width: reference.width,
+                            height: reference.height,
+                        });
+                    }
+                    events(MethodEvent::Progress { done, total });
+                },
+            )?;
             let note = format!(
                 "loss {:.5} -> {:.5}",
                 history.first().copied().unwrap_or(f64::NAN),

@@ -58,6 +58,18 @@ pub fn optimize_mpi_with_history(
     near_far: (f64, f64),
     options: &OptimizeOptions,
 ) -> Result<(Mpi, Vec<f64>), MethodError> {
+    optimize_mpi_reporting(inputs, near_far, options, &mut |_, _, _| {})
+}
+
+/// [`optimize_mpi_with_history`], calling `progress(reference, done, total)` with the MPI's reference
+/// camera before the first step (`done` 0) and after every step (`total`: the steps, and one for the
+/// final loss).
+pub fn optimize_mpi_reporting(
+    inputs: &[(ImageF32, Camera)],
+    near_far: (f64, f64),
+    options: &OptimizeOptions,
+    progress: &mut dyn FnMut(&Camera, usize, usize),
+) -> Result<(Mpi, Vec<f64>), MethodError> {
     check_inputs("optimize", inputs, near_far)?;
     if options.max_width == 0 || !(options.learning_rate.is_finite() && options.learning_rate > 0.0)
     {
@@ -83,15 +95,19 @@ pub fn optimize_mpi_with_history(
     let mut logits = initial_logits(&views, &reference, depths.clone());
     let mut adam = Adam::new(logits.len(), options.learning_rate as f32);
     let mut history = Vec::with_capacity(options.steps + 1);
-    for _ in 0..options.steps {
+    let total = options.steps + 1;
+    progress(&reference, 0, total);
+    for step in 0..options.steps {
         let mpi = logits_to_mpi(&logits, reference, &depths);
         let (loss, grad_mpi) = loss_and_mpi_gradient(&mpi, &views);
         history.push(loss);
         let grad = mpi_gradient_to_logits(&logits, &grad_mpi);
         adam.step(&mut logits, &grad);
+        progress(&reference, step + 1, total);
     }
     let mpi = logits_to_mpi(&logits, reference, &depths);
     history.push(loss_and_mpi_gradient(&mpi, &views).0);
+    progress(&reference, total, total);
     Ok((mpi, history))
 }
 

@@ -10,7 +10,7 @@ use std::io::Write as _;
 #[command(after_help = "Examples:\n  \
     deepview info --data ../shared/data/llff/fern\n  \
     deepview info --data ../shared/data/llff/fern --images images_4 --camera 0 > cam.json\n  \
-    deepview info --data ../shared/data/spaces/scene_000 --rig 1 --json")]
+    deepview info --data ../shared/data/spaces/scene_000 --rig 0 --json")]
 pub struct Args {
     #[command(flatten)]
     pub data: DataArg,

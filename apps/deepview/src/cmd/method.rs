@@ -12,7 +12,8 @@ pub const INPUTS_HELP: &str = "Input views: nearest:K (the K views nearest the t
     Default: nearest:4 (nearest:K for weights trained for K views). eval never takes a target as an input.";
 
 /// Shows a method's events on stderr: the plane count line (once per distinct line), and for the learned
-/// model what it infers and a progress bar.
+/// model and `optimize` what they make and a progress bar; where stderr is not a terminal (a log file)
+/// the bar is hidden and a line every [`LOG_EVERY`] says how far it is instead.
 pub struct Reporter {
     kind: MethodKind,
     ids: Vec<usize>,
@@ -20,6 +21,23 @@ pub struct Reporter {
     verbose: bool,
     last: Option<String>,
     bar: Option<indicatif::ProgressBar>,
+    /// When the work started and when the last line of a hidden bar was written.
+    log: (std::time::Instant, std::time::Instant),
+}
+
+/// How often a hidden progress bar's state is written as a line of its own.
+const LOG_EVERY: std::time::Duration = std::time::Duration::from_secs(30);
+
+/// A hidden bar's line: `what: 40% (12 of 30 steps, 1 min 5 s)`.
+fn progress_line(what: &str, done: usize, total: usize, elapsed: std::time::Duration) -> String {
+    let s = elapsed.as_secs();
+    let time = if s >= 60 {
+        format!("{} min {} s", s / 60, s % 60)
+    } else {
+        format!("{s} s")
+    };
+    let percent = 100 * done / total.max(1);
+    format!("{what}: {percent}% ({done} of {total} steps, {time})")
 }
 
 impl Reporter {
@@ -33,6 +51,14 @@ impl Reporter {
             verbose,
             last: None,
             bar: None,
+            log: (std::time::Instant::now(), std::time::Instant::now()),
+        }
+    }
+
+    fn what(&self) -> &'static str {
+        match self.kind {
+            MethodKind::Optimize => "optimizing",
+            _ => "inferring",
         }
     }
 
@@ -48,12 +74,21 @@ impl Reporter {
                 planes,
                 width,
                 height,
-            } if self.verbose && self.kind == MethodKind::Deepview => {
+            } if self.verbose
+                && matches!(self.kind, MethodKind::Deepview | MethodKind::Optimize) =>
+            {
+                let from = match self.kind {
+                    MethodKind::Deepview => {
+                        format!(" (weights {})", self.weights.as_deref().unwrap_or("?"))
+                    }
+                    _ => String::new(),
+                };
                 eprintln!(
-                    "inferring a {planes}-plane {width}x{height} MPI from views {:?} (weights {})",
+                    "{} a {planes}-plane {width}x{height} MPI from views {:?}{from}",
+                    self.what(),
                     self.ids,
-                    self.weights.as_deref().unwrap_or("?")
                 );
+                self.log = (std::time::Instant::now(), std::time::Instant::now());
                 let bar = indicatif::ProgressBar::new(1);
                 bar.set_style(
                     indicatif::ProgressStyle::with_template(
@@ -70,9 +105,15 @@ impl Reporter {
             }
             MethodEvent::Plan(_) => {}
             MethodEvent::Progress { done, total } => {
-                if let Some(bar) = &self.bar {
-                    bar.set_length(total as u64);
-                    bar.set_position(done as u64);
+                let Some(bar) = &self.bar else { return };
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+                if bar.is_hidden() && done < total && self.log.1.elapsed() >= LOG_EVERY {
+                    self.log.1 = std::time::Instant::now();
+                    eprintln!(
+                        "{}",
+                        progress_line(self.what(), done, total, self.log.0.elapsed())
+                    );
                 }
             }
         }
@@ -109,4 +150,22 @@ pub fn video(
     })?;
     bar.finish_and_clear();
     Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::progress_line;
+    use std::time::Duration;
+
+    #[test]
+    fn a_hidden_bar_says_how_far_in_lines() {
+        assert_eq!(
+            progress_line("optimizing", 120, 301, Duration::from_secs(65)),
+            "optimizing: 39% (120 of 301 steps, 1 min 5 s)"
+        );
+        assert_eq!(
+            progress_line("inferring", 0, 66, Duration::from_millis(4_900)),
+            "inferring: 0% (0 of 66 steps, 4 s)"
+        );
+    }
 }
