@@ -1166,8 +1166,10 @@ fn huge_sizes_are_refused_at_once() {
         let start = Instant::now();
         let out = deepview(&args);
         refused(&out, &["--max-memory"]);
+        // Before the work: seconds (process start and the scene's loading included, on 2 cores
+        // beside other tests), where doing it would take minutes or run out of memory.
         assert!(
-            start.elapsed() < Duration::from_secs(3),
+            start.elapsed() < Duration::from_secs(20),
             "{args:?} took {:?}",
             start.elapsed()
         );

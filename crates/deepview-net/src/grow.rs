@@ -178,11 +178,16 @@ mod tests {
     #[test]
     fn grown_model_computes_the_same_mpi() {
         let dev = Device::flex();
-        dev.seed(7);
         let from = DeepViewConfig::preset("cpu").unwrap();
         let to = DeepViewConfig::preset("cpu-large").unwrap();
-        let small = trained_like(&from, &dev);
-        let big = grow_model(&small, &from, &to, &dev).unwrap();
+        // Both models drawn under one seed with the generator held (other tests draw too).
+        let (small, big) = crate::rng::seeded(&dev, 7, || {
+            let small = trained_like(&from, &dev);
+            crate::rng::materialize(&small);
+            let big = grow_model(&small, &from, &to, &dev).unwrap();
+            crate::rng::materialize(&big);
+            (small, big)
+        });
         assert_eq!(big.nets.len(), to.nets());
         assert_eq!(big.nets[2].head.weight.dims(), [12, 12, 3, 3]);
         for (k, d, h, w) in [(4, 5, 17, 21), (2, 3, 12, 9)] {

@@ -14,6 +14,7 @@ pub mod gpu;
 pub mod grow;
 pub mod infer;
 pub mod network;
+pub mod rng;
 pub mod weights;
 
 /// burn, re-exported so dependants use the same version (e.g. `deepview_net::burn::tensor::Device::flex()`).

@@ -168,7 +168,10 @@ mod tests {
     fn burns_adam_checkpoints_resume_exactly() {
         let ad = Device::flex().autodiff();
         let cpu = Device::flex();
-        let start: Linear = LinearConfig::new(5, 3).init(&ad);
+        // Drawn under the generator's lock, as every draw of these tests (other tests compare
+        // seeded weights).
+        let start: Linear =
+            deepview_net::rng::seeded_module(&ad, 1, || LinearConfig::new(5, 3).init(&ad));
         let mut old = AdamConfig::new().with_epsilon(1e-8).init();
         let mut a = old.step(0.01, start.clone(), grads(&start, 0, &cpu));
         let mut new = DeepviewAdam::new()
@@ -201,7 +204,9 @@ mod tests {
         let cpu = Device::flex();
         assert!(deepview_net::gpu::gpu_kernels(&gpu));
         // Modules on autodiff devices as in training (the optimizer steps their inner tensors).
-        let start: Linear = LinearConfig::new(5, 3).init(&cpu.clone().autodiff());
+        let ad = cpu.clone().autodiff();
+        let start: Linear =
+            deepview_net::rng::seeded_module(&ad, 1, || LinearConfig::new(5, 3).init(&ad));
         let w0 = values(&start);
         let lr = 0.01;
         let mut a = start.clone();

@@ -197,10 +197,11 @@ mod tests {
     #[test]
     fn global_norm_clipping_on_known_gradients() {
         let dev = Device::flex();
-        let m = Two {
+        // Drawn under the generator's lock (other tests compare seeded weights).
+        let m = deepview_net::rng::seeded_module(&dev, 2, || Two {
             a: LinearConfig::new(2, 3).init(&dev),
             b: LinearConfig::new(3, 1).init(&dev),
-        };
+        });
         // norm^2 = 6*2^2 + 3*1^2 + 3*2^2 + 1*3^2 = 24 + 3 + 12 + 9 = 48
         let g = grads_of(&m, &dev, [2.0, 1.0, 2.0, 3.0]);
         assert!((global_norm(&m, &g) - 48f64.sqrt()).abs() < 1e-6);
@@ -237,10 +238,11 @@ mod tests {
     #[test]
     fn sum_and_nan() {
         let dev = Device::flex();
-        let m = Two {
+        // Drawn under the generator's lock (other tests compare seeded weights).
+        let m = deepview_net::rng::seeded_module(&dev, 2, || Two {
             a: LinearConfig::new(2, 3).init(&dev),
             b: LinearConfig::new(3, 1).init(&dev),
-        };
+        });
         let s = sum_on_device(
             &m,
             vec![

@@ -309,6 +309,8 @@ fn non_finite_loss_skips_the_step() {
         small_data(),
     )
     .unwrap();
+    // (The twin's seed gives it `t`'s weights only where nothing else drew meanwhile.)
+    same_start(&t.model, &mut twin);
     batch[1].target_crop.data[5] = 0.5;
     assert!(t.step_on(batch.clone()).skipped.is_none());
     assert!(twin.step_on(batch).skipped.is_none());
@@ -335,6 +337,8 @@ fn max_abs_diff(a: &[f32], b: &[f32]) -> f32 {
 fn two_cpu_replicas_match_one_device() {
     let dir = tempfile::tempdir().unwrap();
     let (mut one, mut two) = one_and_replicated(dir.path(), &["cpu", "cpu"]);
+    let start = one.model.clone();
+    same_start(&start, &mut two);
     let ra = one.run(&never(), &mut |_| {}).unwrap();
     let rb = two.run(&never(), &mut |_| {}).unwrap();
     for (a, b) in ra.iter().zip(&rb) {
@@ -750,7 +754,7 @@ fn wgpu_collectives_are_refused_by_cubecl() {
         matches!(&reduction, LocalReduction::Copy { why } if why.contains("no transport")),
         "{reduction:?} {reducer:?}"
     );
-    let m: Linear = LinearConfig::new(3, 2).init(&a);
+    let m: Linear = deepview_net::rng::seeded_module(&a, 3, || LinearConfig::new(3, 2).init(&a));
     let grads = |d: &Device, v: f32| {
         let mut g = GradientsParams::new();
         g.register::<2>(m.weight.id, Tensor::<2>::full([3, 2], v, d));
@@ -923,7 +927,8 @@ fn profile_step() {
         model_cfg.margin_from(0)
     );
     let device = Device::flex().autodiff();
-    let model = DeepViewModel::new(&model_cfg, &device);
+    let model =
+        deepview_net::rng::seeded_module(&device, 4, || DeepViewModel::new(&model_cfg, &device));
     let loss = Loss::Vgg(Box::new(
         Vgg16::load(&crate::vgg::test_weights_path(), &device).unwrap(),
     ));
@@ -994,7 +999,9 @@ fn recompute_gradients_match_full_backward() {
     ];
     let mut rng = Rng::new(3);
     for (i, cfg) in cases.iter().enumerate() {
-        let model = DeepViewModel::new(cfg, &device);
+        let model = deepview_net::rng::seeded_module(&device, 5 + i as u64, || {
+            DeepViewModel::new(cfg, &device)
+        });
         let mut sample = TrainConfig::defaults(cfg).sample;
         sample.crop = 12;
         sample.planes = 3;
@@ -1128,8 +1135,7 @@ fn recompute_bench() {
     let data = TrainData::new(vec![two_plane_scene(4, 4, 96, 0.08)]).unwrap();
     let ex = data.sample(&sample, &cfg, 4, &mut Rng::new(1)).unwrap();
     let device = Device::flex().autodiff();
-    let model = DeepViewModel::new(&cfg, &device);
-    parameter_values(&model);
+    let model = deepview_net::rng::seeded_module(&device, 9, || DeepViewModel::new(&cfg, &device));
     let loss = Loss::Vgg(Box::new(
         Vgg16::load(&crate::vgg::test_weights_path(), &device).unwrap(),
     ));
@@ -1201,11 +1207,17 @@ fn training_tuple_renders_what_the_full_image_model_renders() {
             prior_radius: radius,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
-        let mut model = DeepViewModel::new(&cfg, &dev);
-        model.nets[1] = CoreNet::of_config(&cfg, 1, &dev);
-        // An update large enough to matter (random output convs start small).
-        let out = &mut model.nets[1].out;
-        out.weight = Param::from_tensor(out.weight.val() * 30.0);
+        // Fixed weights, drawn under the generator's lock (other tests draw too, some of them
+        // comparing two trainers' seeded weights).
+        let model = crate::trainer::seeded(&dev, 12 + radius as u64, || {
+            let mut model = DeepViewModel::new(&cfg, &dev);
+            model.nets[1] = CoreNet::of_config(&cfg, 1, &dev);
+            // An update large enough to matter (random output convs start small).
+            let out = &mut model.nets[1].out;
+            out.weight = Param::from_tensor(out.weight.val() * 30.0);
+            deepview_net::rng::materialize(&model);
+            model
+        });
         let (target, inputs, crop) = (5usize, vec![0usize, 3, 12, 15], 12usize);
         let depths = data::jittered_depths(s.near, s.far, 8, 0.0);
         let crop_origin = (30u32, 28u32);

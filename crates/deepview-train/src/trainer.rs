@@ -721,15 +721,6 @@ impl Trainer {
     }
 }
 
-/// Held by every seeding of burn's random generator together with the draws that must follow it
-/// ([`seeded`]). burn's CPU backend has one generator per process, not per device: two trainers created
-/// at once would otherwise interleave their draws and start from weights their seed does not give.
-static BURN_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
-
-/// `f()` right after seeding burn's random generator with `seed`, with [`BURN_RNG`] held throughout
-/// (a panic in another holder does not poison it for the rest).
-pub(crate) fn seeded<T>(device: &Device, seed: u64, f: impl FnOnce() -> T) -> T {
-    let _guard = BURN_RNG.lock().unwrap_or_else(|e| e.into_inner());
-    device.seed(seed);
-    f()
-}
+// burn's CPU backend has one generator per process, not per device: two trainers created at once
+// would otherwise interleave their draws and start from weights their seed does not give.
+pub(crate) use deepview_net::rng::seeded;

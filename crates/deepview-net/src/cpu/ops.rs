@@ -724,19 +724,30 @@ mod tests {
     #[test]
     fn conv3x3_act_matches_burn() {
         let dev = Device::flex().autodiff();
-        for (n, cin, cout, h, w) in [
+        for (case_seed, (n, cin, cout, h, w)) in [
             (3, 4, 8, 17, 23),
             (1, 19, 8, 9, 5),
             (12, 16, 8, 8, 8),
             (2, 8, 64, 11, 13),
             (2, 64, 16, 7, 9),
             (1, 3, 5, 1, 1),
-        ] {
-            let conv: Conv2d = Conv2dConfig::new([cin, cout], [3, 3])
-                .with_padding(PaddingConfig2d::Same)
-                .init(&dev);
-            let x = Tensor::<4>::random([n, cin, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
-            let seed = Tensor::<4>::random([n, cout, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            // Fixed draws, under the generator's lock (other tests draw too): a pre-activation
+            // within f32 rounding of ReLU's kink, where the two convolutions may fall on either
+            // side, is there every run or never.
+            let (conv, x, seed) = crate::rng::seeded(&dev, 60 + case_seed as u64, || {
+                let conv: Conv2d = Conv2dConfig::new([cin, cout], [3, 3])
+                    .with_padding(PaddingConfig2d::Same)
+                    .init(&dev);
+                crate::rng::materialize(&conv);
+                let x = Tensor::<4>::random([n, cin, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
+                let seed =
+                    Tensor::<4>::random([n, cout, h, w], Distribution::Uniform(-1.0, 1.0), &dev);
+                (conv, x, seed)
+            });
             for act in [Act::Linear, Act::Elu, Act::Relu] {
                 let xa = x.clone().require_grad();
                 let ours = conv3x3_act(xa.clone(), &conv, act);

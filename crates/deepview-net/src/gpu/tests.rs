@@ -2,7 +2,7 @@
 //! `cargo test --release -p deepview-net --features wgpu gpu::`.
 
 use crate::forward::{Composite, composite, composite_burn};
-use burn::tensor::{Device, Distribution, Tensor, TensorData};
+use burn::tensor::{Device, Tensor, TensorData};
 
 fn to_vec<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_to_vec::<f32>().unwrap()
@@ -20,6 +20,33 @@ fn channels_last_copy(t: Tensor<4>) -> Tensor<4> {
     burn::tensor::module::conv2d(t, w, None, opts)
 }
 
+thread_local! {
+    /// How many [`uniform`] draws this thread (this test: libtest runs each on a thread of its own)
+    /// has made.
+    static DRAWS: std::cell::Cell<u64> = const { std::cell::Cell::new(0) };
+}
+
+/// Uniform values in `[lo, hi)` for a tensor of `dims`: a fixed sequence per test, the same every run
+/// (burn's generator is one per process, drawn from by the tests running beside this one), so a
+/// near-tie or a value at an activation's kink is there every run or never.
+fn uniform<const D: usize>(dims: [usize; D], lo: f64, hi: f64) -> Vec<f32> {
+    let n: usize = dims.iter().product();
+    DRAWS.with(|k| {
+        let mut s = (k.get() + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        k.set(k.get() + 1);
+        (0..n)
+            .map(|_| {
+                // xorshift64*
+                s ^= s >> 12;
+                s ^= s << 25;
+                s ^= s >> 27;
+                let u = (s.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f64 / (1u64 << 24) as f64;
+                (lo + (hi - lo) * u) as f32
+            })
+            .collect()
+    })
+}
+
 fn max_diff(a: &[f32], b: &[f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     a.iter().zip(b).fold(0f32, |m, (x, y)| m.max((x - y).abs()))
@@ -33,11 +60,7 @@ fn wgpu_composite_kernel_equals_burns_ops() {
     let cpu = Device::flex();
     for (d, h, w) in [(1, 3, 4), (5, 7, 9), (32, 13, 11)] {
         let px = h * w;
-        let mut rgba = to_vec(Tensor::<4>::random(
-            [d, 4, h, w],
-            Distribution::Uniform(0.0, 1.0),
-            &cpu,
-        ));
+        let mut rgba = uniform([d, 4, h, w], 0.0, 1.0);
         for p in 0..d {
             for i in 0..px {
                 let a = rgba[(p * 4 + 3) * px + i];
@@ -50,13 +73,7 @@ fn wgpu_composite_kernel_equals_burns_ops() {
         rgba[3 * px + 1] = 0.0;
         let weights: Vec<Vec<f32>> = [3 * px, d * px, d * 3 * px]
             .iter()
-            .map(|&n| {
-                to_vec(Tensor::<1>::random(
-                    [n],
-                    Distribution::Uniform(-1.0, 1.0),
-                    &cpu,
-                ))
-            })
+            .map(|&n| uniform([n], -1.0, 1.0))
             .collect();
         let run = |dev: &Device, f: fn(Tensor<4>) -> Composite| {
             let ad = dev.clone().autodiff();
@@ -182,17 +199,9 @@ fn wgpu_warp_kernel_equals_burns_ops() {
     ];
     let d = homs.len();
     let table = WarpTable::new(&homs, sw, sh, ow, oh);
-    let seed = to_vec(Tensor::<4>::random(
-        [d, c, oh, ow],
-        Distribution::Uniform(-1.0, 1.0),
-        &cpu,
-    ));
+    let seed = uniform([d, c, oh, ow], -1.0, 1.0);
     for s in [d, 1] {
-        let src = to_vec(Tensor::<4>::random(
-            [s, c, sh, sw],
-            Distribution::Uniform(-1.0, 1.0),
-            &cpu,
-        ));
+        let src = uniform([s, c, sh, sw], -1.0, 1.0);
         let on = |dev: &Device| {
             Tensor::<4>::from_data(TensorData::new(src.clone(), [s, c, sh, sw]), dev)
         };
@@ -238,18 +247,10 @@ fn wgpu_activation_kernel_equals_burns_elu_and_relu() {
     let cpu = Device::flex();
     let dims = [3, 5, 7, 9];
     let n: usize = dims.iter().product();
-    let mut x = to_vec(Tensor::<1>::random(
-        [n],
-        Distribution::Uniform(-4.0, 3.0),
-        &cpu,
-    ));
+    let mut x = uniform([n], -4.0, 3.0);
     x[0] = 0.0;
     x[1] = -30.0;
-    let seed = to_vec(Tensor::<1>::random(
-        [n],
-        Distribution::Uniform(-1.0, 1.0),
-        &cpu,
-    ));
+    let seed = uniform([n], -1.0, 1.0);
     // `channels_last`: the input is a convolution's output (an identity 1x1 convolution: the same
     // values, in a buffer that a GPU convolution writes channels last); `grad_last`: so is the weight
     // of the sum, whose layout the incoming gradient has.
@@ -313,11 +314,7 @@ fn wgpu_sweep_and_components_equal_the_cpu() {
     let d = homs.len();
     // A 25 x 19 view cropped at (3, 2) to 20 x 15; the sweep's 17 x 11 output a window at (4, 1).
     let (cw, ch) = (20, 15);
-    let image = to_vec(Tensor::<3>::random(
-        [3, ch, cw],
-        Distribution::Uniform(0.0, 1.0),
-        &cpu,
-    ));
+    let image = uniform([3, ch, cw], 0.0, 1.0);
     let frames = Frames {
         src_origin: (3, 2),
         src_full: (25, 19),
@@ -337,11 +334,7 @@ fn wgpu_sweep_and_components_equal_the_cpu() {
     // Components of the 20 x 15 view crop from a 22 x 16 MPI window at (1, 1) of a 24 x 18 MPI, on the
     // MPI region (2, 3, 13, 9).
     let (mw, mh) = (22, 16);
-    let mut rgba = to_vec(Tensor::<4>::random(
-        [d, 4, mh, mw],
-        Distribution::Uniform(0.0, 1.0),
-        &cpu,
-    ));
+    let mut rgba = uniform([d, 4, mh, mw], 0.0, 1.0);
     let px = mw * mh;
     for p in 0..d {
         for i in 0..px {
@@ -358,11 +351,7 @@ fn wgpu_sweep_and_components_equal_the_cpu() {
     };
     let region = (2, 3, 13, 9);
     let dims = [d, 11, 9, 13];
-    let seed = to_vec(Tensor::<4>::random(
-        dims,
-        Distribution::Uniform(-1.0, 1.0),
-        &cpu,
-    ));
+    let seed = uniform(dims, -1.0, 1.0);
     let components = |dev: &Device| {
         let ad = dev.clone().autodiff();
         let x = Tensor::<4>::from_data(TensorData::new(rgba.clone(), [d, 4, mh, mw]), &ad)
@@ -408,22 +397,14 @@ fn wgpu_view_max_equals_burns_ops() {
     let (k, d, c, h, w) = (3, 4, 5, 6, 7);
     let dims = [k * d, c, h, w];
     let n: usize = dims.iter().product();
-    let x = to_vec(Tensor::<1>::random(
-        [n],
-        Distribution::Uniform(-1.0, 1.0),
-        &cpu,
-    ));
+    let x = uniform([n], -1.0, 1.0);
     for keep in [true, false] {
         let od = if keep {
             [k * d, 2 * c, h, w]
         } else {
             [d, c, h, w]
         };
-        let seed = to_vec(Tensor::<4>::random(
-            od,
-            Distribution::Uniform(-1.0, 1.0),
-            &cpu,
-        ));
+        let seed = uniform(od, -1.0, 1.0);
         let run = |dev: &Device, kernel: bool, data: &[f32]| {
             let ad = dev.clone().autodiff();
             let t =
@@ -489,19 +470,11 @@ fn wgpu_state_rgba_equals_burns_ops() {
     let cpu = Device::flex();
     let dims = [5, 7, 6, 9];
     let n: usize = dims.iter().product();
-    let mut x = to_vec(Tensor::<1>::random(
-        [n],
-        Distribution::Uniform(-6.0, 6.0),
-        &cpu,
-    ));
+    let mut x = uniform([n], -6.0, 6.0);
     x[0] = 40.0;
     x[1] = -40.0;
     let od = [5, 4, 6, 9];
-    let seed = to_vec(Tensor::<4>::random(
-        od,
-        Distribution::Uniform(-1.0, 1.0),
-        &cpu,
-    ));
+    let seed = uniform(od, -1.0, 1.0);
     let run = |dev: &Device, kernel: bool| {
         let ad = dev.clone().autodiff();
         let t = Tensor::<4>::from_data(TensorData::new(x.clone(), dims), &ad).require_grad();
@@ -533,13 +506,7 @@ fn wgpu_net_input_equals_burns_cats() {
     let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
     let cpu = Device::flex();
     let (k, d, cv, sc, h, w) = (3, 4, 11, 6, 5, 7);
-    let rand = |dims: [usize; 4], lo: f64, hi: f64| {
-        to_vec(Tensor::<4>::random(
-            dims,
-            Distribution::Uniform(lo, hi),
-            &cpu,
-        ))
-    };
+    let rand = |dims: [usize; 4], lo: f64, hi: f64| uniform(dims, lo, hi);
     let views: Vec<Vec<f32>> = (0..k).map(|_| rand([d, cv, h, w], -1.0, 1.0)).collect();
     let state = rand([d, sc, h, w], -2.0, 2.0);
     let od = [k * d, cv + sc, h, w];
@@ -623,7 +590,10 @@ fn wgpu_channels_last_weights_keep_values_and_gradients() {
     let moved = crate::gpu::channels_last_weights(conv.clone());
     assert_eq!(to_vec(moved.weight.val().inner()), before);
     assert!(moved.weight.val().is_require_grad());
-    let x = Tensor::<4>::random([2, 5, 6, 8], Distribution::Uniform(-1.0, 1.0), &ad);
+    let x = Tensor::<4>::from_data(
+        TensorData::new(uniform([2, 5, 6, 8], -1.0, 1.0), [2, 5, 6, 8]),
+        &ad,
+    );
     let (a, b) = (conv.forward(x.clone()), moved.forward(x.clone()));
     let e = max_diff(&to_vec(a.inner()), &to_vec(b.clone().inner()));
     assert!(e < 1e-6, "convolution: {e}");
@@ -660,13 +630,7 @@ fn wgpu_reflect_pad_pair_equals_burns_pad() {
         (1, 2, 32, 24, 4, 3, ChannelMap::IDENTITY),
         (2, 3, 16, 24, 2, 3, caffe),
     ] {
-        let rand = |dims: [usize; 4]| {
-            to_vec(Tensor::<4>::random(
-                dims,
-                Distribution::Uniform(-1.0, 1.0),
-                &cpu,
-            ))
-        };
+        let rand = |dims: [usize; 4]| uniform(dims, -1.0, 1.0);
         let (va, vb) = (rand([n, c, h, w]), rand([n, c, w, h]));
         let od = [2 * n, c, h + 2 * ph, w + 2 * pw];
         let seed = rand(od);
@@ -712,15 +676,22 @@ fn wgpu_reflect_pad_pair_equals_burns_pad() {
 fn wgpu_squared_norms_equal_host_sums() {
     let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
     let cpu = Device::flex();
-    let a = Tensor::<1>::random([7], Distribution::Uniform(-2.0, 2.0), &cpu);
-    let b = Tensor::<4>::random([8, 12, 3, 3], Distribution::Uniform(-1.0, 1.0), &cpu);
-    let c = Tensor::<2>::random([300, 41], Distribution::Uniform(-0.5, 0.5), &cpu);
+    let a = Tensor::<1>::from_data(TensorData::new(uniform([7], -2.0, 2.0), [7]), &cpu);
+    let b = Tensor::<4>::from_data(
+        TensorData::new(uniform([8, 12, 3, 3], -1.0, 1.0), [8, 12, 3, 3]),
+        &cpu,
+    );
+    let c = Tensor::<2>::from_data(
+        TensorData::new(uniform([300, 41], -0.5, 0.5), [300, 41]),
+        &cpu,
+    );
     // 40 more of a few hundred values each, of growing scale: a slot written twice, or a chunk's
     // sums put in another chunk's slots, changes the total.
     let more: Vec<Tensor<2>> = (0..40)
         .map(|i| {
             let s = 0.1 * (i + 1) as f64;
-            Tensor::<2>::random([3 + i % 5, 50 + i], Distribution::Uniform(-s, s), &cpu)
+            let dims = [3 + i % 5, 50 + i];
+            Tensor::<2>::from_data(TensorData::new(uniform(dims, -s, s), dims), &cpu)
         })
         .collect();
     let mut values = vec![to_vec(a.clone()), to_vec(b.clone()), to_vec(c.clone())];
@@ -758,20 +729,12 @@ fn wgpu_pair_l1_equals_burns_ops() {
     ] {
         let dims = [2 * n, c, h, w];
         let len: usize = dims.iter().product();
-        let mut v = to_vec(Tensor::<1>::random(
-            [len],
-            Distribution::Uniform(-1.0, 1.0),
-            &cpu,
-        ));
+        let mut v = uniform([len], -1.0, 1.0);
         // Every 7th pair equal: zero difference (values in [N, C, h, w] order).
         for i in (0..len / 2).step_by(7) {
             v[len / 2 + i] = v[i];
         }
-        let weights = to_vec(Tensor::<1>::random(
-            [n],
-            Distribution::Uniform(0.5, 2.0),
-            &cpu,
-        ));
+        let weights = uniform([n], 0.5, 2.0);
         let run = |dev: &Device, kernel: bool| {
             let ad = dev.clone().autodiff();
             let t = Tensor::<4>::from_data(TensorData::new(v.clone(), dims), &ad).require_grad();
@@ -823,13 +786,7 @@ fn wgpu_conv3x3_equals_burns_conv() {
         // More output positions than a cube's 256 units (the bias gradient's strided share).
         (4, 8, 8, 12, 10, true),
     ] {
-        let rand = |len: usize| {
-            to_vec(Tensor::<1>::random(
-                [len],
-                Distribution::Uniform(-1.0, 1.0),
-                &cpu,
-            ))
-        };
+        let rand = |len: usize| uniform([len], -1.0, 1.0);
         let (vx, vw, vb) = (rand(n * ci * h * w), rand(co * ci * 9), rand(co));
         let seed = rand(n * co * h * w);
         let run = |dev: &Device, kernel: bool| {
@@ -883,13 +840,7 @@ fn wgpu_frozen_conv_keeps_its_flip() {
     let gpu = crate::device::parse_device("wgpu:cpu").expect("lavapipe (mesa-vulkan-drivers)");
     let cpu = Device::flex();
     let (n, ci, co, h, w) = (2, 8, 8, 7, 6);
-    let rand = |len: usize| {
-        to_vec(Tensor::<1>::random(
-            [len],
-            Distribution::Uniform(-1.0, 1.0),
-            &cpu,
-        ))
-    };
+    let rand = |len: usize| uniform([len], -1.0, 1.0);
     let (vx, vb, seed) = (rand(n * ci * h * w), rand(co), rand(n * co * h * w));
     // `ad`: an autodiff device; `wt` on it without require_grad (no gradient: frozen).
     let x_grad = |ad: &Device, kernel: bool, wt: &Tensor<4>| {
@@ -954,16 +905,8 @@ fn wgpu_crop_equals_burns_narrow() {
         ([2, 8, 12, 10], (4, 4, 4, 2), true),
     ] {
         let len: usize = dims.iter().product();
-        let v = to_vec(Tensor::<1>::random(
-            [len],
-            Distribution::Uniform(-1.0, 1.0),
-            &cpu,
-        ));
-        let seed = to_vec(Tensor::<1>::random(
-            [dims[0] * dims[1] * oh * ow],
-            Distribution::Uniform(-1.0, 1.0),
-            &cpu,
-        ));
+        let v = uniform([len], -1.0, 1.0);
+        let seed = uniform([dims[0] * dims[1] * oh * ow], -1.0, 1.0);
         let run = |dev: &Device, kernel: bool| {
             let ad = dev.clone().autodiff();
             let t = Tensor::<4>::from_data(TensorData::new(v.clone(), dims), &ad).require_grad();

@@ -49,7 +49,8 @@ fn tiled_equals_untiled() {
         init_prior: None,
         ..DeepViewConfig::preset("cpu").unwrap()
     };
-    let model = DeepViewModel::new(&cfg, &dev);
+    // Fixed weights, drawn under the generator's lock (other tests draw too).
+    let model = crate::rng::seeded_module(&dev, 3, || DeepViewModel::new(&cfg, &dev));
     let (views, reference, depths) = scene(3);
     // Untiled reference: the model's own window forward on the whole reference image.
     let inputs = ModelInputs {
@@ -312,7 +313,8 @@ fn small_model(dev: &Device, unet_nets: usize) -> DeepViewModel {
         init_prior: None,
         ..DeepViewConfig::preset("cpu").unwrap()
     };
-    DeepViewModel::new(&cfg, dev)
+    // Fixed weights, drawn under the generator's lock (other tests draw too).
+    crate::rng::seeded_module(dev, 30 + unet_nets as u64, || DeepViewModel::new(&cfg, dev))
 }
 
 /// The untiled model on the whole reference image, as `[D][4][H][W]`.
@@ -394,8 +396,12 @@ fn strong_parallax_sub_windows_are_exact_and_small() {
     let (w, h, d) = (geom.w, geom.h, geom.d);
     // A random MPI (not the model's): the views' gradient components on a region from the sub-window
     // equal those from the whole MPI.
-    let alpha = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(0.05, 0.95), &dev);
-    let col = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(0.0, 1.0), &dev);
+    let (alpha, col) = crate::rng::seeded(&dev, 8, || {
+        (
+            Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(0.05, 0.95), &dev),
+            Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(0.0, 1.0), &dev),
+        )
+    });
     let rgba = Tensor::cat(vec![col * alpha.clone(), alpha], 1);
     let images: Vec<Tensor<3>> = views
         .iter()
