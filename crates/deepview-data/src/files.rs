@@ -8,9 +8,10 @@ use std::path::{Path, PathBuf};
 pub(crate) fn image_size(path: &Path) -> Result<(u32, u32), DataError> {
     match deepview_image::image_size(path) {
         Ok(s) => Ok(s),
-        Err(e) => match deepview_image::read_image(path, 3) {
+        // (The decoder's error names the file's real format, or why it cannot be read.)
+        Err(_) => match deepview_image::read_image(path, 3) {
             Ok(img) => Ok((img.width, img.height)),
-            Err(_) => Err(e.into()),
+            Err(e) => Err(e.into()),
         },
     }
 }
@@ -36,6 +37,61 @@ pub(crate) fn list_images(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
     }
     out.sort();
     Ok(out)
+}
+
+/// Why a folder's image count may not be what its user expects: its files with an image
+/// extension deepview does not read, and the names that appear with two extensions (the
+/// `listed` files of [`list_images`] share a stem). Empty where there is neither; otherwise
+/// starts with "; ".
+pub(crate) fn image_count_note(dir: &Path, listed: &[PathBuf]) -> String {
+    const OTHER: &[&str] = &[
+        "tif", "tiff", "webp", "heic", "heif", "avif", "bmp", "exr", "dng", "raw", "cr2", "nef",
+        "arw", "gif",
+    ];
+    let mut unread: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            let ext = p
+                .extension()
+                .map(|e| e.to_string_lossy().to_ascii_lowercase())
+                .unwrap_or_default();
+            p.is_file() && OTHER.contains(&ext.as_str())
+        })
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect();
+    unread.sort();
+    let mut note = String::new();
+    if !unread.is_empty() {
+        let more = unread.len().saturating_sub(5);
+        unread.truncate(5);
+        note += &format!(
+            "; not read: {}{} (deepview reads PNG and JPEG views)",
+            unread.join(", "),
+            if more > 0 {
+                format!(" and {more} more")
+            } else {
+                String::new()
+            }
+        );
+    }
+    let stems: Vec<_> = listed.iter().map(|p| p.with_extension("")).collect();
+    if let Some(i) = (1..stems.len()).find(|&i| stems[..i].contains(&stems[i])) {
+        let first = stems[..i].iter().position(|s| s == &stems[i]).unwrap_or(0);
+        let name = |p: &PathBuf| {
+            p.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default()
+        };
+        note += &format!(
+            "; {} and {} are one view twice?",
+            name(&listed[first]),
+            name(&listed[i])
+        );
+    }
+    note
 }
 
 pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>, DataError> {

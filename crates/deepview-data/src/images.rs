@@ -55,7 +55,7 @@ impl Scene {
     pub fn load_image(&self, i: usize) -> Result<ImageF32, DataError> {
         self.check_image(i)?;
         let v = &self.views[i];
-        let img = deepview_image::read_image(&v.image_path, 3)?.downscale(self.downscale.max(1));
+        let img = deepview_image::read_photo(&v.image_path)?.downscale(self.downscale.max(1));
         if (img.width, img.height) != (v.camera.width, v.camera.height) {
             return Err(DataError::ImageSize {
                 path: v.image_path.clone(),

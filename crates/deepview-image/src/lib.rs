@@ -193,7 +193,7 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
             let (w, h) = dec
                 .dimensions()
                 .ok_or_else(|| corrupt("JPEG without a size".into()))?;
-            if !bytes.windows(2).rev().take(4096).any(|w| w == [0xFF, 0xD9]) {
+            if !jpeg_complete(&bytes) {
                 return Err(corrupt(
                     "truncated JPEG (no end-of-image marker FF D9)".into(),
                 ));
@@ -205,6 +205,10 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
         image::ImageFormat::Png if !png_complete(&bytes) => Err(corrupt(
             "truncated PNG (no complete IEND chunk at the end)".into(),
         )),
+        f if !f.reading_enabled() => Err(corrupt(format!(
+            "is a {} file, which deepview does not read: convert it to PNG or JPEG",
+            f.extensions_str().first().unwrap_or(&"?").to_uppercase()
+        ))),
         f => image::load_from_memory_with_format(&bytes, f).map_err(|e| match e {
             // The decoder's memory limit: say how large the image is and what to do.
             image::ImageError::Limits(_) => match image_size(path) {
@@ -237,13 +241,101 @@ fn refuse_special(path: &Path) -> std::io::Result<()> {
     }
 }
 
-/// Whether a PNG file ends with its IEND chunk and that chunk's CRC (trailing bytes after it allowed).
+/// Whether a PNG file holds its chunks up to a complete IEND chunk (its CRC included), walked by
+/// their lengths: anything after IEND (data some cameras and apps append) is allowed.
 fn png_complete(bytes: &[u8]) -> bool {
-    let tail = bytes.len().saturating_sub(64);
-    bytes[tail..]
-        .windows(4)
-        .rposition(|w| w == b"IEND")
-        .is_some_and(|p| tail + p + 8 <= bytes.len())
+    let mut at = 8usize;
+    while let Some(head) = bytes.get(at..at + 8) {
+        let len = u32::from_be_bytes([head[0], head[1], head[2], head[3]]) as usize;
+        // Length, type, data and CRC.
+        let Some(end) = at.checked_add(12).and_then(|e| e.checked_add(len)) else {
+            return false;
+        };
+        if end > bytes.len() {
+            return false;
+        }
+        if &head[4..8] == b"IEND" {
+            return true;
+        }
+        at = end;
+    }
+    false
+}
+
+/// Whether a JPEG file holds its segments and scans up to the end-of-image marker (FF D9), walked by
+/// the segments' lengths and over each scan's entropy-coded data: an EXIF thumbnail's own FF D9 is
+/// skipped with its segment, and anything after the image's end (a phone's motion-photo video) is
+/// allowed.
+fn jpeg_complete(bytes: &[u8]) -> bool {
+    if !bytes.starts_with(&[0xFF, 0xD8]) {
+        return false;
+    }
+    let mut at = 2usize;
+    loop {
+        // A marker: FF (fill bytes FF allowed) then its code.
+        if bytes.get(at) != Some(&0xFF) {
+            return false;
+        }
+        while bytes.get(at) == Some(&0xFF) {
+            at += 1;
+        }
+        let Some(&code) = bytes.get(at) else {
+            return false;
+        };
+        at += 1;
+        match code {
+            0xD9 => return true,
+            // Standalone markers: restarts, TEM.
+            0xD0..=0xD7 | 0x01 => continue,
+            _ => {}
+        }
+        let Some(len) = bytes
+            .get(at..at + 2)
+            .map(|l| u16::from_be_bytes([l[0], l[1]]) as usize)
+        else {
+            return false;
+        };
+        if len < 2 || at + len > bytes.len() {
+            return false;
+        }
+        at += len;
+        if code == 0xDA {
+            // A scan's entropy-coded data runs to the next marker other than a stuffed zero or a
+            // restart.
+            loop {
+                let Some(p) = bytes[at..].iter().position(|&b| b == 0xFF) else {
+                    return false;
+                };
+                at += p;
+                match bytes.get(at + 1) {
+                    None => return false,
+                    Some(0x00 | 0xD0..=0xD7 | 0xFF) => at += 1,
+                    Some(_) => break,
+                }
+            }
+        }
+    }
+}
+
+/// Read a photo as RGB for the views of a scene. Where it has transparent pixels (alpha below 1, or
+/// a PNG's transparent colour) they are composited onto white, as NeRF tools read Blender's
+/// synthetic scenes (transparent backgrounds): dropping the alpha would take the colour stored
+/// under it (often black) for the scene's.
+pub fn read_photo(path: &Path) -> Result<ImageF32, ImageError> {
+    let img = decode_file(path)?;
+    let (w, h) = (img.width(), img.height());
+    if !img.color().has_alpha() {
+        return ImageF32::from_data(w, h, 3, img.into_rgb32f().into_raw());
+    }
+    let rgba = img.into_rgba32f().into_raw();
+    let data = rgba
+        .chunks_exact(4)
+        .flat_map(|p| {
+            let a = p[3];
+            [0, 1, 2].map(|c| p[c] * a + (1.0 - a))
+        })
+        .collect();
+    ImageF32::from_data(w, h, 3, data)
 }
 
 /// Read a PNG or JPEG (8 or 16 bit) as RGB (`channels = 3`) or RGBA (`channels = 4`, straight alpha),
@@ -463,6 +555,117 @@ mod tests {
 
     fn write_jpeg(path: &Path, img: &ImageF32) -> Result<(), ImageError> {
         super::write_jpeg(path, img, 90)
+    }
+
+    /// Data after a complete image (a phone's motion-photo video after a JPEG, an app's bytes after
+    /// a PNG's IEND) is allowed; an image cut short inside its data is refused even where an EXIF
+    /// thumbnail's own end marker lies within the file's last bytes.
+    #[test]
+    fn data_after_the_end_is_allowed_and_thumbnails_do_not_end_an_image() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = ImageF32::new(64, 48, 3);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = ((i * 53) % 241) as f32 / 241.0;
+        }
+        let jpg = dir.path().join("a.jpg");
+        write_jpeg(&jpg, &img).unwrap();
+        let png = dir.path().join("a.png");
+        write_png(&png, &img).unwrap();
+        for (p, trailer) in [(&jpg, 100_000), (&png, 5_000)] {
+            let mut bytes = std::fs::read(p).unwrap();
+            let want = read_image(p, 3).unwrap();
+            // Not zeros only: a video's bytes hold FF and chunk-like words.
+            bytes.extend((0..trailer).map(|i| (i * 7919 % 256) as u8));
+            let t = dir.path().join(format!(
+                "trailer_{}",
+                p.file_name().unwrap().to_str().unwrap()
+            ));
+            std::fs::write(&t, &bytes).unwrap();
+            assert!(read_image(&t, 3).unwrap() == want, "{}", t.display());
+        }
+        // A JPEG with an APP1 segment holding a thumbnail (FF D8 ... FF D9), cut inside its scan:
+        // the thumbnail's end marker, within the file's last bytes, does not end the image.
+        let bytes = std::fs::read(&jpg).unwrap();
+        let mut app1 = vec![0xFF, 0xE1];
+        let thumb: &[u8] = b"Exif\0\0\xFF\xD8thumbnail\xFF\xD9";
+        app1.extend(((thumb.len() + 2) as u16).to_be_bytes());
+        app1.extend(thumb);
+        let mut full = bytes[..2].to_vec();
+        full.extend(&app1);
+        full.extend(&bytes[2..]);
+        let whole = dir.path().join("whole.jpg");
+        std::fs::write(&whole, &full).unwrap();
+        assert!(read_image(&whole, 3).unwrap() == read_image(&jpg, 3).unwrap());
+        let cut = &full[..full.len() * 2 / 3];
+        assert!(jpeg_complete(&full) && !jpeg_complete(cut));
+        let t = dir.path().join("cut.jpg");
+        std::fs::write(&t, cut).unwrap();
+        match read_image(&t, 3) {
+            Ok(_) => panic!("a cut JPEG was read"),
+            Err(e) => assert!(e.to_string().contains("cut.jpg"), "{e}"),
+        }
+        // PNG chunks walked by their lengths: a file ending inside a chunk whose data holds the
+        // word IEND is refused.
+        let bytes = std::fs::read(&png).unwrap();
+        let mut fake = bytes[..bytes.len() - 12].to_vec(); // without its IEND chunk
+        fake.extend(40u32.to_be_bytes());
+        fake.extend(b"tEXt");
+        fake.extend(b"note\0IEND\0\0\0\0\xAEB`\x82");
+        assert!(png_complete(&bytes) && !png_complete(&fake));
+        let t = dir.path().join("fake.png");
+        std::fs::write(&t, &fake).unwrap();
+        let e = read_image(&t, 3).unwrap_err().to_string();
+        assert!(e.contains("truncated PNG"), "{e}");
+    }
+
+    /// A view's photo with transparent pixels reads composited onto white; an opaque RGBA photo
+    /// reads as its RGB.
+    #[test]
+    fn photos_with_transparent_pixels_are_composited_onto_white() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = ImageF32::new(8, 6, 4);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = if i % 4 == 3 {
+                1.0
+            } else {
+                (i % 13) as f32 / 13.0
+            };
+        }
+        let opaque = dir.path().join("opaque.png");
+        write_png(&opaque, &img).unwrap();
+        let rgb = read_photo(&opaque).unwrap();
+        assert!(rgb == read_image(&opaque, 3).unwrap());
+        assert_eq!(rgb.channels, 3);
+        // Pixel 5 transparent, pixel 9 half (alpha 128/255 in the file).
+        img.data[4 * 5 + 3] = 0.0;
+        img.data[4 * 9 + 3] = 128.0 / 255.0;
+        let holes = dir.path().join("holes.png");
+        write_png(&holes, &img).unwrap();
+        let back = read_photo(&holes).unwrap();
+        let stored = read_image(&holes, 4).unwrap();
+        for p in 0..48 {
+            let a = stored.data[4 * p + 3];
+            for c in 0..3 {
+                let want = stored.data[4 * p + c] * a + 1.0 - a;
+                assert!((back.data[3 * p + c] - want).abs() < 1e-6, "pixel {p}");
+            }
+        }
+        assert_eq!(&back.data[15..18], &[1.0, 1.0, 1.0]);
+    }
+
+    /// A file of a format deepview does not read, named as a PNG: the error says what it is.
+    #[test]
+    fn other_formats_named_png_say_what_they_are() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("view.png");
+        let mut tiff = b"II*\0\x08\0\0\0".to_vec();
+        tiff.extend([0u8; 64]);
+        std::fs::write(&p, &tiff).unwrap();
+        let e = read_image(&p, 3).unwrap_err().to_string();
+        assert!(
+            e.contains("view.png") && e.contains("is a TIFF file"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -108,17 +108,30 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         return Err(DataError::CountMismatch {
             path: npy,
             msg: format!(
-                "{} camera rows but {} image files in {} (they are matched in name order)",
+                "{} camera rows but {} image files in {} (they are matched in name order){}",
                 records.len(),
                 files.len(),
-                dir.display()
+                dir.display(),
+                crate::files::image_count_note(&dir, &files)
             ),
         });
     }
+    // The views' common size (the most frequent one): a view of another size is the one named.
+    let sizes = files
+        .iter()
+        .map(|f| crate::image_size(f))
+        .collect::<Result<Vec<_>, _>>()?;
+    let common = sizes
+        .iter()
+        .max_by_key(|s| {
+            (
+                sizes.iter().filter(|t| t == s).count(),
+                std::cmp::Reverse(sizes.iter().position(|t| t == *s)),
+            )
+        })
+        .copied();
     let mut views = Vec::with_capacity(files.len());
-    let mut size0 = None;
-    for (i, (rec, file)) in records.iter().zip(&files).enumerate() {
-        let (w, h) = crate::image_size(file)?;
+    for (i, ((rec, file), &(w, h))) in records.iter().zip(&files).zip(&sizes).enumerate() {
         let [full_h, full_w, focal] = rec.hwf;
         if !(full_h > 0.0 && full_w > 0.0 && focal > 0.0) {
             return Err(DataError::invalid(
@@ -129,15 +142,15 @@ pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> 
         let (sx, sy) = (w as f64 / full_w, h as f64 / full_h);
         // Downsampled folders round sizes; anything else means the images do not belong to the poses.
         let expected_h = (full_h * sx).round() as u32;
-        if (h as f64 - full_h * sx).abs() > 1.0 || size0.is_some_and(|s| s != (w, h)) {
+        let odd = common.filter(|&c| c != (w, h));
+        if odd.is_some() || (h as f64 - full_h * sx).abs() > 1.0 {
             return Err(DataError::ImageSize {
                 path: file.clone(),
                 calibration: npy.clone(),
-                expected: size0.unwrap_or((w, expected_h)),
+                expected: odd.unwrap_or((w, expected_h)),
                 got: (w, h),
             });
         }
-        size0 = Some((w, h));
         let pose = llff_c2w_to_pose(rec.c2w)
             .map_err(|e| DataError::geometry(&npy, format!("row {i}"), e))?;
         let intr = Intrinsics::new(focal * sx, focal * sy, w as f64 / 2.0, h as f64 / 2.0);
@@ -320,6 +333,59 @@ mod tests {
         );
         crate::write_image(&dir.path().join("images_8/image001.png"), &images(1)[0]).unwrap();
         assert!(load_scene(dir.path(), &LoadOptions::default()).is_ok());
+        // The first view a row short (within the poses' rounding of a downsampled folder): it is
+        // the one named, with the others' size.
+        crate::write_image(
+            &dir.path().join("images_8/image000.png"),
+            &ImageF32::new(12, 7, 3),
+        )
+        .unwrap();
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("image000.png is (12, 7)") && e.contains("says (12, 8)"),
+            "{e}"
+        );
+        crate::write_image(&dir.path().join("images_8/image000.png"), &images(1)[0]).unwrap();
+        // A view in a format deepview does not read, and one name twice: the count says why.
+        std::fs::rename(
+            dir.path().join("images_8/image002.png"),
+            dir.path().join("images_8/image002.tif"),
+        )
+        .unwrap();
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("3 camera rows but 2 image files") && e.contains("not read: image002.tif"),
+            "{e}"
+        );
+        std::fs::remove_file(dir.path().join("images_8/image002.tif")).unwrap();
+        crate::write_image(&dir.path().join("images_8/image002.png"), &images(1)[0]).unwrap();
+        crate::write_image(&dir.path().join("images_8/image001.jpg"), &images(1)[0]).unwrap();
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("3 camera rows but 4 image files")
+                && e.contains("image001.jpg and image001.png are one view twice?"),
+            "{e}"
+        );
+        std::fs::remove_file(dir.path().join("images_8/image001.jpg")).unwrap();
+        // A view with transparent pixels: composited onto white where it is read.
+        let mut holes = ImageF32::new(12, 8, 4);
+        holes.data.iter_mut().for_each(|v| *v = 0.25);
+        (0..96).for_each(|p| holes.data[4 * p + 3] = 1.0);
+        holes.data[3] = 0.0;
+        deepview_image::write_png(&dir.path().join("images_8/image001.png"), &holes).unwrap();
+        let s = load_scene(dir.path(), &LoadOptions::default()).unwrap();
+        let img = s.load_image(1).unwrap();
+        assert_eq!(
+            &img.data[..6],
+            &[1.0, 1.0, 1.0, 64.0 / 255.0, 64.0 / 255.0, 64.0 / 255.0]
+        );
+        crate::write_image(&dir.path().join("images_8/image001.png"), &images(1)[0]).unwrap();
         // A NaN in the poses.
         let npy = dir.path().join(POSES_BOUNDS);
         let mut a = crate::npy::read_npy(&npy).unwrap();
