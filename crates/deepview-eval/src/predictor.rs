@@ -17,6 +17,8 @@ pub struct MpiPredictor<'e> {
     events: Box<dyn FnMut(MethodEvent<'_>) + 'e>,
     last: Option<(RequestKey, MadeMpi)>,
     compact: Option<CompactOptions>,
+    /// Why the last prediction shows little of its MPI ([`deepview_mpi::view_warning`]).
+    warning: Option<String>,
 }
 
 impl<'e> MpiPredictor<'e> {
@@ -27,6 +29,7 @@ impl<'e> MpiPredictor<'e> {
             events: Box::new(events),
             last: None,
             compact: None,
+            warning: None,
         }
     }
 
@@ -88,7 +91,16 @@ impl<'e> MpiPredictor<'e> {
             near_far,
             toward: Some(target),
         })?;
-        Ok(deepview_mpi::render(&made.mpi, target).to_rgb())
+        let rgba = deepview_mpi::render(&made.mpi, target);
+        let warning = deepview_mpi::view_warning(&made.mpi, target, deepview_mpi::coverage(&rgba));
+        self.warning = warning;
+        Ok(rgba.to_rgb())
+    }
+
+    /// Why the last prediction shows little of its MPI (a target behind the planes, or one the MPI
+    /// hardly covers), where it does.
+    pub fn last_warning(&self) -> Option<&str> {
+        self.warning.as_deref()
     }
 
     /// The MPI the last prediction rendered and how its planes were chosen.

@@ -263,6 +263,15 @@ pub fn evaluate_splits(
                 seconds
             );
         }
+        if let (true, Some(w)) = (options.verbose, method.last_warning()) {
+            use std::io::Write as _;
+            let _ = writeln!(
+                std::io::stderr(),
+                "warning: view {} ({}): {w}; its score says little of the method",
+                result.target,
+                result.target_name
+            );
+        }
         let safe: String = result
             .target_name
             .chars()

@@ -62,26 +62,30 @@ pub fn reference_camera(
             ))
         })?,
         None => {
+            check_facing(inputs)?;
             // Average rotation: mean of the rotation matrices projected back to SO(3).
             let sum = inputs.iter().fold(DMat3::ZERO, |a, c| a + c.pose.rotation);
             let rotation = orthonormalize(sum * (1.0 / n));
-            let k = inputs.iter().fold([0.0; 4], |a, c| {
-                let i = c.intrinsics;
-                [
-                    a[0] + i.fx,
-                    a[1] + i.fy,
-                    a[2] + i.cx - c.width as f64 / 2.0,
-                    a[3] + i.cy - c.height as f64 / 2.0,
-                ]
+            let (fx, fy) = inputs.iter().fold((0.0, 0.0), |a, c| {
+                (a.0 + c.intrinsics.fx, a.1 + c.intrinsics.fy)
             });
+            // The principal point's offset from the image centre: the median (one view with an
+            // odd offset, as a crop's, does not move the reference off the others).
+            let (dx, dy) = (
+                median(
+                    inputs
+                        .iter()
+                        .map(|c| c.intrinsics.cx - c.width as f64 / 2.0),
+                ),
+                median(
+                    inputs
+                        .iter()
+                        .map(|c| c.intrinsics.cy - c.height as f64 / 2.0),
+                ),
+            );
             let w = (inputs.iter().map(|c| c.width as f64).sum::<f64>() / n).round() as u32;
             let h = (inputs.iter().map(|c| c.height as f64).sum::<f64>() / n).round() as u32;
-            let intr = Intrinsics::new(
-                k[0] / n,
-                k[1] / n,
-                w as f64 / 2.0 + k[2] / n,
-                h as f64 / 2.0 + k[3] / n,
-            );
+            let intr = Intrinsics::new(fx / n, fy / n, w as f64 / 2.0 + dx, h as f64 / 2.0 + dy);
             Camera::new(w, h, intr, Pose::from_center(rotation, centroid))
         }
     };
@@ -109,6 +113,41 @@ pub fn reference_camera(
     }
     base.validate()?;
     Ok(base)
+}
+
+/// The median of `values` (the mean of the middle two for an even count).
+fn median(values: impl Iterator<Item = f64>) -> f64 {
+    let mut v: Vec<f64> = values.collect();
+    v.sort_by(f64::total_cmp);
+    match v.len() {
+        0 => 0.0,
+        n if n % 2 == 1 => v[n / 2],
+        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
+    }
+}
+
+/// Inputs whose viewing directions lie 90 degrees or more apart share no planes an MPI could hold
+/// (and their average orientation is undefined for opposite ones): refused, naming the pair.
+fn check_facing(inputs: &[Camera]) -> Result<(), GeometryError> {
+    let axis = |c: &Camera| c.pose.rotation.transpose() * DVec3::Z;
+    let mut worst: Option<(usize, usize, f64)> = None;
+    for i in 0..inputs.len() {
+        for j in i + 1..inputs.len() {
+            let cos = axis(&inputs[i]).dot(axis(&inputs[j])).clamp(-1.0, 1.0);
+            if worst.is_none_or(|w| cos < w.2) {
+                worst = Some((i, j, cos));
+            }
+        }
+    }
+    match worst {
+        Some((i, j, cos)) if cos <= 1e-9 => Err(GeometryError::Invalid(format!(
+            "input cameras {i} and {j} (in the order given, from 0) look {:.0} degrees apart: an \
+             MPI is made from views that face the same way, within 90 degrees of each other \
+             (forward-facing captures)",
+            cos.acos().to_degrees()
+        ))),
+        _ => Ok(()),
+    }
 }
 
 /// `base` with `scale` times its pixels along each axis over the same field of view: the intrinsics
@@ -227,6 +266,46 @@ mod tests {
         assert!(r.center().length() < 1e-12);
         assert!(r.pose.rotation.abs_diff_eq(DMat3::IDENTITY, 1e-9));
         assert_eq!((r.width, r.height), (64, 48));
+    }
+
+    /// Inputs 90 degrees or more apart are refused with the pair and their angle (their average
+    /// orientation was undefined: a NaN pose); a view turned 60 degrees is not.
+    #[test]
+    fn inputs_facing_apart_are_refused_by_name() {
+        for (deg, refused) in [(180.0, true), (120.0, true), (90.0, true), (60.0, false)] {
+            let mut cams = rig();
+            let r = DMat3::from_rotation_y(f64::to_radians(deg));
+            cams[2].pose = Pose::from_center(r, cams[2].center());
+            let got = reference_camera(&cams, &ReferenceOptions::default());
+            match got {
+                Err(e) if refused => {
+                    let e = e.to_string();
+                    assert!(
+                        e.contains("input cameras 0 and 2")
+                            && e.contains(&format!("look {deg:.0} degrees apart")),
+                        "{deg}: {e}"
+                    );
+                }
+                Ok(c) if !refused => assert!(c.validate().is_ok()),
+                other => panic!("{deg} degrees: {other:?}"),
+            }
+        }
+    }
+
+    /// One view whose principal point lies far off its image (a crop's) does not move the
+    /// reference's principal point off the others' (the median offset).
+    #[test]
+    fn one_odd_principal_point_leaves_the_reference_centred() {
+        let mut cams = rig();
+        cams[2].intrinsics.cx = 640.0;
+        let r = reference_camera(&cams, &ReferenceOptions::default()).unwrap();
+        assert_eq!(r.intrinsics.cx, 32.0);
+        assert_eq!(r.intrinsics.cy, 24.0);
+        for c in &mut cams[1..3] {
+            c.intrinsics.cx = 40.0;
+        }
+        let r = reference_camera(&cams, &ReferenceOptions::default()).unwrap();
+        assert_eq!(r.intrinsics.cx, 36.0);
     }
 
     #[test]

@@ -218,6 +218,46 @@ pub fn render<T: Texel>(mpi: &Mpi<T>, target: &Camera) -> ImageF32 {
     out
 }
 
+/// The fraction of a render's pixels (from [`render`]: alpha in channel 3) the MPI covers (alpha at
+/// least 1/2).
+pub fn coverage(rendered: &ImageF32) -> f64 {
+    if rendered.channels != 4 || rendered.data.is_empty() {
+        return 0.0;
+    }
+    let covered = rendered
+        .data
+        .chunks_exact(4)
+        .filter(|p| p[3] >= 0.5)
+        .count();
+    covered as f64 / (rendered.data.len() / 4) as f64
+}
+
+/// Below this [`coverage`] a render shows almost nothing of its MPI.
+pub const LOW_COVERAGE: f64 = 0.01;
+
+/// Why a render of an MPI from `target` shows little of it, where it does: a camera at or beyond
+/// the MPI's nearest plane (the planes are composited for cameras in front of them), or one that
+/// sees less than [`LOW_COVERAGE`] of its image covered (`coverage`: [`coverage`] of the render:
+/// facing away, or far outside the inputs' view). `None` for an ordinary view.
+pub fn view_warning<T: Texel>(mpi: &Mpi<T>, target: &Camera, coverage: f64) -> Option<String> {
+    let z = mpi.camera.pose.transform_point(target.center()).z;
+    let nearest = mpi.depths.iter().copied().fold(f64::INFINITY, f64::min);
+    if z >= nearest {
+        return Some(format!(
+            "the camera is at depth {z:.4} of the MPI's reference camera, at or beyond its nearest \
+             plane ({nearest:.4}): an MPI is made to be seen from in front of its planes, and this \
+             view is not what the scene looks like from there"
+        ));
+    }
+    (coverage < LOW_COVERAGE).then(|| {
+        format!(
+            "the MPI covers {:.1}% of this view (a camera facing away from it, or far outside the \
+             inputs' view): the image is mostly empty",
+            100.0 * coverage
+        )
+    })
+}
+
 /// Render an 8-bit MPI and convert to 8-bit RGBA, reusing `scratch` and `out` between frames.
 pub fn render_rgba8_into(mpi: &MpiU8, target: &Camera, scratch: &mut Vec<f32>, out: &mut Vec<u8>) {
     render_rgba8_with(mpi, None, target, scratch, out)
@@ -310,6 +350,44 @@ mod tests {
             &mut out,
         );
         out
+    }
+
+    /// An opaque far plane seen from the reference is covered everywhere; from a camera turned
+    /// away, or one beyond the nearest plane, the render warns (coverage 0, the camera's depth).
+    #[test]
+    fn views_that_show_little_of_the_mpi_are_named() {
+        let cam = Camera::new(16, 12, Intrinsics::centred(14.0, 16, 12), Pose::IDENTITY);
+        let mut layers = vec![0.0f32; 2 * 16 * 12 * 4];
+        // Plane 0 (depth 10) opaque grey, plane 1 (depth 2) empty.
+        for t in layers[..16 * 12 * 4].chunks_exact_mut(4) {
+            t.copy_from_slice(&[0.5, 0.5, 0.5, 1.0]);
+        }
+        let mpi = Mpi {
+            camera: cam,
+            depths: vec![10.0, 2.0],
+            layers,
+        };
+        let rendered = render(&mpi, &cam);
+        assert_eq!(coverage(&rendered), 1.0);
+        assert_eq!(view_warning(&mpi, &cam, coverage(&rendered)), None);
+        let away = Camera {
+            pose: Pose::from_center(DMat3::from_rotation_y(std::f64::consts::PI), DVec3::ZERO),
+            ..cam
+        };
+        let rendered = render(&mpi, &away);
+        assert_eq!(coverage(&rendered), 0.0);
+        let w = view_warning(&mpi, &away, coverage(&rendered)).unwrap();
+        assert!(w.contains("covers 0.0% of this view"), "{w}");
+        let beyond = Camera {
+            pose: Pose::from_center(DMat3::IDENTITY, DVec3::new(0.0, 0.0, 3.0)),
+            ..cam
+        };
+        let rendered = render(&mpi, &beyond);
+        let w = view_warning(&mpi, &beyond, coverage(&rendered)).unwrap();
+        assert!(
+            w.contains("at depth 3.0000") && w.contains("nearest plane (2.0000)"),
+            "{w}"
+        );
     }
 
     #[test]

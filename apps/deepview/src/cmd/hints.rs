@@ -47,6 +47,9 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
         if let Some(SynthError::TooFewPlanes(_)) = cause.downcast_ref::<SynthError>() {
             return Some("--planes must be at least 2".into());
         }
+        if let Some(e) = cause.downcast_ref::<deepview_geometry::GeometryError>() {
+            return geometry(e);
+        }
         None
     })
 }
@@ -67,8 +70,20 @@ fn fewer_inputs(wanted: usize) -> String {
     format!("ask for fewer than {wanted} inputs (--inputs nearest:K, all, or a list)")
 }
 
+fn geometry(e: &deepview_geometry::GeometryError) -> Option<String> {
+    match e {
+        deepview_geometry::GeometryError::Invalid(msg) if msg.contains("degrees apart") => Some(
+            "choose input views that face the same way: --inputs nearest:K@VIEW (the K views \
+             nearest one view) or a list like 0,1,2"
+                .into(),
+        ),
+        _ => None,
+    }
+}
+
 fn method(e: &MethodError) -> Option<String> {
     Some(match e {
+        MethodError::Geometry(g) => return geometry(g),
         MethodError::PlanesOverBudget { need, .. } => match total_memory() {
             Some(t) if *need > t => format!(
                 "use fewer planes (--planes) or smaller images (--downscale): it needs more than this \

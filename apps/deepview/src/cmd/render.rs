@@ -146,6 +146,20 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
             args.fps,
         )
     };
+    // Frames whose camera is at or beyond the nearest plane show what the scene does not.
+    let beyond: Vec<usize> = (0..cameras.len())
+        .filter(|&i| deepview_mpi::view_warning(&mpi, &cameras[i], 1.0).is_some())
+        .collect();
+    if let Some(&first) = beyond.first() {
+        eprintln!(
+            "warning: {} of {} frames (the first: {first}) have their camera at or beyond the \
+             MPI's nearest plane (depth {:.4}); an MPI is made to be seen from in front of its \
+             planes",
+            beyond.len(),
+            cameras.len(),
+            mpi.depths.iter().copied().fold(f64::INFINITY, f64::min)
+        );
+    }
     let report = if kind == Kind::Frames {
         let out = OutputDir::new(&args.out, Kind::Frames)?;
         let r = super::method::video(&mpi, &cameras, (out.path(), &args.out), fps)?;
@@ -207,6 +221,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     )?;
     let mpi = read_mpi::<f32>(&args.mpi)?;
     let img = render(&mpi, &camera);
+    if let Some(w) = deepview_mpi::view_warning(&mpi, &camera, deepview_mpi::coverage(&img)) {
+        eprintln!("warning: {w}");
+    }
     write_file(&args.out, |out| {
         format.write(out, &to_output(&img, args.alpha))
     })?;

@@ -63,6 +63,39 @@ fn synth_then_render_ground_truth_into_a_view() {
         .success()
     );
     assert_eq!(deepview_image::image_size(&out).unwrap(), (40, 30));
+    // The same camera turned round (rows 0 and 2 of camera-from-world negated: 180 degrees about
+    // its y axis) sees none of the MPI: written, with a warning saying so.
+    let m = meta["camera_from_world"].as_array().unwrap();
+    let away: Vec<f64> = (0..16)
+        .map(|i| {
+            let v = m[i].as_f64().unwrap();
+            if i / 4 == 0 || i / 4 == 2 { -v } else { v }
+        })
+        .collect();
+    let cam = serde_json::json!({"width": 40, "height": 30, "fx": 50.0, "fy": 50.0, "cx": 20.0, "cy": 15.0,
+        "camera_from_world": away});
+    let away_path = tmp.path().join("away.json");
+    std::fs::write(&away_path, cam.to_string()).unwrap();
+    let render_err = |camera: &Path, out: &Path| {
+        let o = deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--camera",
+            s(camera),
+            "--out",
+            s(out),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        String::from_utf8_lossy(&o.stderr).into_owned()
+    };
+    let err = render_err(&away_path, &tmp.path().join("away.png"));
+    assert!(
+        err.contains("warning: the MPI covers 0.0% of this view"),
+        "{err}"
+    );
+    let err = render_err(&cam_path, &out);
+    assert!(!err.contains("warning"), "{err}");
     let o = deepview(&["bench", "render", "--mpi", s(&gt), "--repeats", "2"]);
     let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(line["fps"].as_f64().unwrap() > 0.0 && line["planes"] == 8);
