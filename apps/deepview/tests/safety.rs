@@ -916,7 +916,7 @@ fn sigterm_of_infer_leaves_the_old_mpi_and_train_resumes_from_its_checkpoint() {
             "--out",
             s(&out),
         ],
-        Some("inferring a 64-plane"),
+        Some("inferring an MPI of 64 planes"),
         Duration::from_millis(300),
     );
     assert_eq!(code, Some(143));

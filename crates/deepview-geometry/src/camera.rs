@@ -16,6 +16,17 @@ pub enum GeometryError {
     BadIntrinsics(String),
     #[error("invalid image size {0}x{1}")]
     BadSize(u32, u32),
+    #[error(
+        "views {first} and {second} look {degrees:.0} degrees apart: an MPI is made from views \
+         that face the same way, within 90 degrees of each other (forward-facing captures)"
+    )]
+    /// Two cameras (their places in the list given, or their view numbers where the caller knows
+    /// them) facing 90 degrees or more apart.
+    FacingApart {
+        first: usize,
+        second: usize,
+        degrees: f64,
+    },
     #[error("{0}")]
     Invalid(String),
 }

@@ -62,10 +62,13 @@ pub fn reference_camera(
             ))
         })?,
         None => {
-            check_facing(inputs)?;
-            // Average rotation: mean of the rotation matrices projected back to SO(3).
+            // Average rotation: mean of the rotation matrices projected back to SO(3) (none for
+            // views facing opposite ways: said so, with the pair).
             let sum = inputs.iter().fold(DMat3::ZERO, |a, c| a + c.pose.rotation);
             let rotation = orthonormalize(sum * (1.0 / n));
+            if !rotation.is_finite() || (rotation.determinant() - 1.0).abs() > 1e-6 {
+                return Err(facing_apart(inputs).unwrap_or(GeometryError::NonFinite("pose")));
+            }
             let (fx, fy) = inputs.iter().fold((0.0, 0.0), |a, c| {
                 (a.0 + c.intrinsics.fx, a.1 + c.intrinsics.fy)
             });
@@ -126,9 +129,9 @@ fn median(values: impl Iterator<Item = f64>) -> f64 {
     }
 }
 
-/// Inputs whose viewing directions lie 90 degrees or more apart share no planes an MPI could hold
-/// (and their average orientation is undefined for opposite ones): refused, naming the pair.
-fn check_facing(inputs: &[Camera]) -> Result<(), GeometryError> {
+/// The two inputs whose viewing directions lie furthest apart, where that is 90 degrees or more:
+/// they share no planes an MPI could hold (and opposite ones have no average orientation).
+fn facing_apart(inputs: &[Camera]) -> Option<GeometryError> {
     let axis = |c: &Camera| c.pose.rotation.transpose() * DVec3::Z;
     let mut worst: Option<(usize, usize, f64)> = None;
     for i in 0..inputs.len() {
@@ -140,13 +143,12 @@ fn check_facing(inputs: &[Camera]) -> Result<(), GeometryError> {
         }
     }
     match worst {
-        Some((i, j, cos)) if cos <= 1e-9 => Err(GeometryError::Invalid(format!(
-            "input cameras {i} and {j} (in the order given, from 0) look {:.0} degrees apart: an \
-             MPI is made from views that face the same way, within 90 degrees of each other \
-             (forward-facing captures)",
-            cos.acos().to_degrees()
-        ))),
-        _ => Ok(()),
+        Some((first, second, cos)) if cos <= 1e-9 => Some(GeometryError::FacingApart {
+            first,
+            second,
+            degrees: cos.acos().to_degrees(),
+        }),
+        _ => None,
     }
 }
 
@@ -230,6 +232,10 @@ pub fn mpi_reference_scaled(
     near_far: (f64, f64),
     scale: f64,
 ) -> Result<Camera, GeometryError> {
+    // (An MPI's planes face its reference camera: inputs 90 degrees apart share none.)
+    if let Some(e) = facing_apart(cameras) {
+        return Err(e);
+    }
     reference_camera(
         cameras,
         &ReferenceOptions {
@@ -268,20 +274,20 @@ mod tests {
         assert_eq!((r.width, r.height), (64, 48));
     }
 
-    /// Inputs 90 degrees or more apart are refused with the pair and their angle (their average
-    /// orientation was undefined: a NaN pose); a view turned 60 degrees is not.
+    /// An MPI's inputs 90 degrees or more apart are refused with the pair and their angle; a view
+    /// turned 60 degrees is not. A reference camera alone is refused only where the views have no
+    /// average orientation (two one way, two the other: a NaN pose before).
     #[test]
     fn inputs_facing_apart_are_refused_by_name() {
         for (deg, refused) in [(180.0, true), (120.0, true), (90.0, true), (60.0, false)] {
             let mut cams = rig();
             let r = DMat3::from_rotation_y(f64::to_radians(deg));
             cams[2].pose = Pose::from_center(r, cams[2].center());
-            let got = reference_camera(&cams, &ReferenceOptions::default());
-            match got {
+            match mpi_reference(&cams, (1.0, 10.0)) {
                 Err(e) if refused => {
                     let e = e.to_string();
                     assert!(
-                        e.contains("input cameras 0 and 2")
+                        e.contains("views 0 and 2")
                             && e.contains(&format!("look {deg:.0} degrees apart")),
                         "{deg}: {e}"
                     );
@@ -289,7 +295,19 @@ mod tests {
                 Ok(c) if !refused => assert!(c.validate().is_ok()),
                 other => panic!("{deg} degrees: {other:?}"),
             }
+            // (Three views one way and one the other still have an average orientation.)
+            let alone = reference_camera(&cams, &ReferenceOptions::default());
+            assert!(alone.is_ok(), "{deg}: {alone:?}");
         }
+        let mut cams = rig();
+        for c in &mut cams[2..] {
+            c.pose = Pose::from_center(DMat3::from_rotation_y(std::f64::consts::PI), c.center());
+        }
+        let e = reference_camera(&cams, &ReferenceOptions::default()).unwrap_err();
+        assert!(
+            matches!(e, GeometryError::FacingApart { degrees, .. } if degrees > 179.9),
+            "{e}"
+        );
     }
 
     /// One view whose principal point lies far off its image (a crop's) does not move the

@@ -174,6 +174,19 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
         path: path.into(),
         msg,
     };
+    // HEIC/HEIF (an iPhone's photos): an ISO box `ftyp` with its brand, which `image` does not know.
+    if bytes.get(4..8) == Some(b"ftyp")
+        && let Some(brand) = bytes.get(8..12)
+        && [
+            b"heic", b"heix", b"hevc", b"hevx", b"heim", b"heis", b"mif1", b"msf1",
+        ]
+        .iter()
+        .any(|b| &b[..] == brand)
+    {
+        return Err(corrupt(
+            "is a HEIC/HEIF file, which deepview does not read: convert it to JPEG or PNG".into(),
+        ));
+    }
     let format = image::guess_format(&bytes).map_err(|e| ImageError::Read {
         path: path.into(),
         source: e,
@@ -195,7 +208,9 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
                 .ok_or_else(|| corrupt("JPEG without a size".into()))?;
             if !jpeg_complete(&bytes) {
                 return Err(corrupt(
-                    "truncated JPEG (no end-of-image marker FF D9)".into(),
+                    "truncated or malformed JPEG (its segments do not reach an end-of-image \
+                     marker FF D9)"
+                        .into(),
                 ));
             }
             let img = image::RgbImage::from_raw(w as u32, h as u32, px)
@@ -203,11 +218,11 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
             Ok(image::DynamicImage::ImageRgb8(img))
         }
         image::ImageFormat::Png if !png_complete(&bytes) => Err(corrupt(
-            "truncated PNG (no complete IEND chunk at the end)".into(),
+            "truncated PNG (its chunks do not reach a complete IEND chunk)".into(),
         )),
         f if !f.reading_enabled() => Err(corrupt(format!(
             "is a {} file, which deepview does not read: convert it to PNG or JPEG",
-            f.extensions_str().first().unwrap_or(&"?").to_uppercase()
+            format!("{f:?}").to_uppercase()
         ))),
         f => image::load_from_memory_with_format(&bytes, f).map_err(|e| match e {
             // The decoder's memory limit: say how large the image is and what to do.
@@ -660,12 +675,17 @@ mod tests {
         let p = dir.path().join("view.png");
         let mut tiff = b"II*\0\x08\0\0\0".to_vec();
         tiff.extend([0u8; 64]);
-        std::fs::write(&p, &tiff).unwrap();
-        let e = read_image(&p, 3).unwrap_err().to_string();
-        assert!(
-            e.contains("view.png") && e.contains("is a TIFF file"),
-            "{e}"
-        );
+        let mut heic = b"\0\0\0\x18ftypheic\0\0\0\0mif1heic".to_vec();
+        heic.extend([0u8; 64]);
+        for (bytes, what) in [
+            (tiff, "is a TIFF file"),
+            (b"P6\n4 4\n255\n".to_vec(), "is a PNM file"),
+            (heic, "is a HEIC/HEIF file"),
+        ] {
+            std::fs::write(&p, &bytes).unwrap();
+            let e = read_image(&p, 3).unwrap_err().to_string();
+            assert!(e.contains("view.png") && e.contains(what), "{e}");
+        }
     }
 
     #[test]

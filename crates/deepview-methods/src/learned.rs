@@ -4,7 +4,7 @@
 
 use crate::error::MethodError;
 use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
-use crate::planes::{Planes, choose_planes, mpi_reference};
+use crate::planes::{Planes, choose_planes, mpi_reference_of};
 use deepview_geometry::{Camera, PlaneSpacing, plane_depths};
 use deepview_image::ImageF32;
 use deepview_net::burn::tensor::Device;
@@ -125,7 +125,7 @@ impl MpiMethod for LearnedMethod {
         let near_far = request.near_far;
         let cams: Vec<Camera> = request.inputs.iter().map(|(_, c)| *c).collect();
         weights::check_views(&self.config, cams.len())?;
-        let reference = mpi_reference(&cams, near_far, self.scale)?;
+        let reference = mpi_reference_of(&cams, request.ids, near_far, self.scale)?;
         let views: Vec<(ImageF32, Camera)> = request
             .inputs
             .iter()

@@ -9,7 +9,7 @@ use crate::method::{MadeMpi, MethodEvent, MpiMethod, MpiRequest};
 use crate::optimize::{OptimizeOptions, optimize_mpi_reporting};
 use crate::planes::{
     PlaneChoice, Planes, check_memory, choose_planes, fits_estimate, mpi_bytes, mpi_reference,
-    optimize_bytes, psv_mean_bytes,
+    mpi_reference_of, optimize_bytes, psv_mean_bytes,
 };
 use deepview_geometry::{Camera, DVec3};
 use std::path::PathBuf;
@@ -308,7 +308,7 @@ pub fn classical_planes(
         MethodKind::PsvMean => method.psv.scale,
         _ => 1.0,
     };
-    let reference = mpi_reference(cams, near_far, scale)?;
+    let reference = mpi_reference_of(cams, ids, near_far, scale)?;
     let (fixed, per_plane) = match method.kind {
         MethodKind::Optimize => optimize_bytes(&reference, cams, method.optimize.max_width),
         _ => psv_mean_bytes(&reference, cams, method.psv.aggregation),

@@ -62,8 +62,7 @@ pub fn optimize_mpi_with_history(
 }
 
 /// [`optimize_mpi_with_history`], calling `progress(reference, done, total)` with the MPI's reference
-/// camera before the first step (`done` 0) and after every step (`total`: the steps, and one for the
-/// final loss).
+/// camera before the first step (`done` 0) and after every step (`total`: the steps).
 pub fn optimize_mpi_reporting(
     inputs: &[(ImageF32, Camera)],
     near_far: (f64, f64),
@@ -95,7 +94,7 @@ pub fn optimize_mpi_reporting(
     let mut logits = initial_logits(&views, &reference, depths.clone());
     let mut adam = Adam::new(logits.len(), options.learning_rate as f32);
     let mut history = Vec::with_capacity(options.steps + 1);
-    let total = options.steps + 1;
+    let total = options.steps;
     progress(&reference, 0, total);
     for step in 0..options.steps {
         let mpi = logits_to_mpi(&logits, reference, &depths);
@@ -107,7 +106,6 @@ pub fn optimize_mpi_reporting(
     }
     let mpi = logits_to_mpi(&logits, reference, &depths);
     history.push(loss_and_mpi_gradient(&mpi, &views).0);
-    progress(&reference, total, total);
     Ok((mpi, history))
 }
 

@@ -69,6 +69,30 @@ pub fn mpi_reference(
     )?)
 }
 
+/// [`mpi_reference`] of the input views `ids` (dataset indices, in the cameras' order): an error
+/// about two of them names them by their view numbers, not their places in the list.
+pub fn mpi_reference_of(
+    cameras: &[Camera],
+    ids: &[usize],
+    near_far: (f64, f64),
+    scale: f64,
+) -> Result<Camera, MethodError> {
+    deepview_geometry::mpi_reference_scaled(cameras, near_far, scale).map_err(|e| {
+        MethodError::Geometry(match e {
+            deepview_geometry::GeometryError::FacingApart {
+                first,
+                second,
+                degrees,
+            } if ids.len() == cameras.len() => deepview_geometry::GeometryError::FacingApart {
+                first: ids[first],
+                second: ids[second],
+                degrees,
+            },
+            e => e,
+        })
+    })
+}
+
 /// Resolve `rule` for an MPI in `reference` from input cameras `views` (dataset indices `view_ids`, for the
 /// record; may be empty). `weights`: the learned model's count, when there is one. `fits(n)`: whether `n`
 /// planes fit the memory budget; `auto` takes the largest count up to the rule's that fits (at least

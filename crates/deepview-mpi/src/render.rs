@@ -251,8 +251,8 @@ pub fn view_warning<T: Texel>(mpi: &Mpi<T>, target: &Camera, coverage: f64) -> O
     }
     (coverage < LOW_COVERAGE).then(|| {
         format!(
-            "the MPI covers {:.1}% of this view (a camera facing away from it, or far outside the \
-             inputs' view): the image is mostly empty",
+            "the MPI covers {:.1}% of this view (a camera facing away from it or far outside the \
+             inputs' view, or an MPI that is mostly transparent): the image is mostly empty",
             100.0 * coverage
         )
     })

@@ -221,7 +221,7 @@ mod tests {
     fn growing_is_refused_where_it_cannot_preserve_the_model() {
         let dev = Device::flex();
         let from = DeepViewConfig::preset("cpu-large").unwrap();
-        let small = DeepViewModel::new(&from, &dev);
+        let small = crate::rng::module(|| DeepViewModel::new(&from, &dev));
         let to = DeepViewConfig::preset("cpu").unwrap();
         let e = grow_model(&small, &from, &to, &dev).unwrap_err();
         assert!(e.why.contains("fewer than"), "{e}");

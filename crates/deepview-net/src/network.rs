@@ -1050,7 +1050,7 @@ pub fn synthetic_inputs_with_baseline(
                 DVec3::new(baseline * t.cos(), baseline * t.sin(), 0.0),
             ),
         );
-        images.push(Tensor::<3>::random(
+        images.push(crate::rng::random::<3, _>(
             [3, h, w],
             Distribution::Uniform(0.0, 1.0),
             device,
@@ -1104,12 +1104,12 @@ mod tests {
             [3, 1, 6, 2],
             [1, 4, 9, 8],
         ] {
-            let x = Tensor::<4>::random(
+            let x = crate::rng::random::<4, _>(
                 [n, c, h, w],
                 burn::tensor::Distribution::Uniform(-1.0, 1.0),
                 &ad,
             );
-            let seed = Tensor::<4>::random(
+            let seed = crate::rng::random::<4, _>(
                 [n, c, 2 * h, 2 * w],
                 burn::tensor::Distribution::Uniform(-1.0, 1.0),
                 &ad,
@@ -1173,14 +1173,14 @@ mod tests {
             // Fixed draws (under the generator's lock: other tests draw too), so a near-tie of
             // the max over views or an ELU input at its kink is there every run or never.
             let (net, x, seed) = crate::rng::seeded(&ad, 40 + case_seed as u64, || {
-                let net = CoreNet::new(cin, f, 8, stages, unet, &ad);
+                let net = crate::rng::module(|| CoreNet::new(cin, f, 8, stages, unet, &ad));
                 crate::rng::materialize(&net);
-                let x = Tensor::<4>::random(
+                let x = crate::rng::random::<4, _>(
                     [k * d, cin, h, w],
                     burn::tensor::Distribution::Uniform(-1.0, 1.0),
                     &ad,
                 );
-                let seed = Tensor::<4>::random(
+                let seed = crate::rng::random::<4, _>(
                     [d, 8, h, w],
                     burn::tensor::Distribution::Uniform(-1.0, 1.0),
                     &ad,
@@ -1234,7 +1234,7 @@ mod tests {
     #[test]
     fn order_invariant_in_views() {
         let dev = Device::flex();
-        let model = DeepViewModel::new(&small_config(), &dev);
+        let model = crate::rng::module(|| DeepViewModel::new(&small_config(), &dev));
         let inputs = synthetic_inputs(4, 5, 17, 21, &dev);
         let out = model.forward(&inputs);
         assert_eq!(out.rgba.dims(), [5, 4, 17, 21]);
@@ -1255,7 +1255,7 @@ mod tests {
     #[test]
     fn any_view_count_plane_count_and_size() {
         let dev = Device::flex();
-        let model = DeepViewModel::new(&small_config(), &dev);
+        let model = crate::rng::module(|| DeepViewModel::new(&small_config(), &dev));
         for (k, d, h, w) in [(2, 3, 16, 16), (5, 4, 13, 19), (3, 1, 9, 30)] {
             let out = model.forward(&synthetic_inputs(k, d, h, w, &dev));
             assert_eq!(out.rgba.dims(), [d, 4, h, w]);
@@ -1268,7 +1268,7 @@ mod tests {
     fn shrinking_window_crops_by_the_margins() {
         let dev = Device::flex();
         let cfg = small_config();
-        let model = DeepViewModel::new(&cfg, &dev);
+        let model = crate::rng::module(|| DeepViewModel::new(&cfg, &dev));
         let total = cfg.margin_from(0);
         assert_eq!(total, model.margin_from(0));
         let (h, w) = (2 * total + 6, 2 * total + 8);
@@ -1291,7 +1291,7 @@ mod tests {
         let (big_w, big_h, d) = (64, 60, 6);
         // Fixed draws, under the generator's lock (other tests draw too).
         let (model, full_inputs) = crate::rng::seeded(&dev, 21, || {
-            let mut model = DeepViewModel::new(&cfg, &dev);
+            let mut model = crate::rng::module(|| DeepViewModel::new(&cfg, &dev));
             // A random update net (the prior's presets start with zeroed outputs).
             model.nets[1] = CoreNet::of_config(&cfg, 1, &dev);
             crate::rng::materialize(&model);
@@ -1341,8 +1341,8 @@ mod tests {
         // The property tiled inference relies on: a U-Net core net's output on a crop (at an even offset,
         // away from the crop border by its margin) equals the crop of its output.
         let dev = Device::flex();
-        let net = CoreNet::new(3, 5, 8, 2, true, &dev);
-        let x = Tensor::<4>::random(
+        let net = crate::rng::module(|| CoreNet::new(3, 5, 8, 2, true, &dev));
+        let x = crate::rng::random::<4, _>(
             [6, 3, 60, 66],
             burn::tensor::Distribution::Uniform(-1.0, 1.0),
             &dev,

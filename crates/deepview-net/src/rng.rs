@@ -10,15 +10,59 @@
 use burn::module::{Module, ModuleVisitor, Param};
 use burn::tensor::{Device, Tensor};
 
-/// Held by every seeding of burn's generator together with the draws that must follow it.
+/// Held by every seeding of burn's generator together with the draws that must follow it, and by
+/// every other draw of the tests ([`random`], [`module`]), so that none falls between a seeding and
+/// its draws.
 pub static BURN_RNG: std::sync::Mutex<()> = std::sync::Mutex::new(());
 
-/// `f()` right after seeding burn's generator with `seed`, with [`BURN_RNG`] held throughout (a
-/// panic in another holder does not poison it for the rest).
-pub fn seeded<T>(device: &Device, seed: u64, f: impl FnOnce() -> T) -> T {
+thread_local! {
+    /// Whether this thread holds [`BURN_RNG`] (a draw inside [`seeded`] does not lock again).
+    static HELD: std::cell::Cell<bool> = const { std::cell::Cell::new(false) };
+}
+
+/// `f()` with [`BURN_RNG`] held (already held by this thread: as it is; a panic in another holder
+/// does not poison it for the rest).
+fn locked<T>(f: impl FnOnce() -> T) -> T {
+    if HELD.get() {
+        return f();
+    }
+    struct Release;
+    impl Drop for Release {
+        fn drop(&mut self) {
+            HELD.set(false);
+        }
+    }
     let _guard = BURN_RNG.lock().unwrap_or_else(|e| e.into_inner());
-    device.seed(seed);
+    HELD.set(true);
+    let _release = Release;
     f()
+}
+
+/// `f()` right after seeding burn's generator with `seed`, with [`BURN_RNG`] held throughout.
+pub fn seeded<T>(device: &Device, seed: u64, f: impl FnOnce() -> T) -> T {
+    locked(|| {
+        device.seed(seed);
+        f()
+    })
+}
+
+/// [`Tensor::random`] with [`BURN_RNG`] held: a draw that does not fall inside another's seeded
+/// section.
+pub fn random<const D: usize, S: Into<burn::tensor::Shape>>(
+    shape: S,
+    distribution: burn::tensor::Distribution,
+    device: &Device,
+) -> Tensor<D> {
+    locked(|| Tensor::<D>::random(shape, distribution, device))
+}
+
+/// A module built and drawn (its lazily initialised parameters) with [`BURN_RNG`] held, unseeded.
+pub fn module<M: Module>(build: impl FnOnce() -> M) -> M {
+    locked(|| {
+        let m = build();
+        materialize(&m);
+        m
+    })
 }
 
 /// Draws every lazily initialised parameter of `module` now (call it inside [`seeded`]).

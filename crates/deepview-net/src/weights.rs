@@ -505,7 +505,7 @@ mod tests {
         let presets = ["cpu", "cpu-large", "paper-kalantari", "paper-spaces-4view"];
         let presets = presets.map(|p| DeepViewConfig::preset(p).unwrap());
         for c in [cfg(), odd].into_iter().chain(presets) {
-            let built = DeepViewModel::new(&c, &dev).num_params() as u128;
+            let built = crate::rng::module(|| DeepViewModel::new(&c, &dev)).num_params() as u128;
             assert_eq!(parameter_count(&c), Some(built), "{c:?}");
         }
         let huge = DeepViewConfig {
@@ -552,7 +552,7 @@ mod tests {
     fn round_trip_gives_identical_outputs() {
         let dev = Device::flex();
         let dir = tempfile::tempdir().unwrap();
-        let model = DeepViewModel::new(&cfg(), &dev);
+        let model = crate::rng::module(|| DeepViewModel::new(&cfg(), &dev));
         save_model(dir.path(), &model, &cfg()).unwrap();
         let (loaded, c2) = load_model(dir.path(), &dev).unwrap();
         assert_eq!(c2, cfg());
@@ -569,7 +569,7 @@ mod tests {
         let run = tempfile::tempdir().unwrap();
         let ck = run.path().join("checkpoints").join("step-0000001");
         std::fs::create_dir_all(&ck).unwrap();
-        let model = DeepViewModel::new(&cfg(), &dev);
+        let model = crate::rng::module(|| DeepViewModel::new(&cfg(), &dev));
         model
             .clone()
             .save_file(ck.join(CHECKPOINT_MODEL_FILE))
@@ -600,7 +600,12 @@ mod tests {
     fn truncated_file_is_refused() {
         let dev = Device::flex();
         let dir = tempfile::tempdir().unwrap();
-        save_model(dir.path(), &DeepViewModel::new(&cfg(), &dev), &cfg()).unwrap();
+        save_model(
+            dir.path(),
+            &crate::rng::module(|| DeepViewModel::new(&cfg(), &dev)),
+            &cfg(),
+        )
+        .unwrap();
         let p = dir.path().join(WEIGHTS_FILE);
         let bytes = std::fs::read(&p).unwrap();
         std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
@@ -618,7 +623,12 @@ mod tests {
     fn weights_of_another_config_name_the_tensor() {
         let dev = Device::flex();
         let dir = tempfile::tempdir().unwrap();
-        save_model(dir.path(), &DeepViewModel::new(&cfg(), &dev), &cfg()).unwrap();
+        save_model(
+            dir.path(),
+            &crate::rng::module(|| DeepViewModel::new(&cfg(), &dev)),
+            &cfg(),
+        )
+        .unwrap();
         // Same files, but the config now asks for more features.
         let other = DeepViewConfig {
             features_large: 5,
@@ -653,7 +663,7 @@ mod tests {
     fn nan_weights_are_refused() {
         let dev = Device::flex();
         let dir = tempfile::tempdir().unwrap();
-        let mut model = DeepViewModel::new(&cfg(), &dev);
+        let mut model = crate::rng::module(|| DeepViewModel::new(&cfg(), &dev));
         let w = model.nets[1].head.weight.val();
         let bad = w.clone().mask_fill(w.ones_like().equal_elem(1.0), f32::NAN);
         model.nets[1].head.weight = Param::from_tensor(bad);

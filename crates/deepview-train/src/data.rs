@@ -325,6 +325,19 @@ fn apply(h: &Hom, x: f64, y: f64) -> Option<DVec2> {
     ))
 }
 
+/// A tuple whose inputs face 90 degrees or more apart (a wide or 360-degree capture's spread
+/// inputs) makes no MPI: a miss (`None`), drawn again, not an error that stops the run.
+fn facing_apart_is_a_miss<T>(r: Result<T, DataError>) -> Result<Option<T>, DataError> {
+    match r {
+        Ok(v) => Ok(Some(v)),
+        Err(DataError::Geometry {
+            source: deepview_geometry::GeometryError::FacingApart { .. },
+            ..
+        }) => Ok(None),
+        Err(e) => Err(e),
+    }
+}
+
 impl TrainData {
     pub fn new(scenes: Vec<TrainScene>) -> Result<Self, DataError> {
         if scenes.is_empty() {
@@ -494,7 +507,10 @@ impl TrainData {
             self.nearest_inputs(si, target, views)
         };
         let planes = if cfg.auto_planes {
-            self.auto_planes_for(si, &inputs)?.clamp(
+            let Some(p) = facing_apart_is_a_miss(self.auto_planes_for(si, &inputs))? else {
+                return Ok(None);
+            };
+            p.clamp(
                 deepview_geometry::AUTO_PLANES_MIN.min(cfg.planes),
                 cfg.planes,
             )
@@ -533,7 +549,7 @@ impl TrainData {
             let fewest = deepview_geometry::AUTO_PLANES_MIN.min(cfg.planes);
             let mut d = planes;
             loop {
-                let tw = self.tuple_window(
+                let Some(tw) = facing_apart_is_a_miss(self.tuple_window(
                     si,
                     target,
                     &inputs,
@@ -542,7 +558,10 @@ impl TrainData {
                     cfg.crop,
                     model.margin_from(0),
                     scale,
-                )?;
+                ))?
+                else {
+                    return Ok(None);
+                };
                 let need = step_bytes(
                     model,
                     inputs.len(),
@@ -564,7 +583,7 @@ impl TrainData {
                 depths = jittered_depths(s.near, s.far, d, u);
             }
         }
-        let mut ex = self.example_with_inputs(
+        let Some(mut ex) = facing_apart_is_a_miss(self.example_with_inputs(
             si,
             target,
             inputs,
@@ -574,7 +593,10 @@ impl TrainData {
             model.margin_from(0),
             cfg.window_context && model.updates > 0,
             scale,
-        )?;
+        ))?
+        else {
+            return Ok(None);
+        };
         ex.prior_radius = Some(model.prior_radius);
         if cfg.colour_jitter {
             let mut log_uniform = |r: f64| ((rng.uniform() * 2.0 - 1.0) * r).exp();

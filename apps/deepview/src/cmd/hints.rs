@@ -72,9 +72,9 @@ fn fewer_inputs(wanted: usize) -> String {
 
 fn geometry(e: &deepview_geometry::GeometryError) -> Option<String> {
     match e {
-        deepview_geometry::GeometryError::Invalid(msg) if msg.contains("degrees apart") => Some(
-            "choose input views that face the same way: --inputs nearest:K@VIEW (the K views \
-             nearest one view) or a list like 0,1,2"
+        deepview_geometry::GeometryError::FacingApart { .. } => Some(
+            "choose input views that face the same way (infer and eval: --inputs nearest:K@VIEW, \
+             the K views nearest one view, or a list like 0,1,2)"
                 .into(),
         ),
         _ => None,

@@ -121,7 +121,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => writeln!(out, "depth        unknown (pass --near and --far)"),
     }?;
     match &image_problem {
-        None => writeln!(out, "images       all present with the calibrated sizes"),
+        None => writeln!(
+            out,
+            "images       all present, sizes match the cameras (from the headers: pixels are decoded when used)"
+        ),
         Some(e) => writeln!(out, "images       problem: {e}"),
     }?;
     let shown = args.show.min(scene.len());

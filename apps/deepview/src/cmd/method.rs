@@ -84,7 +84,7 @@ impl Reporter {
                     _ => String::new(),
                 };
                 eprintln!(
-                    "{} a {planes}-plane {width}x{height} MPI from views {:?}{from}",
+                    "{} an MPI of {planes} planes, {width}x{height}, from views {:?}{from}",
                     self.what(),
                     self.ids,
                 );

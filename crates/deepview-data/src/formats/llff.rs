@@ -102,6 +102,23 @@ fn choose_image_dir(root: &Path, opts: &LoadOptions) -> Result<PathBuf, DataErro
 pub(crate) fn load(root: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
     let npy = root.join(POSES_BOUNDS);
     let records = read_poses_bounds(&npy)?;
+    // The depth bounds come from every row (the smallest near, the largest far) unless given: a
+    // row whose bounds are not bounds is named, not averaged away.
+    if (opts.near.is_none() || opts.far.is_none())
+        && let Some((i, r)) = records
+            .iter()
+            .enumerate()
+            .find(|(_, r)| !(r.near > 0.0 && r.far > r.near))
+    {
+        return Err(DataError::invalid(
+            &npy,
+            format!(
+                "row {i}: near {}, far {} (its last two columns) are not depth bounds (need \
+                 0 < near < far); fix the file, or pass --near and --far",
+                r.near, r.far
+            ),
+        ));
+    }
     let dir = choose_image_dir(root, opts)?;
     let files = list_images(&dir)?;
     if files.len() != records.len() {
@@ -386,8 +403,30 @@ mod tests {
             &[1.0, 1.0, 1.0, 64.0 / 255.0, 64.0 / 255.0, 64.0 / 255.0]
         );
         crate::write_image(&dir.path().join("images_8/image001.png"), &images(1)[0]).unwrap();
-        // A NaN in the poses.
+        // One row's bounds reversed: named, unless --near and --far replace them.
         let npy = dir.path().join(POSES_BOUNDS);
+        let good = crate::npy::read_npy(&npy).unwrap();
+        let mut a = good.clone();
+        (a.data[17 + 15], a.data[17 + 16]) = (5.0, 1.0);
+        crate::npy::write_npy(&npy, &a.shape, &a.data).unwrap();
+        let e = load_scene(dir.path(), &LoadOptions::default())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("poses_bounds.npy") && e.contains("row 1: near 5, far 1"),
+            "{e}"
+        );
+        let given = LoadOptions {
+            near: Some(1.0),
+            far: Some(5.0),
+            ..Default::default()
+        };
+        assert_eq!(
+            load_scene(dir.path(), &given).unwrap().depth_bounds,
+            Some((1.0, 5.0))
+        );
+        crate::npy::write_npy(&npy, &good.shape, &good.data).unwrap();
+        // A NaN in the poses.
         let mut a = crate::npy::read_npy(&npy).unwrap();
         a.data[17 + 3] = f64::NAN;
         crate::npy::write_npy(&npy, &a.shape, &a.data).unwrap();

@@ -76,7 +76,7 @@ fn some_homs(d: usize) -> Vec<Hom> {
 
 #[test]
 fn identity_warp_is_exact() {
-    let x = Tensor::<4>::random([3, 4, 9, 13], Distribution::Uniform(0.0, 1.0), &dev());
+    let x = crate::rng::random::<4, _>([3, 4, 9, 13], Distribution::Uniform(0.0, 1.0), &dev());
     let id = [[1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]; 3];
     let y = warp_planes(x.clone(), &id, 9, 13);
     assert_eq!(to_vec(x), to_vec(y));
@@ -85,7 +85,7 @@ fn identity_warp_is_exact() {
 #[test]
 fn warp_matches_scalar_reference() {
     let (d, c, sh, sw, oh, ow) = (3, 2, 17, 23, 15, 26);
-    let x = Tensor::<4>::random([d, c, sh, sw], Distribution::Uniform(0.0, 1.0), &dev());
+    let x = crate::rng::random::<4, _>([d, c, sh, sw], Distribution::Uniform(0.0, 1.0), &dev());
     let homs = some_homs(d);
     let homs32: Vec<[f32; 9]> = homs.iter().map(|h| h.map(|v| v as f32)).collect();
     let y = to_vec(warp_planes(x.clone(), &homs32, oh, ow));
@@ -114,7 +114,7 @@ fn warp_matches_scalar_reference() {
 
 #[test]
 fn broadcast_source_equals_repeated_source() {
-    let img = Tensor::<4>::random([1, 3, 10, 12], Distribution::Uniform(0.0, 1.0), &dev());
+    let img = crate::rng::random::<4, _>([1, 3, 10, 12], Distribution::Uniform(0.0, 1.0), &dev());
     let homs = some_homs(4);
     let t = WarpTable::new(&homs, 12, 10, 11, 9);
     let a = to_vec(t.apply(img.clone()));
@@ -123,8 +123,8 @@ fn broadcast_source_equals_repeated_source() {
 }
 
 fn random_rgba(d: usize, h: usize, w: usize, device: &Device) -> Tensor<4> {
-    let alpha = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(0.05, 0.95), device);
-    let col = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(0.0, 1.0), device);
+    let alpha = crate::rng::random::<4, _>([d, 1, h, w], Distribution::Uniform(0.05, 0.95), device);
+    let col = crate::rng::random::<4, _>([d, 3, h, w], Distribution::Uniform(0.0, 1.0), device);
     Tensor::cat(vec![col * alpha.clone(), alpha], 1)
 }
 
@@ -197,7 +197,7 @@ fn composite_matches_scalar_over_and_autodiff_identities() {
         }
     }
     // Gradient of sum(render * weights) w.r.t. c_d and a_d.
-    let wts = Tensor::<3>::random([3, h, w], Distribution::Uniform(0.5, 1.5), &device);
+    let wts = crate::rng::random::<3, _>([3, h, w], Distribution::Uniform(0.5, 1.5), &device);
     let loss = (comp.render.clone() * wts.clone()).sum();
     let grads = loss.backward();
     let g = to_vec(rgba.grad(&grads).unwrap());
@@ -224,13 +224,13 @@ fn composite_matches_scalar_over_and_autodiff_identities() {
 #[test]
 fn warp_gradient_matches_finite_differences() {
     let device = dev().autodiff();
-    let x = Tensor::<4>::random([2, 1, 6, 7], Distribution::Uniform(0.0, 1.0), &dev());
+    let x = crate::rng::random::<4, _>([2, 1, 6, 7], Distribution::Uniform(0.0, 1.0), &dev());
     let xs = to_vec(x.clone());
     let homs = some_homs(2);
     let t = WarpTable::new(&homs, 7, 6, 6, 5);
     let xa = Tensor::<4>::from_data(x.into_data(), &device).require_grad();
     let y = t.apply(xa.clone());
-    let wts = Tensor::<4>::random(y.dims(), Distribution::Uniform(0.0, 1.0), &device);
+    let wts = crate::rng::random::<4, _>(y.dims(), Distribution::Uniform(0.0, 1.0), &device);
     let grads = (y * wts.clone()).sum().backward();
     let g = to_vec(xa.grad(&grads).unwrap());
     // The warp is linear: the gradient w.r.t. texel i is the output for a unit impulse at i.
@@ -288,7 +288,7 @@ fn matches_the_cpu_renderer_and_plane_sweep() {
         }
     }
     // Plane sweep of a target image onto the reference planes.
-    let img = Tensor::<3>::random([3, 22, 27], Distribution::Uniform(0.0, 1.0), &dev());
+    let img = crate::rng::random::<3, _>([3, 22, 27], Distribution::Uniform(0.0, 1.0), &dev());
     let image = image_from_tensor(img.clone());
     let cpu_psv = deepview_mpi::plane_sweep(&image, &target, &reference, &depths);
     let m2v: Vec<Hom> = depths
@@ -364,7 +364,7 @@ fn gradient_components_match_the_cpu_crate() {
     for view in &views {
         let (vw, vh) = (view.width as usize, view.height as usize);
         let vpx = vw * vh;
-        let img = Tensor::<3>::random([3, vh, vw], Distribution::Uniform(0.0, 1.0), &dev());
+        let img = crate::rng::random::<3, _>([3, vh, vw], Distribution::Uniform(0.0, 1.0), &dev());
         // CPU: R_k, A_k, T_k in view k, then the inverse warps.
         let image = image_from_tensor(img.clone());
         let render = deepview_mpi::render(&mpi, view);
@@ -499,8 +499,9 @@ fn cpu_warp_matches_burn_ops() {
     ] {
         let homs = some_homs(d);
         let table = WarpTable::new(&homs, sw, sh, ow, oh);
-        let x = Tensor::<4>::random([s, c, sh, sw], Distribution::Uniform(-1.0, 1.0), &ad);
-        let seed = Tensor::<4>::random([d, c, oh, ow], Distribution::Uniform(-1.0, 1.0), &ad);
+        let x = crate::rng::random::<4, _>([s, c, sh, sw], Distribution::Uniform(-1.0, 1.0), &ad);
+        let seed =
+            crate::rng::random::<4, _>([d, c, oh, ow], Distribution::Uniform(-1.0, 1.0), &ad);
         let (xa, xb) = (x.clone().require_grad(), x.require_grad());
         let (ya, yb) = (table.apply(xa.clone()), table.apply_burn(xb.clone()));
         let case = format!("{s}x{c} {sh}x{sw} -> {d} {oh}x{ow}");
@@ -529,7 +530,7 @@ fn transposed_taps_are_the_warps_adjoint() {
         let nonzero = w.iter().filter(|&&v| v != 0.0).count();
         assert_eq!(t.pos.len(), nonzero, "every tap of nonzero weight, once");
         assert!(nonzero < w.len(), "the case has samples outside the source");
-        let grad = to_vec(Tensor::<4>::random(
+        let grad = to_vec(crate::rng::random::<4, _>(
             [d, c, oh, ow],
             Distribution::Uniform(-1.0, 1.0),
             &dev(),
@@ -564,7 +565,7 @@ fn transposed_taps_are_the_warps_adjoint() {
 fn cpu_composite_matches_burn_ops() {
     let ad = dev().autodiff();
     for (d, h, w) in [(6, 5, 7), (1, 3, 4), (33, 17, 19)] {
-        let mut rgba = to_vec(Tensor::<4>::random(
+        let mut rgba = to_vec(crate::rng::random::<4, _>(
             [d, 4, h, w],
             Distribution::Uniform(0.0, 1.0),
             &dev(),
@@ -587,9 +588,9 @@ fn cpu_composite_matches_burn_ops() {
             max_rel(ca.render.clone().inner(), cb.render.clone().inner()) < 1e-5,
             "render {case}"
         );
-        let wr = Tensor::<3>::random([3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
-        let wt = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
-        let wa = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wr = crate::rng::random::<3, _>([3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wt = crate::rng::random::<4, _>([d, 1, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wa = crate::rng::random::<4, _>([d, 3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
         let loss = |c: Composite| {
             (c.render * wr.clone()).sum()
                 + (c.transmittance * wt.clone()).sum()
@@ -704,7 +705,7 @@ fn scan_composite_matches_the_loop() {
         (13, 6, 5),
         (33, 4, 6),
     ] {
-        let mut rgba = to_vec(Tensor::<4>::random(
+        let mut rgba = to_vec(crate::rng::random::<4, _>(
             [d, 4, h, w],
             Distribution::Uniform(0.0, 1.0),
             &dev(),
@@ -742,9 +743,9 @@ fn scan_composite_matches_the_loop() {
             .max()
             .into_scalar();
         assert!(e < 1e-6, "render {case}: {e}");
-        let wr = Tensor::<3>::random([3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
-        let wt = Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
-        let wa = Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wr = crate::rng::random::<3, _>([3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wt = crate::rng::random::<4, _>([d, 1, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
+        let wa = crate::rng::random::<4, _>([d, 3, h, w], Distribution::Uniform(-1.0, 1.0), &ad);
         let loss = |c: Composite| {
             (c.render * wr.clone()).sum()
                 + (c.transmittance * wt.clone()).sum()

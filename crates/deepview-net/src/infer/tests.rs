@@ -148,7 +148,7 @@ fn untrained_prior_model_equals_agreement_mpi() {
             prior_sample_variance: sampled,
             ..DeepViewConfig::preset("cpu").unwrap()
         };
-        let model = DeepViewModel::new(&cfg, &dev);
+        let model = crate::rng::module(|| DeepViewModel::new(&cfg, &dev));
         let (mut views, _, _) = scene(k);
         if smooth {
             // Smooth textures, so that views agree at some depths and the weights are mixed.
@@ -268,7 +268,9 @@ fn untrained_prior_model_equals_agreement_mpi() {
 #[test]
 fn budget_and_input_errors() {
     let dev = Device::flex();
-    let model = DeepViewModel::new(&DeepViewConfig::preset("paper-kalantari").unwrap(), &dev);
+    let model = crate::rng::module(|| {
+        DeepViewModel::new(&DeepViewConfig::preset("paper-kalantari").unwrap(), &dev)
+    });
     let (views, reference, depths) = scene(3);
     let e = infer_mpi(&model, &views, &reference, &depths, 1 << 40, &mut |_| {}).unwrap_err();
     assert_eq!(
@@ -278,7 +280,8 @@ fn budget_and_input_errors() {
             got: 3
         }
     );
-    let model = DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev);
+    let model =
+        crate::rng::module(|| DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev));
     let e = infer_mpi(&model, &views, &reference, &depths, 1000, &mut |_| {}).unwrap_err();
     assert!(matches!(e, InferError::BudgetTooSmall { .. }));
     assert_eq!(
@@ -398,8 +401,8 @@ fn strong_parallax_sub_windows_are_exact_and_small() {
     // equal those from the whole MPI.
     let (alpha, col) = crate::rng::seeded(&dev, 8, || {
         (
-            Tensor::<4>::random([d, 1, h, w], Distribution::Uniform(0.05, 0.95), &dev),
-            Tensor::<4>::random([d, 3, h, w], Distribution::Uniform(0.0, 1.0), &dev),
+            crate::rng::random::<4, _>([d, 1, h, w], Distribution::Uniform(0.05, 0.95), &dev),
+            crate::rng::random::<4, _>([d, 3, h, w], Distribution::Uniform(0.0, 1.0), &dev),
         )
     });
     let rgba = Tensor::cat(vec![col * alpha.clone(), alpha], 1);
@@ -513,7 +516,8 @@ fn f16_store_rounds_to_11_bits_and_saturates() {
 #[test]
 fn plan_picks_precision_tiles_and_chunks_within_budget() {
     let dev = Device::flex();
-    let model = DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev);
+    let model =
+        crate::rng::module(|| DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev));
     let (views, reference, depths) = parallax_scene();
     let geom = Geometry::new(&views, &reference, &depths);
     let nets = model.nets.len();
@@ -568,7 +572,8 @@ fn plan_picks_precision_tiles_and_chunks_within_budget() {
 #[test]
 fn plan_on_a_device_fits_its_memory_and_largest_allocation() {
     let dev = Device::flex();
-    let model = DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev);
+    let model =
+        crate::rng::module(|| DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev));
     let (views, reference, depths) = parallax_scene();
     let geom = Geometry::new(&views, &reference, &depths);
     let free = plan_inference_within(
@@ -647,7 +652,8 @@ fn measure_fern_peak() {
     };
     let chunk = parts.get(4).map_or(planes, |c| c.parse::<usize>().unwrap());
     let dev = Device::flex();
-    let model = DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev);
+    let model =
+        crate::rng::module(|| DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev));
     let opts = LoadOptions {
         images: Some(images),
         ..Default::default()
@@ -744,7 +750,8 @@ fn measure_fern_peak() {
 #[test]
 fn one_plan_chooses_engine_or_tiles_within_the_budget() {
     let dev = Device::flex();
-    let model = DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev);
+    let model =
+        crate::rng::module(|| DeepViewModel::new(&DeepViewConfig::preset("cpu").unwrap(), &dev));
     let (views, _, _) = scene(3);
     // An MPI large enough that tiles save memory over the whole image.
     let reference = Camera::new(
