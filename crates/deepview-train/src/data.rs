@@ -443,8 +443,9 @@ impl TrainData {
             }
         }
         let b = cfg.budget.map_or(0, |b| b.bytes);
+        let names: Vec<&str> = self.scenes.iter().map(|s| s.name.as_str()).collect();
         Err(DataError::Invalid {
-            path: PathBuf::from("--data"),
+            path: PathBuf::from(names.join(", ")),
             message: format!(
                 "none of {BUDGET_TRIES} tuples drawn fits a training step into the memory budget of \
                  {} MiB, even with {} planes: raise --max-memory, or lower --max-width or --crop",

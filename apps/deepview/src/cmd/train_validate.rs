@@ -137,8 +137,9 @@ impl Validation {
         f.sync_data()?;
         let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
         Ok(Some(format!(
-            "validation at step {step} ({} scenes): SSIM {:.4} (4 nearest), {:.4} (3 spread) -> {}",
+            "validation at step {step} ({} scene{}): SSIM {:.4} (4 nearest), {:.4} (3 spread) -> {}",
             self.scenes.len(),
+            if self.scenes.len() == 1 { "" } else { "s" },
             mean(&means[0]),
             mean(&means[1]),
             self.out.display()

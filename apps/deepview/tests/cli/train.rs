@@ -329,7 +329,7 @@ fn validation_scores_checkpoints_into_validation_jsonl() {
             "3",
         ],
     );
-    assert!(err.contains("validation at step 4 (1 scenes)"), "{err}");
+    assert!(err.contains("validation at step 4 (1 scene)"), "{err}");
     let lines: Vec<serde_json::Value> = std::fs::read_to_string(runs.join("v/validation.jsonl"))
         .unwrap()
         .lines()
@@ -551,4 +551,54 @@ fn a_damaged_checkpoint_holding_a_users_file_is_set_aside() {
     // The folder set aside is no checkpoint: the run resumes from its last one.
     succeeds(&resume(&runs, "r", &["--steps", "5", "--quiet"]));
     assert!(aside.join("notes.txt").is_file());
+}
+
+/// Two new runs of one name started at once: one trains, the other is refused, and the run's folder
+/// is never removed by the one refused (it removed the folder the other had just made in 2 of 14
+/// tries before). Eight pairs; every pair must leave the run with its checkpoints.
+#[test]
+fn two_new_runs_of_one_name_at_once_keep_the_one_that_trains() {
+    let tmp = tempfile::tempdir().unwrap();
+    let grid = synth_grid(tmp.path());
+    let runs = tmp.path().join("runs");
+    for pair in 0..8 {
+        let name = format!("race{pair}");
+        let spawn = || {
+            let mut args = vec![
+                "train",
+                "--runs",
+                s(&runs),
+                "--name",
+                &name,
+                "--steps",
+                "2",
+                "--quiet",
+            ];
+            args.extend(start_args(&grid));
+            crate::common::bin()
+                .args(&args)
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::piped())
+                .spawn()
+                .unwrap()
+        };
+        let (a, b) = (spawn(), spawn());
+        let (a, b) = (a.wait_with_output().unwrap(), b.wait_with_output().unwrap());
+        let said = format!(
+            "{}\n{}",
+            String::from_utf8_lossy(&a.stderr),
+            String::from_utf8_lossy(&b.stderr)
+        );
+        assert!(
+            a.status.success() || b.status.success(),
+            "pair {pair}: neither trained:\n{said}"
+        );
+        let checkpoints = runs.join(&name).join("checkpoints");
+        let n = std::fs::read_dir(&checkpoints).map_or(0, |d| d.count());
+        assert!(
+            n > 0,
+            "pair {pair}: {} has no checkpoints:\n{said}",
+            checkpoints.display()
+        );
+    }
 }
