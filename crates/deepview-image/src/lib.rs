@@ -402,6 +402,120 @@ pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
     })
 }
 
+/// The mark deepview puts in the images and videos it writes (a PNG `tEXt` chunk `Software`, a JPEG
+/// comment segment, a GIF comment extension before its trailer, an MP4's `comment` metadata), so that
+/// a later run replaces an output of its own but never a user's photo or video of the same name.
+pub const MARK: &[u8; 8] = b"deepview";
+
+/// The GIF comment extension holding [`MARK`] (with its block terminator), written before the trailer.
+pub const GIF_MARK: [u8; 12] = [
+    0x21, 0xFE, 8, b'd', b'e', b'e', b'p', b'v', b'i', b'e', b'w', 0x00,
+];
+
+/// CRC-32 (ISO-HDLC, PNG's) of `bytes`.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut c = 0xFFFF_FFFFu32;
+    for &b in bytes {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                0xEDB8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
+/// `png` (a whole PNG file) with a `tEXt` chunk `Software` = [`MARK`] after its IHDR chunk.
+fn mark_png(png: Vec<u8>) -> Vec<u8> {
+    const IHDR_END: usize = 8 + 12 + 13;
+    if png.len() < IHDR_END || &png[12..16] != b"IHDR" {
+        return png;
+    }
+    let mut body = b"tEXtSoftware\0".to_vec();
+    body.extend_from_slice(MARK);
+    let mut out = Vec::with_capacity(png.len() + body.len() + 8);
+    out.extend_from_slice(&png[..IHDR_END]);
+    out.extend_from_slice(&((body.len() - 4) as u32).to_be_bytes());
+    out.extend_from_slice(&body);
+    out.extend_from_slice(&crc32(&body).to_be_bytes());
+    out.extend_from_slice(&png[IHDR_END..]);
+    out
+}
+
+/// `jpeg` (a whole JPEG file) with a comment segment holding [`MARK`] after its start marker.
+fn mark_jpeg(jpeg: Vec<u8>) -> Vec<u8> {
+    if !jpeg.starts_with(&[0xFF, 0xD8]) {
+        return jpeg;
+    }
+    let mut out = Vec::with_capacity(jpeg.len() + 12);
+    out.extend_from_slice(&jpeg[..2]);
+    out.extend_from_slice(&[0xFF, 0xFE]);
+    out.extend_from_slice(&((MARK.len() + 2) as u16).to_be_bytes());
+    out.extend_from_slice(MARK);
+    out.extend_from_slice(&jpeg[2..]);
+    out
+}
+
+/// Whether the file at `path` carries [`MARK`] where deepview writes it: a PNG's `tEXt` chunk before
+/// its image data, a JPEG's comment segment before its first scan, a GIF's comment extension before
+/// its trailer, or the metadata in the first MiB of an MP4 (written with `+faststart`) or a Matroska
+/// file. `false` for anything else, a user's photo or video included.
+pub fn written_by_deepview(path: &Path) -> bool {
+    use std::io::{Read, Seek, SeekFrom};
+    let Ok(mut f) = std::fs::File::open(path) else {
+        return false;
+    };
+    let mut head = Vec::with_capacity(1 << 16);
+    if (&mut f).take(1 << 20).read_to_end(&mut head).is_err() {
+        return false;
+    }
+    if head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        let mut at = 8usize;
+        while let Some(c) = head.get(at..at + 8) {
+            let len = u32::from_be_bytes([c[0], c[1], c[2], c[3]]) as usize;
+            match &c[4..8] {
+                b"tEXt" => {
+                    let want = [&b"Software\0"[..], &MARK[..]].concat();
+                    if head.get(at + 8..at + 8 + len) == Some(&want[..]) {
+                        return true;
+                    }
+                }
+                b"IDAT" | b"IEND" => return false,
+                _ => {}
+            }
+            at = at.saturating_add(12).saturating_add(len);
+        }
+        return false;
+    }
+    if head.starts_with(&[0xFF, 0xD8]) {
+        let mut at = 2usize;
+        while let Some(&[0xFF, code, hi, lo]) = head.get(at..at + 4) {
+            let len = u16::from_be_bytes([hi, lo]) as usize;
+            if code == 0xFE && head.get(at + 4..at + 2 + len) == Some(&MARK[..]) {
+                return true;
+            }
+            if code == 0xDA || len < 2 {
+                return false;
+            }
+            at += 2 + len;
+        }
+        return false;
+    }
+    if head.starts_with(b"GIF8") {
+        let mut tail = [0u8; GIF_MARK.len() + 1];
+        return f.seek(SeekFrom::End(-(tail.len() as i64))).is_ok()
+            && f.read_exact(&mut tail).is_ok()
+            && tail[..GIF_MARK.len()] == GIF_MARK
+            && tail[GIF_MARK.len()] == 0x3B;
+    }
+    // MP4/MOV (`ftyp` box) and Matroska (EBML header): ffmpeg's `comment` tag near the start.
+    (head.get(4..8) == Some(b"ftyp") || head.starts_with(&[0x1A, 0x45, 0xDF, 0xA3]))
+        && head.windows(MARK.len()).any(|w| w == MARK)
+}
+
 fn encode_png(
     path: &Path,
     width: u32,
@@ -421,7 +535,7 @@ fn encode_png(
         path: path.into(),
         source: e,
     })?;
-    Ok(buf)
+    Ok(mark_png(buf))
 }
 
 /// Write 8-bit interleaved bytes (1, 3 or 4 channels) as PNG, atomically.
@@ -458,7 +572,7 @@ pub fn write_jpeg(path: &Path, img: &ImageF32, quality: u8) -> Result<(), ImageE
             path: path.into(),
             source: e,
         })?;
-    write_atomic(path, &buf)
+    write_atomic(path, &mark_jpeg(buf))
 }
 
 /// Write a float image (1, 3 or 4 channels, values clamped to 0..1) as an 8-bit PNG, atomically.
@@ -666,6 +780,68 @@ mod tests {
             }
         }
         assert_eq!(&back.data[15..18], &[1.0, 1.0, 1.0]);
+    }
+
+    /// deepview's PNGs and JPEGs carry its mark and read back as before; a photo from elsewhere, a
+    /// GIF without the comment before its trailer and an unmarked MP4 do not.
+    #[test]
+    fn outputs_carry_the_mark_and_photos_do_not() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = ImageF32::new(9, 7, 3);
+        for (i, v) in img.data.iter_mut().enumerate() {
+            *v = (i % 17) as f32 / 17.0;
+        }
+        let png = dir.path().join("a.png");
+        write_png(&png, &img).unwrap();
+        assert!(written_by_deepview(&png));
+        assert!(
+            read_image(&png, 3).unwrap()
+                == ImageF32::from_data(
+                    9,
+                    7,
+                    3,
+                    img.to_u8().iter().map(|&b| b as f32 / 255.0).collect()
+                )
+                .unwrap()
+        );
+        let jpg = dir.path().join("a.jpg");
+        super::write_jpeg(&jpg, &img, 90).unwrap();
+        assert!(written_by_deepview(&jpg));
+        assert_eq!(
+            (
+                read_image(&jpg, 3).unwrap().width,
+                read_image(&jpg, 3).unwrap().height
+            ),
+            (9, 7)
+        );
+        let data = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data");
+        if data.is_dir() {
+            for photo in [
+                "llff/fern/images_8/image000.png",
+                "colmap/room/images/img001.JPG",
+            ] {
+                assert!(!written_by_deepview(&data.join(photo)), "{photo}");
+            }
+        }
+        let gif = dir.path().join("a.gif");
+        let mut bytes = b"GIF89a\x01\0\x01\0\0\0\0".to_vec();
+        std::fs::write(&gif, [&bytes[..], &[0x3B]].concat()).unwrap();
+        assert!(!written_by_deepview(&gif));
+        bytes.extend_from_slice(&GIF_MARK);
+        bytes.push(0x3B);
+        std::fs::write(&gif, &bytes).unwrap();
+        assert!(written_by_deepview(&gif));
+        let mp4 = dir.path().join("a.mp4");
+        std::fs::write(&mp4, b"\0\0\0\x18ftypisom\0\0\x02\0isomiso2").unwrap();
+        assert!(!written_by_deepview(&mp4));
+        std::fs::write(
+            &mp4,
+            b"\0\0\0\x18ftypisom\0\0\x02\0isomiso2....\xa9cmtdeepview",
+        )
+        .unwrap();
+        assert!(written_by_deepview(&mp4));
+        // The PNG mark's chunk is well formed: its CRC is PNG's.
+        assert_eq!(crc32(b"IEND"), 0xAE42_6082);
     }
 
     /// A file of a format deepview does not read, named as a PNG: the error says what it is.

@@ -165,6 +165,11 @@ impl FrameSink for GifSink {
             let _ = std::fs::remove_file(&self.tmp);
             return Err(write_err(&self.path)(e));
         }
+        // deepview's mark, a comment extension before the trailer (`deepview_image::GIF_MARK`).
+        if let Err(e) = mark_gif(&self.tmp) {
+            let _ = std::fs::remove_file(&self.tmp);
+            return Err(write_err(&self.path)(e));
+        }
         std::fs::rename(&self.tmp, &self.path).map_err(write_err(&self.path))
     }
 }
@@ -177,6 +182,27 @@ impl Drop for GifSink {
             let _ = std::fs::remove_file(&self.tmp);
         }
     }
+}
+
+/// Put [`deepview_image::GIF_MARK`] before the trailer (the last byte, `;`) of the GIF at `path`.
+fn mark_gif(path: &Path) -> std::io::Result<()> {
+    use std::io::{Read, Seek, SeekFrom};
+    let mut f = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .open(path)?;
+    let mut last = [0u8; 1];
+    f.seek(SeekFrom::End(-1))?;
+    f.read_exact(&mut last)?;
+    if last != [0x3B] {
+        return Err(std::io::Error::other(
+            "the GIF does not end with its trailer",
+        ));
+    }
+    f.seek(SeekFrom::End(-1))?;
+    f.write_all(&deepview_image::GIF_MARK)?;
+    f.write_all(&[0x3B])?;
+    f.sync_all()
 }
 
 /// A buffered file that remembers its first write error (the GIF encoder writes its trailer on drop).
@@ -271,7 +297,7 @@ impl Mp4Sink {
             .arg("-r")
             .arg(format!("{fps}"))
             .args(["-i", "-", "-an", "-vf", &crop, "-c:v", "libx264", "-pix_fmt", "yuv420p"])
-            .args(["-movflags", "+faststart"])
+            .args(["-movflags", "+faststart", "-metadata", "comment=deepview"])
             .arg(&tmp)
             .stdin(Stdio::piped())
             .stdout(Stdio::null())

@@ -305,6 +305,14 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
                     out.display()
                 );
             }
+            if let Some(what) = users_media(&o) {
+                bail!(
+                    "{option} {} exists and is {what} deepview did not write (a photo or video of \
+                     yours, or an output of an older deepview): refusing to replace it; choose another \
+                     name or move it away",
+                    out.display()
+                );
+            }
         }
         Ok(m) if !m.is_dir() => {
             bail!(
@@ -442,6 +450,22 @@ fn foreign_file(path: &Path) -> Option<&'static str> {
     let limit = if ext == "json" { 16 << 20 } else { 4096 };
     std::io::Read::read_to_end(&mut std::io::Read::take(f, limit), &mut head).ok()?;
     (!head.is_empty() && !ok(&head)).then_some(what)
+}
+
+/// What the existing image or video `path` is where deepview did not write it (no
+/// [`deepview_image::MARK`]): a user's photo or video named like an output. `None` for anything
+/// else (an empty file, deepview's own output, a file of another kind).
+fn users_media(path: &Path) -> Option<&'static str> {
+    let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+    let what = match ext.as_str() {
+        "png" => "a PNG image",
+        "jpg" | "jpeg" => "a JPEG image",
+        "gif" => "a GIF animation",
+        "mp4" | "mov" | "m4v" | "mkv" => "a video",
+        _ => return None,
+    };
+    let len = std::fs::metadata(path).ok()?.len();
+    (len > 0 && !deepview_image::written_by_deepview(path)).then_some(what)
 }
 
 /// Refuse to replace the existing folder `dir` (`out` as the user typed it) when it holds anything the
@@ -1139,7 +1163,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = |n: &str| dir.path().join(n);
         std::fs::write(p("notes.png"), b"my notes").unwrap();
-        std::fs::write(p("v.png"), b"\x89PNG\r\n\x1a\nrest").unwrap();
+        let img = deepview_image::ImageF32::new(4, 3, 3);
+        // deepview's own PNG and JPEG (marked), and the same pixels saved by another program.
+        deepview_image::write_png(&p("v.png"), &img).unwrap();
+        deepview_image::write_jpeg(&p("v.jpg"), &img, 90).unwrap();
+        let data = deepview_data::data_dir();
+        std::fs::copy(data.join("llff/fern/images_8/image000.png"), p("photo.png")).unwrap();
+        std::fs::copy(data.join("colmap/room/images/img001.JPG"), p("photo.jpg")).unwrap();
+        std::fs::write(p("clip.mp4"), b"\0\0\0\x18ftypisom\0\0\x02\0isomiso2").unwrap();
         std::fs::write(p("r.json"), b"  {\"results\": {\"ssim\": 1}}").unwrap();
         std::fs::write(p("todo.json"), b"buy milk").unwrap();
         std::fs::write(p("empty.gif"), b"").unwrap();
@@ -1147,7 +1178,19 @@ mod tests {
             let e = check_output("--out", &p(bad), Kind::File, &[]).unwrap_err();
             assert!(e.to_string().contains("refusing to replace"), "{e}");
         }
-        for good in ["v.png", "r.json", "empty.gif", "new.png"] {
+        for (photo, what) in [
+            ("photo.png", "a PNG image"),
+            ("photo.jpg", "a JPEG image"),
+            ("clip.mp4", "a video"),
+        ] {
+            let e = check_output("--out", &p(photo), Kind::File, &[]).unwrap_err();
+            assert!(
+                e.to_string()
+                    .contains(&format!("is {what} deepview did not write")),
+                "{e}"
+            );
+        }
+        for good in ["v.png", "v.jpg", "r.json", "empty.gif", "new.png"] {
             check_output("--out", &p(good), Kind::File, &[]).unwrap();
         }
     }

@@ -96,6 +96,27 @@ fn synth_then_render_ground_truth_into_a_view() {
     );
     let err = render_err(&cam_path, &out);
     assert!(!err.contains("warning"), "{err}");
+    // A render named like a photo of the user's is refused, the photo untouched; deepview's own
+    // render (c.png, just written again above) is replaced.
+    let photo = tmp.path().join("photo.png");
+    let original = deepview_data::data_dir().join("llff/fern/images_8/image000.png");
+    std::fs::copy(&original, &photo).unwrap();
+    fails_with(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--camera",
+            s(&cam_path),
+            "--out",
+            s(&photo),
+        ]),
+        &["photo.png exists and is a PNG image deepview did not write"],
+    );
+    assert_eq!(
+        std::fs::read(&photo).unwrap(),
+        std::fs::read(&original).unwrap()
+    );
     let o = deepview(&["bench", "render", "--mpi", s(&gt), "--repeats", "2"]);
     let line: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(line["fps"].as_f64().unwrap() > 0.0 && line["planes"] == 8);
