@@ -318,6 +318,24 @@ fn missing_colmap_or_photos_give_clear_errors() {
         err.contains("no images found") && err.contains("empty"),
         "{err}"
     );
+    // Only an iPhone's HEIC photos: named, with what to do.
+    std::fs::write(empty.join("IMG_0001.HEIC"), b"\0\0\0\x18ftypheic").unwrap();
+    fails_with(
+        &deepview(&["process", "--data", s(&empty), "--out", s(&out)]),
+        &[
+            "no images found",
+            "skipped 1 photo in formats deepview does not read: IMG_0001.HEIC",
+            "convert them to JPEG first",
+        ],
+    );
+    // A folder of photos given to a command that needs a scene: the hint names `process`.
+    fails_with(
+        &deepview(&["infer", "--data", s(&bad), "--out", s(&out)]),
+        &[
+            "cannot detect the dataset format",
+            "deepview process --data",
+        ],
+    );
     let o = deepview(&["process", "--data", s(&photos), "--out", s(&empty)]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");

@@ -22,10 +22,28 @@ pub enum ProcessError {
         log: PathBuf,
         tail: String,
     },
-    #[error("{dir}: no images found (looked for .jpg, .jpeg and .png files)")]
-    NoImages { dir: PathBuf },
-    #[error("{dir}: only {count} image, but COLMAP needs at least 2 overlapping photos")]
+    #[error("{dir}: no images found (looked for .jpg, .jpeg and .png files){skipped}")]
+    NoImages {
+        dir: PathBuf,
+        /// What the folder has that is not read ([`crate::photos::skipped_note`]), or empty.
+        skipped: String,
+    },
+    #[error(
+        "{dir}: only {count} image{}, but COLMAP needs at least 2 overlapping photos",
+        if *.count == 1 { "" } else { "s" }
+    )]
     TooFewImages { dir: PathBuf, count: usize },
+    /// A video that gave fewer than 2 frames at the frame rate asked for.
+    #[error(
+        "{video}: {count} frame{} extracted at {fps} frames per second, but COLMAP needs at least 2 \
+         overlapping photos: raise --fps (or check that it is a video)",
+        if *.count == 1 { "" } else { "s" }
+    )]
+    TooFewFrames {
+        video: PathBuf,
+        fps: f64,
+        count: usize,
+    },
     #[error(
         "{dir}: only {readable} of {total} photos can be read as images, but COLMAP needs at least 2; \
          unreadable: {unreadable}"

@@ -26,6 +26,48 @@ pub fn list_photos(dir: &Path) -> Result<Vec<PathBuf>, ProcessError> {
     Ok(out)
 }
 
+/// Photo and raw formats COLMAP is not given here (deepview copies only JPEG and PNG).
+const OTHER_PHOTOS: &[&str] = &[
+    "heic", "heif", "avif", "webp", "tif", "tiff", "dng", "cr2", "cr3", "nef", "arw", "orf", "rw2",
+    "raf", "bmp", "gif",
+];
+
+/// The files of `dir` that look like photos in formats that are not read (an iPhone's HEIC, raw
+/// files): "; skipped N photo(s) in formats deepview does not read: NAMES (convert them to JPEG
+/// first)", or an empty string.
+pub fn skipped_note(dir: &Path) -> String {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            p.is_file()
+                && p.extension()
+                    .map(|e| e.to_string_lossy().to_ascii_lowercase())
+                    .is_some_and(|e| OTHER_PHOTOS.contains(&e.as_str()))
+        })
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect();
+    if names.is_empty() {
+        return String::new();
+    }
+    names.sort();
+    let n = names.len();
+    let more = n.saturating_sub(4);
+    names.truncate(4);
+    format!(
+        "; skipped {n} photo{} in formats deepview does not read: {}{} (convert them to JPEG first)",
+        if n == 1 { "" } else { "s" },
+        names.join(", "),
+        if more > 0 {
+            format!(" and {more} more")
+        } else {
+            String::new()
+        }
+    )
+}
+
 /// A photo's size from its header, its format from its content (as COLMAP reads it), not its extension:
 /// a JPEG saved as `.png` is still a photo.
 pub(crate) fn photo_dimensions(path: &Path) -> image::ImageResult<(u32, u32)> {
@@ -67,13 +109,19 @@ pub(crate) fn copy_photos(
                 std::fs::copy(p, &target).map_err(write_err(&target))?;
             }
             Some(m) => {
-                let img =
-                    photo_reader(p)
-                        .and_then(|r| r.decode())
-                        .map_err(|e| ProcessError::Image {
-                            path: p.clone(),
-                            msg: format!("cannot decode: {e}"),
-                        })?;
+                let decode_err = |e: image::ImageError| ProcessError::Image {
+                    path: p.clone(),
+                    msg: format!("cannot decode: {e}"),
+                };
+                let mut decoder = photo_reader(p)
+                    .and_then(|r| r.into_decoder())
+                    .map_err(decode_err)?;
+                // The photo's EXIF goes with it: COLMAP takes its focal-length prior from there
+                // (without it, a guess of 1.2 times the width).
+                let exif = image::ImageDecoder::exif_metadata(&mut decoder)
+                    .ok()
+                    .flatten();
+                let img = image::DynamicImage::from_decoder(decoder).map_err(decode_err)?;
                 let img = img.resize(m, m, image::imageops::FilterType::Lanczos3);
                 let ext = target
                     .extension()
@@ -87,6 +135,9 @@ pub(crate) fn copy_photos(
                         std::io::BufWriter::new(f),
                         95,
                     );
+                    if let Some(exif) = exif.filter(|e| !e.is_empty()) {
+                        let _ = image::ImageEncoder::set_exif_metadata(&mut enc, exif);
+                    }
                     enc.encode_image(&img.to_rgb8())
                 };
                 result.map_err(|e| ProcessError::Image {
@@ -131,5 +182,56 @@ mod tests {
             (20, 10)
         );
         assert_eq!(image::image_dimensions(dst.join("a.JPG")).unwrap().1, 20);
+    }
+
+    /// Photos in formats that are not read are named (a few, then a count); other files are not.
+    #[test]
+    fn photos_in_other_formats_are_named() {
+        let dir = tempfile::tempdir().unwrap();
+        assert_eq!(skipped_note(dir.path()), "");
+        std::fs::write(dir.path().join("notes.txt"), "x").unwrap();
+        std::fs::write(dir.path().join("a.jpg"), "x").unwrap();
+        assert_eq!(skipped_note(dir.path()), "");
+        for n in ["e.HEIC", "b.heic", "c.dng", "d.webp", "f.TIF"] {
+            std::fs::write(dir.path().join(n), "x").unwrap();
+        }
+        assert_eq!(
+            skipped_note(dir.path()),
+            "; skipped 5 photos in formats deepview does not read: b.heic, c.dng, d.webp, e.HEIC \
+             and 1 more (convert them to JPEG first)"
+        );
+    }
+
+    /// A downscaled JPEG keeps its EXIF (COLMAP's focal-length prior comes from there).
+    #[test]
+    fn downscaled_photos_keep_their_exif() {
+        let dir = tempfile::tempdir().unwrap();
+        let src = dir.path().join("src");
+        std::fs::create_dir(&src).unwrap();
+        // A little-endian TIFF block with one tag: FocalLengthIn35mmFilm (0xA405, SHORT) = 26.
+        let exif: Vec<u8> = [
+            &b"II*\0\x08\0\0\0"[..],
+            &[1, 0],
+            &[0x05, 0xA4, 3, 0, 1, 0, 0, 0, 26, 0, 0, 0],
+            &[0, 0, 0, 0],
+        ]
+        .concat();
+        let f = File::create(src.join("p.jpg")).unwrap();
+        let mut enc = image::codecs::jpeg::JpegEncoder::new_with_quality(f, 90);
+        image::ImageEncoder::set_exif_metadata(&mut enc, exif.clone()).unwrap();
+        enc.encode_image(&image::RgbImage::new(64, 48)).unwrap();
+        let dst = dir.path().join("dst");
+        std::fs::create_dir(&dst).unwrap();
+        copy_photos(&list_photos(&src).unwrap(), &dst, Some(32)).unwrap();
+        assert_eq!(
+            image::image_dimensions(dst.join("p.jpg")).unwrap(),
+            (32, 24)
+        );
+        let mut d = photo_reader(&dst.join("p.jpg"))
+            .unwrap()
+            .into_decoder()
+            .unwrap();
+        let got = image::ImageDecoder::exif_metadata(&mut d).unwrap().unwrap();
+        assert!(got.ends_with(&exif[8..]), "{got:?}");
     }
 }

@@ -22,8 +22,14 @@ pub fn process(
     let photos = match &opts.input {
         Input::Photos(dir) => {
             let p = list_photos(dir)?;
+            let skipped = crate::photos::skipped_note(dir);
             match p.len() {
-                0 => return Err(ProcessError::NoImages { dir: dir.clone() }),
+                0 => {
+                    return Err(ProcessError::NoImages {
+                        dir: dir.clone(),
+                        skipped,
+                    });
+                }
                 1 => {
                     return Err(ProcessError::TooFewImages {
                         dir: dir.clone(),
@@ -55,6 +61,21 @@ pub fn process(
                             unreadable: format!("{}{more}", bad[..bad.len().min(4)].join(", ")),
                         });
                     }
+                    if let Some(note) = skipped.strip_prefix("; ") {
+                        progress(Event::Warning(format!("{}: {note}", dir.display())));
+                    }
+                    // The unreadable ones are left out, and said so (COLMAP would drop them with
+                    // no reason given).
+                    for b in &bad {
+                        progress(Event::Warning(format!(
+                            "{}: not an image, left out: {b}",
+                            dir.display()
+                        )));
+                    }
+                    let p: Vec<PathBuf> = p
+                        .into_iter()
+                        .filter(|f| photo_dimensions(f).is_ok())
+                        .collect();
                     Some(p)
                 }
             }
@@ -196,8 +217,9 @@ fn build(
             )?;
             let p = list_photos(&frames)?;
             if p.len() < 2 {
-                return Err(ProcessError::TooFewImages {
-                    dir: frames,
+                return Err(ProcessError::TooFewFrames {
+                    video: path.clone(),
+                    fps: *fps,
                     count: p.len(),
                 });
             }

@@ -50,6 +50,16 @@ pub fn hint(e: &anyhow::Error) -> Option<String> {
         if let Some(e) = cause.downcast_ref::<deepview_geometry::GeometryError>() {
             return geometry(e);
         }
+        if let Some(deepview_viewer::ViewerError::Bind { msg, .. }) =
+            cause.downcast_ref::<deepview_viewer::ViewerError>()
+            && msg.to_ascii_lowercase().contains("in use")
+        {
+            return Some(
+                "another program (perhaps another `deepview view`) serves on that port: pick \
+                 another with --port, or --port 0 for any free one"
+                    .into(),
+            );
+        }
         None
     })
 }
@@ -165,6 +175,16 @@ fn data(e: &DataError) -> Option<String> {
             "--images names a folder inside the dataset folder (e.g. images_8)".into()
         }
         DataError::DownscaleTooLarge { .. } => "use a smaller --downscale".into(),
+        // A folder of photos with no poses yet.
+        DataError::NotDetected { path, .. }
+            if deepview_process::list_photos(path).is_ok_and(|p| p.len() >= 2) =>
+        {
+            format!(
+                "it holds photos without camera poses: make a scene of them first with \
+                 `deepview process --data {0} --out {0}_scene`",
+                path.to_string_lossy().trim_end_matches('/')
+            )
+        }
         _ => return None,
     })
 }

@@ -117,8 +117,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         None => println!("no depth bounds (no 3D points): pass --near and --far to other commands"),
     }
     println!("COLMAP's log: {}", r.log.display());
+    // (infer's default rule, nearest:4, needs four views.)
+    let inputs = if r.registered.len() < 4 {
+        " --inputs all"
+    } else {
+        ""
+    };
     println!(
-        "next: deepview info --data {0}; deepview infer --data {0} --out {1}",
+        "next: deepview info --data {0}; deepview infer --data {0}{inputs} --out {1}",
         r.out.display(),
         r.out
             .with_file_name(format!(
