@@ -11,6 +11,10 @@
 # a temporary virtual environment, removed afterwards). ~60 MB download.
 set -euo pipefail
 out=${1:-vgg16_conv1_1-conv3_3.safetensors}
+if [ -e "$out" ]; then
+  echo "error: $out exists: refusing to replace it; move it away or name another file" >&2
+  exit 2
+fi
 work=$(mktemp -d)
 trap 'rm -rf "$work"' EXIT
 python3 -m venv "$work/venv"

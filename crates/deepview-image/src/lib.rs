@@ -445,17 +445,26 @@ fn mark_png(png: Vec<u8>) -> Vec<u8> {
     out
 }
 
-/// `jpeg` (a whole JPEG file) with a comment segment holding [`MARK`] after its start marker.
+/// `jpeg` (a whole JPEG file) with a comment segment holding [`MARK`] after its leading APPn segments
+/// (the JFIF header stays first, where JFIF readers look for it).
 fn mark_jpeg(jpeg: Vec<u8>) -> Vec<u8> {
     if !jpeg.starts_with(&[0xFF, 0xD8]) {
         return jpeg;
     }
+    let mut at = 2usize;
+    while let Some(&[0xFF, code, hi, lo]) = jpeg.get(at..at + 4) {
+        if !(0xE0..=0xEF).contains(&code) {
+            break;
+        }
+        at += 2 + u16::from_be_bytes([hi, lo]) as usize;
+    }
+    let at = at.min(jpeg.len());
     let mut out = Vec::with_capacity(jpeg.len() + 12);
-    out.extend_from_slice(&jpeg[..2]);
+    out.extend_from_slice(&jpeg[..at]);
     out.extend_from_slice(&[0xFF, 0xFE]);
     out.extend_from_slice(&((MARK.len() + 2) as u16).to_be_bytes());
     out.extend_from_slice(MARK);
-    out.extend_from_slice(&jpeg[2..]);
+    out.extend_from_slice(&jpeg[at..]);
     out
 }
 
@@ -486,7 +495,10 @@ pub fn written_by_deepview(path: &Path) -> bool {
                 b"IDAT" | b"IEND" => return false,
                 _ => {}
             }
-            at = at.saturating_add(12).saturating_add(len);
+            let Some(next) = at.checked_add(12).and_then(|a| a.checked_add(len)) else {
+                return false;
+            };
+            at = next;
         }
         return false;
     }
@@ -807,6 +819,10 @@ mod tests {
         let jpg = dir.path().join("a.jpg");
         super::write_jpeg(&jpg, &img, 90).unwrap();
         assert!(written_by_deepview(&jpg));
+        // The JFIF header stays the first segment.
+        let bytes = std::fs::read(&jpg).unwrap();
+        assert_eq!(&bytes[2..4], &[0xFF, 0xE0]);
+        assert_eq!(&bytes[6..11], b"JFIF\0");
         assert_eq!(
             (
                 read_image(&jpg, 3).unwrap().width,

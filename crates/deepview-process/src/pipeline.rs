@@ -23,6 +23,12 @@ pub fn process(
         Input::Photos(dir) => {
             let p = list_photos(dir)?;
             let skipped = crate::photos::skipped_note(dir);
+            // (Said before any refusal below: why a folder has fewer photos than its user thinks.)
+            if p.len() == 1
+                && let Some(note) = skipped.strip_prefix("; ")
+            {
+                progress(Event::Warning(format!("{}: {note}", dir.display())));
+            }
             match p.len() {
                 0 => {
                     return Err(ProcessError::NoImages {
@@ -50,6 +56,9 @@ pub fn process(
                         })
                         .collect();
                     if n - bad.len() < 2 {
+                        if let Some(note) = skipped.strip_prefix("; ") {
+                            progress(Event::Warning(format!("{}: {note}", dir.display())));
+                        }
                         let more = match bad.len().saturating_sub(4) {
                             0 => String::new(),
                             k => format!(" and {k} more"),

@@ -51,7 +51,22 @@ pub(crate) fn lock_run(run_dir: &Path) -> Result<std::fs::File, TrainError> {
     }
     let f = std::fs::File::open(&path).map_err(io_err(&path))?;
     match f.try_lock() {
-        Ok(()) => Ok(f),
+        // The file locked must still be the one at the path (a run removed meanwhile, with its
+        // `.lock`, would leave this lock on a file nobody else opens).
+        Ok(()) => {
+            use std::os::unix::fs::MetadataExt;
+            let same = match (f.metadata(), std::fs::metadata(&path)) {
+                (Ok(a), Ok(b)) => a.dev() == b.dev() && a.ino() == b.ino(),
+                _ => false,
+            };
+            if same {
+                Ok(f)
+            } else {
+                Err(TrainError::Busy {
+                    path: run_dir.to_path_buf(),
+                })
+            }
+        }
         Err(std::fs::TryLockError::WouldBlock) => Err(TrainError::Busy {
             path: run_dir.to_path_buf(),
         }),

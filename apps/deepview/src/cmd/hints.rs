@@ -179,11 +179,37 @@ fn data(e: &DataError) -> Option<String> {
         DataError::NotDetected { path, .. }
             if deepview_process::list_photos(path).is_ok_and(|p| p.len() >= 2) =>
         {
-            format!(
-                "it holds photos without camera poses: make a scene of them first with \
-                 `deepview process --data {0} --out {0}_scene`",
-                path.to_string_lossy().trim_end_matches('/')
-            )
+            {
+                // The scene beside the folder (`.` and `..` named by their real names).
+                let data = path.to_string_lossy().trim_end_matches('/').to_string();
+                let out = match path.file_name() {
+                    Some(_) => format!("{data}_scene"),
+                    None => std::fs::canonicalize(path)
+                        .ok()
+                        .and_then(|c| {
+                            let name = c.file_name()?.to_string_lossy().into_owned();
+                            Some(
+                                c.with_file_name(format!("{name}_scene"))
+                                    .display()
+                                    .to_string(),
+                            )
+                        })
+                        .unwrap_or_else(|| "SCENE".into()),
+                };
+                let quote = |s: &str| {
+                    if s.contains(' ') {
+                        format!("'{s}'")
+                    } else {
+                        s.to_string()
+                    }
+                };
+                format!(
+                    "it holds photos without camera poses: make a scene of them first with \
+                     `deepview process --data {} --out {}`",
+                    quote(&data),
+                    quote(&out)
+                )
+            }
         }
         _ => return None,
     })
