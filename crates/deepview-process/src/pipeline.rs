@@ -357,7 +357,14 @@ fn build(
     let undistorted = colmap_dir.join("undistorted");
     timed(
         Stage::Undistortion,
-        format!("{} images to one PINHOLE camera", registered.len()),
+        if shared {
+            format!("{} images to one PINHOLE camera", registered.len())
+        } else {
+            format!(
+                "{} images to PINHOLE cameras, one per photo",
+                registered.len()
+            )
+        },
         progress,
         &mut || colmap::undistort(&runner, &opts.colmap, &input, &model_dir, &undistorted),
     )?;
