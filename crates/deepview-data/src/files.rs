@@ -39,30 +39,39 @@ pub(crate) fn list_images(dir: &Path) -> Result<Vec<PathBuf>, DataError> {
     Ok(out)
 }
 
-/// Why a folder's image count may not be what its user expects: its files with an image
-/// extension deepview does not read, and the names that appear with two extensions (the
-/// `listed` files of [`list_images`] share a stem). Empty where there is neither; otherwise
-/// starts with "; ".
-pub(crate) fn image_count_note(dir: &Path, listed: &[PathBuf]) -> String {
-    const OTHER: &[&str] = &[
-        "tif", "tiff", "webp", "heic", "heif", "avif", "bmp", "exr", "dng", "raw", "cr2", "nef",
-        "arw", "gif",
-    ];
-    let mut unread: Vec<String> = std::fs::read_dir(dir)
+/// Photo, raw and other image formats that are not read as views (files named `.png`, `.jpg` or
+/// `.jpeg` are).
+const UNREAD_PHOTOS: &[&str] = &[
+    "heic", "heif", "avif", "webp", "tif", "tiff", "dng", "raw", "cr2", "cr3", "nef", "arw", "orf",
+    "rw2", "raf", "bmp", "exr", "gif",
+];
+
+/// The names of `dir`'s files in formats deepview does not read as photos ([`UNREAD_PHOTOS`]: an
+/// iPhone's HEIC, raw files, TIFF, ...), sorted.
+pub fn unread_photos(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
         .into_iter()
         .flatten()
         .flatten()
         .map(|e| e.path())
         .filter(|p| {
-            let ext = p
-                .extension()
-                .map(|e| e.to_string_lossy().to_ascii_lowercase())
-                .unwrap_or_default();
-            p.is_file() && OTHER.contains(&ext.as_str())
+            p.is_file()
+                && p.extension()
+                    .map(|e| e.to_string_lossy().to_ascii_lowercase())
+                    .is_some_and(|e| UNREAD_PHOTOS.contains(&e.as_str()))
         })
         .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
         .collect();
-    unread.sort();
+    names.sort();
+    names
+}
+
+/// Why a folder's image count may not be what its user expects: its files with an image
+/// extension deepview does not read, and the names that appear with two extensions (the
+/// `listed` files of [`list_images`] share a stem). Empty where there is neither; otherwise
+/// starts with "; ".
+pub(crate) fn image_count_note(dir: &Path, listed: &[PathBuf]) -> String {
+    let mut unread = unread_photos(dir);
     let mut note = String::new();
     if !unread.is_empty() {
         let more = unread.len().saturating_sub(5);

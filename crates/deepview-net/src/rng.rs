@@ -78,11 +78,22 @@ pub fn materialize<M: Module>(module: &M) {
 
 /// A module built and drawn inside [`seeded`]: the same weights every run, whatever else runs.
 pub fn seeded_module<M: Module>(device: &Device, seed: u64, build: impl FnOnce() -> M) -> M {
-    seeded(device, seed, || {
-        let m = build();
-        materialize(&m);
-        m
-    })
+    seeded(device, seed, || module(build))
+}
+
+/// All parameter values of a module, flattened in visiting order (drawing lazily initialised ones;
+/// for tests and comparisons).
+pub fn parameter_values<M: Module>(module: &M) -> Vec<f32> {
+    struct Collect(Vec<f32>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0
+                .extend(param.val().into_data().convert::<f32>().iter::<f32>());
+        }
+    }
+    let mut c = Collect(Vec::new());
+    module.visit(&mut c);
+    c.0
 }
 
 #[cfg(test)]
@@ -90,19 +101,6 @@ mod tests {
     use super::*;
     use crate::config::DeepViewConfig;
     use crate::network::DeepViewModel;
-
-    fn values<M: Module>(m: &M) -> Vec<f32> {
-        struct Collect(Vec<f32>);
-        impl ModuleVisitor for Collect {
-            fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-                self.0
-                    .extend(param.val().into_data().convert::<f32>().iter::<f32>());
-            }
-        }
-        let mut c = Collect(Vec::new());
-        m.visit(&mut c);
-        c.0
-    }
 
     /// The same seed gives the same weights even when other draws come between the model's
     /// construction and its first use; another seed gives others.
@@ -118,7 +116,11 @@ mod tests {
         });
         let b = seeded_module(&dev, 5, || DeepViewModel::new(&cfg, &dev));
         let c = seeded_module(&dev, 6, || DeepViewModel::new(&cfg, &dev));
-        let (va, vb, vc) = (values(&a), values(&b), values(&c));
+        let (va, vb, vc) = (
+            parameter_values(&a),
+            parameter_values(&b),
+            parameter_values(&c),
+        );
         assert!(va.len() > 1000, "{}", va.len());
         assert_eq!(va, vb);
         assert_ne!(va, vc);

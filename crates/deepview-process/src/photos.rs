@@ -26,33 +26,14 @@ pub fn list_photos(dir: &Path) -> Result<Vec<PathBuf>, ProcessError> {
     Ok(out)
 }
 
-/// Photo and raw formats COLMAP is not given here (deepview copies only JPEG and PNG).
-const OTHER_PHOTOS: &[&str] = &[
-    "heic", "heif", "avif", "webp", "tif", "tiff", "dng", "cr2", "cr3", "nef", "arw", "orf", "rw2",
-    "raf", "bmp", "gif",
-];
-
 /// The files of `dir` that look like photos in formats that are not read (an iPhone's HEIC, raw
-/// files): "; skipped N photo(s) in formats deepview does not read: NAMES (convert them to JPEG
-/// first)", or an empty string.
+/// files: [`deepview_data::unread_photos`]): "; skipped N photo(s) in formats deepview does not
+/// read: NAMES (convert them to JPEG first)", or an empty string.
 pub fn skipped_note(dir: &Path) -> String {
-    let mut names: Vec<String> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| {
-            p.is_file()
-                && p.extension()
-                    .map(|e| e.to_string_lossy().to_ascii_lowercase())
-                    .is_some_and(|e| OTHER_PHOTOS.contains(&e.as_str()))
-        })
-        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
-        .collect();
+    let mut names = deepview_data::unread_photos(dir);
     if names.is_empty() {
         return String::new();
     }
-    names.sort();
     let n = names.len();
     let more = n.saturating_sub(4);
     names.truncate(4);

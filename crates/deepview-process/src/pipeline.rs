@@ -24,7 +24,7 @@ pub fn process(
             let p = list_photos(dir)?;
             let skipped = crate::photos::skipped_note(dir);
             // (Said before any refusal below: why a folder has fewer photos than its user thinks.)
-            if p.len() == 1
+            if !p.is_empty()
                 && let Some(note) = skipped.strip_prefix("; ")
             {
                 progress(Event::Warning(format!("{}: {note}", dir.display())));
@@ -46,32 +46,27 @@ pub fn process(
                     // Files that are not images (a text file named .jpg, a download cut off in its
                     // header) are left out by COLMAP, which aborts when too few are left: name them
                     // first. Their headers are read; the format is found from the content.
-                    let bad: Vec<String> = p
-                        .iter()
-                        .filter_map(|f| {
-                            photo_dimensions(f).err().map(|e| {
+                    let (mut good, mut bad) = (Vec::with_capacity(n), Vec::new());
+                    for f in p {
+                        match photo_dimensions(&f) {
+                            Ok(_) => good.push(f),
+                            Err(e) => {
                                 let name = f.file_name().unwrap_or_default().to_string_lossy();
-                                format!("{name} ({e})")
-                            })
-                        })
-                        .collect();
-                    if n - bad.len() < 2 {
-                        if let Some(note) = skipped.strip_prefix("; ") {
-                            progress(Event::Warning(format!("{}: {note}", dir.display())));
+                                bad.push(format!("{name} ({e})"));
+                            }
                         }
+                    }
+                    if good.len() < 2 {
                         let more = match bad.len().saturating_sub(4) {
                             0 => String::new(),
                             k => format!(" and {k} more"),
                         };
                         return Err(ProcessError::UnreadableImages {
                             dir: dir.clone(),
-                            readable: n - bad.len(),
+                            readable: good.len(),
                             total: n,
                             unreadable: format!("{}{more}", bad[..bad.len().min(4)].join(", ")),
                         });
-                    }
-                    if let Some(note) = skipped.strip_prefix("; ") {
-                        progress(Event::Warning(format!("{}: {note}", dir.display())));
                     }
                     // The unreadable ones are left out, and said so (COLMAP would drop them with
                     // no reason given).
@@ -81,11 +76,7 @@ pub fn process(
                             dir.display()
                         )));
                     }
-                    let p: Vec<PathBuf> = p
-                        .into_iter()
-                        .filter(|f| photo_dimensions(f).is_ok())
-                        .collect();
-                    Some(p)
+                    Some(good)
                 }
             }
         }

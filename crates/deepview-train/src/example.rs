@@ -3,7 +3,6 @@
 
 use crate::data::Example;
 use crate::loss::Loss;
-use burn::module::{Module, ModuleVisitor, Param};
 use burn::optim::GradientsParams;
 use burn::tensor::{Device, Tensor};
 use deepview_image::ImageF32;
@@ -82,19 +81,8 @@ pub fn loss_tail(
     loss.per_example(pred, target)
 }
 
-/// All parameter values of a module, flattened in visiting order (for tests and comparisons).
-pub fn parameter_values<M: Module>(module: &M) -> Vec<f32> {
-    struct Collect(Vec<f32>);
-    impl ModuleVisitor for Collect {
-        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
-            self.0
-                .extend(param.val().into_data().convert::<f32>().iter::<f32>());
-        }
-    }
-    let mut c = Collect(Vec::new());
-    module.visit(&mut c);
-    c.0
-}
+/// All parameter values of a module (one definition, in `deepview-net`).
+pub use deepview_net::rng::parameter_values;
 
 /// Loss of one tuple and the parameter gradients of `loss / batch` with the ordinary backward pass
 /// (all activations kept); `None` gradients when the loss is not finite.

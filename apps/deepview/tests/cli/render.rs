@@ -44,24 +44,28 @@ fn synth_then_render_ground_truth_into_a_view() {
     );
     let meta: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(gt.join("mpi.json")).unwrap()).unwrap();
-    let cam = serde_json::json!({"width": 40, "height": 30, "fx": 50.0, "fy": 50.0, "cx": 20.0, "cy": 15.0,
-        "camera_from_world": meta["camera_from_world"]});
-    let cam_path = tmp.path().join("cam.json");
-    std::fs::write(&cam_path, cam.to_string()).unwrap();
-    let out = tmp.path().join("c.png");
-    assert!(
+    // A 40x30 camera JSON with the pose `camera_from_world`, and a render of the MPI into one.
+    let write_cam = |name: &str, camera_from_world: serde_json::Value| {
+        let cam = serde_json::json!({"width": 40, "height": 30, "fx": 50.0, "fy": 50.0, "cx": 20.0,
+            "cy": 15.0, "camera_from_world": camera_from_world});
+        let path = tmp.path().join(name);
+        std::fs::write(&path, cam.to_string()).unwrap();
+        path
+    };
+    let render_to = |camera: &Path, out: &Path| {
         deepview(&[
             "render",
             "--mpi",
             s(&gt),
             "--camera",
-            s(&cam_path),
+            s(camera),
             "--out",
-            s(&out)
+            s(out),
         ])
-        .status
-        .success()
-    );
+    };
+    let cam_path = write_cam("cam.json", meta["camera_from_world"].clone());
+    let out = tmp.path().join("c.png");
+    assert!(render_to(&cam_path, &out).status.success());
     assert_eq!(deepview_image::image_size(&out).unwrap(), (40, 30));
     // The same camera turned round (rows 0 and 2 of camera-from-world negated: 180 degrees about
     // its y axis) sees none of the MPI: written, with a warning saying so.
@@ -72,20 +76,9 @@ fn synth_then_render_ground_truth_into_a_view() {
             if i / 4 == 0 || i / 4 == 2 { -v } else { v }
         })
         .collect();
-    let cam = serde_json::json!({"width": 40, "height": 30, "fx": 50.0, "fy": 50.0, "cx": 20.0, "cy": 15.0,
-        "camera_from_world": away});
-    let away_path = tmp.path().join("away.json");
-    std::fs::write(&away_path, cam.to_string()).unwrap();
+    let away_path = write_cam("away.json", away.into());
     let render_err = |camera: &Path, out: &Path| {
-        let o = deepview(&[
-            "render",
-            "--mpi",
-            s(&gt),
-            "--camera",
-            s(camera),
-            "--out",
-            s(out),
-        ]);
+        let o = render_to(camera, out);
         assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
         String::from_utf8_lossy(&o.stderr).into_owned()
     };
@@ -102,15 +95,7 @@ fn synth_then_render_ground_truth_into_a_view() {
     let original = deepview_data::data_dir().join("llff/fern/images_8/image000.png");
     std::fs::copy(&original, &photo).unwrap();
     fails_with(
-        &deepview(&[
-            "render",
-            "--mpi",
-            s(&gt),
-            "--camera",
-            s(&cam_path),
-            "--out",
-            s(&photo),
-        ]),
+        &render_to(&cam_path, &photo),
         &["photo.png exists and is a PNG image deepview did not write"],
     );
     assert_eq!(
