@@ -425,3 +425,40 @@ fn sigterm_to_process_stops_colmap() {
         "a stopped process left its working folder"
     );
 }
+
+/// A video too short for its frame rate stops before COLMAP with the video and `--fps` named, and leaves
+/// nothing behind: no scene, no working folder, no `OUT.colmap.log` (the error names no log).
+#[test]
+fn a_video_with_too_few_frames_leaves_nothing_behind() {
+    let tmp = tempfile::tempdir().unwrap();
+    let video = tmp.path().join("clip.mp4");
+    let made = Command::new("ffmpeg")
+        .args(["-hide_banner", "-loglevel", "error", "-f", "lavfi", "-i"])
+        .arg("testsrc=duration=1:size=64x48:rate=5")
+        .args(["-pix_fmt", "yuv420p"])
+        .arg(&video)
+        .status()
+        .expect("ffmpeg runs (CI installs it)");
+    assert!(made.success());
+    let out = tmp.path().join("scene");
+    let o = deepview(&[
+        "process",
+        "--video",
+        s(&video),
+        "--fps",
+        "0.5",
+        "--out",
+        s(&out),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("clip.mp4") && err.contains("extracted at 0.5 frames per second"),
+        "{err}"
+    );
+    let left: Vec<_> = std::fs::read_dir(tmp.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(left, ["clip.mp4"], "{err}");
+}

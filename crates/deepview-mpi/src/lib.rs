@@ -29,7 +29,8 @@ pub use io::{MpiMeta, PlanesRule, read_mpi, write_mpi, write_mpi_with};
 pub use mpi::{Mpi, MpiU8, Texel};
 pub use psv::{PlaneSweepVolume, plane_sweep};
 pub use render::{
-    LOW_COVERAGE, coverage, render, render_rgba8_into, render_rgba8_with, view_warning,
+    LOW_COVERAGE, coverage, frame_coverage, render, render_rgba8_into, render_rgba8_with,
+    view_warning,
 };
 pub use simd::Occupancy;
 pub use warp::{RowTaps, Sampler, target_to_plane_homographies};

@@ -237,8 +237,10 @@ pub const LOW_COVERAGE: f64 = 0.01;
 
 /// Why a render of an MPI from `target` shows little of it, where it does: a camera at or beyond
 /// the MPI's nearest plane (the planes are composited for cameras in front of them), or one that
-/// sees less than [`LOW_COVERAGE`] of its image covered (`coverage`: [`coverage`] of the render:
-/// facing away, or far outside the inputs' view). `None` for an ordinary view.
+/// sees less than [`LOW_COVERAGE`] of its image covered (`coverage`: [`coverage`] of the render),
+/// told apart by where the view looks: outside the planes' frames (facing away, or far outside the
+/// inputs' view: [`frame_coverage`]) or at planes that are transparent there. `None` for an ordinary
+/// view.
 pub fn view_warning<T: Texel>(mpi: &Mpi<T>, target: &Camera, coverage: f64) -> Option<String> {
     let z = mpi.camera.pose.transform_point(target.center()).z;
     let nearest = mpi.depths.iter().copied().fold(f64::INFINITY, f64::min);
@@ -249,13 +251,52 @@ pub fn view_warning<T: Texel>(mpi: &Mpi<T>, target: &Camera, coverage: f64) -> O
              view is not what the scene looks like from there"
         ));
     }
-    (coverage < LOW_COVERAGE).then(|| {
+    if coverage >= LOW_COVERAGE {
+        return None;
+    }
+    let framed = frame_coverage(&mpi.camera, &mpi.depths, target);
+    Some(if framed < LOW_COVERAGE {
         format!(
-            "the MPI covers {:.1}% of this view (a camera facing away from it or far outside the \
-             inputs' view, or an MPI that is mostly transparent): the image is mostly empty",
+            "the MPI covers {:.1}% of this view: the camera looks outside its planes (facing away \
+             from them, or far outside the inputs' view), and the image is mostly empty",
             100.0 * coverage
         )
+    } else {
+        format!(
+            "the MPI covers {:.1}% of this view: the view looks at {:.0}% of its planes' frames, but \
+             the planes are transparent there (an MPI of a scene with an empty background), and the \
+             image is mostly empty",
+            100.0 * coverage,
+            100.0 * framed
+        )
     })
+}
+
+/// The fraction of `target`'s pixels whose ray meets an MPI plane (reference camera `reference`,
+/// `depths`) inside the plane's frame, whatever the plane holds: what a render could show at most.
+/// Measured on a grid of at most 64 x 64 pixel centres.
+pub fn frame_coverage(reference: &Camera, depths: &[f64], target: &Camera) -> f64 {
+    let homs = target_to_plane_homographies(reference, target, depths);
+    let (w, h) = (target.width.max(1), target.height.max(1));
+    let (nx, ny) = (w.min(64), h.min(64));
+    let (rw, rh) = (reference.width as f64, reference.height as f64);
+    let mut inside = 0usize;
+    for j in 0..ny {
+        let v = (j as f64 + 0.5) * h as f64 / ny as f64;
+        for i in 0..nx {
+            let u = (i as f64 + 0.5) * w as f64 / nx as f64;
+            let hit = homs.iter().any(|m| {
+                let d = m[6] * u + m[7] * v + m[8];
+                let (x, y) = (
+                    (m[0] * u + m[1] * v + m[2]) / d,
+                    (m[3] * u + m[4] * v + m[5]) / d,
+                );
+                d > 0.0 && (0.0..=rw).contains(&x) && (0.0..=rh).contains(&y)
+            });
+            inside += usize::from(hit);
+        }
+    }
+    inside as f64 / (nx * ny) as f64
 }
 
 /// Render an 8-bit MPI and convert to 8-bit RGBA, reusing `scratch` and `out` between frames.
@@ -376,8 +417,32 @@ mod tests {
         };
         let rendered = render(&mpi, &away);
         assert_eq!(coverage(&rendered), 0.0);
+        assert_eq!(frame_coverage(&mpi.camera, &mpi.depths, &away), 0.0);
         let w = view_warning(&mpi, &away, coverage(&rendered)).unwrap();
-        assert!(w.contains("covers 0.0% of this view"), "{w}");
+        assert!(
+            w.contains("covers 0.0% of this view") && w.contains("looks outside its planes"),
+            "{w}"
+        );
+        // The same planes emptied: seen from the reference, the view is all inside their frames and
+        // the warning says they are transparent, not that the camera looks away.
+        let empty = Mpi {
+            layers: vec![0.0; mpi.layers.len()],
+            ..mpi.clone()
+        };
+        let rendered = render(&empty, &cam);
+        assert_eq!(frame_coverage(&empty.camera, &empty.depths, &cam), 1.0);
+        let w = view_warning(&empty, &cam, coverage(&rendered)).unwrap();
+        assert!(
+            w.contains("covers 0.0%") && w.contains("looks at 100% of its planes' frames"),
+            "{w}"
+        );
+        // A camera shifted sideways by half its width at the far plane sees half the frames.
+        let half = Camera {
+            pose: Pose::from_center(DMat3::IDENTITY, DVec3::new(10.0 * 8.0 / 14.0, 0.0, 0.0)),
+            ..cam
+        };
+        let f = frame_coverage(&mpi.camera, &[10.0], &half);
+        assert!((f - 0.5).abs() < 1e-9, "{f}");
         let beyond = Camera {
             pose: Pose::from_center(DMat3::IDENTITY, DVec3::new(0.0, 0.0, 3.0)),
             ..cam

@@ -108,11 +108,16 @@ pub fn process(
 
 /// After a failure: the working folder removed (a scene is never left half-built), COLMAP's log kept beside
 /// the output as `OUT.colmap.log` and named in the error instead of the log inside the removed folder.
-/// An existing file of that name is never replaced (it may be the user's): the log then takes the first
-/// free `OUT.colmap.N.log`.
+/// Only errors that name the log keep it (a failed stage, images COLMAP did not register): a video with
+/// too few frames leaves nothing behind. An existing file of that name is never replaced (it may be the
+/// user's): the log then takes the first free `OUT.colmap.N.log`.
 fn discard_work(work: &Path, out: &Path, e: ProcessError) -> ProcessError {
     let log = work.join("colmap.log");
-    let kept = if log.is_file() {
+    let names_log = matches!(
+        &e,
+        ProcessError::StageFailed { log: l, .. } | ProcessError::NotRegistered { log: l, .. } if *l == log
+    );
+    let kept = if names_log && log.is_file() {
         keep_log(&log, out)
     } else {
         None

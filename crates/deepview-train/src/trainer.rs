@@ -89,6 +89,9 @@ pub struct Trainer {
     wall_offset: f64,
     session_start: Instant,
     session_steps: u64,
+    /// Time this session spent in [`Trainer::run`]'s `on_event` (the program's validation runs
+    /// there): not training, so left out of [`Trainer::steps_per_second`].
+    listening: std::time::Duration,
     /// `runs/<name>/.lock`, locked while this trainer lives (released by the system when the process
     /// dies, even by SIGKILL); `None` on ranks other than 0, which do not write the run folder.
     _lock: Option<std::fs::File>,
@@ -237,6 +240,7 @@ impl Trainer {
             wall_offset: 0.0,
             session_start: Instant::now(),
             session_steps: 0,
+            listening: std::time::Duration::ZERO,
             _lock: lock,
             comm,
             stop_requested: false,
@@ -333,6 +337,7 @@ impl Trainer {
             wall_offset: state.wall_time_s,
             session_start: Instant::now(),
             session_steps: 0,
+            listening: std::time::Duration::ZERO,
             _lock: lock,
             comm,
             stop_requested: false,
@@ -420,9 +425,11 @@ impl Trainer {
         Ok(())
     }
 
-    /// Steps per second in this session.
+    /// Steps per second in this session, the time spent in [`Trainer::run`]'s `on_event` (validation)
+    /// left out.
     pub fn steps_per_second(&self) -> f64 {
-        self.session_steps as f64 / self.session_start.elapsed().as_secs_f64().max(1e-9)
+        let training = self.session_start.elapsed().saturating_sub(self.listening);
+        self.session_steps as f64 / training.as_secs_f64().max(1e-9)
     }
 
     /// Total training wall time (all sessions).
@@ -667,10 +674,13 @@ impl Trainer {
         let total = self.config.train.steps;
         let writer = self.is_writer();
         self.tell_notices(on_event);
-        on_event(TrainEvent::Start {
-            step: self.step,
-            total,
-        });
+        self.tell(
+            on_event,
+            TrainEvent::Start {
+                step: self.step,
+                total,
+            },
+        );
         let mut reports = Vec::new();
         // With ranks, a stop (Ctrl-C on any rank) is agreed at the next step's reduction so that all
         // ranks stop after the same step.
@@ -685,10 +695,14 @@ impl Trainer {
                 append_metrics(&self.run_dir, &r, self.steps_per_second(), self.wall_time())
                     .map_err(|e| self.write_error("metrics.jsonl".into(), e))?;
             }
-            on_event(TrainEvent::Step {
-                report: &r,
-                steps_per_s: self.steps_per_second(),
-            });
+            let steps_per_s = self.steps_per_second();
+            self.tell(
+                on_event,
+                TrainEvent::Step {
+                    report: &r,
+                    steps_per_s,
+                },
+            );
             if self.step.is_multiple_of(self.config.train.checkpoint_every) {
                 self.checkpoint_and_tell(on_event)?;
             }
@@ -705,10 +719,8 @@ impl Trainer {
     ) -> Result<(), TrainError> {
         let dir = self.save_checkpoint()?;
         if self.is_writer() {
-            on_event(TrainEvent::Checkpoint {
-                step: self.step,
-                dir: &dir,
-            });
+            let step = self.step;
+            self.tell(on_event, TrainEvent::Checkpoint { step, dir: &dir });
         }
         self.tell_notices(on_event);
         Ok(())
@@ -716,8 +728,15 @@ impl Trainer {
 
     fn tell_notices(&mut self, on_event: &mut dyn FnMut(TrainEvent<'_>)) {
         for n in self.take_notices() {
-            on_event(TrainEvent::Notice(&n));
+            self.tell(on_event, TrainEvent::Notice(&n));
         }
+    }
+
+    /// `on_event(e)`, its time counted in `listening`.
+    fn tell(&mut self, on_event: &mut dyn FnMut(TrainEvent<'_>), e: TrainEvent<'_>) {
+        let t = Instant::now();
+        on_event(e);
+        self.listening += t.elapsed();
     }
 }
 
