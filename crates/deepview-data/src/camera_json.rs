@@ -7,10 +7,9 @@ use std::path::Path;
 
 /// Read a camera JSON file; every error names the file.
 pub fn read_camera_json(path: &Path) -> Result<Camera, DataError> {
-    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
-    // A byte order mark (Windows editors write one) is not JSON's.
-    let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
-    let json: CameraJson = serde_json::from_str(text).map_err(|source| DataError::Json {
+    // (A byte order mark, which Windows editors write, is not JSON's: read_text drops it.)
+    let text = deepview_image::read_text(path).map_err(|e| DataError::io(path, e))?;
+    let json: CameraJson = serde_json::from_str(&text).map_err(|source| DataError::Json {
         path: path.into(),
         source,
     })?;

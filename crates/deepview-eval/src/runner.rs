@@ -193,6 +193,48 @@ pub fn evaluate_splits(
         })?;
     }
     let mut cache: HashMap<usize, (ImageF32, Camera)> = HashMap::new();
+    // Every target's scored region, before any method runs: a crop that leaves too little of an image
+    // is an error at once, not after the first view's minutes of work.
+    for split in splits {
+        let t = split.target;
+        if t >= scene.views.len() {
+            return Err(EvalError::ViewOutOfRange {
+                protocol: protocol.into(),
+                index: t,
+                views: scene.views.len(),
+            });
+        }
+        if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(t) {
+            e.insert(load_view(scene, t, options.downscale)?);
+        }
+        let gt = &cache[&t].0;
+        let crop = scaled_crop(split.crop, options.crop, options.downscale);
+        let scored = crop
+            .apply(gt)
+            .map_err(|e| EvalError::Invalid(format!("view {t}: {e}: a smaller --crop")))?;
+        let window = 2 * deepview_metrics::SsimOptions::default().radius as u32 + 1;
+        if scored.width < window || scored.height < window {
+            return Err(EvalError::Invalid(format!(
+                "view {t} ({}): its {}x{} image{} leaves {}x{} pixels to score, less than SSIM's \
+                 {window}x{window} window: a smaller --crop{}",
+                scene.views[t].name,
+                gt.width,
+                gt.height,
+                if options.downscale > 1 {
+                    format!(" (downscaled by {})", options.downscale)
+                } else {
+                    String::new()
+                },
+                scored.width,
+                scored.height,
+                if options.downscale > 1 {
+                    " or --downscale"
+                } else {
+                    ""
+                }
+            )));
+        }
+    }
     let mut views = Vec::with_capacity(splits.len());
     let count = splits.len();
     for (k, split) in splits.iter().enumerate() {

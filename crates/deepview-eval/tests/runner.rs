@@ -185,6 +185,33 @@ fn runner_errors() {
     };
     let e = evaluate(&scene, &Protocol::Auto, &mut nearest(), &options).unwrap_err();
     assert!(e.to_string().contains("border crop"), "{e}");
+    // A crop leaving less than SSIM's window (16x8 of 64x56) is refused before any method runs.
+    struct Never;
+    impl MpiMethod for Never {
+        fn name(&self) -> &str {
+            "never"
+        }
+        fn make_mpi(
+            &mut self,
+            _: &MpiRequest<'_>,
+            _: &mut dyn FnMut(MethodEvent<'_>),
+        ) -> Result<MadeMpi, MethodError> {
+            panic!("the crop is checked before any MPI is made");
+        }
+    }
+    let options = EvalOptions {
+        near_far: Some((1.0, 100.0)),
+        crop: Some(24),
+        ..Default::default()
+    };
+    let mut never = MpiPredictor::new(Box::new(Never), |_| {});
+    let e = evaluate(&scene, &Protocol::Auto, &mut never, &options)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("64x56 image leaves 16x8 pixels") && e.contains("11x11 window"),
+        "{e}"
+    );
     // A method whose MPI holds NaNs.
     struct Bad;
     impl MpiMethod for Bad {

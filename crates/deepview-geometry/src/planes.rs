@@ -139,9 +139,10 @@ pub struct AutoPlanes {
 
 /// The disparity range, in view `view`'s pixels, of the depth range `near..far` seen from `reference`: the
 /// largest distance between the projections into `view` of the near-plane point and the far-plane point on
-/// the same reference ray, over the reference image's four corners and its centre (rays whose points fall
-/// behind the view are skipped). For two cameras with focal `f` (pixels) and a baseline `b` parallel to the
-/// image plane this is exactly `f * b * (1/near - 1/far)`.
+/// the same reference ray, over the reference image's four corners and its centre (rays whose points both
+/// fall behind the view are skipped; a ray whose near point is behind the view but far point in front of
+/// it sweeps across the whole view: infinite). For two cameras with focal `f` (pixels) and a baseline `b`
+/// parallel to the image plane this is exactly `f * b * (1/near - 1/far)`.
 pub fn disparity_range(reference: &Camera, view: &Camera, near: f64, far: f64) -> f64 {
     let (w, h) = (reference.width as f64, reference.height as f64);
     let samples = [
@@ -154,9 +155,13 @@ pub fn disparity_range(reference: &Camera, view: &Camera, near: f64, far: f64) -
     samples
         .iter()
         .filter_map(|&p| {
-            let a = view.project(reference.unproject(p, near))?;
-            let b = view.project(reference.unproject(p, far))?;
-            Some(a.distance(b))
+            let a = view.project(reference.unproject(p, near));
+            let b = view.project(reference.unproject(p, far));
+            match (a, b) {
+                (Some(a), Some(b)) => Some(a.distance(b)),
+                (None, Some(_)) => Some(f64::INFINITY),
+                _ => None,
+            }
         })
         .fold(0.0, f64::max)
 }
@@ -246,6 +251,24 @@ mod tests {
         let depths = plane_depths(near, far, auto.count, PlaneSpacing::InverseDepth).unwrap();
         let step = f * b * (1.0 / depths[1] - 1.0 / depths[0]);
         assert!(step <= 1.0 + 1e-9, "{step}");
+    }
+
+    /// A near plane that passes behind a view (a view in front of the reference, nearer than the
+    /// near bound) sweeps across the whole view: the most planes, not the fewest (`psv --near 0.1`
+    /// chose 8 planes for 0.0 px).
+    #[test]
+    fn a_near_plane_behind_a_view_takes_the_most_planes() {
+        let reference = camera_at(0.0, 500.0);
+        let mut ahead = camera_at(0.1, 500.0);
+        ahead.pose = Pose::from_center(DMat3::IDENTITY, DVec3::new(0.1, 0.0, 0.5));
+        let d = disparity_range(&reference, &ahead, 0.1, 10.0);
+        assert_eq!(d, f64::INFINITY);
+        assert_eq!(
+            auto_plane_count(&reference, &[ahead], 0.1, 10.0, 1.0),
+            AUTO_PLANES_MAX
+        );
+        // Both points behind it: the view sees none of the ray, which counts for nothing.
+        assert_eq!(disparity_range(&reference, &ahead, 0.1, 0.2), 0.0);
     }
 
     #[test]

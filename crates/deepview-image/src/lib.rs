@@ -244,6 +244,42 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
     }
 }
 
+/// The most a small text file deepview reads (`mpi.json`, a camera, a camera path) may hold.
+pub const TEXT_LIMIT: u64 = 64 << 20;
+
+/// Read the small text file `path` (JSON: `mpi.json`, cameras, camera paths) without a byte order
+/// mark, refusing a pipe, socket or device (reading a pipe would wait for a writer for ever, a device
+/// like `/dev/zero` would fill the memory) and a file over [`TEXT_LIMIT`] bytes.
+pub fn read_text(path: &Path) -> std::io::Result<String> {
+    use std::io::Read;
+    match std::fs::metadata(path) {
+        Ok(m) if !m.is_file() && !m.is_dir() => {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "not a regular file (a pipe, socket or device), expected a text file",
+            ));
+        }
+        _ => {}
+    }
+    let mut text = String::new();
+    std::fs::File::open(path)?
+        .take(TEXT_LIMIT + 1)
+        .read_to_string(&mut text)?;
+    if text.len() as u64 > TEXT_LIMIT {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!(
+                "larger than {} MiB, more than such a file holds",
+                TEXT_LIMIT >> 20
+            ),
+        ));
+    }
+    Ok(match text.strip_prefix('\u{feff}') {
+        Some(t) => t.to_string(),
+        None => text,
+    })
+}
+
 /// An error for a pipe, socket or device where an image file should be: opening a pipe would wait
 /// for a writer for ever.
 fn refuse_special(path: &Path) -> std::io::Result<()> {
@@ -627,6 +663,33 @@ mod tests {
                 "{e}"
             );
         }
+    }
+
+    /// Small text files: a pipe (no writer: opening it would wait for ever) and a device that never
+    /// ends (`/dev/zero`, through a link) are errors at once, a file over the limit is refused, a byte
+    /// order mark is dropped.
+    #[cfg(unix)]
+    #[test]
+    fn text_files_are_read_bounded_and_never_wait() {
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("mpi.json");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let e = read_text(&fifo).unwrap_err().to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        let zero = dir.path().join("camera.json");
+        std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();
+        let e = read_text(&zero).unwrap_err().to_string();
+        assert!(e.contains("not a regular file"), "{e}");
+        let big = dir.path().join("big.json");
+        let f = std::fs::File::create(&big).unwrap();
+        f.set_len(TEXT_LIMIT + 1).unwrap();
+        let e = read_text(&big).unwrap_err().to_string();
+        assert!(e.contains("larger than 64 MiB"), "{e}");
+        let bom = dir.path().join("bom.json");
+        std::fs::write(&bom, "\u{feff}{\"a\": 1}").unwrap();
+        assert_eq!(read_text(&bom).unwrap(), "{\"a\": 1}");
     }
 
     #[test]

@@ -57,9 +57,9 @@ impl CameraPath {
 
 /// Read and validate a `camera_path.json`.
 pub fn read_camera_path(path: &Path) -> Result<CameraPath, MediaError> {
-    let text = std::fs::read_to_string(path).map_err(read_err(path))?;
-    // A byte order mark (Windows editors write one) is not JSON's.
-    parse_camera_path(text.strip_prefix('\u{feff}').unwrap_or(&text), path)
+    // (A byte order mark, which Windows editors write, is not JSON's: read_text drops it.)
+    let text = deepview_image::read_text(path).map_err(read_err(path))?;
+    parse_camera_path(&text, path)
 }
 
 /// Parse the text of a `camera_path.json` (`path` only names it in errors).

@@ -73,10 +73,9 @@ impl MpiMeta {
     /// Read and validate `dir/mpi.json` (not the layers).
     pub fn read(dir: &Path) -> Result<(MpiMeta, Camera), MpiError> {
         let path = dir.join("mpi.json");
-        let text = std::fs::read_to_string(&path).map_err(read_err(&path))?;
-        // A byte order mark (Windows editors write one) is not JSON's.
-        let text = text.strip_prefix('\u{feff}').unwrap_or(&text);
-        let meta: MpiMeta = serde_json::from_str(text).map_err(|source| MpiError::Json {
+        // (A byte order mark, which Windows editors write, is not JSON's: read_text drops it.)
+        let text = deepview_image::read_text(&path).map_err(read_err(&path))?;
+        let meta: MpiMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json {
             path: path.clone(),
             what: "mpi.json",
             source,

@@ -249,6 +249,33 @@ impl ViewList {
 /// ...): the parsers of the training options, shared by every command.
 pub use deepview_train::options::{parse_positive, parse_positive_f64};
 
+/// A plane count of a benchmark's MPI: 1 to [`deepview_geometry::MAX_PLANES`].
+pub fn parse_plane_count(s: &str) -> Result<usize, String> {
+    let n = parse_positive(s)?;
+    if n > deepview_geometry::MAX_PLANES {
+        return Err(format!(
+            "{n} planes: deepview makes MPIs of at most {}",
+            deepview_geometry::MAX_PLANES
+        ));
+    }
+    Ok(n)
+}
+
+/// The most input views a benchmark makes (the synthetic views are made before the memory of the
+/// whole run can be told).
+pub const BENCH_MAX_VIEWS: usize = 256;
+
+/// An input view count of a benchmark: 1 to [`BENCH_MAX_VIEWS`].
+pub fn parse_view_count(s: &str) -> Result<usize, String> {
+    let n = parse_positive(s)?;
+    if n > BENCH_MAX_VIEWS {
+        return Err(format!(
+            "{n} views: a benchmark takes at most {BENCH_MAX_VIEWS}"
+        ));
+    }
+    Ok(n)
+}
+
 /// The help text of `--max-memory`.
 pub const MEMORY_HELP: &str = "Memory budget, e.g. 2GiB, 512MiB, 1500000000, or auto (default): three \
     quarters of the memory available now (MemAvailable in /proc/meminfo), leaving at least 1 GiB free; 2 GiB \

@@ -48,9 +48,9 @@ pub struct NetArgs {
     /// Architecture preset (random weights): cpu, paper-kalantari, paper-spaces-4view, ...
     #[arg(long, default_value = "cpu")]
     pub preset: String,
-    #[arg(long, default_value_t = 4, value_parser = args::parse_positive)]
+    #[arg(long, default_value_t = 4, value_parser = args::parse_view_count)]
     pub views: usize,
-    #[arg(long, default_value_t = 32, value_parser = args::parse_positive)]
+    #[arg(long, default_value_t = 32, value_parser = args::parse_plane_count)]
     pub planes: usize,
     /// MPI size WIDTHxHEIGHT (the input views have the same size).
     #[arg(long, default_value = "575x412")]
@@ -74,9 +74,9 @@ pub struct NetArgs {
 pub struct TrainArgs {
     #[arg(long, default_value = "cpu")]
     pub preset: String,
-    #[arg(long, default_value_t = 4, value_parser = args::parse_positive)]
+    #[arg(long, default_value_t = 4, value_parser = args::parse_view_count)]
     pub views: usize,
-    #[arg(long, default_value_t = 32, value_parser = args::parse_positive)]
+    #[arg(long, default_value_t = 32, value_parser = args::parse_plane_count)]
     pub planes: usize,
     /// Target crop side in pixels.
     #[arg(long, default_value_t = 16, value_parser = args::parse_positive)]

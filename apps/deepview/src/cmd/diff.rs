@@ -66,6 +66,27 @@ pub fn compare(
             names.1
         );
     }
+    // Texels compare only where both MPIs' planes lie alike in the world: one reference camera.
+    let cam = |m: &deepview_mpi::Mpi| {
+        let k = m.camera.intrinsics;
+        let mut v = vec![k.fx, k.fy, k.cx, k.cy];
+        v.extend(m.camera.pose.to_row_major());
+        v
+    };
+    let (ca, cb) = (cam(a), cam(b));
+    let scale = ca.iter().chain(&cb).fold(1.0f64, |m, v| m.max(v.abs()));
+    if ca
+        .iter()
+        .zip(&cb)
+        .any(|(x, y)| (x - y).abs() > 1e-6 * scale)
+    {
+        bail!(
+            "{} and {} have different reference cameras (focal length, principal point or pose): their \
+             planes lie elsewhere, so their texels cannot be compared",
+            names.0,
+            names.1
+        );
+    }
     if let Some(d) = (0..a.planes())
         .find(|&d| (a.depths[d] - b.depths[d]).abs() > 1e-6 * a.depths[d].abs().max(1e-12))
     {
@@ -166,6 +187,21 @@ mod tests {
         let d = compare(&a, &c, ("a", "c")).unwrap();
         assert!((d.max - 3.0).abs() < 1e-4 && (d.max_alpha - 1.0).abs() < 1e-4);
         assert_eq!(d.differing, 1);
+        // Another reference camera is an error naming both.
+        let mut moved = mpi(&[0.0; 8], vec![2.0]);
+        moved.camera.intrinsics.fx = 100.0;
+        let e = compare(&a, &moved, ("a", "m")).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("a and m have different reference cameras"),
+            "{e}"
+        );
+        let mut moved = mpi(&[0.0; 8], vec![2.0]);
+        moved.camera.pose = Pose::from_center(
+            deepview_geometry::DMat3::IDENTITY,
+            deepview_geometry::DVec3::new(5.0, 0.0, 0.0),
+        );
+        assert!(compare(&a, &moved, ("a", "m")).is_err());
         // Other planes or sizes are an error naming both.
         let e = compare(&a, &mpi(&[0.0; 8], vec![3.0]), ("a", "z")).unwrap_err();
         assert!(e.to_string().contains("depth 2 in a but 3 in z"), "{e}");

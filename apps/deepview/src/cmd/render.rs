@@ -100,6 +100,12 @@ pub fn to_output(img: &ImageF32, alpha: bool) -> ImageF32 {
 }
 
 fn run_path(args: &Args) -> anyhow::Result<()> {
+    if args.alpha {
+        bail!(
+            "--alpha keeps the alpha of one image (--camera or --view); a camera path's frames, GIF \
+             and videos are RGB: leave --alpha out"
+        );
+    }
     let kind = video_kind(&args.out)?;
     check_output("--out", &args.out, kind, &args.inputs())?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;

@@ -224,6 +224,19 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
             out.display()
         );
     }
+    // A file's output through a link: the rename would replace the link (and leave the file it names),
+    // and the check of what may be replaced would look at the file, not the link.
+    if kind == Kind::File
+        && std::fs::symlink_metadata(out).is_ok_and(|m| m.file_type().is_symlink())
+    {
+        let to = std::fs::read_link(out).unwrap_or_default();
+        bail!(
+            "{option} {} is a symbolic link to {}: outputs are written to a temporary renamed into place, \
+             which would replace the link; give the file it names or another name",
+            out.display(),
+            to.display()
+        );
+    }
     let o = resolve(out);
     for (what, input) in inputs {
         if input.to_str().is_some_and(|s| s.starts_with("synthetic:")) {
@@ -468,8 +481,28 @@ fn users_media(path: &Path) -> Option<&'static str> {
     (len > 0 && !deepview_image::written_by_deepview(path)).then_some(what)
 }
 
+/// Whether the file `path`, named like one an output writes, may be what deepview wrote: images (and
+/// videos) carry its mark ([`deepview_image::written_by_deepview`]), a web viewer's `index.html` is
+/// deepview's viewer; other files are taken by their names.
+fn written_here(path: &Path) -> bool {
+    if path.file_name().is_some_and(|n| n == "index.html") {
+        let mut head = Vec::new();
+        let read = std::fs::File::open(path)
+            .and_then(|f| std::io::Read::read_to_end(&mut std::io::Read::take(f, 4096), &mut head));
+        return read.is_ok() && head.windows(VIEWER_TITLE.len()).any(|w| w == VIEWER_TITLE);
+    }
+    users_media(path).is_none()
+}
+
+/// The title of deepview's web viewer (`crates/deepview-viewer/web/index.html`), in its first lines.
+const VIEWER_TITLE: &[u8] = b"<title>deepview MPI viewer</title>";
+
+/// How [`foreign_entries`] names a file it counts as foreign for want of deepview's mark.
+const UNMARKED: &str = " (a file deepview did not write)";
+
 /// Refuse to replace the existing folder `dir` (`out` as the user typed it) when it holds anything the
-/// command did not write there: a user's notes, a subfolder, photos kept beside an MPI.
+/// command did not write there: a user's notes, a subfolder, photos kept beside an MPI, photos named
+/// like its own images.
 fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::Result<()> {
     let foreign = foreign_entries(dir, kind)
         .with_context(|| format!("cannot read {option} {}", out.display()))?;
@@ -486,9 +519,14 @@ fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::R
     } else {
         "refusing to replace it, which would delete them"
     };
+    let older = if foreign.iter().any(|f| f.ends_with(UNMARKED)) {
+        " (outputs of a deepview older than 2026-12-07 carry no mark and are refused once)"
+    } else {
+        ""
+    };
     bail!(
         "{option} {} holds files that a {} does not have ({}{more}): {what}; move them away or choose \
-         a new or empty folder",
+         a new or empty folder{older}",
         out.display(),
         kind.name(),
         shown.join(", ")
@@ -597,7 +635,12 @@ fn foreign_within(
             }
         };
         let shown = format!("{prefix}{name}");
-        if !own {
+        // An image named like one of its own that deepview did not write (no mark): a user's photo
+        // kept under such a name, or an older deepview's output (refused once).
+        let unmarked = own && !is_dir && !working && !written_here(&e.path());
+        if unmarked {
+            foreign.push(format!("{shown}{UNMARKED}"));
+        } else if !own {
             foreign.push(if is_dir { format!("{shown}/") } else { shown });
         } else if is_dir && !working {
             // Every folder an output writes is known (`Part::inner`); the depth bound is a guard.
@@ -1005,6 +1048,76 @@ impl ImageFormat {
 mod tests {
     use super::*;
 
+    /// A file as deepview writes it: images carry its mark ([`deepview_image::MARK`]).
+    fn marked(p: &Path) {
+        match p.extension().and_then(|e| e.to_str()) {
+            Some("png") => deepview_image::write_png_u8(p, 1, 1, 3, &[0, 0, 0]).unwrap(),
+            Some("gif") => {
+                let gif = [&b"GIF89a"[..], &deepview_image::GIF_MARK, b";"].concat();
+                std::fs::write(p, gif).unwrap()
+            }
+            _ => std::fs::write(p, b"x").unwrap(),
+        }
+    }
+
+    /// A single file's output that is a link is refused (the rename would replace the link): the file
+    /// it names and the link stay.
+    #[test]
+    fn a_file_output_through_a_link_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("notes.txt");
+        std::fs::write(&target, "mine").unwrap();
+        let link = dir.path().join("report.json");
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let e = check_output("--out", &link, Kind::File, &[]).unwrap_err();
+        assert!(format!("{e:#}").contains("is a symbolic link to"), "{e:#}");
+    }
+
+    /// Files named like an output's own images but without deepview's mark (a user's photos saved as
+    /// `0001_beach.png` in what looks like a folder of evaluation renders) are not its own: replacing
+    /// the folder would delete them. Marked ones are.
+    #[test]
+    fn images_named_like_its_own_without_the_mark_are_foreign() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        marked(&d.join("000_image000.png"));
+        assert!(foreign_entries(d, Kind::Renders).unwrap().is_empty());
+        let photo = "../shared/data/llff/fern/images_8/image001.png";
+        let photo = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../..")
+            .join(photo);
+        std::fs::copy(&photo, d.join("0001_beach.png")).unwrap();
+        assert_eq!(
+            foreign_entries(d, Kind::Renders).unwrap(),
+            ["0001_beach.png (a file deepview did not write)"]
+        );
+        // Inside an evaluation MPI too, and an empty file is not an image.
+        let mpis = d.join("mpis");
+        std::fs::create_dir_all(mpis.join("0001_trip")).unwrap();
+        std::fs::write(mpis.join("0001_trip/mpi.json"), "{}").unwrap();
+        std::fs::write(mpis.join("0001_trip/layer_001.png"), "").unwrap();
+        assert!(foreign_entries(&mpis, Kind::Mpis).unwrap().is_empty());
+        std::fs::copy(&photo, mpis.join("0001_trip/layer_000.png")).unwrap();
+        assert_eq!(
+            foreign_entries(&mpis, Kind::Mpis).unwrap(),
+            ["0001_trip/layer_000.png (a file deepview did not write)"]
+        );
+        let e = check_output("--save-mpi", &mpis, Kind::Mpis, &[]).unwrap_err();
+        assert!(format!("{e:#}").contains("refused once"), "{e:#}");
+        // A web page of the user's named index.html is not the viewer.
+        let web = d.join("web");
+        std::fs::create_dir(&web).unwrap();
+        std::fs::write(web.join("index.html"), "<h1>mine</h1>").unwrap();
+        assert_eq!(
+            foreign_entries(&web, Kind::Web).unwrap(),
+            ["index.html (a file deepview did not write)"]
+        );
+        let viewer = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../crates/deepview-viewer/web/index.html");
+        std::fs::copy(viewer, web.join("index.html")).unwrap();
+        assert!(foreign_entries(&web, Kind::Web).unwrap().is_empty());
+    }
+
     #[test]
     fn components_and_relations() {
         assert!(parse_component("fern").is_ok());
@@ -1077,7 +1190,7 @@ mod tests {
         let put = |rel: &str| {
             let p = dir.path().join(rel);
             std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-            std::fs::write(p, b"x").unwrap();
+            marked(&p);
         };
         // An earlier demo: every file one that the demo writes.
         for f in [
@@ -1202,11 +1315,11 @@ mod tests {
         // A failure leaves nothing, not even the parent it created.
         {
             let o = OutputDir::new(&out, Kind::Mpi).unwrap();
-            std::fs::write(o.path().join("layer_000.png"), b"1").unwrap();
+            marked(&o.path().join("layer_000.png"));
         }
         assert!(!dir.path().join("sub").exists());
         let o = OutputDir::new(&out, Kind::Mpi).unwrap();
-        std::fs::write(o.path().join("layer_000.png"), b"1").unwrap();
+        marked(&o.path().join("layer_000.png"));
         o.commit().unwrap();
         let o = OutputDir::new(&out, Kind::Mpi).unwrap();
         std::fs::write(o.path().join("mpi.json"), b"2").unwrap();
@@ -1232,7 +1345,7 @@ mod tests {
         // (The other run's output is made by hand: in one process both would share a temporary.)
         std::fs::create_dir(&out).unwrap();
         std::fs::write(out.join("mpi.json"), "theirs").unwrap();
-        std::fs::write(out.join("layer_000.png"), "theirs").unwrap();
+        marked(&out.join("layer_000.png"));
         ours.commit().unwrap();
         assert_eq!(
             std::fs::read_to_string(out.join("mpi.json")).unwrap(),
@@ -1264,7 +1377,7 @@ mod tests {
     fn working_folders_of_a_folders_files_are_its_own_and_stale_ones_go() {
         let dir = tempfile::tempdir().unwrap();
         let d = dir.path();
-        std::fs::write(d.join("depth_color.png"), "png").unwrap();
+        marked(&d.join("depth_color.png"));
         let live = format!(".other_color.png.deepview-tmp.{}", std::process::id());
         // A process that has ended: its id names no process now (ids are not reused this soon).
         let mut child = std::process::Command::new("true").spawn().unwrap();
@@ -1272,7 +1385,7 @@ mod tests {
         let dead = format!(".p1_color.png.deepview-tmp.{}", child.id());
         for f in [&live, &dead] {
             std::fs::create_dir(d.join(f)).unwrap();
-            std::fs::write(d.join(f).join("p_color.png"), "png").unwrap();
+            marked(&d.join(f).join("p_color.png"));
         }
         assert!(foreign_entries(d, Kind::DepthMaps).unwrap().is_empty());
         // A working folder of a file the kind does not write is not.

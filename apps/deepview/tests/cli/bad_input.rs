@@ -147,3 +147,54 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
         &["out of range"],
     );
 }
+
+/// Counts no benchmark can run are refused before any work (4097 planes was a panic, a million views
+/// 40 s and 9 GB of synthetic views before a refusal), and an `mpi.json` that is a pipe is an error
+/// at once, not a wait for a writer.
+#[test]
+fn impossible_counts_and_special_files_are_refused_at_once() {
+    fails_with(
+        &deepview(&["bench", "net", "--size", "8x8", "--planes", "4097"]),
+        &["--planes", "4097 planes", "at most 4096"],
+    );
+    fails_with(
+        &deepview(&["bench", "net", "--size", "32x24", "--views", "1000000"]),
+        &["--views", "at most 256"],
+    );
+    fails_with(
+        &deepview(&["bench", "train", "--planes", "5000"]),
+        &["at most 4096"],
+    );
+    let tmp = tempfile::tempdir().unwrap();
+    let mpi = tmp.path().join("mpi");
+    std::fs::create_dir(&mpi).unwrap();
+    let made = std::process::Command::new("mkfifo")
+        .arg(mpi.join("mpi.json"))
+        .status()
+        .unwrap();
+    assert!(made.success());
+    let out = tmp.path().join("o.png");
+    fails_with(
+        &deepview(&["render", "--mpi", s(&mpi), "--out", s(&out)]),
+        &["mpi.json", "not a regular file"],
+    );
+    // --alpha with a camera path (its frames are RGB) is refused, not ignored.
+    let scene = crate::common::synth_grid(tmp.path());
+    let frames = tmp.path().join("frames");
+    fails_with(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&scene.join("ground_truth_mpi")),
+            "--path",
+            "spiral",
+            "--frames",
+            "3",
+            "--alpha",
+            "--out",
+            s(&frames),
+        ]),
+        &["--alpha", "leave --alpha out"],
+    );
+    assert!(!frames.exists());
+}
