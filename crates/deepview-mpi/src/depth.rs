@@ -1,10 +1,11 @@
 //! Depth from an MPI: alpha-weighted expected depth and disparity in any view, a false-colour map
 //! (turbo) like the paper's depth figures, and a 16-bit disparity PNG.
 
-use crate::composite::render_components;
-use crate::mpi::Mpi;
+use crate::mpi::{Mpi, Texel};
+use crate::warp::{Sampler, target_to_plane_homographies};
 use deepview_geometry::Camera;
 use deepview_image::{ImageError, ImageF32, write_png, write_png_u16};
+use rayon::prelude::*;
 use std::path::Path;
 
 /// Per-pixel maps of one view (`[H][W]` each).
@@ -23,19 +24,42 @@ pub struct DepthMaps {
 }
 
 /// Depth maps of `mpi` seen from `target` (the reference camera for the MPI's own depth map).
-pub fn depth_maps(mpi: &Mpi, target: &Camera) -> DepthMaps {
-    let c = render_components(mpi, target);
-    let n = target.width as usize * target.height as usize;
+///
+/// Each plane's contribution `w_d = a_d T_d` is composited back to front as the renderer composites
+/// colour (`disparity <- disparity (1 - a) + a / z_d`, `coverage <- coverage (1 - a) + a`, the same
+/// bilinear taps), row by row: no per-plane warped stack, so the memory is the MPI and the maps.
+pub fn depth_maps<T: Texel>(mpi: &Mpi<T>, target: &Camera) -> DepthMaps {
+    let (w, h) = (target.width as usize, target.height as usize);
+    let n = w * h;
+    let homs = target_to_plane_homographies(&mpi.camera, target, &mpi.depths);
+    let samplers: Vec<Sampler> = homs
+        .iter()
+        .map(|m| Sampler::new(*m, mpi.camera.width, mpi.camera.height))
+        .collect();
+    let plane_len = mpi.camera.width as usize * mpi.camera.height as usize * 4;
     let mut disparity = vec![0.0f32; n];
     let mut coverage = vec![0.0f32; n];
-    for d in 0..mpi.planes() {
-        let inv = (1.0 / mpi.depths[d]) as f32;
-        for p in 0..n {
-            let w = c.warped[(d * n + p) * 4 + 3] * c.transmittance[d * n + p];
-            disparity[p] += w * inv;
-            coverage[p] += w;
-        }
-    }
+    disparity
+        .par_chunks_mut(w.max(1))
+        .zip(coverage.par_chunks_mut(w.max(1)))
+        .enumerate()
+        .for_each(|(y, (disp, cov))| {
+            for (d, sampler) in samplers.iter().enumerate() {
+                let layer = &mpi.layers[d * plane_len..(d + 1) * plane_len];
+                let inv = (1.0 / mpi.depths[d]) as f32;
+                let row = sampler.row(y as u32);
+                for x in 0..w {
+                    let Some(tap) = row.tap(x as u32) else {
+                        continue;
+                    };
+                    let a: f32 = (0..4)
+                        .map(|k| tap.w[k] * T::rgba(layer, tap.idx[k] as usize)[3])
+                        .sum();
+                    disp[x] = disp[x] * (1.0 - a) + a * inv;
+                    cov[x] = cov[x] * (1.0 - a) + a;
+                }
+            }
+        });
     let depth = disparity
         .iter_mut()
         .zip(&coverage)
@@ -190,6 +214,61 @@ mod tests {
         let m = depth_maps(&mpi, &cam);
         let expect = 0.5 * 0.5 + 0.5 / 8.0;
         assert!((m.disparity[7] - expect).abs() < 1e-6);
+    }
+
+    /// The streaming composite equals the sum of the planes' contributions `a_d T_d` from
+    /// [`crate::render_components`] (the renderer's warped alpha and transmittance), in a view that
+    /// sees the planes with parallax and past their edges; the 8-bit MPI gives the same maps.
+    #[test]
+    fn maps_equal_the_planes_contributions() {
+        let cam = Camera::new(23, 17, Intrinsics::centred(20.0, 23, 17), Pose::IDENTITY);
+        let depths = vec![9.0, 5.0, 3.0, 2.0];
+        let mut mpi = Mpi::transparent(cam, depths.clone());
+        let mut state = 7u32;
+        for v in mpi.layers.chunks_exact_mut(4) {
+            state = state.wrapping_mul(1664525).wrapping_add(1013904223);
+            let a = (state >> 24) as f32 / 255.0;
+            v.copy_from_slice(&[0.3 * a, 0.5 * a, 0.1 * a, a]);
+        }
+        let target = Camera {
+            pose: Pose::from_center(
+                deepview_geometry::DMat3::from_rotation_y(0.05),
+                deepview_geometry::DVec3::new(0.4, -0.2, 0.1),
+            ),
+            ..cam
+        };
+        let m = depth_maps(&mpi, &target);
+        let c = crate::render_components(&mpi, &target);
+        let n = 23 * 17;
+        for p in 0..n {
+            let (mut disp, mut cov) = (0.0f64, 0.0f64);
+            for (d, z) in depths.iter().enumerate() {
+                let wgt = (c.warped[(d * n + p) * 4 + 3] * c.transmittance[d * n + p]) as f64;
+                disp += wgt / z;
+                cov += wgt;
+            }
+            assert!((m.coverage[p] as f64 - cov).abs() < 1e-5, "{p}");
+            let disp = if cov > 1e-6 { disp / cov } else { 0.0 };
+            assert!(
+                (m.disparity[p] as f64 - disp).abs() < 1e-5,
+                "{p}: {} {disp}",
+                m.disparity[p]
+            );
+        }
+        assert!(m.coverage.iter().any(|&c| c < 0.5) && m.coverage.iter().any(|&c| c > 0.9));
+        let bytes = Mpi::<u8> {
+            camera: cam,
+            depths: depths.clone(),
+            layers: mpi
+                .layers
+                .iter()
+                .map(|&v| (v * 255.0).round() as u8)
+                .collect(),
+        };
+        let m8 = depth_maps(&bytes, &target);
+        for p in 0..n {
+            assert!((m8.disparity[p] - m.disparity[p]).abs() < 2e-3, "{p}");
+        }
     }
 
     #[test]

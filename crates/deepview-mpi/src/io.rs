@@ -161,18 +161,24 @@ pub fn layer_name(i: usize) -> String {
 }
 
 /// The one reader of the folder format: `mpi.json` validated, then every layer decoded (in parallel), its
-/// size checked against `mpi.json` and turned into a plane by `convert`. The first bad layer (in plane
-/// order) is the error.
-pub(crate) fn read_layers<P: Send>(
+/// size checked against `mpi.json` and turned into a plane by `convert`, which writes it into its slot
+/// of `out` (`[planes][H][W][4]`, `slot` texels per plane). The first bad layer (in plane order) is the
+/// error.
+pub(crate) fn read_layers_into<T: Send>(
     dir: &Path,
-    convert: impl Fn(image::DynamicImage) -> P + Sync,
-) -> Result<(MpiMeta, Camera, Vec<P>), MpiError> {
+    slot: impl Fn(&Camera) -> usize,
+    out: &mut Vec<T>,
+    fill: impl Fn(usize) -> Vec<T>,
+    convert: impl Fn(image::DynamicImage, &mut [T]) + Sync,
+) -> Result<(MpiMeta, Camera), MpiError> {
     let (meta, camera) = MpiMeta::read(dir)?;
     let (w, h) = (camera.width, camera.height);
-    let planes: Vec<Result<P, MpiError>> = meta
-        .layers
-        .par_iter()
-        .map(|name| {
+    let len = slot(&camera);
+    *out = fill(len * meta.layers.len());
+    let results: Vec<Result<(), MpiError>> = out
+        .par_chunks_mut(len.max(1))
+        .zip(meta.layers.par_iter())
+        .map(|(plane, name)| {
             let path = dir.join(name);
             // The header first: a layer announcing another size is refused before it is decoded.
             let (lw, lh) = deepview_image::image_size(&path)?;
@@ -193,21 +199,50 @@ pub(crate) fn read_layers<P: Send>(
                     ),
                 ));
             }
-            Ok(convert(img))
+            convert(img, plane);
+            Ok(())
         })
         .collect();
-    let planes = planes.into_iter().collect::<Result<_, _>>()?;
+    results.into_iter().collect::<Result<(), _>>()?;
+    Ok((meta, camera))
+}
+
+/// [`read_layers_into`] giving each plane as its own value `P` (the compact and interchange readers).
+pub(crate) fn read_layers<P: Send>(
+    dir: &Path,
+    convert: impl Fn(image::DynamicImage) -> P + Sync,
+) -> Result<(MpiMeta, Camera, Vec<P>), MpiError> {
+    let mut slots: Vec<Option<P>> = Vec::new();
+    let (meta, camera) = read_layers_into(
+        dir,
+        |_| 1,
+        &mut slots,
+        |n| (0..n).map(|_| None).collect(),
+        |img, slot| slot[0] = Some(convert(img)),
+    )?;
+    let planes = slots
+        .into_iter()
+        .map(|p| p.expect("every layer read"))
+        .collect();
     Ok((meta, camera, planes))
 }
 
 /// Read an MPI folder as premultiplied texels `T`: `read_mpi::<f32>` converts the straight alpha on disk
-/// exactly, `read_mpi::<u8>` rounds to 8 bits (for rendering).
+/// exactly, `read_mpi::<u8>` rounds to 8 bits (for rendering). Each layer is decoded straight into its
+/// place in the MPI: the peak memory is the MPI and a layer per thread.
 pub fn read_mpi<T: Texel>(dir: &Path) -> Result<Mpi<T>, MpiError> {
-    let (meta, camera, planes) = read_layers(dir, T::premultiplied)?;
+    let mut layers = Vec::new();
+    let (meta, camera) = read_layers_into(
+        dir,
+        |c| c.width as usize * c.height as usize * 4,
+        &mut layers,
+        |n| vec![T::default(); n],
+        |img, plane| plane.copy_from_slice(&T::premultiplied(img)),
+    )?;
     Ok(Mpi {
         camera,
         depths: meta.depths,
-        layers: planes.concat(),
+        layers,
     })
 }
 

@@ -3,7 +3,7 @@
 use deepview_geometry::Camera;
 
 /// A texel type of MPI layers: f32 or u8 premultiplied RGBA.
-pub trait Texel: Copy + Send + Sync + 'static {
+pub trait Texel: Copy + Default + Send + Sync + 'static {
     /// Premultiplied RGBA of texel `i` (in texels) as f32 in 0..1.
     fn rgba(layer: &[Self], i: usize) -> [f32; 4];
     /// The layer as bytes when texels are 8-bit (enables the SIMD kernel).

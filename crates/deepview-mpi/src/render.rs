@@ -362,7 +362,7 @@ mod tests {
 
     fn scalar_u8(mpi: &MpiU8, target: &Camera) -> Vec<f32> {
         // The scalar path, forced by viewing the bytes through a wrapper type without `as_bytes`.
-        #[derive(Clone, Copy)]
+        #[derive(Clone, Copy, Default)]
         struct B(u8);
         impl Texel for B {
             fn rgba(layer: &[B], i: usize) -> [f32; 4] {

@@ -59,11 +59,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             meta.width,
             meta.height
         ),
-        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), false)
+        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), true)
             .saturating_add(args::depth_bytes(&camera)),
         budget,
     )?;
-    let mpi = read_mpi::<f32>(&args.mpi)?;
+    // 8-bit texels, as stored: the maps composite alpha row by row (no warped stack).
+    let mpi = read_mpi::<u8>(&args.mpi)?;
     let maps = depth_maps(&mpi, &camera);
     let dirs = CreatedDirs::create(&args.out)?;
     let (stage, lock) = super::safety::make_temp_dir(&color, "tmp")?;

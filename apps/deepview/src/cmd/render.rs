@@ -221,11 +221,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             meta.width,
             meta.height
         ),
-        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), false)
+        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), true)
             .saturating_add(args::render_bytes(&camera)),
         budget,
     )?;
-    let mpi = read_mpi::<f32>(&args.mpi)?;
+    // 8-bit texels, as stored (a quarter of f32's memory, and the SIMD kernel of the viewer's frames).
+    let mpi = read_mpi::<u8>(&args.mpi)?;
     let img = render(&mpi, &camera);
     if let Some(w) = deepview_mpi::view_warning(&mpi, &camera, deepview_mpi::coverage(&img)) {
         eprintln!("warning: {w}");
