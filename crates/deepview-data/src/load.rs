@@ -140,9 +140,23 @@ pub fn load_scene(path: &Path, opts: &LoadOptions) -> Result<Scene, DataError> {
     if let Some((n, f)) = scene.depth_bounds
         && !(n.is_finite() && f.is_finite() && n > 0.0 && f > n)
     {
+        // Say which bound came from where: a --near beyond the dataset's far is the usual case.
+        let from = |given: Option<f64>, name: &str| match given {
+            Some(_) => format!("--{name} {}", if name == "near" { n } else { f }),
+            None => format!(
+                "{name} {:.4} (the dataset's)",
+                if name == "near" { n } else { f }
+            ),
+        };
+        let (near, far) = (from(opts.near, "near"), from(opts.far, "far"));
+        let hint = match (opts.near, opts.far) {
+            (Some(_), None) => ": give --far too, or a smaller --near",
+            (None, Some(_)) => ": give --near too, or a larger --far",
+            _ => "",
+        };
         return Err(DataError::invalid(
             path,
-            format!("invalid depth bounds near {n}, far {f} (need 0 < near < far, finite)"),
+            format!("invalid depth bounds {near}, {far} (need 0 < near < far, finite){hint}"),
         ));
     }
     // A plane sweep spaces its planes in inverse depth between them: beyond this ratio its disparities are

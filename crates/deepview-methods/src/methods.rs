@@ -246,15 +246,23 @@ pub fn make_method(
             ),
         });
     }
+    // The device is named the same way for every method (a typo is an error for all), and only the
+    // learned method runs on one.
+    let device = deepview_net::device::parse_device(&options.device)?;
+    if kind != MethodKind::Deepview && options.device.trim() != "cpu" {
+        return Err(MethodError::Method {
+            method: kind.name().into(),
+            msg: format!(
+                "--device {} applies to the learned method (deepview) only; {} runs on the CPU",
+                options.device,
+                kind.name()
+            ),
+        });
+    }
     Ok(match kind {
         MethodKind::Deepview => Box::new(
-            LearnedMethod::load(
-                options.weights.as_deref(),
-                options.planes,
-                budget,
-                &deepview_net::device::parse_device(&options.device)?,
-            )?
-            .with_scale(options.mpi_scale),
+            LearnedMethod::load(options.weights.as_deref(), options.planes, budget, &device)?
+                .with_scale(options.mpi_scale),
         ),
         _ => Box::new(Classical {
             kind,

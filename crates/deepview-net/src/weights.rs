@@ -389,7 +389,18 @@ pub fn load_model_bytes(
         msg,
     };
     if let Some(e) = result.errors.first() {
-        return Err(mismatch(format!("{e:?}")));
+        return Err(mismatch(match e {
+            burn::store::ApplyError::ShapeMismatch {
+                path,
+                expected,
+                found,
+            } => format!(
+                "tensor {path} is {:?} in the file but {:?} in the model config.json describes",
+                found.as_slice(),
+                expected.as_slice()
+            ),
+            e => e.to_string(),
+        }));
     }
     if let Some((name, _)) = result.missing.first() {
         return Err(mismatch(format!(
@@ -644,7 +655,13 @@ mod tests {
             e.contains("nets.0.input.0.weight") || e.contains("nets.0."),
             "{e}"
         );
-        assert!(e.contains("Shape") || e.contains("shape"), "{e}");
+        // In words, not the loader's Debug text (`ShapeMismatch { .., dims: .. }`).
+        assert!(
+            e.contains("in the file but")
+                && e.contains("config.json describes")
+                && !e.contains("dims"),
+            "{e}"
+        );
         // More nets than the file has: a missing tensor is named.
         let more = DeepViewConfig {
             updates: 2,

@@ -344,8 +344,13 @@ pub fn default_budget(available: u64) -> u64 {
     }
 }
 
+/// A memory size in GiB, or in MiB under 1 GiB (a 10 MiB budget is not "0.0 GiB").
 fn gib(bytes: u64) -> String {
-    format!("{:.1} GiB", bytes as f64 / (1u64 << 30) as f64)
+    if bytes < 1 << 30 {
+        format!("{:.1} MiB", bytes as f64 / (1u64 << 20) as f64)
+    } else {
+        format!("{:.1} GiB", bytes as f64 / (1u64 << 30) as f64)
+    }
 }
 
 /// The budget of `--max-memory` (`None` or `auto`: [`default_budget`] of `MemAvailable`;
@@ -458,6 +463,9 @@ mod tests {
             512 << 20
         );
         assert!(memory_budget_of(Some("lots"), None, None).is_err());
+        // A small budget is said in MiB, not as "0.0 GiB".
+        let (_, line) = memory_budget_of(Some("10MiB"), Some(8 << 30), Some(16 << 30)).unwrap();
+        assert!(line.contains("memory budget: 10.0 MiB"), "{line}");
         // Beyond the machine: refused, naming a value that fits; beyond what is free: a warning.
         let e = memory_budget_of(Some("64GiB"), Some(8 << 30), Some(16 << 30)).unwrap_err();
         assert!(

@@ -180,7 +180,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for (kind, steps) in kinds {
         eprintln!("      {kind}");
         let mut reporter = Reporter::new(kind, &[], None, false);
-        let mut method = MpiPredictor::new(make_method(kind, &options(steps), budget)?, move |e| {
+        // The baselines run on the CPU (--device is the learned method's).
+        let on = |kind: MethodKind| MethodOptions {
+            device: if kind == MethodKind::Deepview {
+                args.device.clone()
+            } else {
+                "cpu".into()
+            },
+            ..options(steps)
+        };
+        let mut method = MpiPredictor::new(make_method(kind, &on(kind), budget)?, move |e| {
             reporter.event(e)
         });
         reports.push(evaluate(&scene, &protocol, &mut method, &options_eval)?);

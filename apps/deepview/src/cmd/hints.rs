@@ -175,6 +175,12 @@ fn data(e: &DataError) -> Option<String> {
             "--images names a folder inside the dataset folder (e.g. images_8)".into()
         }
         DataError::DownscaleTooLarge { .. } => "use a smaller --downscale".into(),
+        // An MPI is not a dataset (its layers are not photos to pose).
+        DataError::NotDetected { path, .. } if path.join("mpi.json").is_file() => format!(
+            "it is an MPI folder, not a dataset: render it with `deepview render --mpi {0} --out \
+             view.png` or look around it with `deepview view --mpi {0}`",
+            path.display()
+        ),
         // A folder of photos with no poses yet.
         DataError::NotDetected { path, .. }
             if deepview_process::list_photos(path).is_ok_and(|p| p.len() >= 2) =>

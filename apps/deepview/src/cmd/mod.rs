@@ -102,6 +102,18 @@ pub fn check_deepview_mpi(option: &str, dir: &std::path::Path) -> anyhow::Result
     if dir.join("mpi.json").is_file() {
         return Ok(());
     }
+    // The folder's own mpi.json given, or nothing there at all.
+    if dir.is_file() && dir.file_name().is_some_and(|n| n == "mpi.json") {
+        let folder = dir.parent().filter(|p| !p.as_os_str().is_empty());
+        anyhow::bail!(
+            "{option} {} is an MPI's mpi.json: give the MPI's folder ({})",
+            dir.display(),
+            folder.map_or(".".into(), |p| p.display().to_string())
+        );
+    }
+    if std::fs::symlink_metadata(dir).is_err() {
+        anyhow::bail!("{option} {} does not exist", dir.display());
+    }
     match detect_format(dir) {
         Ok(f) if f != ImportFormat::Deepview => anyhow::bail!(
             "{option} {} is an MPI in {f:?} format: convert it first with `deepview import --mpi {} --out \

@@ -152,7 +152,7 @@ fn bad_input_gives_clear_errors_and_exit_code_2() {
 /// 40 s and 9 GB of synthetic views before a refusal), and an `mpi.json` that is a pipe is an error
 /// at once, not a wait for a writer.
 #[test]
-fn impossible_counts_and_special_files_are_refused_at_once() {
+fn odd_inputs_are_refused_at_once_saying_what_to_do() {
     fails_with(
         &deepview(&["bench", "net", "--size", "8x8", "--planes", "4097"]),
         &["--planes", "4097 planes", "at most 4096"],
@@ -197,4 +197,48 @@ fn impossible_counts_and_special_files_are_refused_at_once() {
         &["--alpha", "leave --alpha out"],
     );
     assert!(!frames.exists());
+    // An MPI where a dataset is expected, an MPI's mpi.json for its folder, a folder not there.
+    let gt = scene.join("ground_truth_mpi");
+    fails_with(
+        &deepview(&["info", "--data", s(&gt)]),
+        &["it is an MPI folder", "deepview render --mpi"],
+    );
+    fails_with(
+        &deepview(&["render", "--mpi", s(&gt.join("mpi.json")), "--out", s(&out)]),
+        &["is an MPI's mpi.json: give the MPI's folder"],
+    );
+    // A --near beyond the dataset's far bound says where each came from.
+    let fern = crate::common::data().join("llff/fern");
+    fails_with(
+        &deepview(&["info", "--data", s(&fern), "--near", "1000"]),
+        &["--near 1000, far 80.0021 (the dataset's)", "give --far too"],
+    );
+    // A device no build has is an error for every method (psv-mean ignored it).
+    let o = deepview(&[
+        "eval",
+        "--data",
+        s(&fern),
+        "--images",
+        "images_8",
+        "--method",
+        "psv-mean",
+        "--device",
+        "foo",
+        "--targets",
+        "0",
+    ]);
+    fails_with(&o, &["device `foo`", "unknown device"]);
+    for cmd in ["render", "view", "diff"] {
+        let missing = tmp.path().join("no_such_mpi");
+        let args: Vec<&str> = match cmd {
+            "diff" => vec!["diff", s(&missing), s(&gt)],
+            c => vec![c, "--mpi", s(&missing), "--out", s(&out)],
+        };
+        let args: Vec<&str> = if cmd == "view" {
+            args[..3].to_vec()
+        } else {
+            args
+        };
+        fails_with(&deepview(&args), &["no_such_mpi", "does not exist"]);
+    }
 }

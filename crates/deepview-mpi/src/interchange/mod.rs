@@ -69,6 +69,9 @@ pub fn export(mpi_dir: &Path, out: &Path, format: ExportFormat) -> Result<Export
 
 /// Which format the folder `dir` holds.
 pub fn detect_format(dir: &Path) -> Result<ImportFormat, MpiError> {
+    if std::fs::symlink_metadata(dir).is_err() {
+        return Err(invalid(dir, "does not exist"));
+    }
     if !dir.is_dir() {
         return Err(invalid(dir, "not a folder"));
     }
