@@ -63,7 +63,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .saturating_add(args::depth_bytes(&camera)),
         budget,
     )?;
-    // 8-bit texels, as stored: the maps composite alpha row by row (no warped stack).
+    // 8-bit texels: the maps need alpha alone, which is stored straight (8-bit texels keep it exactly),
+    // composited row by row (no warped stack).
     let mpi = read_mpi::<u8>(&args.mpi)?;
     let maps = depth_maps(&mpi, &camera);
     let dirs = CreatedDirs::create(&args.out)?;

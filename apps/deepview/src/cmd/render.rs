@@ -221,12 +221,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             meta.width,
             meta.height
         ),
-        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), true)
+        args::mpi_bytes(meta.width, meta.height, meta.depths.len(), false)
             .saturating_add(args::render_bytes(&camera)),
         budget,
     )?;
-    // 8-bit texels, as stored (a quarter of f32's memory, and the SIMD kernel of the viewer's frames).
-    let mpi = read_mpi::<u8>(&args.mpi)?;
+    // f32 texels: the colour premultiplied exactly (8-bit texels round it again, up to 2 steps off in
+    // faint regions); the camera paths' frames, like the viewer, take 8-bit ones.
+    let mpi = read_mpi::<f32>(&args.mpi)?;
     let img = render(&mpi, &camera);
     if let Some(w) = deepview_mpi::view_warning(&mpi, &camera, deepview_mpi::coverage(&img)) {
         eprintln!("warning: {w}");
