@@ -465,6 +465,40 @@ fn crc32(bytes: &[u8]) -> u32 {
 }
 
 /// `png` (a whole PNG file) with a `tEXt` chunk `Software` = [`MARK`] after its IHDR chunk.
+/// Whether the PNG bytes `head` (from the start of the file) have deepview's `tEXt` chunk before
+/// their image data.
+fn png_marked(head: &[u8]) -> bool {
+    let mut at = 8usize;
+    while let Some(c) = head.get(at..at + 8) {
+        let len = u32::from_be_bytes([c[0], c[1], c[2], c[3]]) as usize;
+        match &c[4..8] {
+            b"tEXt" => {
+                let want = [&b"Software\0"[..], &MARK[..]].concat();
+                if head.get(at + 8..at + 8 + len) == Some(&want[..]) {
+                    return true;
+                }
+            }
+            b"IDAT" | b"IEND" => return false,
+            _ => {}
+        }
+        let Some(next) = at.checked_add(12).and_then(|a| a.checked_add(len)) else {
+            return false;
+        };
+        at = next;
+    }
+    false
+}
+
+/// A PNG file's bytes that deepview copies into an output of its own (a web viewer folder), given its
+/// mark where they lack it; anything else as it is.
+pub fn with_mark(bytes: Vec<u8>) -> Vec<u8> {
+    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") && !png_marked(&bytes) {
+        mark_png(bytes)
+    } else {
+        bytes
+    }
+}
+
 fn mark_png(png: Vec<u8>) -> Vec<u8> {
     const IHDR_END: usize = 8 + 12 + 13;
     if png.len() < IHDR_END || &png[12..16] != b"IHDR" {
@@ -518,25 +552,7 @@ pub fn written_by_deepview(path: &Path) -> bool {
         return false;
     }
     if head.starts_with(b"\x89PNG\r\n\x1a\n") {
-        let mut at = 8usize;
-        while let Some(c) = head.get(at..at + 8) {
-            let len = u32::from_be_bytes([c[0], c[1], c[2], c[3]]) as usize;
-            match &c[4..8] {
-                b"tEXt" => {
-                    let want = [&b"Software\0"[..], &MARK[..]].concat();
-                    if head.get(at + 8..at + 8 + len) == Some(&want[..]) {
-                        return true;
-                    }
-                }
-                b"IDAT" | b"IEND" => return false,
-                _ => {}
-            }
-            let Some(next) = at.checked_add(12).and_then(|a| a.checked_add(len)) else {
-                return false;
-            };
-            at = next;
-        }
-        return false;
+        return png_marked(&head);
     }
     if head.starts_with(&[0xFF, 0xD8]) {
         let mut at = 2usize;
@@ -901,6 +917,17 @@ mod tests {
             ] {
                 assert!(!written_by_deepview(&data.join(photo)), "{photo}");
             }
+            // A copy given the mark (export-web's layers of another program's MPI) has it once and
+            // decodes to the same pixels; a marked file is left as it is, a JPEG too.
+            let fern = data.join("llff/fern/images_8/image000.png");
+            let copy = dir.path().join("copy.png");
+            let bytes = with_mark(std::fs::read(&fern).unwrap());
+            assert_eq!(with_mark(bytes.clone()), bytes);
+            std::fs::write(&copy, &bytes).unwrap();
+            assert!(written_by_deepview(&copy));
+            assert_eq!(read_image(&copy, 3).unwrap(), read_image(&fern, 3).unwrap());
+            let room = std::fs::read(data.join("colmap/room/images/img001.JPG")).unwrap();
+            assert_eq!(with_mark(room.clone()), room);
         }
         let gif = dir.path().join("a.gif");
         let mut bytes = b"GIF89a\x01\0\x01\0\0\0\0".to_vec();

@@ -104,7 +104,9 @@ pub fn export_web(mpi_dir: &Path, out: &Path) -> Result<Vec<PathBuf>, ViewerErro
             msg: format!("cannot read: {e}"),
         })?;
         let dst = out.join(name);
-        deepview_image::write_atomic(&dst, &bytes)?;
+        // Layers of an MPI another program wrote get deepview's mark in the copy, so that the next
+        // export replaces the folder it made.
+        deepview_image::write_atomic(&dst, &deepview_image::with_mark(bytes))?;
         written.push(dst);
     }
     let index = out.join("index.html");

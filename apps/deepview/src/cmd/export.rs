@@ -31,7 +31,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let budget = super::args::memory_budget(args.max_memory.as_deref())?;
     super::args::check_mpis_fit("exporting", &[mpi_dir], true, 2, budget)?;
     let dir = OutputDir::new(out, Kind::Export)?;
+    // Errors name the output as the user gave it, not the temporary folder it is written in.
     let report = deepview_mpi::export(mpi_dir, dir.path(), format)
+        .map_err(|e| {
+            let (text, tmp) = (e.to_string(), dir.path().display().to_string());
+            if text.contains(&tmp) {
+                anyhow::anyhow!(text.replace(&tmp, &out.display().to_string()))
+            } else {
+                anyhow::Error::new(e)
+            }
+        })
         .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;
     dir.commit()?;
     for w in &report.warnings {

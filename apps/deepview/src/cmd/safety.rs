@@ -224,6 +224,25 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
             out.display()
         );
     }
+    // A folder that is replaced whole, named as `.` or `..`: the swap would move the folder the shell
+    // is in (and its temporary would be made inside it).
+    if kind != Kind::File
+        && !kind.written_into()
+        && kind != Kind::Run
+        && (out.file_name().is_none() || out.ends_with("."))
+    {
+        let name = std::fs::canonicalize(out)
+            .ok()
+            .and_then(|c| c.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .unwrap_or_else(|| "NAME".into());
+        bail!(
+            "{option} {} names a folder by `.` or `..`: a {} is written beside it and swapped into its \
+             place, which cannot be done to the folder you are in; name it from its parent (e.g. \
+             {option} ../{name})",
+            out.display(),
+            kind.name()
+        );
+    }
     // A file's output through a link: the rename would replace the link (and leave the file it names),
     // and the check of what may be replaced would look at the file, not the link.
     if kind == Kind::File
@@ -1058,6 +1077,21 @@ mod tests {
             }
             _ => std::fs::write(p, b"x").unwrap(),
         }
+    }
+
+    /// A replaced folder named `.` or `..` is refused (its swap would move the folder one is in);
+    /// folders written into (depth maps) may be.
+    #[test]
+    fn a_replaced_folder_is_not_named_by_dots() {
+        for out in [".", "..", "./.", "a/.."] {
+            let e = check_output("--out", Path::new(out), Kind::Web, &[]).unwrap_err();
+            assert!(
+                format!("{e:#}").contains("name it from its parent"),
+                "{out}: {e:#}"
+            );
+        }
+        let dir = tempfile::tempdir().unwrap();
+        check_output("--out", &dir.path().join("."), Kind::DepthMaps, &[]).unwrap();
     }
 
     /// A single file's output that is a link is refused (the rename would replace the link): the file

@@ -78,6 +78,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let planes = args.planes as usize;
     let (rig, sizes) = if args.cameras == "grid" {
         check_output("--out", &args.out, Kind::SynthScene, &[])?;
+        // The scene options read a dataset's cameras; a generated grid has none to read.
+        let sc = &args.scene;
+        let given: Vec<&str> = [
+            ("--format", sc.format.is_some()),
+            ("--images", sc.images.is_some()),
+            ("--rig", sc.rig != 0),
+            ("--near", sc.near.is_some()),
+            ("--far", sc.far.is_some()),
+            ("--downscale", sc.downscale > 1),
+        ]
+        .into_iter()
+        .filter_map(|(name, set)| set.then_some(name))
+        .collect();
+        if !given.is_empty() {
+            anyhow::bail!(
+                "{} shape{} the cameras read from a dataset (--data DIR); the generated grid takes \
+                 --width, --height and --grid",
+                given.join(", "),
+                if given.len() == 1 { "s" } else { "" }
+            );
+        }
         let side = args.grid as usize;
         (
             Rig::Grid {

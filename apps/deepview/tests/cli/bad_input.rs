@@ -228,6 +228,50 @@ fn odd_inputs_are_refused_at_once_saying_what_to_do() {
         "0",
     ]);
     fails_with(&o, &["device `foo`", "unknown device"]);
+    // An export the format cannot hold names the output, not the temporary folder it is written in.
+    let one = tmp.path().join("one_plane");
+    std::fs::create_dir(&one).unwrap();
+    let mut meta: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(gt.join("mpi.json")).unwrap()).unwrap();
+    meta["depths"] = serde_json::json!([meta["depths"][0]]);
+    meta["layers"] = serde_json::json!([meta["layers"][0]]);
+    std::fs::write(one.join("mpi.json"), meta.to_string()).unwrap();
+    let layer = meta["layers"][0].as_str().unwrap();
+    std::fs::copy(gt.join(layer), one.join(layer)).unwrap();
+    let exported = tmp.path().join("exported");
+    let o = deepview(&[
+        "export",
+        "--mpi",
+        s(&one),
+        "--out",
+        s(&exported),
+        "--format",
+        "llff",
+    ]);
+    fails_with(&o, &["exported: LLFF's format needs at least 2 planes"]);
+    assert!(!String::from_utf8_lossy(&o.stderr).contains("deepview-tmp"));
+    assert!(!exported.exists());
+    // Dataset options given to a generated grid are refused, not ignored.
+    let grid = tmp.path().join("odd_grid");
+    fails_with(
+        &deepview(&[
+            "synth",
+            "--grid",
+            "2",
+            "--width",
+            "16",
+            "--height",
+            "16",
+            "--downscale",
+            "4",
+            "--images",
+            "foo",
+            "--out",
+            s(&grid),
+        ]),
+        &["--images, --downscale shape the cameras read from a dataset"],
+    );
+    assert!(!grid.exists());
     for cmd in ["render", "view", "diff"] {
         let missing = tmp.path().join("no_such_mpi");
         let args: Vec<&str> = match cmd {
