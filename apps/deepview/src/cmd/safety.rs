@@ -982,11 +982,23 @@ fn stem_of(out: &Path) -> Option<String> {
     ))
 }
 
-/// Whether `pid` names a process that no longer runs (false where `/proc` cannot tell).
+/// Whether `pid` names a process that no longer runs (false where `/proc` cannot tell). A killed
+/// process its parent has not waited for yet (a zombie, state `Z` in `/proc/PID/stat`) runs no more.
 fn died(pid: &str) -> bool {
     Path::new("/proc/self").exists()
         && pid.parse::<u32>().is_ok_and(|p| {
-            p != std::process::id() && !Path::new("/proc").join(p.to_string()).exists()
+            if p == std::process::id() {
+                return false;
+            }
+            match std::fs::read_to_string(format!("/proc/{p}/stat")) {
+                // `PID (COMM) STATE ...`: COMM may hold spaces and parentheses, the state follows
+                // the last `)`.
+                Ok(stat) => stat
+                    .rsplit_once(')')
+                    .and_then(|(_, rest)| rest.split_whitespace().next())
+                    .is_some_and(|state| state == "Z" || state == "X"),
+                Err(_) => !Path::new("/proc").join(p.to_string()).exists(),
+            }
         })
 }
 
@@ -1077,6 +1089,27 @@ mod tests {
             }
             _ => std::fs::write(p, b"x").unwrap(),
         }
+    }
+
+    /// A process killed but not yet waited for (a zombie) has died; a running one has not.
+    #[test]
+    fn a_killed_process_not_yet_waited_for_has_died() {
+        let mut child = std::process::Command::new("sleep")
+            .arg("60")
+            .spawn()
+            .unwrap();
+        let pid = child.id().to_string();
+        assert!(!died(&pid));
+        child.kill().unwrap();
+        // Until it is a zombie (the kill is asynchronous), announced by /proc; then reaped.
+        let stat = format!("/proc/{pid}/stat");
+        while !std::fs::read_to_string(&stat).is_ok_and(|s| s.contains(") Z")) {
+            std::thread::yield_now();
+        }
+        assert!(died(&pid));
+        child.wait().unwrap();
+        assert!(died(&pid));
+        assert!(!died(&std::process::id().to_string()));
     }
 
     /// A replaced folder named `.` or `..` is refused (its swap would move the folder one is in);
