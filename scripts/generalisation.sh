@@ -4,7 +4,8 @@
 # plane count of `--planes auto` (the same for every method).
 # Usage: WEIGHTS=runs/gen2/checkpoints/step-N scripts/generalisation.sh [METHOD ...]
 #   (default methods: nearest psv-mean optimize deepview; WEIGHTS defaults to the shipped weights)
-# ARGS adds options to every eval (e.g. ARGS="--aggregate 8" for psv-mean with cost aggregation).
+# ARGS adds options to every eval (e.g. ARGS="--aggregate 8" with the method psv-mean alone: an option
+# of one method is refused by the others).
 # Results: ${OUT:-results/gen}/<scene>_<method>.json; then `python3 scripts/quality_table.py results/gen`.
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -6,7 +6,8 @@
 # WIDE=1 adds room at its full 996 px (twice the disparities: a stand-in for wider captures).
 # Usage: WEIGHTS=runs/gen27/checkpoints/step-N scripts/spread3.sh [METHOD ...]
 #   (default methods: psv-mean deepview; WEIGHTS defaults to the shipped weights)
-# ARGS adds options to every eval (e.g. ARGS="--aggregate 8" for psv-mean with cost aggregation).
+# ARGS adds options to every eval (e.g. ARGS="--aggregate 8" with the method psv-mean alone: an option
+# of one method is refused by the others).
 # Results: ${OUT:-results/spread3}/<scene>_<method>.json; then `python3 scripts/quality_table.py DIR`.
 set -euo pipefail
 cd "$(dirname "$0")/.."

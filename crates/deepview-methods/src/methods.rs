@@ -246,6 +246,60 @@ pub fn make_method(
             ),
         });
     }
+    // Options of one method given to another are refused, not ignored (compared with the defaults).
+    let d = MethodOptions::default();
+    let psv_only: Vec<&str> = [
+        ("--temperature", options.temperature != d.temperature),
+        ("--aggregate", options.aggregate != d.aggregate),
+        (
+            "--aggregate-weight",
+            options.aggregate_weight != d.aggregate_weight,
+        ),
+        ("--smoothing", options.smoothing.is_some()),
+        ("--census", options.census.is_some()),
+        ("--leave-one-out", options.leave_one_out.is_some()),
+        ("--sample-variance", options.sample_variance),
+    ]
+    .into_iter()
+    .filter_map(|(name, given)| given.then_some(name))
+    .collect();
+    let optimize_only: Vec<&str> = [
+        ("--steps", options.steps != d.steps),
+        ("--lr", options.lr != d.lr),
+        ("--max-width", options.max_width != d.max_width),
+    ]
+    .into_iter()
+    .filter_map(|(name, given)| given.then_some(name))
+    .collect();
+    for (given, owner, of) in [
+        (psv_only, MethodKind::PsvMean, "psv-mean's agreement"),
+        (
+            optimize_only,
+            MethodKind::Optimize,
+            "optimize's gradient descent",
+        ),
+    ] {
+        if kind != owner && !given.is_empty() {
+            return Err(MethodError::Method {
+                method: kind.name().into(),
+                msg: format!(
+                    "{} shape{} {of} only (--method {}); leave {} out",
+                    given.join(", "),
+                    if given.len() == 1 { "s" } else { "" },
+                    owner.name(),
+                    if given.len() == 1 { "it" } else { "them" }
+                ),
+            });
+        }
+    }
+    if kind == MethodKind::Nearest && !matches!(options.planes, Planes::Auto | Planes::Count(1)) {
+        return Err(MethodError::Method {
+            method: kind.name().into(),
+            msg: "nearest's MPI is one plane (the nearest input's own image): --planes does not \
+                  apply; leave it out"
+                .into(),
+        });
+    }
     // The device is named the same way for every method (a typo is an error for all), and only the
     // learned method runs on one.
     let device = deepview_net::device::parse_device(&options.device)?;

@@ -205,7 +205,12 @@ fn learned_prior_radius_grows_with_the_image_size() {
             planes: Planes::Count(9),
             weights: Some(dir.path().to_path_buf()),
             aggregate,
-            aggregate_weight: 0.5,
+            // (psv-mean's own option: the learned method refuses it.)
+            aggregate_weight: if kind == MethodKind::PsvMean {
+                0.5
+            } else {
+                1.0
+            },
             mpi_scale: Some(mpi_scale),
             ..Default::default()
         };
@@ -525,4 +530,64 @@ fn a_finer_grid_keeps_the_plane_rule_within_the_budget() {
         (8..full).contains(&fine),
         "scale 1.5 within scale 1's budget: {fine} of {full} planes"
     );
+}
+
+/// An option of one method given to another is refused, naming it and the method it belongs to (the
+/// learned method made a byte-identical MPI whatever `--smoothing` said, psv-mean ignored `--steps`,
+/// nearest gave its one plane for `--planes 20`); the defaults pass for every method.
+#[test]
+fn options_of_another_method_are_refused() {
+    let refused = |kind: MethodKind, options: MethodOptions| -> String {
+        match make_method(kind, &options, 1 << 30) {
+            Err(e) => e.to_string(),
+            Ok(_) => panic!("{kind} accepted {options:?}"),
+        }
+    };
+    let smoothing = MethodOptions {
+        smoothing: Some(deepview_mpi::agreement::Smoothing {
+            p1: 50.0,
+            p2: 500.0,
+        }),
+        temperature: 0.5,
+        ..Default::default()
+    };
+    for kind in [MethodKind::Nearest, MethodKind::Optimize] {
+        let e = refused(kind, smoothing.clone());
+        assert!(
+            e.contains("--temperature, --smoothing shape psv-mean's agreement only"),
+            "{e}"
+        );
+    }
+    let steps = MethodOptions {
+        steps: 20,
+        ..Default::default()
+    };
+    for kind in [
+        MethodKind::PsvMean,
+        MethodKind::Nearest,
+        MethodKind::Deepview,
+    ] {
+        let e = refused(kind, steps.clone());
+        assert!(
+            e.contains("--steps shapes optimize's gradient descent only"),
+            "{e}"
+        );
+    }
+    let planes = MethodOptions {
+        planes: Planes::Count(20),
+        ..Default::default()
+    };
+    assert!(refused(MethodKind::Nearest, planes).contains("--planes does not apply"));
+    for kind in [
+        MethodKind::Nearest,
+        MethodKind::PsvMean,
+        MethodKind::Optimize,
+    ] {
+        assert!(
+            make_method(kind, &MethodOptions::default(), 1 << 30).is_ok(),
+            "{kind}"
+        );
+    }
+    assert!(make_method(MethodKind::PsvMean, &smoothing, 1 << 30).is_ok());
+    assert!(make_method(MethodKind::Optimize, &steps, 1 << 30).is_ok());
 }

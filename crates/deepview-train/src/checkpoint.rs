@@ -58,6 +58,21 @@ pub(crate) fn foreign_entries(dir: &Path) -> Vec<String> {
 /// first free `step-N.damaged[.K]` (never listed as a checkpoint, never removed), and the warning
 /// says so; an incomplete folder of training's own files alone is left for [`write_checkpoint`] to
 /// replace.
+/// Rename the checkpoint folder `done` to the first free `NAME.damaged`, `NAME.damaged.2`, ... (out
+/// of [`list_checkpoints`]' sight, its files kept), returning where it went.
+fn move_aside(done: &Path) -> Result<PathBuf, TrainError> {
+    let name = done.file_name().unwrap_or_default().to_string_lossy();
+    let aside = (1..)
+        .map(|k| match k {
+            1 => done.with_file_name(format!("{name}.damaged")),
+            k => done.with_file_name(format!("{name}.damaged.{k}")),
+        })
+        .find(|p| std::fs::symlink_metadata(p).is_err())
+        .expect("a free name");
+    std::fs::rename(done, &aside).map_err(io_err(done))?;
+    Ok(aside)
+}
+
 pub(crate) fn set_aside_damaged(done: &Path) -> Result<Option<Notice>, TrainError> {
     let Ok(meta) = std::fs::symlink_metadata(done) else {
         return Ok(None);
@@ -73,15 +88,7 @@ pub(crate) fn set_aside_damaged(done: &Path) -> Result<Option<Notice>, TrainErro
     if meta.is_dir() && foreign.is_empty() {
         return Ok(None);
     }
-    let name = done.file_name().unwrap_or_default().to_string_lossy();
-    let aside = (1..)
-        .map(|k| match k {
-            1 => done.with_file_name(format!("{name}.damaged")),
-            k => done.with_file_name(format!("{name}.damaged.{k}")),
-        })
-        .find(|p| std::fs::symlink_metadata(p).is_err())
-        .expect("a free name");
-    std::fs::rename(done, &aside).map_err(io_err(done))?;
+    let aside = move_aside(done)?;
     let what = if meta.is_dir() {
         format!("was incomplete and held {}", foreign.join(", "))
     } else {
@@ -144,7 +151,10 @@ pub fn damaged_checkpoints(run_dir: &Path) -> Vec<String> {
 
 pub(crate) type Loaded = (DeepViewModel, ModuleOptimizer, CheckpointState);
 
-/// The latest checkpoint of `run_dir` that loads (a damaged one is skipped, said in `notices`).
+/// The latest checkpoint of `run_dir` that loads. The later ones that do not are moved aside
+/// (`step-N.damaged`, said in `notices`): left in place they would count as the run's latest, so that
+/// pruning would delete the good ones before them and the step they hold would never be written again.
+/// Called with the run's lock held.
 pub(crate) fn latest_loadable(
     run_dir: &Path,
     model: &DeepViewConfig,
@@ -162,9 +172,20 @@ pub(crate) fn latest_loadable(
     for (step, ck) in checkpoints.iter().rev() {
         match load_checkpoint(ck, *step, model, device) {
             Ok(l) => {
-                notices.extend(reasons.into_iter().map(|(ck, e): (&PathBuf, TrainError)| {
-                    Notice::Warning(format!("skipping checkpoint {}: {e}", ck.display()))
-                }));
+                for (ck, e) in reasons {
+                    let note = match move_aside(ck) {
+                        Ok(aside) => format!(
+                            "skipping checkpoint {}: {e}; moved to {} (its step is trained again)",
+                            ck.display(),
+                            aside.display()
+                        ),
+                        Err(m) => format!(
+                            "skipping checkpoint {}: {e}; it could not be moved aside ({m})",
+                            ck.display()
+                        ),
+                    };
+                    notices.push(Notice::Warning(note));
+                }
                 return Ok((*step, l));
             }
             Err(e) => reasons.push((ck, e)),

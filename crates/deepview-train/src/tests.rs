@@ -1334,3 +1334,65 @@ fn time_in_the_event_callback_is_not_counted_in_the_speed() {
     let bound = 4.0 / (elapsed - held).as_secs_f64();
     assert!(speed >= bound, "{speed} steps/s, at least {bound} expected");
 }
+
+/// A checkpoint that does not load (truncated) is skipped at resume and moved aside, so that its step
+/// is written again and pruning keeps the good checkpoints: left in place it counted as the latest,
+/// was "saved" again untouched and pruning deleted the only checkpoint that loaded.
+#[test]
+fn a_checkpoint_that_does_not_load_is_moved_aside_and_written_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = dir.path().join("run");
+    let mut cfg = small_config(4, &["cpu"], 1);
+    cfg.train.checkpoint_every = 2;
+    cfg.train.keep_checkpoints = 2;
+    cfg.train.sample.planes = 2;
+    Trainer::create(&run, cfg, small_data())
+        .unwrap()
+        .run(&never(), &mut |_| {})
+        .unwrap();
+    let cks = run.join("checkpoints");
+    let steps = |run: &std::path::Path| -> Vec<u64> {
+        list_checkpoints(run)
+            .unwrap()
+            .into_iter()
+            .map(|c| c.0)
+            .collect()
+    };
+    assert_eq!(steps(&run), [2, 4]);
+    let model = cks.join("step-0000004/model.bpk");
+    std::fs::OpenOptions::new()
+        .write(true)
+        .open(&model)
+        .unwrap()
+        .set_len(1000)
+        .unwrap();
+    // Keep one checkpoint from now on.
+    let cfg_path = run.join("config.json");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&cfg_path).unwrap()).unwrap();
+    json["train"]["keep_checkpoints"] = 1.into();
+    std::fs::write(&cfg_path, json.to_string()).unwrap();
+    let mut t = Trainer::resume(&run, small_data(), Some(4), None).unwrap();
+    assert_eq!(t.step, 2);
+    let notices: Vec<String> = t.take_notices().iter().map(|n| n.to_string()).collect();
+    assert!(
+        notices
+            .iter()
+            .any(|n| n.contains("step-0000004") && n.contains("moved to")),
+        "{notices:?}"
+    );
+    let aside = cks.join("step-0000004.damaged");
+    assert_eq!(
+        std::fs::metadata(aside.join("model.bpk")).unwrap().len(),
+        1000
+    );
+    assert_eq!(steps(&run), [2]);
+    t.run(&never(), &mut |_| {}).unwrap();
+    drop(t);
+    assert_eq!(steps(&run), [4]);
+    let again = Trainer::resume(&run, small_data(), Some(4), None).unwrap();
+    assert_eq!(
+        again.step, 4,
+        "the step's checkpoint was written again and loads"
+    );
+}

@@ -181,11 +181,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         eprintln!("      {kind}");
         let mut reporter = Reporter::new(kind, &[], None, false);
         // The baselines run on the CPU (--device is the learned method's).
+        // (nearest's MPI is one plane whatever --planes says.)
         let on = |kind: MethodKind| MethodOptions {
             device: if kind == MethodKind::Deepview {
                 args.device.clone()
             } else {
                 "cpu".into()
+            },
+            planes: if kind == MethodKind::Nearest {
+                Planes::Auto
+            } else {
+                args.planes
             },
             ..options(steps)
         };
