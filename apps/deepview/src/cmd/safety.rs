@@ -432,16 +432,31 @@ fn check_writable(option: &str, out: &Path, resolved: &Path, inner: usize) -> an
             existing.display()
         );
     }
+    // Probes a killed run left here (`.deepview-probe.PID-TOKEN` of a process that has died) go.
+    for e in std::fs::read_dir(existing).into_iter().flatten().flatten() {
+        let name = e.file_name().to_string_lossy().into_owned();
+        if let Some(pid) = name
+            .strip_prefix(".deepview-probe.")
+            .and_then(|t| t.split_once('-'))
+            .map(|(pid, _)| pid)
+            && died(pid)
+        {
+            let _ = std::fs::remove_file(e.path());
+        }
+    }
     let probe = existing.join(format!(".deepview-probe.{}", deepview_image::temp_token()));
-    match std::fs::OpenOptions::new()
+    // (Registered: a signal between its making and removal removes it too.)
+    signals::register(&probe);
+    let made = std::fs::OpenOptions::new()
         .write(true)
         .create_new(true)
-        .open(&probe)
-    {
-        Ok(_) => {
-            let _ = std::fs::remove_file(&probe);
-            Ok(())
-        }
+        .open(&probe);
+    if made.is_ok() {
+        let _ = std::fs::remove_file(&probe);
+    }
+    signals::unregister(&probe);
+    match made {
+        Ok(_) => Ok(()),
         Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => Ok(()),
         Err(e) => {
             // Named as the user typed it (not through resolved links like /proc/self).
@@ -879,12 +894,18 @@ impl OutputDir {
                 }
             }
             refuse_foreign(option, out, out, kind)?;
-            swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))
+            let old =
+                swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))?;
+            // Before the registry is let go: a signal from now on removes the earlier output and
+            // says the new one is in place.
+            if let Some(old) = &old {
+                signals::superseded(old);
+            }
+            Ok(old)
         })?;
         self.done = true;
         self.lock = None;
         if let Some(old) = old {
-            signals::register(&old);
             if let Err(e) = std::fs::remove_dir_all(&old) {
                 eprintln!(
                     "warning: {} is in place, but the earlier output could not be removed completely \
@@ -893,7 +914,7 @@ impl OutputDir {
                     old.display()
                 );
             }
-            signals::unregister(&old);
+            signals::unregister_superseded(&old);
         }
         std::mem::take(&mut self.dirs).keep();
         Ok(())
@@ -1089,6 +1110,26 @@ mod tests {
             }
             _ => std::fs::write(p, b"x").unwrap(),
         }
+    }
+
+    /// The probe of a killed run (its writability check) is removed by the next run's check; a
+    /// running process's probe is left.
+    #[test]
+    fn a_killed_runs_probe_goes_at_the_next_check() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut child = std::process::Command::new("true").spawn().unwrap();
+        child.wait().unwrap();
+        let dead = dir
+            .path()
+            .join(format!(".deepview-probe.{}-0badc0de", child.id()));
+        let live = dir
+            .path()
+            .join(format!(".deepview-probe.{}-0badc0de", std::process::id()));
+        std::fs::write(&dead, "").unwrap();
+        std::fs::write(&live, "").unwrap();
+        let out = dir.path().join("mpi");
+        check_output("--out", &out, Kind::Mpi, &[]).unwrap();
+        assert!(!dead.exists() && live.exists());
     }
 
     /// A process killed but not yet waited for (a zombie) has died; a running one has not.

@@ -14,6 +14,9 @@ use std::sync::{Arc, Mutex, OnceLock};
 static SIGNAL: AtomicI32 = AtomicI32::new(0);
 /// Temporaries to remove when a signal ends the process.
 static TEMPORARIES: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+/// Earlier outputs a published one replaced, being removed ([`superseded`]): a signal meanwhile
+/// removes them too, and says the new output is in place.
+static SUPERSEDED: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
 /// Set by [`graceful`]: the flag the first signal sets instead of exiting.
 static GRACEFUL: OnceLock<Arc<AtomicBool>> = OnceLock::new();
 
@@ -80,6 +83,23 @@ pub fn publish<T>(tmp: &Path, publish: impl FnOnce() -> anyhow::Result<T>) -> an
     Ok(published)
 }
 
+/// `path` holds an earlier output that a published one replaced and is about to be removed: a signal
+/// until [`unregister_superseded`] removes it and says the new output is in place. Called inside
+/// [`publish`]'s closure, so that no signal comes between the swap and this.
+pub fn superseded(path: &Path) {
+    SUPERSEDED
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .push(path.to_path_buf());
+}
+
+pub fn unregister_superseded(path: &Path) {
+    SUPERSEDED
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .retain(|p| p != path);
+}
+
 /// Remove `path` (a temporary folder or file) if a signal ends the process before [`unregister`].
 pub fn register(path: &Path) {
     lock().push(path.to_path_buf());
@@ -129,19 +149,57 @@ fn on_signal(sig: i32) {
     }
     // Hold the registry until the end, so no output is committed meanwhile.
     let temps = lock();
-    for t in temps.iter() {
+    let earlier = SUPERSEDED.lock().unwrap_or_else(|e| e.into_inner());
+    let said = stop_note(&temps, &earlier);
+    for t in temps.iter().chain(earlier.iter()) {
         remove(t);
     }
-    eprintln!(
-        "\n{}: stopped{}",
-        signal_name(sig),
-        if temps.is_empty() {
-            String::new()
-        } else {
-            "; removed the unfinished output, earlier outputs are untouched".to_string()
-        }
-    );
+    eprintln!("\n{}: stopped{said}", signal_name(sig));
     std::process::exit(128 + sig);
+}
+
+/// What a signal's stop says of the outputs, before it removes `temps` (unfinished outputs) and
+/// `earlier` (outputs a published one replaced). A registered temporary that is gone was renamed
+/// into place a moment ago (a file's write is atomic, and unregistered after it): nothing of it is
+/// unfinished, and nothing is claimed of the output it replaced.
+fn stop_note(temps: &[PathBuf], earlier: &[PathBuf]) -> String {
+    let unfinished = temps.iter().any(|t| std::fs::symlink_metadata(t).is_ok());
+    match (unfinished, earlier.is_empty()) {
+        (false, true) => String::new(),
+        (true, true) => "; removed the unfinished output, earlier outputs are untouched".into(),
+        (false, false) => {
+            "; the new output was already in place (removed the earlier one it replaced)".into()
+        }
+        (true, false) => "; an output was already in place (the earlier one it replaced is \
+                          removed); removed the unfinished one, whose earlier output is untouched"
+            .into(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The stop says what is true: an unfinished output removed (the earlier one untouched), a new
+    /// output already in place (the earlier one removed), or nothing where a temporary was already
+    /// renamed into place.
+    #[test]
+    fn the_stop_says_what_happened_to_the_outputs() {
+        let dir = tempfile::tempdir().unwrap();
+        let (writing, renamed) = (dir.path().join(".a.tmp"), dir.path().join(".b.tmp"));
+        std::fs::write(&writing, "half").unwrap();
+        let old = dir.path().join(".c.deepview-tmp.1");
+        assert_eq!(stop_note(std::slice::from_ref(&renamed), &[]), "");
+        assert!(
+            stop_note(&[writing.clone(), renamed], &[]).contains("earlier outputs are untouched")
+        );
+        let placed = stop_note(&[], std::slice::from_ref(&old));
+        assert!(
+            placed.contains("already in place") && !placed.contains("untouched"),
+            "{placed}"
+        );
+        assert!(stop_note(&[writing], &[old]).contains("whose earlier output is untouched"));
+    }
 }
 
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
