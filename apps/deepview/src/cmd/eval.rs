@@ -3,7 +3,7 @@
 
 use super::args;
 use super::method::{INPUTS_HELP, Reporter};
-use super::safety::{Input, Kind, OutputDir, check_output, write_file};
+use super::safety::{Input, Kind, OutputDir, check_output, commit_together, write_file};
 use anyhow::Context;
 use deepview_eval::{EvalOptions, MpiPredictor, Protocol, TargetRule, evaluate};
 use deepview_methods::{InputRule, MethodKind, MethodOptions, make_method};
@@ -152,14 +152,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             mb / 1024.0
         );
     }
-    // The report first: where it cannot be written (a full disk, a file that may not be replaced), the
-    // folders stay the earlier run's, beside the earlier report (their swaps hardly fail once the
-    // files are written).
-    if let Some(out) = &args.out {
-        write_file(out, |out| Ok(report.write_json(out)?))?;
-    }
-    for dir in [renders, mpis].into_iter().flatten() {
-        dir.commit()?;
+    // The report and the folders at one moment (a signal comes before or after all three). The report
+    // first: where it cannot be written (a full disk, a file that may not be replaced), the folders
+    // stay the earlier run's, beside the earlier report (their swaps hardly fail once the files are
+    // written).
+    let dirs: Vec<OutputDir> = [renders, mpis].into_iter().flatten().collect();
+    match &args.out {
+        Some(out) => write_file(out, |out| {
+            commit_together(dirs, || Ok(report.write_json(out)?))
+        })?,
+        None => commit_together(dirs, || Ok(()))?,
     }
     if let Some(out) = &args.out {
         println!("wrote {}", out.display());

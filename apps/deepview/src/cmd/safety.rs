@@ -877,32 +877,38 @@ impl OutputDir {
     }
 
     /// Put the finished folder in place of `out` (the old folder, if any, is removed after the swap).
-    pub fn commit(mut self) -> anyhow::Result<()> {
+    pub fn commit(self) -> anyhow::Result<()> {
+        commit_together(vec![self], || Ok(()))
+    }
+
+    /// The swap of [`OutputDir::commit`], run inside [`signals::publish`]: returns where the earlier
+    /// output now is (registered as superseded before the registry is let go: a signal from then on
+    /// removes it and says the new output is in place).
+    fn swap_in(&self) -> anyhow::Result<Option<PathBuf>> {
         let (tmp, out, kind, option) = (&self.tmp, &self.out, self.kind, self.option);
-        let old = signals::publish(tmp, || {
-            if !out.exists() {
-                match std::fs::rename(tmp, out) {
-                    Ok(()) => return Ok(None),
-                    // Another run made `out` meanwhile (two runs of one command at once): replaced
-                    // below like any earlier output of this kind, if it is one.
-                    Err(_) if out.is_dir() => {}
-                    Err(e) => {
-                        return Err(e).with_context(|| {
-                            format!("cannot rename {} to {}", tmp.display(), out.display())
-                        });
-                    }
+        if !out.exists() {
+            match std::fs::rename(tmp, out) {
+                Ok(()) => return Ok(None),
+                // Another run made `out` meanwhile (two runs of one command at once): replaced
+                // below like any earlier output of this kind, if it is one.
+                Err(_) if out.is_dir() => {}
+                Err(e) => {
+                    return Err(e).with_context(|| {
+                        format!("cannot rename {} to {}", tmp.display(), out.display())
+                    });
                 }
             }
-            refuse_foreign(option, out, out, kind)?;
-            let old =
-                swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))?;
-            // Before the registry is let go: a signal from now on removes the earlier output and
-            // says the new one is in place.
-            if let Some(old) = &old {
-                signals::superseded(old);
-            }
-            Ok(old)
-        })?;
+        }
+        refuse_foreign(option, out, out, kind)?;
+        let old = swap(tmp, out).with_context(|| format!("cannot replace {}", out.display()))?;
+        if let Some(old) = &old {
+            signals::superseded(old);
+        }
+        Ok(old)
+    }
+
+    /// After the swap: the earlier output (at `old`) removed, the folders made kept.
+    fn finish(mut self, old: Option<PathBuf>) {
         self.done = true;
         self.lock = None;
         if let Some(old) = old {
@@ -910,15 +916,34 @@ impl OutputDir {
                 eprintln!(
                     "warning: {} is in place, but the earlier output could not be removed completely \
                      ({e}); what is left of it is in {}: remove it by hand",
-                    out.display(),
+                    self.out.display(),
                     old.display()
                 );
             }
             signals::unregister_superseded(&old);
         }
         std::mem::take(&mut self.dirs).keep();
-        Ok(())
     }
+}
+
+/// Publish `first` (a small file written atomically, e.g. a report) and the finished folders `dirs`
+/// at one moment: a signal comes before all of them or after all of them, never between (an `eval`
+/// stopped there left its report and renders from the new run and its MPIs from the old one).
+pub fn commit_together(
+    dirs: Vec<OutputDir>,
+    first: impl FnOnce() -> anyhow::Result<()>,
+) -> anyhow::Result<()> {
+    let tmps: Vec<PathBuf> = dirs.iter().map(|d| d.tmp.clone()).collect();
+    let olds = signals::publish_all(&tmps, || {
+        first()?;
+        dirs.iter()
+            .map(OutputDir::swap_in)
+            .collect::<anyhow::Result<Vec<_>>>()
+    })?;
+    for (dir, old) in dirs.into_iter().zip(olds) {
+        dir.finish(old);
+    }
+    Ok(())
 }
 
 impl Drop for OutputDir {
@@ -1110,6 +1135,42 @@ mod tests {
             }
             _ => std::fs::write(p, b"x").unwrap(),
         }
+    }
+
+    /// Outputs published together are all swapped in after the first one (a report) is written, the
+    /// earlier folders removed; where the report cannot be written, no folder is swapped.
+    #[test]
+    fn outputs_published_together_go_in_together_or_not_at_all() {
+        let dir = tempfile::tempdir().unwrap();
+        let (r, m) = (dir.path().join("renders"), dir.path().join("mpis"));
+        let report = dir.path().join("r.json");
+        let make = |text: &str| {
+            let a = OutputDir::new(&r, Kind::Renders).unwrap();
+            marked(&a.path().join("000_a.png"));
+            let b = OutputDir::new(&m, Kind::Mpis).unwrap();
+            std::fs::create_dir(b.path().join("000_a")).unwrap();
+            std::fs::write(b.path().join("000_a/mpi.json"), text).unwrap();
+            vec![a, b]
+        };
+        commit_together(make("one"), || Ok(std::fs::write(&report, "one")?)).unwrap();
+        let read = |p: &Path| std::fs::read_to_string(p).unwrap();
+        assert_eq!(read(&m.join("000_a/mpi.json")), "one");
+        let e = commit_together(make("two"), || anyhow::bail!("disk full")).unwrap_err();
+        assert!(e.to_string().contains("disk full"));
+        assert_eq!(
+            (read(&report), read(&m.join("000_a/mpi.json"))),
+            ("one".into(), "one".into())
+        );
+        commit_together(make("three"), || Ok(std::fs::write(&report, "three")?)).unwrap();
+        assert_eq!(read(&m.join("000_a/mpi.json")), "three");
+        assert_eq!(read(&report), "three");
+        // Nothing left beside them: no temporaries, no earlier folders.
+        let mut names: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        names.sort();
+        assert_eq!(names, ["mpis", "r.json", "renders"]);
     }
 
     /// The probe of a killed run (its writability check) is removed by the next run's check; a

@@ -73,13 +73,21 @@ pub fn ending() -> Option<i32> {
 /// signal's thread removes `tmp` and ends the process). Published, `tmp` leaves the registry: a later
 /// signal finds nothing of this output to remove, and does not say earlier outputs are untouched.
 pub fn publish<T>(tmp: &Path, publish: impl FnOnce() -> anyhow::Result<T>) -> anyhow::Result<T> {
+    publish_all(&[tmp.to_path_buf()], publish)
+}
+
+/// [`publish`] of several outputs at one moment (their temporaries `tmps`).
+pub fn publish_all<T>(
+    tmps: &[PathBuf],
+    publish: impl FnOnce() -> anyhow::Result<T>,
+) -> anyhow::Result<T> {
     let mut registry = lock();
     if let Some(sig) = ending() {
         drop(registry);
         return Err(Interrupted(sig).into());
     }
     let published = publish()?;
-    registry.retain(|p| p != tmp);
+    registry.retain(|p| !tmps.contains(p));
     Ok(published)
 }
 
