@@ -464,7 +464,6 @@ fn crc32(bytes: &[u8]) -> u32 {
     !c
 }
 
-/// `png` (a whole PNG file) with a `tEXt` chunk `Software` = [`MARK`] after its IHDR chunk.
 /// Whether the PNG bytes `head` (from the start of the file) have deepview's `tEXt` chunk before
 /// their image data.
 fn png_marked(head: &[u8]) -> bool {
@@ -499,6 +498,7 @@ pub fn with_mark(bytes: Vec<u8>) -> Vec<u8> {
     }
 }
 
+/// `png` (a whole PNG file) with a `tEXt` chunk `Software` = [`MARK`] after its IHDR chunk.
 fn mark_png(png: Vec<u8>) -> Vec<u8> {
     const IHDR_END: usize = 8 + 12 + 13;
     if png.len() < IHDR_END || &png[12..16] != b"IHDR" {
@@ -547,8 +547,18 @@ pub fn written_by_deepview(path: &Path) -> bool {
     let Ok(mut f) = std::fs::File::open(path) else {
         return false;
     };
+    // The mark of an image sits in its first chunks or segments (after IHDR, after deepview's own
+    // JFIF header): 64 KiB hold it; only a video's metadata may lie deeper, within the first MiB.
     let mut head = Vec::with_capacity(1 << 16);
-    if (&mut f).take(1 << 20).read_to_end(&mut head).is_err() {
+    if (&mut f).take(1 << 16).read_to_end(&mut head).is_err() {
+        return false;
+    }
+    if (head.get(4..8) == Some(b"ftyp") || head.starts_with(&[0x1A, 0x45, 0xDF, 0xA3]))
+        && (&mut f)
+            .take((1 << 20) - (1 << 16))
+            .read_to_end(&mut head)
+            .is_err()
+    {
         return false;
     }
     if head.starts_with(b"\x89PNG\r\n\x1a\n") {

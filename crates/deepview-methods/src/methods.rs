@@ -303,7 +303,9 @@ pub fn make_method(
     // The device is named the same way for every method (a typo is an error for all), and only the
     // learned method runs on one.
     let device = deepview_net::device::parse_device(&options.device)?;
-    if kind != MethodKind::Deepview && options.device.trim() != "cpu" {
+    // (Parsed: every CPU spelling, `cpu:0`, `cpu:local`, `flex`, names the CPU.)
+    let on_cpu = matches!(options.device.split(':').next(), Some("cpu" | "flex"));
+    if kind != MethodKind::Deepview && !on_cpu {
         return Err(MethodError::Method {
             method: kind.name().into(),
             msg: format!(

@@ -589,5 +589,16 @@ fn options_of_another_method_are_refused() {
         );
     }
     assert!(make_method(MethodKind::PsvMean, &smoothing, 1 << 30).is_ok());
+    // Every spelling of the CPU device passes.
+    for device in ["cpu:0", "cpu:local", "flex"] {
+        let o = MethodOptions {
+            device: device.into(),
+            ..Default::default()
+        };
+        assert!(
+            make_method(MethodKind::PsvMean, &o, 1 << 30).is_ok(),
+            "{device}"
+        );
+    }
     assert!(make_method(MethodKind::Optimize, &steps, 1 << 30).is_ok());
 }

@@ -53,11 +53,6 @@ pub(crate) fn foreign_entries(dir: &Path) -> Vec<String> {
     out
 }
 
-/// Before a checkpoint is written to `done`: an incomplete `done` (damaged by hand or by the disk)
-/// that holds files training did not write, or something that is not a folder, is moved aside to the
-/// first free `step-N.damaged[.K]` (never listed as a checkpoint, never removed), and the warning
-/// says so; an incomplete folder of training's own files alone is left for [`write_checkpoint`] to
-/// replace.
 /// Rename the checkpoint folder `done` to the first free `NAME.damaged`, `NAME.damaged.2`, ... (out
 /// of [`list_checkpoints`]' sight, its files kept), returning where it went.
 fn move_aside(done: &Path) -> Result<PathBuf, TrainError> {
@@ -73,6 +68,11 @@ fn move_aside(done: &Path) -> Result<PathBuf, TrainError> {
     Ok(aside)
 }
 
+/// Before a checkpoint is written to `done`: an incomplete `done` (damaged by hand or by the disk)
+/// that holds files training did not write, or something that is not a folder, is moved aside to the
+/// first free `step-N.damaged[.K]` (never listed as a checkpoint, never removed), and the warning
+/// says so; an incomplete folder of training's own files alone is left for [`write_checkpoint`] to
+/// replace.
 pub(crate) fn set_aside_damaged(done: &Path) -> Result<Option<Notice>, TrainError> {
     let Ok(meta) = std::fs::symlink_metadata(done) else {
         return Ok(None);

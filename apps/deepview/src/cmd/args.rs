@@ -122,10 +122,9 @@ pub fn check_mpis_fit(
     let mut sizes = Vec::new();
     for dir in dirs {
         let (_, w, h, d) = deepview_mpi::interchange::describe(dir)?;
-        // The texels (no renderer's scratch: these commands only decode, convert and write).
-        let texels = (w as u64 * h as u64).saturating_mul(d as u64);
-        let bytes = texels.saturating_mul(if u8 { 4 } else { 16 });
-        need = need.saturating_add(bytes.saturating_mul(copies));
+        // The texels, with a layer's decoding per thread (`mpi_bytes`; these commands only decode,
+        // convert and write: no renderer's scratch).
+        need = need.saturating_add(mpi_bytes(w, h, d, u8).saturating_mul(copies));
         sizes.push(format!("{}: {d} planes of {w}x{h}", dir.display()));
     }
     check_memory(&format!("{what} {}", sizes.join(" and ")), need, budget)

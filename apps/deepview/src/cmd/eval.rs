@@ -152,10 +152,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             mb / 1024.0
         );
     }
-    // The report and the folders at one moment (a signal comes before or after all three). The report
-    // first: where it cannot be written (a full disk, a file that may not be replaced), the folders
-    // stay the earlier run's, beside the earlier report (their swaps hardly fail once the files are
-    // written).
+    // The folders and the report at one moment (a signal comes before or after all three); where the
+    // report cannot be written (a full disk) the folders go back: the earlier run's three stay.
     let dirs: Vec<OutputDir> = [renders, mpis].into_iter().flatten().collect();
     match &args.out {
         Some(out) => write_file(out, |out| {

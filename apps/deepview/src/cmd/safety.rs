@@ -226,11 +226,17 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
     }
     // A folder that is replaced whole, named as `.` or `..`: the swap would move the folder the shell
     // is in (and its temporary would be made inside it).
-    if kind != Kind::File
-        && !kind.written_into()
-        && kind != Kind::Run
-        && (out.file_name().is_none() || out.ends_with("."))
-    {
+    if kind != Kind::File && !kind.written_into() && kind != Kind::Run && {
+        // As typed: `mpi/.` has the file name `mpi` once parsed into components.
+        use std::os::unix::ffi::OsStrExt;
+        let b = out.as_os_str().as_bytes();
+        let b = b.strip_suffix(b"/").unwrap_or(b);
+        out.file_name().is_none()
+            || b == b"."
+            || b == b".."
+            || b.ends_with(b"/.")
+            || b.ends_with(b"/..")
+    } {
         let name = std::fs::canonicalize(out)
             .ok()
             .and_then(|c| c.file_name().map(|n| n.to_string_lossy().into_owned()))
@@ -907,6 +913,31 @@ impl OutputDir {
         Ok(old)
     }
 
+    /// Undo [`OutputDir::swap_in`] (it returned `old`): the earlier output back at `out`, the new one
+    /// back in the temporary (removed when `self` is dropped). Best effort: it runs on a failure.
+    fn swap_back(&self, old: Option<&Path>) {
+        let (tmp, out) = (&self.tmp, &self.out);
+        match old {
+            // Exchanged: exchange again.
+            Some(old) if old == tmp.as_path() => {
+                let _ = swap(tmp, out);
+            }
+            // Moved aside: the new one out of the way, the old one back.
+            Some(old) => {
+                if std::fs::rename(out, tmp).is_ok() {
+                    let _ = std::fs::rename(old, out);
+                }
+            }
+            // There was none: the new one out of the way.
+            None => {
+                let _ = std::fs::rename(out, tmp);
+            }
+        }
+        if let Some(old) = old {
+            signals::unregister_superseded(old);
+        }
+    }
+
     /// After the swap: the earlier output (at `old`) removed, the folders made kept.
     fn finish(mut self, old: Option<PathBuf>) {
         self.done = true;
@@ -926,19 +957,40 @@ impl OutputDir {
     }
 }
 
-/// Publish `first` (a small file written atomically, e.g. a report) and the finished folders `dirs`
-/// at one moment: a signal comes before all of them or after all of them, never between (an `eval`
-/// stopped there left its report and renders from the new run and its MPIs from the old one).
+/// Publish the finished folders `dirs` and `last` (a small file written atomically, e.g. a report) at
+/// one moment: a signal comes before all of them or after all of them, never between (an `eval`
+/// stopped there left its report and renders from the new run and its MPIs from the old one). Every
+/// folder is checked before any goes in; a swap or `last` that fails puts the folders already in
+/// back, so that a failure too leaves every earlier output as it was.
 pub fn commit_together(
     dirs: Vec<OutputDir>,
-    first: impl FnOnce() -> anyhow::Result<()>,
+    last: impl FnOnce() -> anyhow::Result<()>,
 ) -> anyhow::Result<()> {
     let tmps: Vec<PathBuf> = dirs.iter().map(|d| d.tmp.clone()).collect();
     let olds = signals::publish_all(&tmps, || {
-        first()?;
-        dirs.iter()
-            .map(OutputDir::swap_in)
-            .collect::<anyhow::Result<Vec<_>>>()
+        for d in dirs.iter().filter(|d| d.out.is_dir()) {
+            refuse_foreign(d.option, &d.out, &d.out, d.kind)?;
+        }
+        let mut olds = Vec::new();
+        let undo = |olds: &[Option<PathBuf>]| {
+            for (d, old) in dirs.iter().zip(olds) {
+                d.swap_back(old.as_deref());
+            }
+        };
+        for d in &dirs {
+            match d.swap_in() {
+                Ok(old) => olds.push(old),
+                Err(e) => {
+                    undo(&olds);
+                    return Err(e);
+                }
+            }
+        }
+        if let Err(e) = last() {
+            undo(&olds);
+            return Err(e);
+        }
+        Ok(olds)
     })?;
     for (dir, old) in dirs.into_iter().zip(olds) {
         dir.finish(old);
@@ -1161,6 +1213,18 @@ mod tests {
             (read(&report), read(&m.join("000_a/mpi.json"))),
             ("one".into(), "one".into())
         );
+        assert!(r.join("000_a.png").is_file());
+        // A file of the user's that appears in the second folder meanwhile: refused before any
+        // folder goes in.
+        let dirs = make("two");
+        std::fs::write(m.join("notes.txt"), "mine").unwrap();
+        let e = commit_together(dirs, || Ok(std::fs::write(&report, "two")?)).unwrap_err();
+        assert!(format!("{e:#}").contains("notes.txt"), "{e:#}");
+        assert_eq!(
+            (read(&report), read(&m.join("000_a/mpi.json"))),
+            ("one".into(), "one".into())
+        );
+        std::fs::remove_file(m.join("notes.txt")).unwrap();
         commit_together(make("three"), || Ok(std::fs::write(&report, "three")?)).unwrap();
         assert_eq!(read(&m.join("000_a/mpi.json")), "three");
         assert_eq!(read(&report), "three");
@@ -1205,7 +1269,12 @@ mod tests {
         child.kill().unwrap();
         // Until it is a zombie (the kill is asynchronous), announced by /proc; then reaped.
         let stat = format!("/proc/{pid}/stat");
+        let deadline = std::time::Instant::now() + std::time::Duration::from_secs(60);
         while !std::fs::read_to_string(&stat).is_ok_and(|s| s.contains(") Z")) {
+            assert!(
+                std::time::Instant::now() < deadline,
+                "the killed child never became a zombie"
+            );
             std::thread::yield_now();
         }
         assert!(died(&pid));
@@ -1218,7 +1287,7 @@ mod tests {
     /// folders written into (depth maps) may be.
     #[test]
     fn a_replaced_folder_is_not_named_by_dots() {
-        for out in [".", "..", "./.", "a/.."] {
+        for out in [".", "..", "./.", "a/..", "mpi/.", "mpi/./", "mpi/.."] {
             let e = check_output("--out", Path::new(out), Kind::Web, &[]).unwrap_err();
             assert!(
                 format!("{e:#}").contains("name it from its parent"),
