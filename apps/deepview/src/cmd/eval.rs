@@ -16,7 +16,7 @@ use std::path::PathBuf;
     deepview eval --data scene_000 --near 0.7 --far 100 --protocol small_quad --method nearest\n  \
     deepview eval --data ../shared/data/hci/antinous --method optimize --protocol light-field --targets 40 \
     --save-renders renders/\n  \
-    deepview eval --data ../shared/data/llff/fern --images images_8 --targets 0 --inputs 1,2,3,4 --save-mpi mpis/")]
+    deepview eval --data ../shared/data/llff/fern --images images_8 --method deepview --targets 0 --inputs 1,2,3,4 --save-mpi mpis/")]
 pub struct Args {
     /// Dataset folder (LLFF, COLMAP, Spaces, light-field grid).
     #[arg(long, value_name = "DIR")]

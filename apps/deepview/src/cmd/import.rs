@@ -8,7 +8,7 @@ use deepview_mpi::interchange::ImportOptions;
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
     deepview import --mpi fern_llff/ --out fern_back/\n  \
-    deepview import --mpi stereo_mag_mpi/ --near 1 --far 100 --out mpi/")]
+    deepview import --mpi stereo_mag_mpi/ --near 1 --far 100 --out mpi/   # another tool's, without its depths")]
 pub struct Args {
     /// MPI folder in LLFF (metadata.txt + mpi.b), stereo magnification (mpi_rgb_NN.png ...), compact or
     /// deepview format (detected).

@@ -10,7 +10,8 @@ use std::io::Write as _;
 #[command(after_help = "Examples:\n  \
     deepview info --data ../shared/data/llff/fern\n  \
     deepview info --data ../shared/data/llff/fern --images images_4 --camera 0 > cam.json\n  \
-    deepview info --data ../shared/data/spaces/scene_000 --rig 0 --json")]
+    deepview synth --data ../shared/data/spaces/scene_000 --out scene_000   # the calibration, with images\n  \
+    deepview info --data scene_000 --rig 0 --json")]
 pub struct Args {
     #[command(flatten)]
     pub data: DataArg,

@@ -565,9 +565,14 @@ fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::R
         ""
     };
     bail!(
-        "{option} {} holds files that a {} does not have ({}{more}): {what}; move them away or choose \
+        "{option} {} holds files that {} {} does not have ({}{more}): {what}; move them away or choose \
          a new or empty folder{older}",
         out.display(),
+        if kind.name().starts_with(['M', 'a', 'e', 'i', 'o', 'u']) {
+            "an"
+        } else {
+            "a"
+        },
         kind.name(),
         shown.join(", ")
     )
