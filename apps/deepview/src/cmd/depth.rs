@@ -86,10 +86,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     super::signals::unregister(&stage);
     written?;
     dirs.keep();
+    let file = |suffix: &str| args.out.join(format!("{}_{suffix}.png", args.prefix));
     println!(
-        "wrote {0}/{1}_color.png and {0}/{1}_disparity16.png (disparity 0 = depth {2:.4}, 65535 = depth {3:.4})",
-        args.out.display(),
-        args.prefix,
+        "wrote {} and {} (disparity 0 = depth {:.4}, 65535 = depth {:.4})",
+        file("color").display(),
+        file("disparity16").display(),
         mpi.depths[0],
         mpi.depths[mpi.planes() - 1]
     );
