@@ -1794,3 +1794,49 @@ fn killed_runs_temporary_files_are_removed_by_the_next_run() {
         assert!(f.exists(), "{}", f.display());
     }
 }
+
+/// A `depth` pair goes into its folder under an flock of the folder, so that two runs into one folder
+/// never pair one's colour map with the other's disparity: while the folder is locked (here by the
+/// test, as by another run's publish), a run with both maps staged publishes neither; unlocked, both.
+#[test]
+fn a_depth_pair_waits_for_the_folders_lock() {
+    use std::os::fd::AsRawFd;
+    let tmp = tempfile::tempdir().unwrap();
+    let gt = grid(tmp.path(), "scene").join("ground_truth_mpi");
+    let out = tmp.path().join("d");
+    std::fs::create_dir(&out).unwrap();
+    let folder = std::fs::File::open(&out).unwrap();
+    // SAFETY: flock on a descriptor the test owns.
+    assert_eq!(unsafe { libc::flock(folder.as_raw_fd(), libc::LOCK_EX) }, 0);
+    let mut run = bin()
+        .args(["depth", "--mpi", s(&gt), "--out", s(&out)])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    // Both maps staged (the run announces it by its staging folder holding both files).
+    let staged = || {
+        std::fs::read_dir(&out).unwrap().flatten().any(|e| {
+            let p = e.path();
+            e.file_name().to_string_lossy().contains(".deepview-tmp")
+                && p.join("depth_color.png").is_file()
+                && p.join("depth_disparity16.png").is_file()
+        })
+    };
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(120);
+    while !staged() {
+        assert!(
+            std::time::Instant::now() < deadline,
+            "the maps were never staged"
+        );
+        assert!(
+            run.try_wait().unwrap().is_none(),
+            "depth ended without staging"
+        );
+        std::thread::yield_now();
+    }
+    assert!(!out.join("depth_color.png").exists() && !out.join("depth_disparity16.png").exists());
+    drop(folder);
+    assert!(run.wait().unwrap().success());
+    assert!(out.join("depth_color.png").is_file() && out.join("depth_disparity16.png").is_file());
+}

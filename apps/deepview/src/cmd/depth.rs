@@ -71,8 +71,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let (stage, lock) = super::safety::make_temp_dir(&color, "tmp")?;
     let written = (|| -> anyhow::Result<()> {
         maps.write(&stage, &args.prefix)?;
-        // Both files or neither.
+        // Both files or neither; and both of one run: another `depth` into this folder publishes its
+        // pair under the same lock (an flock of the folder), never between these two renames.
         super::signals::publish(&stage, || {
+            let folder = std::fs::File::open(&args.out)
+                .with_context(|| format!("cannot open {}", args.out.display()))?;
+            // SAFETY: flock on a descriptor `folder` owns; the lock goes when it is closed.
+            unsafe {
+                use std::os::fd::AsRawFd;
+                libc::flock(folder.as_raw_fd(), libc::LOCK_EX);
+            }
             for suffix in ["color", "disparity16"] {
                 let name = format!("{}_{suffix}.png", args.prefix);
                 std::fs::rename(stage.join(&name), args.out.join(&name))
