@@ -193,20 +193,25 @@ pub fn evaluate_splits(
         })?;
     }
     let mut cache: HashMap<usize, (ImageF32, Camera)> = HashMap::new();
+    // View `i` loaded into the cache (once), or the protocol's index out of range.
+    let load = |cache: &mut HashMap<usize, (ImageF32, Camera)>, i: usize| {
+        if i >= scene.views.len() {
+            return Err(EvalError::ViewOutOfRange {
+                protocol: protocol.into(),
+                index: i,
+                views: scene.views.len(),
+            });
+        }
+        if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(i) {
+            e.insert(load_view(scene, i, options.downscale)?);
+        }
+        Ok(())
+    };
     // Every target's scored region, before any method runs: a crop that leaves too little of an image
     // is an error at once, not after the first view's minutes of work.
     for split in splits {
         let t = split.target;
-        if t >= scene.views.len() {
-            return Err(EvalError::ViewOutOfRange {
-                protocol: protocol.into(),
-                index: t,
-                views: scene.views.len(),
-            });
-        }
-        if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(t) {
-            e.insert(load_view(scene, t, options.downscale)?);
-        }
+        load(&mut cache, t)?;
         let gt = &cache[&t].0;
         let crop = scaled_crop(split.crop, options.crop, options.downscale);
         let scored = crop
@@ -238,17 +243,8 @@ pub fn evaluate_splits(
     let mut views = Vec::with_capacity(splits.len());
     let count = splits.len();
     for (k, split) in splits.iter().enumerate() {
-        for &i in split.inputs.iter().chain([&split.target]) {
-            if i >= scene.views.len() {
-                return Err(EvalError::ViewOutOfRange {
-                    protocol: protocol.into(),
-                    index: i,
-                    views: scene.views.len(),
-                });
-            }
-            if let std::collections::hash_map::Entry::Vacant(e) = cache.entry(i) {
-                e.insert(load_view(scene, i, options.downscale)?);
-            }
+        for &i in &split.inputs {
+            load(&mut cache, i)?;
         }
         let inputs: Vec<(ImageF32, Camera)> =
             split.inputs.iter().map(|i| cache[i].clone()).collect();

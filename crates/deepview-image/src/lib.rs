@@ -168,7 +168,7 @@ pub fn decode_file(path: &Path) -> Result<image::DynamicImage, ImageError> {
         path: path.into(),
         source: image::ImageError::IoError(e),
     };
-    refuse_special(path).map_err(read_err)?;
+    refuse_special(path, "an image file").map_err(read_err)?;
     let bytes = std::fs::read(path).map_err(read_err)?;
     let corrupt = |msg: String| ImageError::Corrupt {
         path: path.into(),
@@ -252,15 +252,7 @@ pub const TEXT_LIMIT: u64 = 64 << 20;
 /// like `/dev/zero` would fill the memory) and a file over [`TEXT_LIMIT`] bytes.
 pub fn read_text(path: &Path) -> std::io::Result<String> {
     use std::io::Read;
-    match std::fs::metadata(path) {
-        Ok(m) if !m.is_file() && !m.is_dir() => {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidInput,
-                "not a regular file (a pipe, socket or device), expected a text file",
-            ));
-        }
-        _ => {}
-    }
+    refuse_special(path, "a text file")?;
     let mut text = String::new();
     std::fs::File::open(path)?
         .take(TEXT_LIMIT + 1)
@@ -282,11 +274,11 @@ pub fn read_text(path: &Path) -> std::io::Result<String> {
 
 /// An error for a pipe, socket or device where an image file should be: opening a pipe would wait
 /// for a writer for ever.
-fn refuse_special(path: &Path) -> std::io::Result<()> {
+fn refuse_special(path: &Path, expected: &str) -> std::io::Result<()> {
     match std::fs::metadata(path) {
         Ok(m) if !m.is_file() && !m.is_dir() => Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
-            "not a regular file (a pipe, socket or device), expected an image file",
+            format!("not a regular file (a pipe, socket or device), expected {expected}"),
         )),
         _ => Ok(()),
     }
@@ -416,7 +408,7 @@ pub fn read_image(path: &Path, channels: usize) -> Result<ImageF32, ImageError> 
 /// header announcing a huge image is reported with its size (the decoder's memory limit would refuse it
 /// without saying why).
 pub fn image_size(path: &Path) -> Result<(u32, u32), ImageError> {
-    refuse_special(path).map_err(|e| ImageError::Read {
+    refuse_special(path, "an image file").map_err(|e| ImageError::Read {
         path: path.into(),
         source: image::ImageError::IoError(e),
     })?;
@@ -671,14 +663,20 @@ pub fn write_png_u16(
 mod tests {
     use super::*;
 
+    /// A named pipe at `path` (no writer: opening it to read would wait for ever).
+    #[cfg(unix)]
+    fn fifo(path: &Path) {
+        let c = std::ffi::CString::new(path.to_str().unwrap()).unwrap();
+        // SAFETY: a valid NUL-terminated path.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    }
+
     #[cfg(unix)]
     #[test]
     fn a_pipe_named_as_an_image_is_an_error_not_a_wait() {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("layer_000.png");
-        let c = std::ffi::CString::new(p.to_str().unwrap()).unwrap();
-        // SAFETY: a valid NUL-terminated path.
-        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        fifo(&p);
         // Opening the pipe would block this test for ever (no writer).
         for e in [
             image_size(&p).unwrap_err().to_string(),
@@ -698,11 +696,9 @@ mod tests {
     #[test]
     fn text_files_are_read_bounded_and_never_wait() {
         let dir = tempfile::tempdir().unwrap();
-        let fifo = dir.path().join("mpi.json");
-        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-        // SAFETY: a valid NUL-terminated path.
-        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
-        let e = read_text(&fifo).unwrap_err().to_string();
+        let pipe = dir.path().join("mpi.json");
+        fifo(&pipe);
+        let e = read_text(&pipe).unwrap_err().to_string();
         assert!(e.contains("not a regular file"), "{e}");
         let zero = dir.path().join("camera.json");
         std::os::unix::fs::symlink("/dev/zero", &zero).unwrap();

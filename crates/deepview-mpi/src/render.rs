@@ -274,26 +274,20 @@ pub fn view_warning<T: Texel>(mpi: &Mpi<T>, target: &Camera, coverage: f64) -> O
 
 /// The fraction of `target`'s pixels whose ray meets an MPI plane (reference camera `reference`,
 /// `depths`) inside the plane's frame, whatever the plane holds: what a render could show at most.
-/// Measured on a grid of at most 64 x 64 pixel centres.
+/// Measured on a grid of at most 64 x 64 pixels.
 pub fn frame_coverage(reference: &Camera, depths: &[f64], target: &Camera) -> f64 {
-    let homs = target_to_plane_homographies(reference, target, depths);
+    // The renderer's own test of a pixel inside a plane ([`crate::warp::RowSampler::tap`]).
+    let samplers: Vec<Sampler> = target_to_plane_homographies(reference, target, depths)
+        .into_iter()
+        .map(|m| Sampler::new(m, reference.width, reference.height))
+        .collect();
     let (w, h) = (target.width.max(1), target.height.max(1));
     let (nx, ny) = (w.min(64), h.min(64));
-    let (rw, rh) = (reference.width as f64, reference.height as f64);
     let mut inside = 0usize;
     for j in 0..ny {
-        let v = (j as f64 + 0.5) * h as f64 / ny as f64;
+        let rows: Vec<_> = samplers.iter().map(|s| s.row(j * h / ny)).collect();
         for i in 0..nx {
-            let u = (i as f64 + 0.5) * w as f64 / nx as f64;
-            let hit = homs.iter().any(|m| {
-                let d = m[6] * u + m[7] * v + m[8];
-                let (x, y) = (
-                    (m[0] * u + m[1] * v + m[2]) / d,
-                    (m[3] * u + m[4] * v + m[5]) / d,
-                );
-                d > 0.0 && (0.0..=rw).contains(&x) && (0.0..=rh).contains(&y)
-            });
-            inside += usize::from(hit);
+            inside += usize::from(rows.iter().any(|r| r.tap(i * w / nx).is_some()));
         }
     }
     inside as f64 / (nx * ny) as f64

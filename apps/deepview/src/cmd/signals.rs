@@ -95,17 +95,16 @@ pub fn publish_all<T>(
 /// until [`unregister_superseded`] removes it and says the new output is in place. Called inside
 /// [`publish`]'s closure, so that no signal comes between the swap and this.
 pub fn superseded(path: &Path) {
-    SUPERSEDED
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .push(path.to_path_buf());
+    lock_superseded().push(path.to_path_buf());
 }
 
 pub fn unregister_superseded(path: &Path) {
-    SUPERSEDED
-        .lock()
-        .unwrap_or_else(|e| e.into_inner())
-        .retain(|p| p != path);
+    lock_superseded().retain(|p| p != path);
+}
+
+/// The earlier outputs being removed, locked (after the registry, where both are held).
+fn lock_superseded() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    SUPERSEDED.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// Remove `path` (a temporary folder or file) if a signal ends the process before [`unregister`].
@@ -157,7 +156,7 @@ fn on_signal(sig: i32) {
     }
     // Hold the registry until the end, so no output is committed meanwhile.
     let temps = lock();
-    let earlier = SUPERSEDED.lock().unwrap_or_else(|e| e.into_inner());
+    let earlier = lock_superseded();
     let said = stop_note(&temps, &earlier);
     for t in temps.iter().chain(earlier.iter()) {
         remove(t);
