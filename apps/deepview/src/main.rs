@@ -34,7 +34,7 @@ macro_rules! eprint {
 
 mod cmd;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::process::ExitCode;
 
 #[derive(Parser)]
@@ -198,11 +198,35 @@ fn old_spelling_hint(e: &clap::Error) -> Option<String> {
     }
 }
 
+/// The method options the command line gave (by field name), for `make_method` to refuse another
+/// method's option even at its default value.
+fn with_given_options(mut cli: Cli, matches: &clap::ArgMatches) -> Cli {
+    let options = match &mut cli.command {
+        Command::Eval(a) => &mut a.options,
+        Command::Infer(a) => &mut a.mpi.options,
+        _ => return cli,
+    };
+    if let Some((_, sub)) = matches.subcommand() {
+        options.given = Some(
+            sub.ids()
+                .filter(|id| {
+                    sub.value_source(id.as_str()) == Some(clap::parser::ValueSource::CommandLine)
+                })
+                .map(|id| id.as_str().to_owned())
+                .collect(),
+        );
+    }
+    cli
+}
+
 fn main() -> ExitCode {
     tune_allocator();
     // Before any other thread starts: Ctrl-C and SIGTERM clean up unfinished outputs (cmd::signals).
     cmd::signals::install();
-    let cli = match Cli::try_parse() {
+    let parsed = Cli::command()
+        .try_get_matches()
+        .and_then(|m| Cli::from_arg_matches(&m).map(|cli| with_given_options(cli, &m)));
+    let cli = match parsed {
         Ok(cli) => cli,
         Err(e) => {
             let hint = old_spelling_hint(&e);

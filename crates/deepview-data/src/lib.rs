@@ -32,7 +32,9 @@ pub use options::{LoadOptions, SceneArgs};
 pub use scene::{Scene, SceneFormat, View};
 
 pub use camera_json::read_camera_json;
-pub use formats::colmap::{ColmapModel, read_colmap, write_colmap_text};
+pub use formats::colmap::{
+    ColmapModel, read_colmap, write_colmap_text, write_colmap_text_observed,
+};
 pub use formats::lightfield::{
     LightFieldCameras, light_field_cameras, light_field_image_name, read_disparity_range,
     write_disparity_range, write_light_field,

@@ -199,6 +199,11 @@ pub struct MethodOptions {
     /// width (optimize; at least 16).
     #[arg(long, default_value_t = 160, value_parser = clap::value_parser!(u32).range(16..))]
     pub max_width: u32,
+    /// The options given on the command line, by their field names (`"aggregate_weight"`), where the
+    /// caller knows them: then an option of another method is refused even at its default value.
+    /// `None`: an option counts as given where it differs from its default.
+    #[arg(skip)]
+    pub given: Option<Vec<String>>,
 }
 
 impl Default for MethodOptions {
@@ -219,6 +224,7 @@ impl Default for MethodOptions {
             steps: o.steps,
             lr: o.learning_rate,
             max_width: o.max_width,
+            given: None,
         }
     }
 }
@@ -246,30 +252,38 @@ pub fn make_method(
             ),
         });
     }
-    // Options of one method given to another are refused, not ignored (compared with the defaults).
+    // Options of one method given to another are refused, not ignored: those the command line gave
+    // where the caller says which (`options.given`), else those that differ from their defaults.
     let d = MethodOptions::default();
+    let given = |flag: &'static str, differs: bool| {
+        let named = match &options.given {
+            Some(g) => g.iter().any(|id| *id == flag[2..].replace('-', "_")),
+            None => differs,
+        };
+        named.then_some(flag)
+    };
     let psv_only: Vec<&str> = [
-        ("--temperature", options.temperature != d.temperature),
-        ("--aggregate", options.aggregate != d.aggregate),
-        (
+        given("--temperature", options.temperature != d.temperature),
+        given("--aggregate", options.aggregate != d.aggregate),
+        given(
             "--aggregate-weight",
             options.aggregate_weight != d.aggregate_weight,
         ),
-        ("--smoothing", options.smoothing.is_some()),
-        ("--census", options.census.is_some()),
-        ("--leave-one-out", options.leave_one_out.is_some()),
-        ("--sample-variance", options.sample_variance),
+        given("--smoothing", options.smoothing.is_some()),
+        given("--census", options.census.is_some()),
+        given("--leave-one-out", options.leave_one_out.is_some()),
+        given("--sample-variance", options.sample_variance),
     ]
     .into_iter()
-    .filter_map(|(name, given)| given.then_some(name))
+    .flatten()
     .collect();
     let optimize_only: Vec<&str> = [
-        ("--steps", options.steps != d.steps),
-        ("--lr", options.lr != d.lr),
-        ("--max-width", options.max_width != d.max_width),
+        given("--steps", options.steps != d.steps),
+        given("--lr", options.lr != d.lr),
+        given("--max-width", options.max_width != d.max_width),
     ]
     .into_iter()
-    .filter_map(|(name, given)| given.then_some(name))
+    .flatten()
     .collect();
     for (given, owner, of) in [
         (psv_only, MethodKind::PsvMean, "psv-mean's agreement"),

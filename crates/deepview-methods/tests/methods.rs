@@ -578,6 +578,23 @@ fn options_of_another_method_are_refused() {
         ..Default::default()
     };
     assert!(refused(MethodKind::Nearest, planes).contains("--planes does not apply"));
+    // Where the caller says which options the command line gave, one given at its default value is
+    // refused too (`--aggregate 0` to deepview had passed, as if left out); unnamed ones still pass.
+    let named = MethodOptions {
+        given: Some(vec!["aggregate_weight".into(), "lr".into()]),
+        ..Default::default()
+    };
+    let e = refused(MethodKind::Deepview, named.clone());
+    assert!(
+        e.contains("--aggregate-weight shapes psv-mean's agreement only"),
+        "{e}"
+    );
+    assert!(refused(MethodKind::PsvMean, named).contains("--lr shapes optimize's"));
+    let named = MethodOptions {
+        given: Some(vec!["planes".into(), "device".into()]),
+        ..Default::default()
+    };
+    assert!(make_method(MethodKind::PsvMean, &named, 1 << 30).is_ok());
     for kind in [
         MethodKind::Nearest,
         MethodKind::PsvMean,

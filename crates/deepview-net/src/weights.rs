@@ -95,13 +95,77 @@ pub fn save_model(
             path: weights.clone(),
             msg: e.to_string(),
         })?;
-    let bytes = store.get_bytes().map_err(|e| WeightsError::Corrupt {
-        path: weights.clone(),
-        msg: e.to_string(),
-    })?;
+    let bytes = store
+        .get_bytes()
+        .map_err(|e| e.to_string())
+        .and_then(canonical_safetensors)
+        .map_err(|msg| WeightsError::Corrupt {
+            path: weights.clone(),
+            msg,
+        })?;
     write_atomic(&weights, &bytes)?;
     let json = serde_json::to_string_pretty(config).expect("config serialises");
     write_atomic(&dir.join(CONFIG_FILE), json.as_bytes())
+}
+
+/// `bytes` (a safetensors file) with its JSON header's keys in sorted order at every level, so that the
+/// same model always gives the same file (burn writes its `__metadata__` map in hash order: two exports
+/// of one checkpoint differed). The tensors' data is untouched; the header keeps its length (padded with
+/// spaces, as the format allows) or grows to the next multiple of 8.
+fn canonical_safetensors(bytes: Vec<u8>) -> Result<Vec<u8>, String> {
+    fn write(v: &serde_json::Value, out: &mut String) {
+        match v {
+            serde_json::Value::Object(map) => {
+                let mut entries: Vec<_> = map.iter().collect();
+                entries.sort_by(|a, b| a.0.cmp(b.0));
+                out.push('{');
+                for (i, (k, v)) in entries.into_iter().enumerate() {
+                    if i > 0 {
+                        out.push(',');
+                    }
+                    out.push_str(&serde_json::Value::String(k.clone()).to_string());
+                    out.push(':');
+                    write(v, out);
+                }
+                out.push('}');
+            }
+            serde_json::Value::Array(items) => {
+                out.push('[');
+                for (i, v) in items.iter().enumerate() {
+                    if i > 0 {
+                        out.push(',');
+                    }
+                    write(v, out);
+                }
+                out.push(']');
+            }
+            other => out.push_str(&other.to_string()),
+        }
+    }
+    let len = bytes
+        .get(..8)
+        .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+        .ok_or("shorter than its header length")?;
+    let end = usize::try_from(len)
+        .ok()
+        .and_then(|n| n.checked_add(8))
+        .filter(|&e| e <= bytes.len())
+        .ok_or("header length beyond the file")?;
+    let header: serde_json::Value =
+        serde_json::from_slice(&bytes[8..end]).map_err(|e| format!("header: {e}"))?;
+    let mut text = String::new();
+    write(&header, &mut text);
+    let padded = if text.len() <= end - 8 {
+        end - 8
+    } else {
+        (text.len() + 8).next_multiple_of(8) - 8
+    };
+    let mut out = Vec::with_capacity(bytes.len() + padded);
+    out.extend_from_slice(&(padded as u64).to_le_bytes());
+    out.extend_from_slice(text.as_bytes());
+    out.resize(8 + padded, b' ');
+    out.extend_from_slice(&bytes[end..]);
+    Ok(out)
 }
 
 /// The parameter count of the model `config` describes (mirrors `CoreNet::new`: 3x3 convs with biases;
@@ -572,6 +636,36 @@ mod tests {
         let b = loaded.forward(&inputs).rgba;
         let d: f32 = (a - b).abs().max().into_scalar();
         assert_eq!(d, 0.0);
+    }
+
+    /// The same model saves to the same bytes (burn's metadata map came out in hash order: two
+    /// exports of one checkpoint differed), and the file still loads.
+    #[test]
+    fn saving_is_byte_reproducible() {
+        let dev = Device::flex();
+        let model = crate::rng::module(|| DeepViewModel::new(&cfg(), &dev));
+        let files: Vec<Vec<u8>> = (0..8)
+            .map(|_| {
+                let dir = tempfile::tempdir().unwrap();
+                save_model(dir.path(), &model, &cfg()).unwrap();
+                load_model(dir.path(), &dev).unwrap();
+                std::fs::read(dir.path().join(WEIGHTS_FILE)).unwrap()
+            })
+            .collect();
+        assert!(files.iter().all(|f| *f == files[0]));
+        // Keys sorted at every level, data and its offsets untouched, the header padded in place.
+        let header = br#"{"b":{"z":1,"a":[2,{"y":3,"x":4}]},"a":"s"}  "#;
+        let mut file = (header.len() as u64).to_le_bytes().to_vec();
+        file.extend_from_slice(header);
+        file.extend_from_slice(&[1, 2, 3]);
+        let out = canonical_safetensors(file.clone()).unwrap();
+        assert_eq!(out.len(), file.len());
+        assert_eq!(
+            &out[8..8 + header.len()],
+            br#"{"a":"s","b":{"a":[2,{"x":4,"y":3}],"z":1}}  "#
+        );
+        assert_eq!(&out[8 + header.len()..], &[1, 2, 3]);
+        assert!(canonical_safetensors(vec![200, 0, 0, 0, 0, 0, 0, 0, b'{']).is_err());
     }
 
     #[test]

@@ -2,10 +2,13 @@
 
 use crate::scene::SynthScene;
 use deepview_data::{
-    DataError, LoadOptions, SceneFormat, light_field_cameras, load_scene, write_colmap_text,
-    write_disparity_range, write_light_field, write_llff, write_spaces_models, write_transforms,
+    DataError, LoadOptions, SceneFormat, light_field_cameras, load_scene,
+    write_colmap_text_observed, write_disparity_range, write_light_field, write_llff,
+    write_spaces_models, write_transforms,
 };
-use deepview_geometry::{Camera, PlaneSpacing, ReferenceOptions, plane_depths, reference_camera};
+use deepview_geometry::{
+    Camera, DVec2, DVec3, PlaneSpacing, ReferenceOptions, plane_depths, reference_camera,
+};
 use deepview_image::{ImageF32, write_atomic};
 use deepview_mpi::{Mpi, write_mpi};
 use serde::Serialize;
@@ -206,7 +209,13 @@ pub fn synthesize_as(
                 path: sparse.clone(),
                 source: e,
             })?;
-            write_colmap_text(&sparse, &names, &cameras, &scene.sample_points(2000))?;
+            let (points, owner) = colmap_points(&scene.sample_points(2000), &cameras, near, far);
+            write_colmap_text_observed(&sparse, &names, &cameras, &points, |v, p| {
+                match owner[p] {
+                    Some(o) => o == v,
+                    None => within_read_bounds(&cameras[v], points[p], near, far),
+                }
+            })?;
             let img_dir = out.join("images");
             for (name, img) in names.iter().zip(&images) {
                 write_image(&img_dir.join(name), img)?;
@@ -261,4 +270,55 @@ fn write_image(path: &Path, img: &ImageF32) -> Result<(), SynthError> {
     }
     deepview_image::write_png(path, img)?;
     Ok(())
+}
+
+/// The depths a COLMAP reader turns into `near..far`: it takes the 1st / 99th percentile of the depths
+/// of the observed points times 0.9 / 1.1 (`deepview_data::formats::colmap::depth_bounds`).
+fn colmap_read_depths(near: f64, far: f64) -> (f64, f64) {
+    (near / 0.9, far / 1.1)
+}
+
+/// Whether view `camera` may observe `point`: strictly between the depths of [`colmap_read_depths`].
+fn within_read_bounds(camera: &Camera, point: DVec3, near: f64, far: f64) -> bool {
+    let (lo, hi) = colmap_read_depths(near, far);
+    let z = camera.pose.transform_point(point).z;
+    z > lo * (1.0 + 1e-9) && z < hi * (1.0 - 1e-9)
+}
+
+/// The points of a synthetic COLMAP model, and the view that owns each (`None`: a surface point, seen by
+/// every view that has it in frame within the bounds). Beside the surface points, each view gets points
+/// of its own at exactly the two depths of [`colmap_read_depths`], more than 2% of its observations
+/// each, so that the reader's percentiles land on them and the model reads back as `near..far`.
+fn colmap_points(
+    surface: &[DVec3],
+    cameras: &[Camera],
+    near: f64,
+    far: f64,
+) -> (Vec<DVec3>, Vec<Option<usize>>) {
+    let (lo, hi) = colmap_read_depths(near, far);
+    let mut points = surface.to_vec();
+    let mut owner = vec![None; surface.len()];
+    for (v, c) in cameras.iter().enumerate() {
+        let seen = surface
+            .iter()
+            .filter(|&&x| {
+                within_read_bounds(c, x, near, far)
+                    && c.project(x).is_some_and(|p| {
+                        p.x >= 0.0 && p.y >= 0.0 && p.x < c.width as f64 && p.y < c.height as f64
+                    })
+            })
+            .count();
+        let k = seen.div_ceil(50) + 2;
+        for i in 0..k {
+            let px = DVec2::new(
+                (i as f64 + 0.5) / k as f64 * c.width as f64,
+                c.height as f64 / 2.0,
+            );
+            for z in [lo, hi] {
+                points.push(c.unproject(px, z));
+                owner.push(Some(v));
+            }
+        }
+    }
+    (points, owner)
 }

@@ -127,6 +127,32 @@ fn baseline_mpis_render_held_out_and_input_views() {
         ]),
         &["view index 9 out of range", "9 views"],
     );
+    // Another method's option is refused when given, even at its default value (`--steps 300` to
+    // psv-mean, `--aggregate 0` to nearest had passed as if left out).
+    for (method, option, value, owner) in [
+        (
+            "psv-mean",
+            "--steps",
+            "300",
+            "optimize's gradient descent only",
+        ),
+        ("nearest", "--aggregate", "0", "psv-mean's agreement only"),
+    ] {
+        fails_with(
+            &deepview(&[
+                "infer",
+                "--data",
+                s(&scene),
+                "--method",
+                method,
+                option,
+                value,
+                "--out",
+                s(&bad),
+            ]),
+            &[option, owner],
+        );
+    }
     assert!(!bad.exists());
 }
 

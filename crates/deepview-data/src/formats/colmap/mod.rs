@@ -16,7 +16,10 @@ mod text;
 
 pub use binary::{parse_cameras_bin, parse_images_bin, parse_points3d_bin};
 pub use model::{ColmapCamera, ColmapImage, ColmapModel, ColmapPoint};
-pub use text::{parse_cameras_txt, parse_images_txt, parse_points3d_txt, write_colmap_text};
+pub use text::{
+    parse_cameras_txt, parse_images_txt, parse_points3d_txt, write_colmap_text,
+    write_colmap_text_observed,
+};
 
 use crate::{DataError, LoadOptions, Scene, SceneFormat, View};
 use deepview_geometry::convention::colmap_to_pose;

@@ -184,6 +184,18 @@ pub fn write_colmap_text(
     cameras: &[Camera],
     points: &[DVec3],
 ) -> Result<(), DataError> {
+    write_colmap_text_observed(dir, names, cameras, points, |_, _| true)
+}
+
+/// [`write_colmap_text`] where view `v` observes point `p` only when `observes(v, p)` (and the point
+/// projects into its frame): a synthetic scene chooses which observations its depth bounds come from.
+pub fn write_colmap_text_observed(
+    dir: &Path,
+    names: &[String],
+    cameras: &[Camera],
+    points: &[DVec3],
+    observes: impl Fn(usize, usize) -> bool,
+) -> Result<(), DataError> {
     if names.len() != cameras.len() {
         return Err(DataError::CountMismatch {
             path: dir.join("images.txt"),
@@ -226,7 +238,8 @@ pub fn write_colmap_text(
         );
         let mut obs = Vec::new();
         for (pid, x) in points.iter().enumerate() {
-            if let Some(p) = c.project(*x)
+            if observes(i, pid)
+                && let Some(p) = c.project(*x)
                 && p.x >= 0.0
                 && p.y >= 0.0
                 && p.x < c.width as f64
