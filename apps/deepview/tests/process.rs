@@ -336,6 +336,19 @@ fn missing_colmap_or_photos_give_clear_errors() {
             "deepview process --data",
         ],
     );
+    // --fps with photos: refused, not ignored.
+    fails_with(
+        &deepview(&[
+            "process",
+            "--data",
+            s(&photos),
+            "--fps",
+            "3",
+            "--out",
+            s(&out),
+        ]),
+        &["--fps applies to frames taken from a --video"],
+    );
     let o = deepview(&["process", "--data", s(&photos), "--out", s(&empty)]);
     let err = String::from_utf8_lossy(&o.stderr);
     assert_eq!(o.status.code(), Some(2), "{err}");

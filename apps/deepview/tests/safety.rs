@@ -409,13 +409,21 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
         ok(&deepview(&full));
         // Its own earlier output is replaced.
         ok(&deepview(&full));
-        // A user's note, a subfolder and a dataset's poses beside the output are never deleted.
+        // A user's note, a subfolder and a dataset's poses beside the output are never deleted, nor
+        // files named like those another tool's format has, which an export writes (an export deleted a
+        // user's README; one LLFF itself wrote would have gone the same way).
         for (extra, is_dir) in [
             ("notes.txt", false),
             ("photos", true),
             ("poses_bounds.npy", false),
+            ("README", false),
+            ("intrinsics.txt", false),
+            ("metadata.txt", false),
+            ("mpi.b", false),
         ] {
             let p = out.join(extra);
+            // The output's own file of that name (an export's metadata.txt), put back afterwards.
+            let own = std::fs::read(&p).ok();
             if is_dir {
                 std::fs::create_dir(&p).unwrap();
                 std::fs::write(p.join("IMG_0001.JPG"), b"a photo").unwrap();
@@ -439,6 +447,8 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
             assert!(leftovers(t).is_empty(), "{name}: {:?}", leftovers(t));
             if is_dir {
                 std::fs::remove_dir_all(&p).unwrap();
+            } else if let Some(own) = &own {
+                std::fs::write(&p, own).unwrap();
             } else {
                 std::fs::remove_file(&p).unwrap();
             }
@@ -461,6 +471,25 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
         }
         // With them moved away, it replaces its output again.
         ok(&deepview(&full));
+        // An output folder given through a symbolic link is refused (the swap replaced the link with a
+        // folder and left the one it names empty).
+        let target = t.join(format!("target-{name}"));
+        std::fs::create_dir(&target).unwrap();
+        let link = t.join(format!("link-{name}"));
+        std::os::unix::fs::symlink(&target, &link).unwrap();
+        let mut via = args.clone();
+        via.extend(["--out", s(&link)]);
+        refused(
+            &deepview(&via),
+            &["--out", "symbolic link", "give the folder it names"],
+        );
+        assert!(
+            std::fs::symlink_metadata(&link)
+                .unwrap()
+                .file_type()
+                .is_symlink()
+        );
+        assert_eq!(std::fs::read_dir(&target).unwrap().count(), 0, "{name}");
     }
 }
 

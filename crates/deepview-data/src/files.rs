@@ -103,11 +103,17 @@ pub(crate) fn image_count_note(dir: &Path, listed: &[PathBuf]) -> String {
     note
 }
 
+/// A dataset's file: a pipe, socket or device in its place is refused (reading a pipe waited for a
+/// writer for ever, `/dev/zero` filled the memory). No size bound: COLMAP models of large captures run
+/// to hundreds of MiB.
 pub(crate) fn read_file(path: &Path) -> Result<Vec<u8>, DataError> {
+    deepview_image::refuse_special(path, "a dataset file").map_err(|e| DataError::io(path, e))?;
     std::fs::read(path).map_err(|e| DataError::io(path, e))
 }
 
+/// [`read_file`] as UTF-8 text, without a byte-order mark.
 pub(crate) fn read_text(path: &Path) -> Result<String, DataError> {
+    deepview_image::refuse_special(path, "a dataset file").map_err(|e| DataError::io(path, e))?;
     let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
     // Editors on some systems start UTF-8 files with a byte-order mark: not part of the content.
     Ok(match text.strip_prefix('\u{feff}') {

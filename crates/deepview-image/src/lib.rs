@@ -274,7 +274,7 @@ pub fn read_text(path: &Path) -> std::io::Result<String> {
 
 /// An error for a pipe, socket or device where an image file should be: opening a pipe would wait
 /// for a writer for ever.
-fn refuse_special(path: &Path, expected: &str) -> std::io::Result<()> {
+pub fn refuse_special(path: &Path, expected: &str) -> std::io::Result<()> {
     match std::fs::metadata(path) {
         Ok(m) if !m.is_file() && !m.is_dir() => Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,

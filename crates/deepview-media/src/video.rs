@@ -83,6 +83,12 @@ impl FrameSink for PngFrames {
     }
 }
 
+/// How many centiseconds GIF frame `i` lasts at `fps` (see [`GifSink`]'s `frames`), at least 1.
+fn gif_delay_cs(i: u64, fps: f64) -> u32 {
+    let at = |k: u64| (100.0 * k as f64 / fps).round();
+    (at(i + 1) - at(i)).clamp(1.0, 65_535.0) as u32
+}
+
 /// Animated, looping GIF, each frame encoded as it comes into a temporary file beside the output (so a
 /// long path never holds its frames in memory), renamed into place at the end.
 pub struct GifSink {
@@ -90,7 +96,11 @@ pub struct GifSink {
     tmp: PathBuf,
     width: u32,
     height: u32,
-    delay_ms: u32,
+    fps: f64,
+    /// Frames pushed so far: frame `i` lasts from `round(100 i / fps)` to `round(100 (i + 1) / fps)`
+    /// centiseconds, so that the animation lasts frames / fps to the centisecond (a fixed rounded
+    /// delay made 30 frames/s play at 33).
+    frames: u64,
     encoder: Option<image::codecs::gif::GifEncoder<ErrWriter>>,
     error: std::rc::Rc<std::cell::RefCell<Option<std::io::Error>>>,
 }
@@ -98,15 +108,16 @@ pub struct GifSink {
 impl GifSink {
     pub fn new(path: &Path, width: u32, height: u32, fps: f64) -> Result<Self, MediaError> {
         use image::codecs::gif::{GifEncoder, Repeat};
-        // A GIF frame lasts a whole number of centiseconds, 1 to 65535: 100 to about 0.0015 frames/s.
-        if !(fps.is_finite() && (1.0 / 655.35..=100.0).contains(&fps)) {
+        // A GIF frame lasts a whole number of centiseconds, up to 65535; browsers play frames of 0 or 1
+        // cs at 10 cs, so 2 cs (50 frames/s) is the shortest that plays as written.
+        if !(fps.is_finite() && (1.0 / 655.35..=50.0).contains(&fps)) {
             return Err(MediaError::Config(format!(
-                "{}: a GIF plays 0.0016 to 100 frames per second (got {fps}); choose an --fps in that \
-                 range or write an MP4",
+                "{}: a GIF plays 0.0016 to 50 frames per second (browsers slow shorter frames to 10 \
+                 per second), got {fps}: choose another frame rate (--fps, or a camera path's \
+                 \"seconds\") or write an MP4",
                 path.display()
             )));
         }
-        let delay_ms = (1000.0 / fps).round().clamp(10.0, 655_350.0) as u32;
         let tmp = temp_path(path);
         let file = std::fs::File::create(&tmp).map_err(write_err(path))?;
         // Held while it is written: a run that finds it meanwhile leaves it alone.
@@ -130,7 +141,8 @@ impl GifSink {
             tmp,
             width,
             height,
-            delay_ms,
+            fps,
+            frames: 0,
             encoder: Some(enc),
             error,
         })
@@ -153,7 +165,8 @@ impl FrameSink for GifSink {
             .collect();
         let buf =
             image::RgbaImage::from_raw(self.width, self.height, rgba).expect("frame size matches");
-        let delay = image::Delay::from_numer_denom_ms(self.delay_ms, 1);
+        let delay = image::Delay::from_numer_denom_ms(10 * gif_delay_cs(self.frames, self.fps), 1);
+        self.frames += 1;
         let frame = image::Frame::from_parts(buf, 0, 0, delay);
         let enc = self.encoder.as_mut().expect("open until finish");
         enc.encode_frame(frame).map_err(|e| self.enc_err(e))
@@ -298,7 +311,7 @@ impl Mp4Sink {
             .arg(format!("{fps}"))
             .args(["-i", "-", "-an", "-vf", &crop, "-c:v", "libx264", "-pix_fmt", "yuv420p"])
             .args(["-movflags", "+faststart", "-metadata", "comment=deepview"])
-            .arg(&tmp)
+            .arg(ffmpeg_file_arg(&tmp))
             .stdin(Stdio::piped())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
@@ -385,9 +398,26 @@ impl FrameSink for Mp4Sink {
                 stderr.trim()
             )));
         }
+        // A program that exits 0 without writing (a stand-in for ffmpeg) is not a video.
+        if std::fs::metadata(&self.tmp).map_or(0, |m| m.len()) == 0 {
+            return Err(MediaError::Ffmpeg(format!(
+                "ffmpeg exited successfully but wrote nothing for {} (is --ffmpeg a real ffmpeg?)",
+                self.path.display()
+            )));
+        }
         std::fs::rename(&self.tmp, &self.path).map_err(write_err(&self.path))?;
         self.finished = true;
         Ok(())
+    }
+}
+
+/// `path` as an ffmpeg output argument: ffmpeg reads `NAME:` at the start of a relative path as a
+/// protocol (`a:b.mp4` failed with "Protocol not found"), so a relative path starts with `./`.
+fn ffmpeg_file_arg(path: &Path) -> std::ffi::OsString {
+    if path.is_absolute() || path.starts_with(".") || path.starts_with("..") {
+        path.as_os_str().to_owned()
+    } else {
+        Path::new(".").join(path).into_os_string()
     }
 }
 

@@ -248,6 +248,41 @@ fn gif_and_png_frames_are_written_and_decodable() {
         err / (70.0 * 45.0 * 3.0)
     );
 
+    // At 30 and 15 frames/s (3.33 and 6.67 cs a frame) the animation lasts frames / fps to the
+    // centisecond (a fixed rounded delay played 30 at 33 frames/s, 15 at 16.7); over 50 frames/s,
+    // which browsers slow to 10, is refused.
+    for (fps, total_cs) in [(30.0, 23), (15.0, 47)] {
+        let g = dir.path().join(format!("at{fps}.gif"));
+        render_video(&u8mpi, &cams, &g, fps, &mut |_, _| {}).unwrap();
+        let dec = image::codecs::gif::GifDecoder::new(std::io::BufReader::new(
+            std::fs::File::open(&g).unwrap(),
+        ))
+        .unwrap();
+        let ms: u32 = dec
+            .into_frames()
+            .collect_frames()
+            .unwrap()
+            .iter()
+            .map(|f| {
+                let (n, d) = f.delay().numer_denom_ms();
+                n / d
+            })
+            .sum();
+        assert_eq!(ms, total_cs * 10, "{fps} frames/s");
+    }
+    let e = render_video(
+        &u8mpi,
+        &cams,
+        &dir.path().join("fast.gif"),
+        60.0,
+        &mut |_, _| {},
+    )
+    .err()
+    .unwrap()
+    .to_string();
+    assert!(e.contains("0.0016 to 50 frames per second"), "{e}");
+    assert!(!dir.path().join("fast.gif").exists());
+
     let frames_dir = dir.path().join("frames");
     render_video(&u8mpi, &cams[..3], &frames_dir, 10.0, &mut |_, _| {}).unwrap();
     let names: Vec<_> = (0..3)
@@ -285,6 +320,20 @@ fn missing_ffmpeg_is_a_clear_error() {
         .unwrap();
     assert!(e.to_string().contains("2x2"), "{e}");
     // No temporary left by the failed starts.
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    // A program that takes every frame and exits 0 without writing (a stand-in for ffmpeg) is an
+    // error, not an empty "video" (it was renamed into place as one).
+    let tools = tempfile::tempdir().unwrap();
+    let fake = tools.path().join("fake-ffmpeg");
+    std::fs::write(&fake, "#!/bin/sh\ncat > /dev/null\n").unwrap();
+    use std::os::unix::fs::PermissionsExt;
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    let out = dir.path().join("v.mp4");
+    let mut sink: Box<dyn FrameSink> =
+        Box::new(Mp4Sink::new(&out, 4, 4, 10.0, fake.to_str().unwrap()).unwrap());
+    sink.push(&[0; 4 * 4 * 3]).unwrap();
+    let e = sink.finish().err().unwrap().to_string();
+    assert!(e.contains("wrote nothing") && e.contains("v.mp4"), "{e}");
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 

@@ -73,6 +73,11 @@ pub enum ProcessError {
         "{path} exists and was not made by `deepview process`; move it away (it is where the scene is built)"
     )]
     WorkFolderTaken { path: PathBuf },
+    #[error(
+        "another deepview process is building {out} (in {path}, which it holds): wait for it to \
+         finish, or choose another --out"
+    )]
+    WorkFolderBusy { out: PathBuf, path: PathBuf },
     #[error("cannot read {path}: {source}")]
     Read {
         path: PathBuf,

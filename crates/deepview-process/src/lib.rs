@@ -74,5 +74,19 @@ mod tests {
             .to_string();
         assert!(e.contains("other.incomplete"), "{e}");
         assert!(taken.is_dir());
+        // A working folder of ours that a running process holds is refused, not cleared (a second
+        // run on the same --out deleted the first's work and published its own photos under it).
+        let out = dir.path().join("busy");
+        let (work, lock) = work_folder(&out).unwrap();
+        assert!(lock.is_some(), "this file system has locks");
+        std::fs::write(work.join("images.txt"), "first run").unwrap();
+        let e = work_folder(&out).unwrap_err().to_string();
+        assert!(e.contains("another deepview process is building"), "{e}");
+        assert!(work.join("images.txt").is_file());
+        // Once its holder is gone (a killed run), the next run clears it.
+        drop(lock);
+        let (again, _lock) = work_folder(&out).unwrap();
+        assert_eq!(again, work);
+        assert!(!work.join("images.txt").exists());
     }
 }

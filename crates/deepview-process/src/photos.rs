@@ -68,12 +68,22 @@ pub(crate) fn copy_photos(
     dst: &Path,
     max_size: Option<u32>,
 ) -> Result<Vec<String>, ProcessError> {
-    let mut names = Vec::with_capacity(photos.len());
+    let mut names: Vec<String> = Vec::with_capacity(photos.len());
     for p in photos {
         let name = p
             .file_name()
             .map(|n| n.to_string_lossy().into_owned())
             .unwrap_or_default();
+        // A name that is not UTF-8 is written with U+FFFD in place of its odd bytes (COLMAP's lists are
+        // text): two such names can become one, and one photo would overwrite the other.
+        if let Some(first) = names.iter().position(|n| *n == name) {
+            return Err(ProcessError::Invalid(format!(
+                "{} and {} have the same name once their bytes that are not UTF-8 are replaced ({name}): \
+                 rename one of them",
+                photos[first].display(),
+                p.display()
+            )));
+        }
         let target = dst.join(&name);
         let resize = match max_size {
             None => None,
@@ -163,6 +173,30 @@ mod tests {
             (20, 10)
         );
         assert_eq!(image::image_dimensions(dst.join("a.JPG")).unwrap().1, 20);
+    }
+
+    /// Two names that differ only in bytes that are not UTF-8 are refused, naming both (one photo
+    /// overwrote the other, and the run said a photo was "left out").
+    #[test]
+    fn names_that_become_one_are_refused() {
+        use std::os::unix::ffi::OsStrExt;
+        let dir = tempfile::tempdir().unwrap();
+        let (src, dst) = (dir.path().join("src"), dir.path().join("dst"));
+        std::fs::create_dir(&src).unwrap();
+        std::fs::create_dir(&dst).unwrap();
+        let names = [&b"a\xff.png"[..], &b"a\xfe.png"[..]];
+        for n in names {
+            image::RgbImage::new(4, 4)
+                .save(src.join(std::ffi::OsStr::from_bytes(n)))
+                .unwrap();
+        }
+        let p = list_photos(&src).unwrap();
+        assert_eq!(p.len(), 2);
+        let e = copy_photos(&p, &dst, None).unwrap_err().to_string();
+        assert!(
+            e.contains("have the same name") && e.contains("rename one"),
+            "{e}"
+        );
     }
 
     /// Photos in formats that are not read are named (a few, then a count); other files are not.

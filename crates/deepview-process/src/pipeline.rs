@@ -99,7 +99,8 @@ pub fn process(
     if matches!(opts.input, Input::Video { .. }) {
         crate::frames::check_ffmpeg(&opts.ffmpeg)?;
     }
-    let work = work_folder(out)?;
+    // Held until the scene is in place (or its working folder removed).
+    let (work, _lock) = work_folder(out)?;
     match build(opts, photos.as_deref(), &work, t0, progress) {
         Ok(r) => Ok(r),
         Err(e) => Err(discard_work(&work, out, e)),

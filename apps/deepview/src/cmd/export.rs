@@ -42,6 +42,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             }
         })
         .with_context(|| format!("cannot export {} as {}", mpi_dir.display(), args.format))?;
+    super::safety::write_export_manifest(dir.path(), &report.files)?;
     dir.commit()?;
     for w in &report.warnings {
         eprintln!("warning: {w}");

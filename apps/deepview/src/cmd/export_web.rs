@@ -41,7 +41,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     println!(
         "serve it with any static web server (browsers do not fetch files from file:// pages), e.g. \
          `python3 -m http.server -d {}`",
-        out.display()
+        shell_word(&out.display().to_string())
     );
     Ok(())
+}
+
+/// `text` as one shell word: as it is where it has nothing the shell reads, else in single quotes.
+fn shell_word(text: &str) -> String {
+    let plain = !text.is_empty()
+        && text
+            .bytes()
+            .all(|b| b.is_ascii_alphanumeric() || b"/._-+,:@%=".contains(&b));
+    if plain {
+        text.to_string()
+    } else {
+        format!("'{}'", text.replace('\'', "'\\''"))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn shell_words_survive_the_shell() {
+        assert_eq!(super::shell_word("fern_web/"), "fern_web/");
+        assert_eq!(super::shell_word("my web"), "'my web'");
+        assert_eq!(super::shell_word("it's"), "'it'\\''s'");
+    }
 }

@@ -40,10 +40,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         use deepview_mpi::interchange::{ImportFormat, detect_format, stereo_mag};
         let format =
             detect_format(input).with_context(|| format!("cannot import {}", input.display()))?;
+        // A README counts only where it records the depths (a user's notes do not).
         let own = match format {
-            ImportFormat::StereoMag => [stereo_mag::SIDECAR, "README"]
-                .into_iter()
-                .find(|f| input.join(f).is_file()),
+            ImportFormat::StereoMag if input.join(stereo_mag::SIDECAR).is_file() => {
+                Some(stereo_mag::SIDECAR)
+            }
+            ImportFormat::StereoMag => stereo_mag::readme_depths(input)
+                .with_context(|| format!("cannot import {}", input.display()))?
+                .map(|_| "README, its --min_depth and --max_depth"),
             _ => Some("its own metadata"),
         };
         if let Some(own) = own {

@@ -20,9 +20,9 @@ pub struct Args {
     /// A video to take frames from instead (needs ffmpeg).
     #[arg(long)]
     pub video: Option<PathBuf>,
-    /// Frames per second taken from --video.
-    #[arg(long, default_value_t = 2.0, requires = "video", value_parser = super::args::parse_positive_f64)]
-    pub fps: f64,
+    /// Frames per second taken from --video (default 2).
+    #[arg(long, requires = "video", value_parser = super::args::parse_positive_f64)]
+    pub fps: Option<f64>,
     /// The scene folder to write; must not exist yet (or be empty).
     #[arg(long)]
     pub out: PathBuf,
@@ -48,10 +48,16 @@ fn secs(d: Duration) -> String {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
+    // (clap lets `requires = "video"` pass when --data, which excludes --video, is given.)
+    if args.fps.is_some() && args.video.is_none() {
+        anyhow::bail!(
+            "--fps applies to frames taken from a --video; photos (--data) have none: leave it out"
+        );
+    }
     let input = match (&args.data, &args.video) {
         (_, Some(v)) => Input::Video {
             path: v.clone(),
-            fps: args.fps,
+            fps: args.fps.unwrap_or(2.0),
         },
         (Some(d), None) => Input::Photos(d.clone()),
         (None, None) => anyhow::bail!("give --data PHOTOS_DIR or --video FILE"),
@@ -66,7 +72,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let mut work_name = args.out.file_name().unwrap_or_default().to_os_string();
     work_name.push(".incomplete");
     let work = args.out.with_file_name(work_name);
-    let ours = !work.exists() || work.join(".deepview-process").is_file();
+    // (Not one another running process holds: it refuses to start then, and a Ctrl-C must not take
+    // the other run's work with it.)
+    let ours = !work.exists()
+        || (work.join(".deepview-process").is_file() && !deepview_image::is_held(&work));
     if ours {
         super::signals::register(&work);
     }

@@ -29,15 +29,15 @@ pub struct Args {
     /// A nerfstudio camera_path.json (render_width, render_height, seconds, camera_path[{camera_to_world, fov}]).
     #[arg(long, conflicts_with_all = ["camera", "scene_dir"])]
     pub camera_path: Option<PathBuf>,
-    /// Frames of a --path (streamed to the output one by one).
-    #[arg(long, default_value_t = 60, value_parser = args::parse_positive)]
-    pub frames: usize,
-    /// Radius of a --path as a fraction of the MPI's nearest plane depth.
-    #[arg(long, default_value_t = 0.05, value_parser = args::parse_positive_f64)]
-    pub radius: f64,
-    /// Frames per second of a --path video (a --camera-path uses its own `seconds`).
-    #[arg(long, default_value_t = 30.0, value_parser = args::parse_positive_f64)]
-    pub fps: f64,
+    /// Frames of a --path (streamed to the output one by one; default 60).
+    #[arg(long, value_parser = args::parse_positive, requires = "path")]
+    pub frames: Option<usize>,
+    /// Radius of a --path as a fraction of the MPI's nearest plane depth (default 0.05).
+    #[arg(long, value_parser = args::parse_positive_f64, requires = "path")]
+    pub radius: Option<f64>,
+    /// Frames per second of a --path video (default 30; a --camera-path uses its own `seconds`).
+    #[arg(long, value_parser = args::parse_positive_f64, requires = "path")]
+    pub fps: Option<f64>,
     /// Output: an image for one camera (.png, or .jpg/.jpeg: the format follows the name); for a path: a
     /// .gif, a .mp4/.mov/.mkv (needs ffmpeg on the PATH) or a folder (no extension) of PNG frames. Images
     /// are RGB composited over black, or RGBA with --alpha (PNG only).
@@ -106,6 +106,27 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
              and videos are RGB: leave --alpha out"
         );
     }
+    // A dataset view's options (--view, --near, ...) have no dataset here, and a camera path file
+    // sets its own frames, rate and cameras: an error, not ignored.
+    args.source.camera()?;
+    if args.camera_path.is_some() {
+        let given: Vec<&str> = [
+            (args.frames.is_some(), "--frames"),
+            (args.radius.is_some(), "--radius"),
+            (args.fps.is_some(), "--fps"),
+        ]
+        .into_iter()
+        .filter_map(|(g, name)| g.then_some(name))
+        .collect();
+        if !given.is_empty() {
+            bail!(
+                "{} shape a --path only; a --camera-path file sets its own cameras, frame count and \
+                 duration (\"seconds\"): leave {} out",
+                given.join(", "),
+                if given.len() == 1 { "it" } else { "them" }
+            );
+        }
+    }
     let kind = video_kind(&args.out)?;
     check_output("--out", &args.out, kind, &args.inputs())?;
     let budget = args::memory_budget(args.max_memory.as_deref())?;
@@ -120,7 +141,7 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
             p.cameras.first().copied().unwrap_or(reference),
             p.cameras.len(),
         ),
-        None => (reference, args.frames),
+        None => (reference, args.frames.unwrap_or(60)),
     };
     args::check_memory(
         &format!(
@@ -143,13 +164,13 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
         let kind: deepview_media::PathKind = args.path.as_deref().unwrap_or("spiral").parse()?;
         let spec = deepview_media::PathSpec {
             kind,
-            frames: args.frames,
-            radius: deepview_media::Radius::NearFraction(args.radius),
+            frames: args.frames.unwrap_or(60),
+            radius: deepview_media::Radius::NearFraction(args.radius.unwrap_or(0.05)),
             focus_depth: None,
         };
         (
             deepview_media::make_camera_path(&mpi.camera, &mpi.depths, &spec)?,
-            args.fps,
+            args.fps.unwrap_or(30.0),
         )
     };
     // Frames whose camera is at or beyond the nearest plane show what the scene does not.
@@ -225,8 +246,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .saturating_add(args::render_bytes(&camera)),
         budget,
     )?;
-    // f32 texels: the colour premultiplied exactly (8-bit texels round it again, up to 2 steps off in
-    // faint regions); the camera paths' frames, like the viewer, take 8-bit ones.
+    // f32 texels: the colour premultiplied exactly (8-bit texels round it again, and the roundings of
+    // faint texels add up over the planes: up to 8.6/255 off on a 33-plane fern MPI, 2026-12-08 audit);
+    // the camera paths' frames, like the viewer, take 8-bit ones.
     let mpi = read_mpi::<f32>(&args.mpi)?;
     let img = render(&mpi, &camera);
     if let Some(w) = deepview_mpi::view_warning(&mpi, &camera, deepview_mpi::coverage(&img)) {

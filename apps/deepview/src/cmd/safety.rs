@@ -101,7 +101,8 @@ impl Kind {
                     || numbered(name, "cam_", "")
             }
             (Kind::Export, false) => {
-                matches!(name, "metadata.txt" | "mpi.b" | "intrinsics.txt" | "README")
+                name == EXPORT_MANIFEST
+                    || EXPORT_LISTED.contains(&name)
                     || name == deepview_mpi::interchange::compact::META
                     || name == deepview_mpi::interchange::stereo_mag::SIDECAR
                     || numbered(name, "tiles_", ".png")
@@ -249,15 +250,17 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
             kind.name()
         );
     }
-    // A file's output through a link: the rename would replace the link (and leave the file it names),
-    // and the check of what may be replaced would look at the file, not the link.
-    if kind == Kind::File
+    // An output through a link, a file or a folder replaced whole: the rename would replace the link
+    // (and leave what it names untouched, a folder on another disk empty), and the check of what may
+    // be replaced would look at what it names, not the link. (Folders written into follow links.)
+    if (kind == Kind::File || !(kind.written_into() || kind == Kind::Run))
         && std::fs::symlink_metadata(out).is_ok_and(|m| m.file_type().is_symlink())
     {
         let to = std::fs::read_link(out).unwrap_or_default();
+        let what = if kind == Kind::File { "file" } else { "folder" };
         bail!(
             "{option} {} is a symbolic link to {}: outputs are written to a temporary renamed into place, \
-             which would replace the link; give the file it names or another name",
+             which would replace the link; give the {what} it names or another name",
             out.display(),
             to.display()
         );
@@ -534,6 +537,70 @@ fn written_here(path: &Path) -> bool {
     users_media(path).is_none()
 }
 
+/// The file in which `export` lists the files it wrote that can carry no mark of their own (another
+/// tool's formats: `README`, `intrinsics.txt`, `metadata.txt`, `mpi.b`), with their sizes and hashes:
+/// only those listed, unchanged, are its own (a user's `README` in an export folder, or an MPI that LLFF
+/// itself wrote, are not replaced).
+pub const EXPORT_MANIFEST: &str = "deepview_export.json";
+
+/// The names an export writes that are its own only where [`EXPORT_MANIFEST`] lists them.
+const EXPORT_LISTED: [&str; 4] = ["metadata.txt", "mpi.b", "intrinsics.txt", "README"];
+
+/// FNV-1a (64 bits) of a file's bytes, streamed.
+fn file_hash(path: &Path) -> std::io::Result<(u64, u64)> {
+    use std::io::Read;
+    let mut f = std::fs::File::open(path)?;
+    let mut buf = vec![0u8; 1 << 16];
+    let (mut h, mut len) = (0xcbf2_9ce4_8422_2325u64, 0u64);
+    loop {
+        let n = f.read(&mut buf)?;
+        if n == 0 {
+            return Ok((len, h));
+        }
+        len += n as u64;
+        for &b in &buf[..n] {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+}
+
+/// Write [`EXPORT_MANIFEST`] into the export folder `dir` for the files of `written` it must list.
+pub fn write_export_manifest(dir: &Path, written: &[PathBuf]) -> anyhow::Result<()> {
+    let mut files = serde_json::Map::new();
+    for path in written {
+        let Some(name) = path.file_name().and_then(|n| n.to_str()) else {
+            continue;
+        };
+        if EXPORT_LISTED.contains(&name) {
+            let (bytes, hash) =
+                file_hash(path).with_context(|| format!("cannot read {}", path.display()))?;
+            files.insert(
+                name.into(),
+                serde_json::json!({ "bytes": bytes, "fnv1a64": format!("{hash:016x}") }),
+            );
+        }
+    }
+    let json = serde_json::json!({ "written_by": "deepview export", "files": files });
+    let path = dir.join(EXPORT_MANIFEST);
+    deepview_image::write_atomic(&path, serde_json::to_string_pretty(&json)?.as_bytes())
+        .with_context(|| format!("cannot write {}", path.display()))
+}
+
+/// Whether the export folder `dir`'s manifest lists its file `name` as it is now.
+fn listed_in_manifest(dir: &Path, name: &str) -> bool {
+    let listed = || -> Option<bool> {
+        let text = deepview_image::read_text(&dir.join(EXPORT_MANIFEST)).ok()?;
+        let json: serde_json::Value = serde_json::from_str(&text).ok()?;
+        let entry = json.get("files")?.get(name)?;
+        let (bytes, hash) = file_hash(&dir.join(name)).ok()?;
+        Some(
+            entry.get("bytes")?.as_u64()? == bytes
+                && entry.get("fnv1a64")?.as_str()? == format!("{hash:016x}"),
+        )
+    };
+    listed().unwrap_or(false)
+}
+
 /// The title of deepview's web viewer (`crates/deepview-viewer/web/index.html`), in its first lines.
 const VIEWER_TITLE: &[u8] = b"<title>deepview MPI viewer</title>";
 
@@ -560,7 +627,7 @@ fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::R
         "refusing to replace it, which would delete them"
     };
     let older = if foreign.iter().any(|f| f.ends_with(UNMARKED)) {
-        " (outputs of a deepview older than 2026-12-07 carry no mark and are refused once)"
+        " (outputs of an older deepview carry no mark and are refused once)"
     } else {
         ""
     };
@@ -682,7 +749,13 @@ fn foreign_within(
         let shown = format!("{prefix}{name}");
         // An image named like one of its own that deepview did not write (no mark): a user's photo
         // kept under such a name, or an older deepview's output (refused once).
-        let unmarked = own && !is_dir && !working && !written_here(&e.path());
+        let unmarked = own
+            && !is_dir
+            && !working
+            && (!written_here(&e.path())
+                || (matches!(part, Part::Of(Kind::Export))
+                    && EXPORT_LISTED.contains(&name.as_str())
+                    && !listed_in_manifest(dir, &name)));
         if unmarked {
             foreign.push(format!("{shown}{UNMARKED}"));
         } else if !own {

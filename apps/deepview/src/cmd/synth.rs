@@ -120,6 +120,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
         let scene = super::args::load_scene_noted(cams, &args.scene.load_options())
             .with_context(|| format!("cannot load the rig {}", cams.display()))?;
+        // A rig is written in its own format or as transforms (said before its views are checked for
+        // another format's needs).
+        if let Some(f) = args.out_format
+            && f != scene.format
+            && f != deepview_data::SceneFormat::Transforms
+        {
+            anyhow::bail!(
+                "the rig {} is a {} scene: it can be written as {} or transforms (--out-format), not {f}",
+                cams.display(),
+                scene.format,
+                scene.format
+            );
+        }
         // LLFF's poses_bounds.npy holds one focal length and a centred principal point: a --downscale that
         // does not divide the image size moves it off centre, so say so now, not after the rendering.
         let llff_out = args
@@ -185,14 +198,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     // The dataset must read back with the depth bounds it was rendered with (a light field's disparity
     // range cannot hold every far depth): checked before it replaces anything.
     // (Spaces' models.json holds no bounds at all: nothing to compare.)
-    let back = deepview_data::load_scene(dir.path(), &deepview_data::LoadOptions::default())
+    let read = deepview_data::load_scene(dir.path(), &deepview_data::LoadOptions::default())
         .with_context(|| {
             format!(
                 "the scene written to {} does not read back",
                 args.out.display()
             )
-        })?
-        .depth_bounds;
+        })?;
+    // Nor other cameras than it was rendered through (a light field's reader derives them from the
+    // image size: a --downscale of a light-field rig read back with another principal point).
+    let cameras = read.cameras();
+    if let Some(i) = (0..out.cameras.len()).find(|&i| {
+        cameras
+            .get(i)
+            .is_none_or(|c| !same_camera(c, &out.cameras[i]))
+    }) {
+        anyhow::bail!(
+            "a {} scene cannot hold this rig's cameras: view {i} would read back as another camera \
+             (the format's reader derives them from the images); use --out-format transforms{}",
+            out.format,
+            if args.scene.downscale != 1 {
+                ", or leave --downscale out"
+            } else {
+                ""
+            }
+        );
+    }
+    let back = read.depth_bounds;
     let (n, f) = out.near_far;
     let same = |a: f64, b: f64| (a - b).abs() <= 1e-6 * a.abs().max(b.abs());
     if let Some((bn, bf)) = back
@@ -220,4 +252,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.out.join("ground_truth_mpi").display()
     );
     Ok(())
+}
+
+/// The same camera to within rounding: size, intrinsics and pose.
+fn same_camera(a: &deepview_geometry::Camera, b: &deepview_geometry::Camera) -> bool {
+    let (ka, kb) = (&a.intrinsics, &b.intrinsics);
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-6 * (1.0 + x.abs().max(y.abs()));
+    a.width == b.width
+        && a.height == b.height
+        && close(ka.fx, kb.fx)
+        && close(ka.fy, kb.fy)
+        && close(ka.cx, kb.cx)
+        && close(ka.cy, kb.cy)
+        && a.pose.rotation.abs_diff_eq(b.pose.rotation, 1e-6)
+        && a.center()
+            .abs_diff_eq(b.center(), 1e-6 * (1.0 + b.center().length()))
 }

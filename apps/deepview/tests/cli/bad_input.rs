@@ -178,8 +178,86 @@ fn odd_inputs_are_refused_at_once_saying_what_to_do() {
         &deepview(&["render", "--mpi", s(&mpi), "--out", s(&out)]),
         &["mpi.json", "not a regular file"],
     );
-    // --alpha with a camera path (its frames are RGB) is refused, not ignored.
+    // A pipe in place of a dataset's file, or of an imported MPI's, is refused at once (each waited for
+    // a writer for ever). Under `timeout`, so that a regression fails instead of hanging the suite.
     let scene = crate::common::synth_grid(tmp.path());
+    let fifo = |p: &std::path::Path| {
+        let _ = std::fs::remove_file(p);
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        let made = std::process::Command::new("mkfifo")
+            .arg(p)
+            .status()
+            .unwrap();
+        assert!(made.success());
+    };
+    let timed = |args: &[&str]| {
+        std::process::Command::new("timeout")
+            .arg("120")
+            .arg(env!("CARGO_BIN_EXE_deepview"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let sm = tmp.path().join("sm");
+    crate::common::succeeds(&deepview(&[
+        "export",
+        "--mpi",
+        s(&scene.join("ground_truth_mpi")),
+        "--format",
+        "stereo-mag",
+        "--out",
+        s(&sm),
+    ]));
+    std::fs::remove_file(sm.join("deepview_camera.json")).unwrap();
+    for (i, file) in [
+        "transforms.json",
+        "poses_bounds.npy",
+        "models.json",
+        "sparse/0/images.txt",
+        "parameters.cfg",
+        "README",
+        "intrinsics.txt",
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let dir = if i >= 5 {
+            sm.clone()
+        } else {
+            tmp.path().join(format!("fifo-{i}"))
+        };
+        match file {
+            "sparse/0/images.txt" => {
+                std::fs::create_dir_all(dir.join("sparse/0")).unwrap();
+                std::fs::write(dir.join("sparse/0/cameras.txt"), "").unwrap();
+            }
+            "parameters.cfg" => {
+                crate::common::copy_dir(&scene, &dir);
+            }
+            _ => {}
+        }
+        fifo(&dir.join(file));
+        let o = if i >= 5 {
+            timed(&[
+                "import",
+                "--mpi",
+                s(&dir),
+                "--out",
+                s(&tmp.path().join("imp")),
+            ])
+        } else {
+            timed(&["info", "--data", s(&dir)])
+        };
+        fails_with(
+            &o,
+            &[file.rsplit('/').next().unwrap(), "not a regular file"],
+        );
+        if i >= 5 {
+            std::fs::remove_file(dir.join(file)).unwrap();
+            std::fs::write(dir.join(file), "").unwrap();
+        }
+    }
+    // --alpha with a camera path (its frames are RGB) is refused, not ignored.
     let frames = tmp.path().join("frames");
     fails_with(
         &deepview(&[
@@ -197,6 +275,65 @@ fn odd_inputs_are_refused_at_once_saying_what_to_do() {
         &["--alpha", "leave --alpha out"],
     );
     assert!(!frames.exists());
+    // A light-field rig at another size would read back with other cameras (its reader derives them
+    // from the image size): refused, where it wrote a dataset whose views did not match its images.
+    let small = tmp.path().join("small-rig");
+    fails_with(
+        &deepview(&[
+            "synth",
+            "--data",
+            s(&scene),
+            "--downscale",
+            "2",
+            "--out",
+            s(&small),
+        ]),
+        &["cannot hold this rig's cameras", "--out-format transforms"],
+    );
+    assert!(!small.exists());
+    // Another format than the rig's own (or transforms) is refused as such, before any check of what
+    // that format would need of the views (the hint was about --downscale).
+    fails_with(
+        &deepview(&[
+            "synth",
+            "--data",
+            s(&scene),
+            "--out-format",
+            "llff",
+            "--out",
+            s(&small),
+        ]),
+        &["can be written as light-field or transforms", "not llff"],
+    );
+    assert!(!small.exists());
+    // A dataset view's options with a path, and a --path's options with a camera path file or with
+    // one view, are refused, not ignored.
+    let gt_mpi = scene.join("ground_truth_mpi");
+    let cam_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../docs/examples/fern_camera_path.json");
+    for (args, needles) in [
+        (
+            vec!["--path", "spiral", "--view", "3", "--near", "5"],
+            vec!["--view, --near need a dataset"],
+        ),
+        (
+            vec![
+                "--camera-path",
+                s(&cam_path),
+                "--frames",
+                "5",
+                "--fps",
+                "60",
+            ],
+            vec!["--frames, --fps shape a --path only", "leave them out"],
+        ),
+        (vec!["--radius", "0.1"], vec!["--path"]),
+    ] {
+        let mut full = vec!["render", "--mpi", s(&gt_mpi), "--out", s(&frames)];
+        full.extend(args);
+        fails_with(&deepview(&full), &needles);
+        assert!(!frames.exists());
+    }
     // An MPI where a dataset is expected, an MPI's mpi.json for its folder, a folder not there.
     let gt = scene.join("ground_truth_mpi");
     fails_with(

@@ -321,3 +321,53 @@ fn compact_keeps_the_reference_view_with_fewer_planes() {
     let c = deepview_mpi::read_mpi::<f32>(&direct).unwrap();
     assert!(c.planes() >= 4 && c.planes() < 16, "{} planes", c.planes());
 }
+
+/// An MP4 named with a colon in the current folder is written (ffmpeg read `.a:` of its relative
+/// temporary as a protocol: "Protocol not found"); a GIF over 50 frames/s, which browsers slow to 10,
+/// is refused before any work.
+#[test]
+fn video_names_with_a_colon_and_gif_frame_rates() {
+    if std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+        .is_err()
+    {
+        eprintln!("ffmpeg not on PATH: the MP4 case is not exercised");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let gt = synth_grid(tmp.path()).join("ground_truth_mpi");
+    succeeds(&crate::common::deepview_in(
+        tmp.path(),
+        &[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--path",
+            "swing",
+            "--frames",
+            "3",
+            "--out",
+            "a:b.mp4",
+        ],
+    ));
+    assert!(std::fs::metadata(tmp.path().join("a:b.mp4")).unwrap().len() > 100);
+    let gif = tmp.path().join("fast.gif");
+    fails_with(
+        &deepview(&[
+            "render",
+            "--mpi",
+            s(&gt),
+            "--path",
+            "swing",
+            "--frames",
+            "3",
+            "--fps",
+            "60",
+            "--out",
+            s(&gif),
+        ]),
+        &["fast.gif", "0.0016 to 50 frames per second", "--fps"],
+    );
+    assert!(!gif.exists());
+}

@@ -173,14 +173,15 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
     }
     let gt = root.join(GT_DISPARITY);
     let params = root.join(PARAMETERS);
-    let stated = if params.is_file() {
+    // Anything there by the name is read (a pipe in its place is an error, not a file left out).
+    let stated = if params.exists() {
         read_disparity_range(&params)?
     } else {
         None
     };
     let (d_min, d_max) = if let Some(range) = stated {
         range
-    } else if gt.is_file() {
+    } else if gt.exists() {
         let pfm = read_pfm(&gt)?;
         let finite = pfm.data.iter().filter(|v| v.is_finite()).map(|&v| v as f64);
         let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {
@@ -208,7 +209,7 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
 /// The disparity range `[meta] disp_min / disp_max` of an HCI `parameters.cfg` (`None` when the file
 /// does not state both). Other sections and keys are ignored.
 pub fn read_disparity_range(path: &Path) -> Result<Option<(f64, f64)>, DataError> {
-    let text = std::fs::read_to_string(path).map_err(|e| DataError::io(path, e))?;
+    let text = crate::read_text(path)?;
     let (mut section, mut lo, mut hi) = (String::new(), None, None);
     for (n, line) in text.lines().enumerate() {
         let line = line.trim();

@@ -49,7 +49,7 @@ impl CompactMeta {
     /// Read and validate `dir/mpi_compact.json` (not the pages).
     pub fn read(dir: &Path) -> Result<(CompactMeta, Camera), MpiError> {
         let path = dir.join(META);
-        let text = std::fs::read_to_string(&path).map_err(read_err(&path))?;
+        let text = deepview_image::read_text(&path).map_err(read_err(&path))?;
         let meta: CompactMeta = serde_json::from_str(&text).map_err(|source| MpiError::Json {
             path: path.clone(),
             what: "JSON for mpi_compact.json",

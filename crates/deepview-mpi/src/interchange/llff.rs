@@ -92,7 +92,7 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
 
 /// `metadata.txt`'s lines and its first one's numbers: height, width, plane count and focal length.
 fn header(meta_path: &Path) -> Result<(Vec<String>, usize, usize, usize, f64), MpiError> {
-    let text = std::fs::read_to_string(meta_path).map_err(read_err(meta_path))?;
+    let text = deepview_image::read_text(meta_path).map_err(read_err(meta_path))?;
     let lines: Vec<String> = text
         .lines()
         .filter(|l| !l.trim().is_empty())

@@ -84,8 +84,15 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
     Ok(report)
 }
 
-fn readme_depths(dir: &Path) -> Option<(f64, f64)> {
-    let text = std::fs::read_to_string(dir.join("README")).ok()?;
+/// The depths `--min_depth=` / `--max_depth=` of the folder's `README` (stereo magnification's own
+/// record of them): `None` without a README or without both flags; an error for a README that cannot
+/// be read (a pipe in its place, say).
+pub fn readme_depths(dir: &Path) -> Result<Option<(f64, f64)>, MpiError> {
+    let path = dir.join("README");
+    if std::fs::symlink_metadata(&path).is_err() {
+        return Ok(None);
+    }
+    let text = deepview_image::read_text(&path).map_err(read_err(&path))?;
     let flag = |name: &str| -> Option<f64> {
         text.split(|c: char| c.is_whitespace() || c == '\\')
             .find_map(|t| {
@@ -96,7 +103,7 @@ fn readme_depths(dir: &Path) -> Option<(f64, f64)> {
                     .ok()
             })
     };
-    Some((flag("min_depth")?, flag("max_depth")?))
+    Ok(flag("min_depth").zip(flag("max_depth")))
 }
 
 /// Read a stereo magnification MPI folder. `near_far` overrides the depth bounds when the folder has no
@@ -169,7 +176,7 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Mpi
     }
     let side_path = dir.join(SIDECAR);
     let (camera, depths) = if side_path.is_file() {
-        let text = std::fs::read_to_string(&side_path).map_err(read_err(&side_path))?;
+        let text = deepview_image::read_text(&side_path).map_err(read_err(&side_path))?;
         let s: Sidecar = serde_json::from_str(&text).map_err(|source| MpiError::Json {
             path: side_path.clone(),
             what: "JSON for deepview_camera.json",
@@ -195,7 +202,7 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Mpi
         (cam, s.depths)
     } else {
         let ip = dir.join("intrinsics.txt");
-        let text = std::fs::read_to_string(&ip).map_err(read_err(&ip))?;
+        let text = deepview_image::read_text(&ip).map_err(read_err(&ip))?;
         let k = numbers(&ip, 0, &text, 4)?;
         let camera = Camera::new(
             w,
@@ -204,9 +211,12 @@ pub fn read(dir: &Path, near_far: Option<(f64, f64)>) -> Result<StraightMpi, Mpi
             Pose::IDENTITY,
         );
         camera.validate().map_err(|e| invalid(&ip, e.to_string()))?;
-        let (near, far) = near_far
-            .or_else(|| readme_depths(dir))
-            .ok_or_else(|| MpiError::NoPlaneDepths { path: dir.into() })?;
+        let (near, far) = match near_far {
+            Some(nf) => nf,
+            None => {
+                readme_depths(dir)?.ok_or_else(|| MpiError::NoPlaneDepths { path: dir.into() })?
+            }
+        };
         let depths = plane_depths(near, far, d, PlaneSpacing::InverseDepth)
             .map_err(|e| invalid(dir, e.to_string()))?;
         // A tiny near depth (e.g. 1e-320) passes plane_depths but its inverse overflows to depths of 0.
