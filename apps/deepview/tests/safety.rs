@@ -477,12 +477,15 @@ fn rerunning_a_command_never_deletes_files_it_did_not_write() {
         std::fs::create_dir(&target).unwrap();
         let link = t.join(format!("link-{name}"));
         std::os::unix::fs::symlink(&target, &link).unwrap();
-        let mut via = args.clone();
-        via.extend(["--out", s(&link)]);
-        refused(
-            &deepview(&via),
-            &["--out", "symbolic link", "give the folder it names"],
-        );
+        let slashed = format!("{}/", s(&link));
+        for out in [s(&link), slashed.as_str()] {
+            let mut via = args.clone();
+            via.extend(["--out", out]);
+            refused(
+                &deepview(&via),
+                &["--out", "symbolic link", "give the folder it names"],
+            );
+        }
         assert!(
             std::fs::symlink_metadata(&link)
                 .unwrap()

@@ -137,3 +137,28 @@ pub(crate) fn write_image(path: &Path, img: &ImageF32) -> Result<(), DataError> 
     }
     deepview_image::write_png(path, &img.to_rgb()).map_err(DataError::from)
 }
+
+/// The file name of view `i` of `n` that the writers give (`image007.png`): zero-padded to the digits
+/// of `n - 1` (at least 3), so that the readers' name order is the views' order (`image1000.png`
+/// sorted before `image101.png` in a scene of 1,001 views).
+pub fn view_file_name(i: usize, n: usize) -> String {
+    let digits = n.saturating_sub(1).max(1).ilog10() as usize + 1;
+    format!("image{i:0width$}.png", width = digits.max(3))
+}
+
+#[cfg(test)]
+mod tests {
+    /// The writers' view names sort in the views' order, past 1,000 views too.
+    #[test]
+    fn view_names_sort_in_view_order() {
+        assert_eq!(super::view_file_name(0, 1), "image000.png");
+        assert_eq!(super::view_file_name(7, 41), "image007.png");
+        for n in [9, 41, 1000, 1001, 12345] {
+            let names: Vec<String> = (0..n).map(|i| super::view_file_name(i, n)).collect();
+            let mut sorted = names.clone();
+            sorted.sort();
+            assert_eq!(names, sorted, "{n} views");
+        }
+        assert_eq!(super::view_file_name(5, 1001), "image0005.png");
+    }
+}

@@ -25,8 +25,8 @@ mod scene;
 use std::path::{Path, PathBuf};
 
 pub use error::DataError;
-pub use files::unread_photos;
 pub(crate) use files::{image_size, list_images, read_file, read_text, write_bytes, write_image};
+pub use files::{unread_photos, view_file_name};
 pub use load::{DETECTION_RULES, detect_format, load_scene};
 pub use options::{LoadOptions, SceneArgs};
 pub use scene::{Scene, SceneFormat, View};

@@ -272,6 +272,16 @@ pub fn read_text(path: &Path) -> std::io::Result<String> {
     })
 }
 
+/// `path` as a file argument of ffmpeg: ffmpeg reads `NAME:` at the start of a relative path as a
+/// protocol (`a:b.mp4` failed with "Protocol not found"), so a relative path starts with `./`.
+pub fn ffmpeg_file_arg(path: &Path) -> std::ffi::OsString {
+    if path.is_absolute() || path.starts_with(".") || path.starts_with("..") {
+        path.as_os_str().to_owned()
+    } else {
+        Path::new(".").join(path).into_os_string()
+    }
+}
+
 /// An error for a pipe, socket or device where an image file should be: opening a pipe would wait
 /// for a writer for ever.
 pub fn refuse_special(path: &Path, expected: &str) -> std::io::Result<()> {

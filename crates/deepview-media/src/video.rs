@@ -311,7 +311,7 @@ impl Mp4Sink {
             .arg(format!("{fps}"))
             .args(["-i", "-", "-an", "-vf", &crop, "-c:v", "libx264", "-pix_fmt", "yuv420p"])
             .args(["-movflags", "+faststart", "-metadata", "comment=deepview"])
-            .arg(ffmpeg_file_arg(&tmp))
+            .arg(deepview_image::ffmpeg_file_arg(&tmp))
             .stdin(Stdio::piped())
             .stdout(Stdio::null())
             .stderr(Stdio::piped())
@@ -408,16 +408,6 @@ impl FrameSink for Mp4Sink {
         std::fs::rename(&self.tmp, &self.path).map_err(write_err(&self.path))?;
         self.finished = true;
         Ok(())
-    }
-}
-
-/// `path` as an ffmpeg output argument: ffmpeg reads `NAME:` at the start of a relative path as a
-/// protocol (`a:b.mp4` failed with "Protocol not found"), so a relative path starts with `./`.
-fn ffmpeg_file_arg(path: &Path) -> std::ffi::OsString {
-    if path.is_absolute() || path.starts_with(".") || path.starts_with("..") {
-        path.as_os_str().to_owned()
-    } else {
-        Path::new(".").join(path).into_os_string()
     }
 }
 

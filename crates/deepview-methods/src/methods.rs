@@ -236,8 +236,12 @@ pub fn make_method(
     options: &MethodOptions,
     budget: u64,
 ) -> Result<Box<dyn MpiMethod>, MethodError> {
+    let scale_given = match &options.given {
+        Some(g) => g.iter().any(|id| id == "mpi_scale"),
+        None => options.mpi_scale.is_some_and(|s| s != 1.0),
+    };
     if let Some(scale) = options.mpi_scale
-        && scale != 1.0
+        && scale_given
         && !matches!(kind, MethodKind::Deepview | MethodKind::PsvMean)
     {
         return Err(MethodError::Method {

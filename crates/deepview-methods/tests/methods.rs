@@ -590,6 +590,13 @@ fn options_of_another_method_are_refused() {
         "{e}"
     );
     assert!(refused(MethodKind::PsvMean, named).contains("--lr shapes optimize's"));
+    let scale = MethodOptions {
+        mpi_scale: Some(1.0),
+        given: Some(vec!["mpi_scale".into()]),
+        ..Default::default()
+    };
+    assert!(refused(MethodKind::Nearest, scale.clone()).contains("--mpi-scale 1 applies to"));
+    assert!(make_method(MethodKind::PsvMean, &scale, 1 << 30).is_ok());
     let named = MethodOptions {
         given: Some(vec!["planes".into(), "device".into()]),
         ..Default::default()

@@ -15,9 +15,11 @@ pub(crate) fn extract_frames(
 ) -> Result<(), ProcessError> {
     let mut c = Command::new(ffmpeg);
     c.args(["-hide_banner", "-nostdin", "-loglevel", "error", "-i"])
-        .arg(video)
+        .arg(deepview_image::ffmpeg_file_arg(video))
         .args(["-vf", &format!("fps={fps}"), "-q:v", "2"])
-        .arg(frames.join("frame_%05d.jpg"));
+        .arg(deepview_image::ffmpeg_file_arg(
+            &frames.join("frame_%05d.jpg"),
+        ));
     runner.run(Stage::Frames, c, |reason| ProcessError::FfmpegMissing {
         program: ffmpeg.into(),
         reason,

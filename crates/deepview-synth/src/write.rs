@@ -155,6 +155,17 @@ pub fn synthesize_as(
         }
     };
     let (near, far) = options.near_far.or(rig_bounds).unwrap_or((1.0, 10.0));
+    // A COLMAP model's bounds come from its points' depths times 0.9 / 1.1 (colmap_read_depths): bounds
+    // closer than that margin cannot be written.
+    let (lo, hi) = colmap_read_depths(near, far);
+    if format == SceneFormat::Colmap && hi <= lo * (1.0 + 1e-9) {
+        return Err(SynthError::Invalid(format!(
+            "a colmap scene reads its depth bounds from its points (their depths times 0.9 and 1.1), which \
+             cannot give bounds as close as {near}..{far} (far must exceed {:.4} x near): give a wider \
+             --near/--far, or --out-format transforms",
+            1.1 / 0.9
+        )));
+    }
     let depths = plane_depths(near, far, options.planes, PlaneSpacing::InverseDepth)
         .map_err(|e| SynthError::Invalid(e.to_string()))?;
     let reference = reference_camera(
@@ -202,7 +213,7 @@ pub fn synthesize_as(
         }
         SceneFormat::Colmap => {
             let names: Vec<String> = (0..cameras.len())
-                .map(|i| format!("image{i:03}.png"))
+                .map(|i| deepview_data::view_file_name(i, cameras.len()))
                 .collect();
             let sparse = out.join("sparse").join("0");
             std::fs::create_dir_all(&sparse).map_err(|e| DataError::Write {

@@ -268,6 +268,14 @@ fn colmap_rig_round_trip() {
         "{}",
         model.points.len()
     );
+    // Bounds closer than the reader's 0.9 / 1.1 margins cannot be written: refused, not written wrong.
+    let narrow = SynthOptions {
+        near_far: Some((20.0, 23.0)),
+        ..opts.clone()
+    };
+    let other = tempfile::tempdir().unwrap();
+    let e = synthesize(other.path(), &narrow).unwrap_err().to_string();
+    assert!(e.contains("far must exceed 1.2222 x near"), "{e}");
     for (a, b) in cams.iter().zip(&written.views) {
         assert!(
             a.pose

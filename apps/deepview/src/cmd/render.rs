@@ -120,9 +120,10 @@ fn run_path(args: &Args) -> anyhow::Result<()> {
         .collect();
         if !given.is_empty() {
             bail!(
-                "{} shape a --path only; a --camera-path file sets its own cameras, frame count and \
+                "{} shape{} a --path only; a --camera-path file sets its own cameras, frame count and \
                  duration (\"seconds\"): leave {} out",
                 given.join(", "),
+                if given.len() == 1 { "s" } else { "" },
                 if given.len() == 1 { "it" } else { "them" }
             );
         }
@@ -221,6 +222,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     super::check_deepview_mpi("--mpi", &args.mpi)?;
     if args.path.is_some() || args.camera_path.is_some() {
         return run_path(&args);
+    }
+    // (clap lets their `requires = "path"` pass where --camera or --data, which exclude --path, is given.)
+    if let Some(flag) = [
+        (args.frames.is_some(), "--frames"),
+        (args.radius.is_some(), "--radius"),
+        (args.fps.is_some(), "--fps"),
+    ]
+    .into_iter()
+    .find_map(|(g, name)| g.then_some(name))
+    {
+        bail!(
+            "{flag} shapes a --path; one image (--camera, --view or the reference) has none: leave it out"
+        );
     }
     check_output("--out", &args.out, Kind::File, &args.inputs())?;
     let format = ImageFormat::of("--out", &args.out)?;

@@ -253,10 +253,20 @@ pub fn check_output(option: &str, out: &Path, kind: Kind, inputs: &[Input]) -> a
     // An output through a link, a file or a folder replaced whole: the rename would replace the link
     // (and leave what it names untouched, a folder on another disk empty), and the check of what may
     // be replaced would look at what it names, not the link. (Folders written into follow links.)
+    // (Without its trailing slashes: `link/` names what the link names.)
+    let unslashed = {
+        use std::os::unix::ffi::OsStrExt;
+        let b = out.as_os_str().as_bytes();
+        let end = b
+            .iter()
+            .rposition(|&c| c != b'/')
+            .map_or(b.len().min(1), |i| i + 1);
+        std::path::PathBuf::from(std::ffi::OsStr::from_bytes(&b[..end]))
+    };
     if (kind == Kind::File || !(kind.written_into() || kind == Kind::Run))
-        && std::fs::symlink_metadata(out).is_ok_and(|m| m.file_type().is_symlink())
+        && std::fs::symlink_metadata(&unslashed).is_ok_and(|m| m.file_type().is_symlink())
     {
-        let to = std::fs::read_link(out).unwrap_or_default();
+        let to = std::fs::read_link(&unslashed).unwrap_or_default();
         let what = if kind == Kind::File { "file" } else { "folder" };
         bail!(
             "{option} {} is a symbolic link to {}: outputs are written to a temporary renamed into place, \
@@ -607,6 +617,10 @@ const VIEWER_TITLE: &[u8] = b"<title>deepview MPI viewer</title>";
 /// How [`foreign_entries`] names a file it counts as foreign for want of deepview's mark.
 const UNMARKED: &str = " (a file deepview did not write)";
 
+/// How [`foreign_entries`] names an export's file that its [`EXPORT_MANIFEST`] does not list as it is.
+const UNLISTED: &str = " (not listed as it is in deepview_export.json: not written by this deepview, or \
+     edited since)";
+
 /// Refuse to replace the existing folder `dir` (`out` as the user typed it) when it holds anything the
 /// command did not write there: a user's notes, a subfolder, photos kept beside an MPI, photos named
 /// like its own images.
@@ -626,7 +640,10 @@ fn refuse_foreign(option: &str, out: &Path, dir: &Path, kind: Kind) -> anyhow::R
     } else {
         "refusing to replace it, which would delete them"
     };
-    let older = if foreign.iter().any(|f| f.ends_with(UNMARKED)) {
+    let older = if foreign
+        .iter()
+        .any(|f| f.ends_with(UNMARKED) || f.ends_with(UNLISTED))
+    {
         " (outputs of an older deepview carry no mark and are refused once)"
     } else {
         ""
@@ -749,14 +766,16 @@ fn foreign_within(
         let shown = format!("{prefix}{name}");
         // An image named like one of its own that deepview did not write (no mark): a user's photo
         // kept under such a name, or an older deepview's output (refused once).
-        let unmarked = own
+        let unlisted = own
             && !is_dir
             && !working
-            && (!written_here(&e.path())
-                || (matches!(part, Part::Of(Kind::Export))
-                    && EXPORT_LISTED.contains(&name.as_str())
-                    && !listed_in_manifest(dir, &name)));
-        if unmarked {
+            && matches!(part, Part::Of(Kind::Export))
+            && EXPORT_LISTED.contains(&name.as_str())
+            && !listed_in_manifest(dir, &name);
+        let unmarked = own && !is_dir && !working && !written_here(&e.path());
+        if unlisted {
+            foreign.push(format!("{shown}{UNLISTED}"));
+        } else if unmarked {
             foreign.push(format!("{shown}{UNMARKED}"));
         } else if !own {
             foreign.push(if is_dir { format!("{shown}/") } else { shown });

@@ -328,6 +328,10 @@ fn odd_inputs_are_refused_at_once_saying_what_to_do() {
             vec!["--frames, --fps shape a --path only", "leave them out"],
         ),
         (vec!["--radius", "0.1"], vec!["--path"]),
+        (
+            vec!["--data", s(&scene), "--view", "3", "--frames", "90"],
+            vec!["--frames shapes a --path", "leave it out"],
+        ),
     ] {
         let mut full = vec!["render", "--mpi", s(&gt_mpi), "--out", s(&frames)];
         full.extend(args);

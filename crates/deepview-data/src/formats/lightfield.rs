@@ -173,15 +173,17 @@ pub(crate) fn load(root: &Path, _opts: &LoadOptions) -> Result<Scene, DataError>
     }
     let gt = root.join(GT_DISPARITY);
     let params = root.join(PARAMETERS);
-    // Anything there by the name is read (a pipe in its place is an error, not a file left out).
-    let stated = if params.exists() {
+    // A file, or a pipe or device, by the name is read (a pipe is an error, not a file left out); a
+    // folder by the name is not the file.
+    let there = |p: &Path| std::fs::metadata(p).is_ok_and(|m| !m.is_dir());
+    let stated = if there(&params) {
         read_disparity_range(&params)?
     } else {
         None
     };
     let (d_min, d_max) = if let Some(range) = stated {
         range
-    } else if gt.exists() {
+    } else if there(&gt) {
         let pfm = read_pfm(&gt)?;
         let finite = pfm.data.iter().filter(|v| v.is_finite()).map(|&v| v as f64);
         let (lo, hi) = finite.fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), v| {

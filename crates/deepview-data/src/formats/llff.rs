@@ -266,7 +266,11 @@ pub fn write_llff(
         rows.push(far);
     }
     for (i, img) in images.iter().enumerate() {
-        crate::write_image(&dir.join(&folder).join(format!("image{i:03}.png")), img)?;
+        crate::write_image(
+            &dir.join(&folder)
+                .join(crate::view_file_name(i, images.len())),
+            img,
+        )?;
     }
     write_npy(&npy, &[cameras.len(), 17], &rows)
 }

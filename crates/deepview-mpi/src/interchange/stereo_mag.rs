@@ -85,14 +85,19 @@ pub fn write(out: &Path, mpi: &StraightMpi) -> Result<ExportReport, MpiError> {
 }
 
 /// The depths `--min_depth=` / `--max_depth=` of the folder's `README` (stereo magnification's own
-/// record of them): `None` without a README or without both flags; an error for a README that cannot
-/// be read (a pipe in its place, say).
+/// record of them): `None` without a README, one that is not text (a folder, another encoding) or one
+/// without both flags; an error for a pipe or device in its place (reading it would wait for ever).
 pub fn readme_depths(dir: &Path) -> Result<Option<(f64, f64)>, MpiError> {
     let path = dir.join("README");
-    if std::fs::symlink_metadata(&path).is_err() {
-        return Ok(None);
+    if std::fs::metadata(&path).is_ok_and(|m| !m.is_file() && !m.is_dir()) {
+        return Err(read_err(&path)(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "not a regular file (a pipe, socket or device), expected a text file",
+        )));
     }
-    let text = deepview_image::read_text(&path).map_err(read_err(&path))?;
+    let Ok(text) = deepview_image::read_text(&path) else {
+        return Ok(None);
+    };
     let flag = |name: &str| -> Option<f64> {
         text.split(|c: char| c.is_whitespace() || c == '\\')
             .find_map(|t| {

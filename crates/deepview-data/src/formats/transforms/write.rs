@@ -78,7 +78,7 @@ pub fn write_transforms(
         });
     }
     let paths: Vec<String> = (0..cameras.len())
-        .map(|i| format!("images/image{i:03}.png"))
+        .map(|i| format!("images/{}", crate::view_file_name(i, cameras.len())))
         .collect();
     for (i, (p, (img, cam))) in paths.iter().zip(images.iter().zip(cameras)).enumerate() {
         if (img.width, img.height) != (cam.width, cam.height) {
