@@ -1872,3 +1872,37 @@ fn a_depth_pair_waits_for_the_folders_lock() {
     assert!(run.wait().unwrap().success());
     assert!(out.join("depth_color.png").is_file() && out.join("depth_disparity16.png").is_file());
 }
+
+/// A web viewer folder of an MPI whose layers have their own names (`plane0.png`, as its mpi.json
+/// lists them) is replaced by the next export-web (it was refused as holding files the viewer does
+/// not have); a file its mpi.json does not list still is refused.
+#[test]
+fn export_web_replaces_its_own_folder_whatever_the_layers_are_called() {
+    let tmp = tempfile::tempdir().unwrap();
+    let t = tmp.path();
+    let gt = grid(t, "scene").join("ground_truth_mpi");
+    let mpi = copy_dir(&gt, &t.join("named"));
+    let text = std::fs::read_to_string(mpi.join("mpi.json")).unwrap();
+    let mut json: serde_json::Value = serde_json::from_str(&text).unwrap();
+    let layers: Vec<String> = json["layers"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|l| l.as_str().unwrap().to_string())
+        .collect();
+    for (i, l) in layers.iter().enumerate() {
+        std::fs::rename(mpi.join(l), mpi.join(format!("plane{i}.png"))).unwrap();
+    }
+    json["layers"] = (0..layers.len())
+        .map(|i| serde_json::Value::from(format!("plane{i}.png")))
+        .collect();
+    std::fs::write(mpi.join("mpi.json"), json.to_string()).unwrap();
+    let web = t.join("web");
+    let args = ["export-web", "--mpi", s(&mpi), "--out", s(&web)];
+    ok(&deepview(&args));
+    ok(&deepview(&args));
+    assert!(web.join("plane0.png").is_file());
+    std::fs::write(web.join("plane99.png"), b"mine").unwrap();
+    refused(&deepview(&args), &["plane99.png", "refusing"]);
+    assert_eq!(std::fs::read(web.join("plane99.png")).unwrap(), b"mine");
+}

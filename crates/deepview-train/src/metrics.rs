@@ -25,11 +25,14 @@ pub struct StepReport {
 /// Drop metric lines after the current step (written after the checkpoint we resume from).
 pub(crate) fn truncate_metrics(run_dir: &Path, step: u64) -> Result<(), TrainError> {
     let path = run_dir.join("metrics.jsonl");
-    let Ok(text) = std::fs::read_to_string(&path) else {
+    // Bytes, line by line: a file damaged into something that is not UTF-8 loses its unreadable lines
+    // here (it was kept whole, and the next step's line glued onto its last one).
+    let Ok(bytes) = std::fs::read(&path) else {
         return Ok(());
     };
-    let kept: String = text
-        .lines()
+    let kept: String = bytes
+        .split(|&b| b == b'\n')
+        .filter_map(|l| std::str::from_utf8(l).ok())
         .filter(|l| {
             serde_json::from_str::<serde_json::Value>(l)
                 .ok()
@@ -72,4 +75,25 @@ pub(crate) fn append_metrics(
         .open(&path)
         .map_err(io_err(&path))?;
     writeln!(f, "{line}").map_err(io_err(&path))
+}
+
+#[cfg(test)]
+mod tests {
+    /// At resume, the lines of steps up to the checkpoint are kept and everything else goes: later
+    /// steps, a torn last line, bytes that are not UTF-8 (kept whole, they took the next line with them).
+    #[test]
+    fn resume_keeps_the_readable_lines_up_to_its_step() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("metrics.jsonl");
+        let mut bytes = b"{\"step\":1,\"loss\":2.0}\n{\"step\":2,\"loss\":1.5}\n".to_vec();
+        bytes.extend_from_slice(
+            b"\xff\xfe garbage \x80\n{\"step\":3,\"loss\":1.0}\n{\"step\":4,\"lo",
+        );
+        std::fs::write(&path, &bytes).unwrap();
+        super::truncate_metrics(dir.path(), 3).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&path).unwrap(),
+            "{\"step\":1,\"loss\":2.0}\n{\"step\":2,\"loss\":1.5}\n{\"step\":3,\"loss\":1.0}\n"
+        );
+    }
 }

@@ -300,10 +300,16 @@ fn check_vgg(loss: &LossKind, path: Option<&Path>, opts: &TrainOptions) -> Resul
         } else {
             "the run's config.json"
         };
+        // (A resumed run keeps its loss: --loss l1 is for a new one.)
         return Err(config_err(format!(
             "the VGG-16 weights {} ({from}) are not a readable file: pass --vgg-weights FILE \
-             (vgg16_conv1_1-conv3_3.safetensors), or train with --loss l1",
-            path.display()
+             (vgg16_conv1_1-conv3_3.safetensors){}",
+            path.display(),
+            if opts.vgg_weights.is_some() {
+                ", or train with --loss l1"
+            } else {
+                ""
+            }
         )));
     }
     Ok(())

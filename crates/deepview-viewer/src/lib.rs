@@ -54,7 +54,14 @@ pub fn mpi_files(dir: &Path) -> Result<Vec<String>, ViewerError> {
         other => {
             return Err(ViewerError::Invalid {
                 path: dir.into(),
-                msg: format!("is an {other:?} MPI: convert it first with `deepview import`"),
+                msg: format!(
+                    "is {} MPI: convert it first with `deepview import`",
+                    match other {
+                        ImportFormat::Llff => "an LLFF",
+                        ImportFormat::StereoMag => "a stereo magnification",
+                        _ => "another format's",
+                    }
+                ),
             });
         }
     };
@@ -83,9 +90,30 @@ pub fn route(path: &str, dir: &Path, files: &[String]) -> Option<(&'static str, 
     }
     // Only the exact names listed in the MPI's JSON (plain file names, validated on start); no decoding,
     // so "..", "%2e%2e", absolute paths and sub-folders never match.
-    let listed = files.iter().find(|f| f.as_str() == name)?;
-    let bytes = std::fs::read(dir.join(listed)).ok()?;
-    Some((content_type(listed), bytes))
+    // The names the JSON lists now, too: an MPI rewritten while it is viewed (another `demo`, a new
+    // `infer`) may have more layers than at the start, and a reload of the page must find them.
+    let listed = match files.iter().find(|f| f.as_str() == name) {
+        Some(f) => f.clone(),
+        None => listed_now(dir).into_iter().find(|f| f == name)?,
+    };
+    let bytes = std::fs::read(dir.join(&listed)).ok()?;
+    Some((content_type(&listed), bytes))
+}
+
+/// The files the MPI folder's JSON lists at this moment (its names checked as plain file names by the
+/// readers); none where it cannot be read.
+fn listed_now(dir: &Path) -> Vec<String> {
+    if let Ok((meta, _)) = deepview_mpi::MpiMeta::read(dir) {
+        return std::iter::once("mpi.json".to_string())
+            .chain(meta.layers)
+            .collect();
+    }
+    if let Ok((meta, _)) = compact::CompactMeta::read(dir) {
+        return std::iter::once(compact::META.to_string())
+            .chain(meta.pages)
+            .collect();
+    }
+    Vec::new()
 }
 
 /// Write the viewer page and the MPI's files to `out` as a static site (`index.html` + the MPI files).

@@ -232,6 +232,30 @@ impl Browser {
         }
     }
 
+    /// Open `url` and wait for the viewer's error (its `deepviewStats.error`), which it returns.
+    fn open_error(&mut self, url: &str, w: u32, h: u32) -> String {
+        self.call(
+            "Emulation.setDeviceMetricsOverride",
+            json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}),
+        );
+        self.call("Page.navigate", json!({"url": url}));
+        let deadline = Instant::now() + Duration::from_secs(90);
+        loop {
+            let s = self.eval("JSON.stringify(window.deepviewStats || null)");
+            let stats: Value =
+                serde_json::from_str(s.as_str().unwrap_or("null")).unwrap_or(Value::Null);
+            if let Some(e) = stats["error"].as_str() {
+                return e.to_string();
+            }
+            assert!(
+                stats["ready"] != true,
+                "{url}: no error, the viewer is ready"
+            );
+            assert!(Instant::now() < deadline, "{url}: no error after 90 s");
+            std::thread::sleep(Duration::from_millis(100));
+        }
+    }
+
     fn screenshot(&mut self) -> ImageF32 {
         let r = self.call("Page.captureScreenshot", json!({"format": "png"}));
         let png = base64_decode(r["data"].as_str().unwrap());
@@ -472,8 +496,47 @@ fn browser_matches_native_renderer_and_reports_fps() {
     let psnr = psnr_rgb(&browser.screenshot(), &native);
     assert!(psnr >= 35.0, "base64 camera: PSNR {psnr}");
 
-    // Frame rate of the interactive page at the MPI's own size (504x378, 32 planes).
+    // Errors are named and stay on screen: a missing layer is still what the page shows once every
+    // other layer has loaded (their progress wrote over it: "loading 31/32" for ever), and a camera
+    // with a width of no pixels is refused.
     let (w, h) = (mpi.camera.width, mpi.camera.height);
+    let broken = tmp.path().join("broken");
+    std::fs::create_dir(&broken).unwrap();
+    for f in std::fs::read_dir(&dir).unwrap() {
+        let f = f.unwrap().path();
+        std::fs::copy(&f, broken.join(f.file_name().unwrap())).unwrap();
+    }
+    // (Removed once the server has started: it checks every layer at its start.)
+    let broken_server = Server::start(&broken, "127.0.0.1", 0).unwrap();
+    std::fs::remove_file(broken.join("layer_005.png")).unwrap();
+    let e = browser.open_error(broken_server.url(), w, h);
+    assert!(e.contains("layer_005.png") && e.contains("404"), "{e}");
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while browser
+        .eval("performance.getEntriesByType('resource').length")
+        .as_u64()
+        .unwrap_or(0)
+        < 33
+    {
+        assert!(Instant::now() < deadline, "the other layers did not load");
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let hud = browser.eval("document.getElementById('hud').textContent");
+    assert!(
+        hud.as_str().unwrap_or("").contains("layer_005.png"),
+        "{hud}"
+    );
+    let mut bad = cam;
+    bad.width = 0;
+    let e = browser.open_error(
+        &format!("{}?camera={}", broken_server.url(), camera_query(&bad)),
+        w,
+        h,
+    );
+    assert!(e.contains("width must be a whole number of pixels"), "{e}");
+    broken_server.stop();
+
+    // Frame rate of the interactive page at the MPI's own size (504x378, 32 planes).
     let raf = measure_fps(&mut browser, &server, "bench=1", w, h, 3000);
     let sync = measure_fps(&mut browser, &server, "bench=sync", w, h, 3000);
     println!(

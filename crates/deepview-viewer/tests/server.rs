@@ -69,6 +69,15 @@ fn serves_only_the_page_and_the_mpi_files() {
     ] {
         assert_eq!(get(&url, bad).0, 404, "{bad}");
     }
+    // The MPI rewritten with more planes while it is served (another `demo`): its new layers are
+    // served (they answered 404, the reloaded page loaded for ever); names it does not list still not.
+    let cam = Camera::new(40, 30, Intrinsics::centred(40.0, 40, 30), Pose::IDENTITY);
+    write_mpi(&dir, &Mpi::transparent(cam, vec![10.0, 6.0, 4.0, 3.0, 2.0])).unwrap();
+    let (s, body) = get(&url, "/layer_004.png");
+    assert_eq!(s, 200);
+    assert_eq!(body, std::fs::read(dir.join("layer_004.png")).unwrap());
+    assert_eq!(get(&url, "/layer_005.png").0, 404);
+    assert_eq!(get(&url, "/secret.txt").0, 404);
     // A method other than GET/HEAD.
     let host = url.trim_start_matches("http://").trim_end_matches('/');
     let mut s = TcpStream::connect(host).unwrap();

@@ -742,6 +742,14 @@ fn foreign_within(
     // Errors name the folder (a subfolder that cannot be read, not only the output).
     let named =
         |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
+    // A web viewer folder copies its MPI's layers under their own names (`plane0.png`, as the MPI's
+    // mpi.json lists them): those its own mpi.json lists are its own too (still only where marked).
+    let listed: Vec<String> = match part {
+        Part::Of(Kind::Web) => deepview_mpi::MpiMeta::read(dir)
+            .map(|(meta, _)| meta.layers)
+            .unwrap_or_default(),
+        _ => Vec::new(),
+    };
     for e in std::fs::read_dir(dir).map_err(named)? {
         let e = e.map_err(named)?;
         let name = e.file_name().to_string_lossy().into_owned();
@@ -760,6 +768,7 @@ fn foreign_within(
             }
             None => {
                 part.owns(&name, is_dir)
+                    || (!is_dir && listed.contains(&name))
                     || (!is_dir && deepview_image::is_file_browser_clutter(&name))
             }
         };
