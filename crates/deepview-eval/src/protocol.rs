@@ -116,6 +116,12 @@ pub enum Protocol {
     /// Chosen from the scene format: light fields -> `LightField`, LLFF / COLMAP -> `posed` with `every:8` and
     /// `nearest:4`; Spaces scenes must name one of the four configurations.
     Auto,
+    /// `auto` with `--targets` / `--inputs`: the scene's protocol with those rules (light fields keep
+    /// their corner inputs and take the targets; posed scenes take both).
+    AutoWith {
+        targets: Option<TargetRule>,
+        inputs: Option<InputRule>,
+    },
     Spaces(SpacesConfig),
     Posed {
         targets: TargetRule,
@@ -151,7 +157,8 @@ impl Protocol {
             "large_quad" => fixed(Protocol::Spaces(SpacesConfig::LargeQuad)),
             "dense" => fixed(Protocol::Spaces(SpacesConfig::Dense)),
             "auto" if targets.is_none() && inputs.is_none() => Ok(Protocol::Auto),
-            "auto" | "posed" => Ok(Protocol::Posed {
+            "auto" => Ok(Protocol::AutoWith { targets, inputs }),
+            "posed" => Ok(Protocol::Posed {
                 targets: targets.unwrap_or(TargetRule::Every(8)),
                 inputs: inputs.unwrap_or_default(),
             }),
@@ -179,6 +186,27 @@ impl Protocol {
             }),
             (Protocol::Auto, SceneFormat::LightField) => Ok(Protocol::LightField { targets: None }),
             (Protocol::Auto, _) => Ok(Protocol::Posed { targets: TargetRule::Every(8), inputs: InputRule::default() }),
+            (Protocol::AutoWith { .. }, SceneFormat::Spaces) => Err(EvalError::WrongScene {
+                protocol: "auto".into(),
+                scene: scene.root.display().to_string(),
+                msg: "a Spaces scene needs an explicit protocol: small_quad, medium_quad, large_quad or dense \
+                      (or posed, for --targets / --inputs)"
+                    .into(),
+            }),
+            (Protocol::AutoWith { targets, inputs }, SceneFormat::LightField) => match inputs {
+                Some(_) => Err(EvalError::WrongScene {
+                    protocol: "auto".into(),
+                    scene: scene.root.display().to_string(),
+                    msg: "a light field's protocol takes its 4 corner views as inputs: leave --inputs out, or \
+                          give --protocol posed"
+                        .into(),
+                }),
+                None => Ok(Protocol::LightField { targets: targets.clone() }),
+            },
+            (Protocol::AutoWith { targets, inputs }, _) => Ok(Protocol::Posed {
+                targets: targets.clone().unwrap_or(TargetRule::Every(8)),
+                inputs: inputs.clone().unwrap_or_default(),
+            }),
             (p, _) => Ok(p.clone()),
         }
     }
@@ -222,7 +250,7 @@ impl Protocol {
             msg,
         };
         let splits = match &protocol {
-            Protocol::Auto => unreachable!("resolved above"),
+            Protocol::Auto | Protocol::AutoWith { .. } => unreachable!("resolved above"),
             Protocol::Spaces(cfg) => {
                 if n != 16 {
                     return Err(wrong(format!(
@@ -329,6 +357,16 @@ impl fmt::Display for Protocol {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             Protocol::Auto => f.write_str("auto"),
+            Protocol::AutoWith { targets, inputs } => {
+                f.write_str("auto")?;
+                if let Some(t) = targets {
+                    write!(f, "(targets {t})")?;
+                }
+                if let Some(i) = inputs {
+                    write!(f, "(inputs {i})")?;
+                }
+                Ok(())
+            }
             Protocol::Spaces(c) => f.write_str(c.name()),
             Protocol::Posed { targets, inputs } => {
                 write!(f, "posed(targets {targets}, inputs {inputs})")
