@@ -116,8 +116,8 @@ pub enum Protocol {
     /// Chosen from the scene format: light fields -> `LightField`, LLFF / COLMAP -> `posed` with `every:8` and
     /// `nearest:4`; Spaces scenes must name one of the four configurations.
     Auto,
-    /// `auto` with `--targets` / `--inputs`: the scene's protocol with those rules (light fields keep
-    /// their corner inputs and take the targets; posed scenes take both).
+    /// `auto` with `--targets` / `--inputs`: the scene's protocol with those rules (a light field with
+    /// `--targets` alone keeps its corner inputs; with `--inputs` it is evaluated as posed).
     AutoWith {
         targets: Option<TargetRule>,
         inputs: Option<InputRule>,
@@ -193,16 +193,10 @@ impl Protocol {
                       (or posed, for --targets / --inputs)"
                     .into(),
             }),
-            (Protocol::AutoWith { targets, inputs }, SceneFormat::LightField) => match inputs {
-                Some(_) => Err(EvalError::WrongScene {
-                    protocol: "auto".into(),
-                    scene: scene.root.display().to_string(),
-                    msg: "a light field's protocol takes its 4 corner views as inputs: leave --inputs out, or \
-                          give --protocol posed"
-                        .into(),
-                }),
-                None => Ok(Protocol::LightField { targets: targets.clone() }),
-            },
+            // An input rule is the posed protocol's (the light field's inputs are its corners).
+            (Protocol::AutoWith { targets, inputs: None }, SceneFormat::LightField) => {
+                Ok(Protocol::LightField { targets: targets.clone() })
+            }
             (Protocol::AutoWith { targets, inputs }, _) => Ok(Protocol::Posed {
                 targets: targets.clone().unwrap_or(TargetRule::Every(8)),
                 inputs: inputs.clone().unwrap_or_default(),

@@ -371,7 +371,7 @@ fn light_field_corners_in_inner_views_out() {
     assert!(p.splits(&s).unwrap_err().to_string().contains("corner"));
     assert!(Protocol::from_name("light-field", None, Some(InputRule::Nearest(4))).is_err());
     // `auto` with --targets on a light field is still the light-field protocol with those targets (it
-    // was the posed protocol: corners as targets, nearest inputs); with --inputs it says what to do.
+    // was the posed protocol: corners as targets, nearest inputs); an input rule is the posed protocol's.
     let auto = Protocol::from_name("auto", Some("every:12".parse().unwrap()), None).unwrap();
     assert_eq!(
         auto.resolve(&s).unwrap(),
@@ -384,12 +384,16 @@ fn light_field_corners_in_inner_views_out() {
         splits.iter().all(|sp| sp.inputs == vec![0, 4, 20, 24]),
         "{splits:?}"
     );
-    let e = Protocol::from_name("auto", None, Some(InputRule::Nearest(4)))
-        .unwrap()
-        .resolve(&s)
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("leave --inputs out"), "{e}");
+    assert_eq!(
+        Protocol::from_name("auto", None, Some(InputRule::Nearest(4)))
+            .unwrap()
+            .resolve(&s)
+            .unwrap(),
+        Protocol::Posed {
+            targets: TargetRule::Every(8),
+            inputs: InputRule::Nearest(4)
+        }
+    );
     // Not a grid.
     let e = Protocol::LightField { targets: None }
         .splits(&line_scene(9))

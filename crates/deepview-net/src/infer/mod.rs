@@ -20,7 +20,10 @@
 //! of the budget it is stored as IEEE half floats ([`StatePrecision::F16`]): the nets still compute in
 //! f32, but the stored state is rounded to 11 significant bits (relative error <= 2^-11 ~ 4.9e-4, so
 //! <= 5e-3 on logits of magnitude <= 10 and, through the sigmoid (slope <= 1/4), ~1e-3 on RGBA; values
-//! beyond +-65504 saturate). The final RGBA comes from the last net's f32 output (no rounding there).
+//! beyond +-65504 saturate). The tiled path makes the final RGBA from the last net's f32 output (no
+//! rounding there); the engine ([`Execution::Engine`] with [`StatePrecision::F16`]) stores that output in
+//! its half-float state first, so its RGBA differs from the f32 engine's by up to ~2/255 (1.95/255 on fern
+//! `images_4`, 16 planes, 2026-12-08 audit) where the tiled path's stays within 1/255.
 //! [`plan_inference`] picks the precision and, per net, the tile and plane chunk from calibrated
 //! estimates of the peak resident memory.
 
@@ -50,7 +53,8 @@ use run::model_device;
 /// How an inference runs (see [`plan`]).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Execution {
-    /// The whole image at once on the CPU kernels ([`crate::cpu::engine`]): the same result as the tiled path.
+    /// The whole image at once on the CPU kernels ([`crate::cpu::engine`]): the tiled path's result (within
+    /// 1/255 with an f32 state, ~2/255 with a half-float one: see the module's note on memory).
     Engine(StatePrecision),
     /// Net after net, tile after tile, on the model's device.
     Tiled(InferPlan),
