@@ -1905,4 +1905,13 @@ fn export_web_replaces_its_own_folder_whatever_the_layers_are_called() {
     std::fs::write(web.join("plane99.png"), b"mine").unwrap();
     refused(&deepview(&args), &["plane99.png", "refusing"]);
     assert_eq!(std::fs::read(web.join("plane99.png")).unwrap(), b"mine");
+    std::fs::remove_file(web.join("plane99.png")).unwrap();
+    // A user's file that the folder's mpi.json is edited to list is not its own (no mark).
+    let text = std::fs::read_to_string(web.join("mpi.json")).unwrap();
+    let mut edited: serde_json::Value = serde_json::from_str(&text).unwrap();
+    edited["layers"][0] = "thesis.pdf".into();
+    std::fs::write(web.join("mpi.json"), edited.to_string()).unwrap();
+    std::fs::write(web.join("thesis.pdf"), b"mine").unwrap();
+    refused(&deepview(&args), &["thesis.pdf", "refusing"]);
+    assert_eq!(std::fs::read(web.join("thesis.pdf")).unwrap(), b"mine");
 }

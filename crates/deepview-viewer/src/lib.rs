@@ -94,7 +94,11 @@ pub fn route(path: &str, dir: &Path, files: &[String]) -> Option<(&'static str, 
     // `infer`) may have more layers than at the start, and a reload of the page must find them.
     let listed = match files.iter().find(|f| f.as_str() == name) {
         Some(f) => f.clone(),
-        None => listed_now(dir).into_iter().find(|f| f == name)?,
+        // (Only a regular file there: not a link out of the folder.)
+        None => listed_now(dir)
+            .into_iter()
+            .find(|f| f == name)
+            .filter(|f| std::fs::symlink_metadata(dir.join(f)).is_ok_and(|m| m.is_file()))?,
     };
     let bytes = std::fs::read(dir.join(&listed)).ok()?;
     Some((content_type(&listed), bytes))

@@ -78,6 +78,13 @@ fn serves_only_the_page_and_the_mpi_files() {
     assert_eq!(body, std::fs::read(dir.join("layer_004.png")).unwrap());
     assert_eq!(get(&url, "/layer_005.png").0, 404);
     assert_eq!(get(&url, "/secret.txt").0, 404);
+    // A name listed later that is a link out of the folder is not served.
+    std::os::unix::fs::symlink(tmp.path().join("outside.txt"), dir.join("leak.png")).unwrap();
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("mpi.json")).unwrap()).unwrap();
+    json["layers"][4] = "leak.png".into();
+    std::fs::write(dir.join("mpi.json"), json.to_string()).unwrap();
+    assert_eq!(get(&url, "/leak.png").0, 404);
     // A method other than GET/HEAD.
     let host = url.trim_start_matches("http://").trim_end_matches('/');
     let mut s = TcpStream::connect(host).unwrap();

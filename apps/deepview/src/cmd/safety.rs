@@ -743,7 +743,8 @@ fn foreign_within(
     let named =
         |e: std::io::Error| std::io::Error::new(e.kind(), format!("{}: {e}", dir.display()));
     // A web viewer folder copies its MPI's layers under their own names (`plane0.png`, as the MPI's
-    // mpi.json lists them): those its own mpi.json lists are its own too (still only where marked).
+    // mpi.json lists them): those its own mpi.json lists are its own too, where they carry deepview's
+    // mark (a listed file of another kind, `thesis.pdf`, is not).
     let listed: Vec<String> = match part {
         Part::Of(Kind::Web) => deepview_mpi::MpiMeta::read(dir)
             .map(|(meta, _)| meta.layers)
@@ -768,7 +769,9 @@ fn foreign_within(
             }
             None => {
                 part.owns(&name, is_dir)
-                    || (!is_dir && listed.contains(&name))
+                    || (!is_dir
+                        && listed.contains(&name)
+                        && deepview_image::written_by_deepview(&e.path()))
                     || (!is_dir && deepview_image::is_file_browser_clutter(&name))
             }
         };
