@@ -206,18 +206,27 @@ impl Browser {
         r["result"]["value"].clone()
     }
 
-    /// Open `url` in a `w x h` viewport and wait until the viewer has drawn `frames` frames.
-    fn open(&mut self, url: &str, w: u32, h: u32, frames: u64) -> Value {
+    /// Load `url` in a `w x h` viewport.
+    fn navigate(&mut self, url: &str, w: u32, h: u32) {
         self.call(
             "Emulation.setDeviceMetricsOverride",
             json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}),
         );
         self.call("Page.navigate", json!({"url": url}));
+    }
+
+    /// The page's `deepviewStats` now (null before the page has them).
+    fn stats(&mut self) -> Value {
+        let s = self.eval("JSON.stringify(window.deepviewStats || null)");
+        serde_json::from_str(s.as_str().unwrap_or("null")).unwrap_or(Value::Null)
+    }
+
+    /// Open `url` in a `w x h` viewport and wait until the viewer has drawn `frames` frames.
+    fn open(&mut self, url: &str, w: u32, h: u32, frames: u64) -> Value {
+        self.navigate(url, w, h);
         let deadline = Instant::now() + Duration::from_secs(90);
         loop {
-            let s = self.eval("JSON.stringify(window.deepviewStats || null)");
-            let stats: Value =
-                serde_json::from_str(s.as_str().unwrap_or("null")).unwrap_or(Value::Null);
+            let stats = self.stats();
             if let Some(e) = stats["error"].as_str() {
                 panic!("viewer error: {e}");
             }
@@ -234,16 +243,10 @@ impl Browser {
 
     /// Open `url` and wait for the viewer's error (its `deepviewStats.error`), which it returns.
     fn open_error(&mut self, url: &str, w: u32, h: u32) -> String {
-        self.call(
-            "Emulation.setDeviceMetricsOverride",
-            json!({"width": w, "height": h, "deviceScaleFactor": 1, "mobile": false}),
-        );
-        self.call("Page.navigate", json!({"url": url}));
+        self.navigate(url, w, h);
         let deadline = Instant::now() + Duration::from_secs(90);
         loop {
-            let s = self.eval("JSON.stringify(window.deepviewStats || null)");
-            let stats: Value =
-                serde_json::from_str(s.as_str().unwrap_or("null")).unwrap_or(Value::Null);
+            let stats = self.stats();
             if let Some(e) = stats["error"].as_str() {
                 return e.to_string();
             }
